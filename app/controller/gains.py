@@ -1,0 +1,94 @@
+"""Controller gains and options (the paper's K matrices, Fig. 3), as one frozen dataclass.
+
+All six-element tuples are the diagonals of the paper's 6x6 gain matrices, ordered like
+Delta X: ``[x, y, z, gamma, beta, alpha]`` (translations first, then Z-Y-X angles).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from typing import Any, Literal
+
+from app.errors import InvalidField
+
+Six = tuple[float, float, float, float, float, float]
+
+ZERO6: Six = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+ONE6: Six = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+INF6: Six = (math.inf,) * 6  # type: ignore[assignment]
+
+
+@dataclass(frozen=True)
+class ControllerGains:
+    """Gains of the Cartesian FRHC controller. Units are per axis: translations, then rotations.
+
+    Attributes:
+        mode: ``"rate"`` (Eq 5, K_V) or ``"pose"`` (Sec 3.5, K_P) commands to the slave.
+        k_v: Rate gains K_V (1/s): slave MRF velocity (m/s, rad/s) per unit Delta X.
+        k_p: Pose gains K_P (-): slave displacement per grip displacement. The three
+            rotational gains must be 1, because Z-Y-X angles cannot be scaled (Sec 3.5).
+        k_t: Task-wrench gains K_T (-): grip wrench per MRF wrench component.
+        k_d: Damping gains K_D (N s/m, N m s/rad): ``G_F_D = -K_D d(Delta X)/dt`` (Eq 9,
+            divided by the period so the gain means the same at any servo rate).
+        rtc: Return-to-centre law (rate mode only): ``"constant"`` (CFRTC, Eq 8),
+            ``"hooke"`` (``-K_R Delta X``) or ``"off"``.
+        rtc_a: CFRTC parabolic constants a_i (N/m^2, N m/rad^2).
+        deadband: Deadband half-widths Delta X_iDB (m, rad); inside, the axis commands nothing.
+        k_r: Hooke return-to-centre stiffness K_R (N/m, N m/rad).
+        wall_start: Where the optional stiff workspace-edge wall begins (m, rad); inf = no wall.
+        k_wall: Wall stiffness beyond ``wall_start`` (N/m, N m/rad).
+        assist_fraction: Fraction (0, 1] of motor capacity the assist torques tau_RD may use
+            (Eq 11); tau_RD is scaled uniformly to fit.
+        remove_payload: Subtract the end-effector/payload weight from the F/T reading.
+        remove_inertia: Also subtract the payload's inertial load (needs the slave's accelerations).
+        gravity_compensation: Add tau_G (Sec 3.3). On by default and independent of the deadman.
+        euler_taper_deg: ``(start, stop)`` |beta| in degrees over which the rotational rate command
+            is tapered to zero near the Z-Y-X singularity cos(beta) = 0.
+        max_period: Longest servo period (s) accepted; a longer one is an overrun fault.
+    """
+
+    mode: Literal["rate", "pose"] = "rate"
+    k_v: Six = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+    k_p: Six = ONE6
+    k_t: Six = ONE6
+    k_d: Six = (2.0, 2.0, 2.0, 0.02, 0.02, 0.02)
+    rtc: Literal["constant", "hooke", "off"] = "constant"
+    rtc_a: Six = (2.0e3, 2.0e3, 2.0e3, 2.0, 2.0, 2.0)
+    deadband: Six = (0.01, 0.01, 0.01, 0.05, 0.05, 0.05)
+    k_r: Six = (50.0, 50.0, 50.0, 0.5, 0.5, 0.5)
+    wall_start: Six = INF6
+    k_wall: Six = ZERO6
+    assist_fraction: float = 0.3
+    remove_payload: bool = True
+    remove_inertia: bool = False
+    gravity_compensation: bool = True
+    euler_taper_deg: tuple[float, float] = (75.0, 85.0)
+    max_period: float = 0.01
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, tuple):
+                if any(not isinstance(v, int | float) or math.isnan(v) for v in value):
+                    raise InvalidField(f.name, "values must be numbers, not NaN")
+                if f.name != "euler_taper_deg" and len(value) != 6:
+                    raise InvalidField(f.name, f"expected 6 values, got {len(value)}")
+        for name in ("k_v", "k_p", "k_t", "k_d", "rtc_a", "deadband", "k_r", "wall_start", "k_wall"):
+            if any(v < 0 for v in getattr(self, name)):
+                raise InvalidField(name, "gains must be non-negative")
+        if self.k_p[3:] != (1.0, 1.0, 1.0):
+            raise InvalidField("k_p", "rotational pose gains (last three) must be 1: Z-Y-X angles cannot be scaled")
+        if any(w < db for w, db in zip(self.wall_start, self.deadband, strict=True)):
+            raise InvalidField("wall_start", "the wall must begin outside the deadband")
+        if not 0.0 < self.assist_fraction <= 1.0:
+            raise InvalidField("assist_fraction", "must be in (0, 1]")
+        start, stop = self.euler_taper_deg
+        if not 0.0 < start < stop < 90.0:
+            raise InvalidField("euler_taper_deg", "need 0 < start < stop < 90 degrees")
+        if not self.max_period > 0:
+            raise InvalidField("max_period", "must be positive")
+
+    def with_changes(self, **changes: Any) -> ControllerGains:
+        """A copy with some fields replaced (validated again)."""
+        return replace(self, **changes)

@@ -1,0 +1,46 @@
+"""The one exceptions module of the application.
+
+Every error a user can cause by bad input is a :class:`ConfigError` that names the
+file and the field, so the command line can print it as one line and exit 2.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class FrhcError(Exception):
+    """Base class of every error the application raises on purpose."""
+
+
+class ConfigError(FrhcError):
+    """A scene, session, device or gain file (or dict) is malformed.
+
+    Attributes:
+        source: The file (or a description such as ``"<gains>"``) the value came from.
+        field: Dotted path of the offending field, e.g. ``"motors.torque_limit[2]"``.
+        reason: What is wrong with it.
+    """
+
+    def __init__(self, source: str | Path, field: str, reason: str) -> None:
+        self.source = str(source)
+        self.field = field
+        self.reason = reason
+        super().__init__(f"{self.source}: field '{field}': {reason}")
+
+
+class InvalidField(ValueError):
+    """Raised by a configuration dataclass's ``__post_init__`` for one bad field.
+
+    :func:`app.config.from_dict` turns it into a :class:`ConfigError` carrying the
+    file name and the full dotted path of the field.
+    """
+
+    def __init__(self, field: str, reason: str) -> None:
+        self.field = field
+        self.reason = reason
+        super().__init__(f"{field}: {reason}")
+
+
+class ContactQueryError(FrhcError):
+    """A collision query failed or returned a non-finite result."""

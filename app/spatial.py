@@ -16,6 +16,7 @@ numpy call overhead dominates, and these functions sit in the servo tick.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -55,46 +56,43 @@ def zyx_to_matrix(gamma: float, beta: float, alpha: float) -> Array:
     )
 
 
-def matrix_to_zyx(R: Array) -> tuple[float, float, float]:
+def matrix_to_zyx(R: Array | Sequence[Sequence[float]]) -> tuple[float, float, float]:
     """Z-Y-X angles ``(gamma, beta, alpha)`` (rad) of rotation ``R`` (Craig 1989).
 
-    ``beta`` is in [-pi/2, pi/2]. At gimbal lock (cos(beta) = 0) only ``alpha -+ gamma``
-    is defined; there ``gamma`` is set to 0 so the result still reproduces ``R``.
+    ``R`` may be a (3, 3) array or nested lists (``R.tolist()``, faster in the servo tick).
+    ``beta`` is in [-pi/2, pi/2]. At gimbal lock (cos(beta) = 0) only ``alpha -+ gamma`` is
+    defined; there ``gamma`` is set to 0 so the result still reproduces ``R``.
     """
-    r20 = float(R[2, 0])
-    cb = math.hypot(float(R[0, 0]), float(R[1, 0]))
+    (r00, r01, _), (r10, r11, _), (r20, r21, r22) = R
+    cb = math.hypot(r00, r10)
     beta = math.atan2(-r20, cb)
     if cb > 1e-9:
-        alpha = math.atan2(float(R[1, 0]), float(R[0, 0]))
-        gamma = math.atan2(float(R[2, 1]), float(R[2, 2]))
-    else:
-        gamma = 0.0
-        alpha = math.atan2(-float(R[0, 1]), float(R[1, 1]))
-    return gamma, beta, alpha
+        return math.atan2(r21, r22), beta, math.atan2(r10, r00)
+    return 0.0, beta, math.atan2(-r01, r11)
 
 
-def tmat_difference(T_0_G0: Array, T_0_G: Array, out: Array) -> Array:
-    """Eq 2-4: Delta X of grip {G} relative to the reference {G0}, written into ``out`` (6,).
+def tmat_difference(T_0_G0: Array, T_0_G: Array) -> list[float]:
+    """Eq 2-4: Delta X of grip {G} relative to the reference {G0}, ``[x, y, z, gamma, beta, alpha]``.
 
     Translation is ``p_0_G - p_0_G0`` in base {0} coordinates (Eq 2). Orientation is
-    ``R_G0_G = R_0_G0^T R_0_G`` (Eq 3 read with the sign of Eq 2; the paper's printed
-    right-hand side is its transpose), expressed as Z-Y-X angles (Eq 4).
+    ``R_G0_G = R_0_G0^T R_0_G`` (Eq 3 read with the sign of Eq 2; the paper's printed right-hand
+    side is its transpose), expressed as Z-Y-X angles (Eq 4).
     """
-    out[0:3] = T_0_G[0:3, 3] - T_0_G0[0:3, 3]
-    R_G0_G = T_0_G0[0:3, 0:3].T @ T_0_G[0:3, 0:3]
-    out[3], out[4], out[5] = matrix_to_zyx(R_G0_G)
-    return out
+    x, y, z = (T_0_G[0:3, 3] - T_0_G0[0:3, 3]).tolist()
+    return [x, y, z, *matrix_to_zyx((T_0_G0[0:3, 0:3].T @ T_0_G[0:3, 0:3]).tolist())]
 
 
-def euler_rate_matrix(gamma: float, beta: float) -> Array:
-    """Eq 5: maps Z-Y-X angle rates ``[gamma', beta', alpha']`` to body angular velocity.
+def body_rate_from_euler(gamma: float, beta: float, rates: tuple[float, float, float]) -> tuple[float, float, float]:
+    """Eq 5: body angular velocity (rad/s) from Z-Y-X angle rates ``(gamma', beta', alpha')``.
 
-    Returns the (3, 3) matrix ``E`` with ``w_body = E @ [gamma', beta', alpha']`` (rad/s),
-    where ``w_body`` is expressed in the rotating frame. ``det(E) = cos(beta)``.
+    ``w = E(gamma, beta) @ rates`` with ``E = [[1, 0, -sb], [0, cg, cb sg], [0, -sg, cb cg]]``;
+    w is expressed in the rotating frame. ``det(E) = cos(beta)``: the map loses rank at
+    beta = +-90 deg, where distinct angle rates give the same rotation.
     """
     cg, sg = math.cos(gamma), math.sin(gamma)
     cb, sb = math.cos(beta), math.sin(beta)
-    return np.array([[1.0, 0.0, -sb], [0.0, cg, cb * sg], [0.0, -sg, cb * cg]])
+    gd, bd, ad = rates
+    return gd - sb * ad, cg * bd + cb * sg * ad, -sg * bd + cb * cg * ad
 
 
 def skew(p: Array) -> Array:
@@ -115,12 +113,26 @@ def wrench_transform(R_a_b: Array, p_a_b: Array) -> Array:
     return X
 
 
-def transform_wrench(R_a_b: Array, p_a_b: Array, F_b: Array, out: Array) -> Array:
-    """Apply Eq 6 without forming the 6x6 matrix; writes ``F_a`` into ``out`` (6,)."""
-    f = R_a_b @ F_b[0:3]
-    out[3:6] = R_a_b @ F_b[3:6] + np.cross(p_a_b, f)
-    out[0:3] = f
-    return out
+def move_wrench(R_a_b: Sequence[Sequence[float]], p_a_b: Sequence[float], F_b: Sequence[float]) -> list[float]:
+    """Eq 6 on plain floats: the wrench ``F_b`` at {b} in {b} as the equivalent at {a} in {a}.
+
+    Same as ``wrench_transform(R_a_b, p_a_b) @ F_b``, i.e. ``[R f; R m + p x (R f)]``, written
+    out in scalars because in the servo tick this is several times faster than numpy calls.
+    """
+    f0, f1, f2, m0, m1, m2 = F_b
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R_a_b
+    fx = r00 * f0 + r01 * f1 + r02 * f2
+    fy = r10 * f0 + r11 * f1 + r12 * f2
+    fz = r20 * f0 + r21 * f1 + r22 * f2
+    px, py, pz = p_a_b
+    return [
+        fx,
+        fy,
+        fz,
+        r00 * m0 + r01 * m1 + r02 * m2 + py * fz - pz * fy,
+        r10 * m0 + r11 * m1 + r12 * m2 + pz * fx - px * fz,
+        r20 * m0 + r21 * m1 + r22 * m2 + px * fy - py * fx,
+    ]
 
 
 def twist_transform(R_a_b: Array, p_a_b: Array) -> Array:

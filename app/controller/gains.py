@@ -16,7 +16,7 @@ Six = tuple[float, float, float, float, float, float]
 
 ZERO6: Six = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 ONE6: Six = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
-INF6: Six = (math.inf,) * 6  # type: ignore[assignment]
+INF6: Six = (math.inf, math.inf, math.inf, math.inf, math.inf, math.inf)
 
 
 @dataclass(frozen=True)

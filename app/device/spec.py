@@ -177,7 +177,9 @@ def load_device(name_or_path: str | Path) -> DeviceSpec:
     n = len(data.joints)
     for name in ("torque_limit", "gear_ratio", "counts_per_nm"):
         if len(getattr(data.motors, name)) != n:
-            raise ConfigError(path, f"motors.{name}", f"expected {n} values (one per joint), got {len(getattr(data.motors, name))}")
+            raise ConfigError(
+                path, f"motors.{name}", f"expected {n} values (one per joint), got {len(getattr(data.motors, name))}"
+            )
     if len(data.home) != n:
         raise ConfigError(path, "home", f"expected {n} values (one per joint), got {len(data.home)}")
     joint_ids = []
@@ -198,7 +200,9 @@ def load_device(name_or_path: str | Path) -> DeviceSpec:
         calibration = from_dict(CalibrationSpec, load_toml(cal_path), cal_path)
         for side in ("positive", "negative"):
             if len(getattr(calibration, side)) != n:
-                raise ConfigError(cal_path, side, f"expected {n} rows (one per joint), got {len(getattr(calibration, side))}")
+                raise ConfigError(
+                    cal_path, side, f"expected {n} rows (one per joint), got {len(getattr(calibration, side))}"
+                )
     if data.torque_curve not in ("manufacturer", "calibrated"):
         raise ConfigError(path, "torque_curve", "must be 'manufacturer' or 'calibrated'")
     if data.torque_curve == "calibrated" and calibration is None:

@@ -1,0 +1,138 @@
+"""The operator's hand: a 6-dof spring-damper pulling the grip {G} toward a hand target {H}.
+
+A human arm holding a hand controller behaves, at the low frequencies that matter here, like a
+spring-damper about where the operator *wants* the grip to be (the hand target ``T_0_H``).
+Scripts set that target; the browser gizmo drags it. The hand pushes on the grip with
+
+    f = K_t (p_H - p_G) - D_t v_G                 (N, base {0} coordinates, acting at the G origin)
+    m = K_r log(R_H R_G^T) - D_r omega_G          (N m, base {0} coordinates)
+
+where ``v_G``/``omega_G`` are the grip's linear (m/s) and angular (rad/s) velocities in {0} and
+``log(R_H R_G^T)`` is the rotation vector (rad) turning {G} onto {H}, in {0}.
+
+It is built from MuJoCo parts so that it costs no Python in the servo loop: {H} is a mocap body
+with a site, and six position actuators with a *site transmission* (``site = grip``,
+``refsite = H``, unit gears along the three translations and three rotations of {H}) implement
+the spring (``kp``) and damper (``kv``). MuJoCo applies their force at the grip site itself (the
+point of application is G, not a body's centre of mass) and integrates the damping implicitly.
+With isotropic gains the {H}-frame components rotate into the {0}-frame law above exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from app.errors import InvalidField
+from app.spatial import Array
+
+#: MuJoCo actuator group of the hand's actuators; disabled (``opt.disableactuator``) when released.
+HAND_GROUP = 5
+HAND_BODY = "operator_hand"
+HAND_SITE = "operator_hand_site"
+
+
+@dataclass(frozen=True)
+class HandParams:
+    """Impedance of the operator's hand/arm as felt at the grip.
+
+    Attributes:
+        stiffness_trans: Translational stiffness K_t (N/m); a relaxed-to-firm human arm is ~200-800.
+        damping_trans: Translational damping D_t (N s/m); ~5-20 for a human arm.
+        stiffness_rot: Rotational stiffness K_r (N m/rad); the wrist is ~1-5.
+        damping_rot: Rotational damping D_r (N m s/rad).
+    """
+
+    stiffness_trans: float = 400.0
+    damping_trans: float = 10.0
+    stiffness_rot: float = 2.0
+    damping_rot: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ("stiffness_trans", "damping_trans", "stiffness_rot", "damping_rot"):
+            v = getattr(self, name)
+            if not (v >= 0 and math.isfinite(v)):
+                raise InvalidField(name, "must be non-negative and finite")
+
+
+def add_hand(mjspec: mujoco.MjSpec, grip_site: str, params: HandParams) -> None:
+    """Add the hand target (mocap body + site) and its six spring-damper actuators to ``mjspec``."""
+    body = mjspec.worldbody.add_body(name=HAND_BODY, mocap=True)
+    body.add_site(name=HAND_SITE, size=[0.01, 0.01, 0.01], rgba=[0.2, 0.9, 0.3, 0.5])
+    kp = [params.stiffness_trans] * 3 + [params.stiffness_rot] * 3
+    kv = [params.damping_trans] * 3 + [params.damping_rot] * 3
+    for k in range(6):
+        act = mjspec.add_actuator(
+            name=f"operator_hand_{'xyzXYZ'[k]}",
+            trntype=mujoco.mjtTrn.mjTRN_SITE,
+            target=grip_site,
+            refsite=HAND_SITE,
+        )
+        act.gear = [1.0 if i == k else 0.0 for i in range(6)]
+        act.group = HAND_GROUP
+        act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+        act.gainprm[0] = kp[k]
+        # force = kp * ctrl - kp * length - kv * velocity, with ctrl left at 0: a spring to {H}.
+        act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+        act.biasprm[0] = 0.0
+        act.biasprm[1] = -kp[k]
+        act.biasprm[2] = -kv[k]
+
+
+class OperatorHand:
+    """The hand inside a model built with :func:`add_hand`: sets its target, reports its wrench.
+
+    Args:
+        params: The impedance the model was built with.
+        model: The compiled model.
+        data: Its data.
+    """
+
+    def __init__(self, params: HandParams, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        self.params = params
+        self._model = model
+        self._data = data
+        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, HAND_BODY)
+        self._mocap = int(model.body_mocapid[body])
+        first = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, "operator_hand_x")
+        self._force_H = data.actuator_force[first : first + 6]
+        self._R_0_H6 = np.zeros((6, 6))  # blockdiag(R_0_H, R_0_H): {H} components -> {0}
+        self._wrench_G = np.zeros(6)
+        #: Hand target pose T_0_H (4, 4), or None when the operator has let go.
+        self.T_0_H: Array | None = None
+        self.set_target(None)
+
+    def set_target(self, T_0_H: Array | None) -> None:
+        """Grab the grip and pull it toward ``T_0_H`` (4, 4, base frame), or let go with None."""
+        m = self._model
+        if T_0_H is None:
+            self.T_0_H = None
+            m.opt.disableactuator |= 1 << HAND_GROUP
+            return
+        T = np.array(T_0_H, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ValueError("T_0_H must be a finite 4x4 pose")
+        self.T_0_H = T
+        self._data.mocap_pos[self._mocap] = T[:3, 3]
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, np.ascontiguousarray(T[:3, :3]).ravel())
+        self._data.mocap_quat[self._mocap] = quat
+        self._R_0_H6[:3, :3] = T[:3, :3]
+        self._R_0_H6[3:, 3:] = T[:3, :3]
+        m.opt.disableactuator &= ~(1 << HAND_GROUP)
+
+    def wrench_G(self) -> Array:
+        """The hand's wrench on the grip in the last physics step.
+
+        Returns:
+            ``[f; m]`` (N, N m) at the G origin in base {0} coordinates, shape (6,), zero when
+            released. The array is reused by the next call.
+        """
+        if self.T_0_H is None:
+            self._wrench_G.fill(0.0)
+        else:
+            np.dot(self._R_0_H6, self._force_H, out=self._wrench_G)
+        return self._wrench_G

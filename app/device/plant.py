@@ -1,0 +1,386 @@
+"""The simulated force-reflecting hand controller: a MuJoCo plant driven by motor counts.
+
+The plant is what the controller cannot see: its own MuJoCo model compiled from the device's MJCF
+and perturbed by the device file's ``[plant]`` table (link masses, joint friction, damping, rotor
+inertia), the motors' *true* torque curve, the joint-torque limits and encoder quantisation.
+The controller owns a separate, nominal model (``DeviceSpec.model``); the two differ as a real
+device differs from its drawings.
+
+One :meth:`DevicePlant.step` is one servo period ``dt``:
+
+    counts (n,) --true motor curve--> motor torque --gear ratio, clip to limits--> joint torque
+    --> MuJoCo (qfrc_applied, zero-order hold over ``substeps`` physics steps, plus the
+    operator's hand J_G^T [f; m]) --> encoders (quantised joint angles), grip pose T_0_G.
+
+True motor curve (per joint, per driving direction; the paper's Fig. 5 found the manufacturer's
+linear curve wrong). With ``x = clip(c, -c_max, c_max) / c_max`` the normalised command,
+
+    u   = max(|x| - deadzone, 0) / (1 - deadzone)          amplifier deadzone, then rescaled
+    s   = (1 + k) u - k u^3                                 k = softening of that direction
+    tau = sign(x) * gain * torque_limit * s                 motor torque (N m)
+
+with ``gain``/``k`` taken from the ``_pos`` or ``_neg`` field by the sign of ``c``. ``s(0) = 0``,
+``s(1) = 1`` and ``s`` is monotonic for ``-1 < k <= 0.5``: ``k > 0`` gives a curve that rises
+faster than linear at small commands and flattens toward full scale (current-loop softening),
+``k < 0`` the reverse. ``gain > 1`` lets the motor exceed its rating near full scale, where the
+joint clip to ``gear_ratio * torque_limit`` then cuts it off.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import mujoco
+import numpy as np
+
+from app.config import from_dict
+from app.device.hand import HandParams, OperatorHand, add_hand
+from app.device.spec import DeviceSpec, MotorSpec
+from app.errors import ConfigError, InvalidField
+from app.spatial import Array
+
+#: Fields of :class:`PlantParams` holding one value per joint.
+PER_JOINT_FIELDS = (
+    "mass_scale",
+    "frictionloss",
+    "damping",
+    "armature",
+    "encoder_counts_per_rev",
+    "motor_gain_pos",
+    "motor_gain_neg",
+    "motor_softening_pos",
+    "motor_softening_neg",
+    "motor_deadzone",
+)
+#: Value a per-joint field takes for every joint when the table leaves it out (an ideal plant).
+_IDEAL = {
+    "mass_scale": 1.0,
+    "frictionloss": 0.0,
+    "damping": 0.0,
+    "armature": 0.0,
+    "encoder_counts_per_rev": 0,
+    "motor_gain_pos": 1.0,
+    "motor_gain_neg": 1.0,
+    "motor_softening_pos": 0.0,
+    "motor_softening_neg": 0.0,
+    "motor_deadzone": 0.0,
+}
+
+
+@dataclass(frozen=True)
+class PlantParams:
+    """The ``[plant]`` table of a device file: how the simulated hardware differs from the model.
+
+    Per-joint arrays are in motor (``joints``) order and have one value per joint, or are left out
+    (empty) for the ideal value given in brackets.
+
+    Attributes:
+        substeps: Physics steps per servo period (-); the physics timestep is ``dt / substeps``.
+        mass_scale: Factor (-) on the mass and rotational inertia of the link each joint moves [1].
+        frictionloss: Coulomb joint friction added to the MJCF's (N m joint side; N for slides) [0].
+        damping: Viscous joint damping added to the MJCF's (N m s/rad; N s/m for slides) [0].
+        armature: Reflected rotor inertia added to the MJCF's (kg m^2; kg for slides) [0].
+        encoder_counts_per_rev: Encoder resolution at the joint (counts per revolution; counts per
+            metre for slides); 0 means an ideal, unquantised encoder [0].
+        motor_gain_pos: True motor torque at +full-scale counts, as a fraction of ``torque_limit`` [1].
+        motor_gain_neg: The same for -full-scale counts (-) [1].
+        motor_softening_pos: Softening k (-) of the true curve for positive counts, in (-1, 0.5] [0].
+        motor_softening_neg: The same for negative counts [0].
+        motor_deadzone: Amplifier deadzone as a fraction of ``counts_max`` (-), in [0, 0.5) [0].
+    """
+
+    substeps: int = 1
+    mass_scale: tuple[float, ...] = ()
+    frictionloss: tuple[float, ...] = ()
+    damping: tuple[float, ...] = ()
+    armature: tuple[float, ...] = ()
+    encoder_counts_per_rev: tuple[int, ...] = ()
+    motor_gain_pos: tuple[float, ...] = ()
+    motor_gain_neg: tuple[float, ...] = ()
+    motor_softening_pos: tuple[float, ...] = ()
+    motor_softening_neg: tuple[float, ...] = ()
+    motor_deadzone: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.substeps < 1:
+            raise InvalidField("substeps", "must be at least 1")
+        checks: dict[str, tuple[float, float, bool, str]] = {
+            # name: (low, high, low_inclusive, description of the valid range)
+            "mass_scale": (0.0, math.inf, False, "positive"),
+            "frictionloss": (0.0, math.inf, True, "non-negative"),
+            "damping": (0.0, math.inf, True, "non-negative"),
+            "armature": (0.0, math.inf, True, "non-negative"),
+            "encoder_counts_per_rev": (0.0, math.inf, True, "non-negative"),
+            "motor_gain_pos": (0.0, math.inf, False, "positive"),
+            "motor_gain_neg": (0.0, math.inf, False, "positive"),
+            "motor_softening_pos": (-1.0, 0.5, False, "in (-1, 0.5]"),
+            "motor_softening_neg": (-1.0, 0.5, False, "in (-1, 0.5]"),
+            "motor_deadzone": (0.0, 0.5, True, "in [0, 0.5)"),
+        }
+        for name, (low, high, low_incl, what) in checks.items():
+            for i, v in enumerate(getattr(self, name)):
+                above = v >= low if low_incl else v > low
+                below = v <= high if name.startswith("motor_softening") else v < high
+                if not (above and below and math.isfinite(v)):
+                    raise InvalidField(f"{name}[{i}]", f"must be finite and {what}, got {v}")
+
+    def per_joint(self, name: str, n: int) -> Array:
+        """Field ``name`` as a float array of shape (n,), with the ideal value when left out."""
+        values = getattr(self, name)
+        return np.array(values, dtype=float) if values else np.full(n, float(_IDEAL[name]))
+
+
+def load_plant_params(spec: DeviceSpec) -> PlantParams:
+    """Parse and cross-check the device file's ``[plant]`` table.
+
+    Raises:
+        ConfigError: naming the device file and ``plant.<field>`` for unknown fields, bad values
+            or a per-joint array whose length is not the number of joints.
+    """
+    params = from_dict(PlantParams, spec.data.plant, spec.path, "plant")
+    n = spec.n_joints
+    for f in fields(PlantParams):
+        values = getattr(params, f.name)
+        if f.name in PER_JOINT_FIELDS and values and len(values) != n:
+            raise ConfigError(spec.path, f"plant.{f.name}", f"expected {n} values (one per joint), got {len(values)}")
+    return params
+
+
+def true_motor_torque(params: PlantParams, motors: MotorSpec, counts: Array) -> Array:
+    """The plant's true motor curve: motor torque (N m) for commanded counts.
+
+    Args:
+        params: The plant table holding the curve's gains, softening and deadzone.
+        motors: Limits and full-scale counts.
+        counts: Commands (counts), shape (..., n); need not be integers or within range.
+
+    Returns:
+        Motor-shaft torques (N m), shape of ``counts``, before the joint-torque clip.
+    """
+    n = len(motors.torque_limit)
+    c = np.asarray(counts, dtype=float)
+    x = np.clip(c, -motors.counts_max, motors.counts_max) / motors.counts_max
+    dz = params.per_joint("motor_deadzone", n)
+    u = np.maximum(np.abs(x) - dz, 0.0) / (1.0 - dz)
+    positive = c >= 0
+    k = np.where(positive, params.per_joint("motor_softening_pos", n), params.per_joint("motor_softening_neg", n))
+    gain = np.where(positive, params.per_joint("motor_gain_pos", n), params.per_joint("motor_gain_neg", n))
+    s = (1.0 + k) * u - k * u**3
+    return np.sign(x) * gain * np.asarray(motors.torque_limit) * s
+
+
+class PlantReading:
+    """What one plant step reports. The arrays are reused: the next step overwrites them.
+
+    Attributes:
+        q: Encoder joint angles (rad; m for slides), shape (n,): what the controller sees.
+        q_true: True joint angles, shape (n,) (read-only view of the simulation).
+        qdot: True joint velocities (rad/s), shape (n,) (read-only view).
+        tau_joint: Joint torques the motors applied in the last step (N m), shape (n,), after
+            the true curve, gear ratio and clip to the joint limits (read-only view).
+        time: Simulated time (s).
+    """
+
+    __slots__ = ("_T_0_G", "_hand", "_xmat_G", "_xpos_G", "q", "q_true", "qdot", "tau_joint", "time")
+
+    def __init__(self, plant: DevicePlant) -> None:
+        d = plant.data
+        n = plant.n_joints
+        self.q = np.zeros(n)
+        self.q_true = d.qpos[plant.qpos_slice]
+        self.qdot = d.qvel[plant.dof_slice]
+        self.tau_joint = d.qfrc_applied[plant.dof_slice]
+        for view in (self.q_true, self.qdot, self.tau_joint):
+            view.flags.writeable = False
+        self.time = 0.0
+        self._hand = plant.hand
+        self._xmat_G = d.site_xmat[plant.grip_site_id].reshape(3, 3)
+        self._xpos_G = d.site_xpos[plant.grip_site_id]
+        self._T_0_G = np.eye(4)
+
+    @property
+    def T_0_G(self) -> Array:
+        """Pose of the grip {G} in the base {0} at ``q_true``, (4, 4); filled on access (reused array)."""
+        self._T_0_G[:3, :3] = self._xmat_G
+        self._T_0_G[:3, 3] = self._xpos_G
+        return self._T_0_G
+
+    @property
+    def wrench_G(self) -> Array:
+        """The hand's wrench on the grip ``[f; m]`` (N, N m) at G in {0}, (6,); zero when released."""
+        return self._hand.wrench_G()
+
+
+def _contiguous(ids: tuple[int, ...]) -> slice | None:
+    """``ids`` as a slice when they are consecutive, so array reads become cheap views."""
+    if ids and list(ids) == list(range(ids[0], ids[0] + len(ids))):
+        return slice(ids[0], ids[0] + len(ids))
+    return None
+
+
+class DevicePlant:
+    """A simulated FRHC: its own perturbed MuJoCo model, motors, encoders and the operator's hand.
+
+    Args:
+        spec: The loaded device (nominal model, motors, ``[plant]`` table).
+        hand: Impedance of the operator's hand.
+
+    Raises:
+        ConfigError: for a malformed ``[plant]`` table or joints without consecutive qpos/dof slots.
+    """
+
+    def __init__(self, spec: DeviceSpec, hand: HandParams | None = None) -> None:
+        self.spec = spec
+        self.params = load_plant_params(spec)
+        n = spec.n_joints
+        self.n_joints = n
+        qpos_slice = _contiguous(spec.qpos_ids)
+        dof_slice = _contiguous(spec.dof_ids)
+        if qpos_slice is None or dof_slice is None:
+            raise ConfigError(spec.path, "joints", "the plant needs the joints' qpos/dof slots to be consecutive")
+        self.qpos_slice = qpos_slice
+        self.dof_slice = dof_slice
+        hand_params = hand or HandParams()
+        self.model = self._compile(spec, self.params, hand_params)
+        self.data = mujoco.MjData(self.model)
+        self.grip_site_id = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, spec.data.grip_site)
+        self.hand = OperatorHand(hand_params, self.model, self.data)
+
+        motors = spec.data.motors
+        cmax = motors.counts_max
+        self._counts_max = cmax
+        # The true curve is tabulated at every integer count, so a step's motor stage is one gather.
+        grid = np.broadcast_to(np.arange(-cmax, cmax + 1, dtype=float)[:, None], (2 * cmax + 1, n))
+        gear = np.asarray(motors.gear_ratio)
+        limit_joint = gear * np.asarray(motors.torque_limit)
+        table = np.clip(true_motor_torque(self.params, motors, grid) * gear, -limit_joint, limit_joint)
+        self._table = np.ascontiguousarray(table.T).ravel()
+        self._row_offset = np.arange(n, dtype=np.int64) * (2 * cmax + 1) + cmax
+        self._idx = np.zeros(n, dtype=np.int64)
+        self._tau_out = self.data.qfrc_applied[dof_slice]
+
+        cpr = self.params.per_joint("encoder_counts_per_rev", n)
+        self._quantise = bool(np.all(cpr > 0))
+        if np.any(cpr > 0) and not self._quantise:
+            raise ConfigError(spec.path, "plant.encoder_counts_per_rev", "give every joint a resolution, or none")
+        hinge = int(mujoco.mjtJoint.mjJNT_HINGE)
+        is_hinge = np.array([int(self.model.jnt_type[j]) == hinge for j in spec.joint_ids])
+        self._enc_scale = np.where(is_hinge, cpr / (2.0 * math.pi), cpr)
+        self._enc_inv = np.divide(1.0, self._enc_scale, out=np.zeros(n), where=self._enc_scale > 0)
+        self._qfrc_constraint = self.data.qfrc_constraint[dof_slice]
+        self._eq0 = self.model.neq - n  # the brakes were appended after the MJCF's own equalities
+        self._dt = 0.0
+        self.reading = PlantReading(self)
+        self.reset()
+
+    @staticmethod
+    def _compile(spec: DeviceSpec, params: PlantParams, hand: HandParams) -> mujoco.MjModel:
+        """The device MJCF plus the operator's hand, a (disabled) joint brake, and the perturbations."""
+        mjspec = mujoco.MjSpec.from_file(str(spec.mjcf_path))
+        add_hand(mjspec, spec.data.grip_site, hand)
+        for jname in spec.data.joints:
+            # The calibration stand's brake: one joint equality per joint, enabled by lock_joints().
+            eq = mjspec.add_equality()
+            eq.type = mujoco.mjtEq.mjEQ_JOINT
+            eq.objtype = mujoco.mjtObj.mjOBJ_JOINT
+            eq.name1 = jname
+            eq.active = False
+            eq.solref = [0.004, 1.0]
+        model = mjspec.compile()
+        n = spec.n_joints
+        # The device's links never touch anything, so collision detection is wasted time.
+        model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        for i, jid in enumerate(spec.joint_ids):
+            body = int(model.jnt_bodyid[jid])
+            dof = int(model.jnt_dofadr[jid])
+            scale = params.per_joint("mass_scale", n)[i]
+            model.body_mass[body] *= scale
+            model.body_inertia[body] *= scale
+            model.dof_frictionloss[dof] += params.per_joint("frictionloss", n)[i]
+            model.dof_damping[dof] += params.per_joint("damping", n)[i]
+            model.dof_armature[dof] += params.per_joint("armature", n)[i]
+        mujoco.mj_setConst(model, mujoco.MjData(model))  # derived constants (subtree masses...) after the edits
+        return model
+
+    def reset(self, q: Array | None = None) -> PlantReading:
+        """Put the device at rest at joint angles ``q`` (rad, (n,); default the device's home pose).
+
+        The hand target and the brakes keep their state.
+        """
+        d = self.data
+        mujoco.mj_resetData(self.model, d)
+        d.qpos[self.qpos_slice] = self.spec.data.home if q is None else np.asarray(q, dtype=float)
+        if self.hand.T_0_H is not None:
+            self.hand.set_target(self.hand.T_0_H)  # resetData moved the mocap body home
+        mujoco.mj_step1(self.model, d)
+        self._read()
+        return self.reading
+
+    def set_hand_target(self, T_0_H: Array | None) -> None:
+        """The operator grabs the grip and pulls toward ``T_0_H`` (4, 4, base frame); None lets go."""
+        self.hand.set_target(T_0_H)
+        mujoco.mj_step1(self.model, self.data)  # spring lengths for the next step see the new target
+
+    def step(self, counts: Array, dt: float) -> PlantReading:
+        """Advance one servo period with motor commands held constant.
+
+        Args:
+            counts: Integer motor commands (counts), shape (n,); out-of-range values clip to
+                ``+-counts_max`` as the amplifier would.
+            dt: Servo period (s); the physics takes ``substeps`` steps of ``dt / substeps``.
+
+        Returns:
+            The reading at the end of the period (the same object every call, overwritten).
+        """
+        m = self.model
+        d = self.data
+        if dt != self._dt:
+            if not dt > 0:
+                raise ValueError(f"dt must be positive, got {dt}")
+            m.opt.timestep = dt / self.params.substeps
+            self._dt = dt
+        idx = self._idx
+        # minimum/maximum rather than np.clip: np.clip's Python wrapper costs several microseconds.
+        np.minimum(counts, self._counts_max, out=idx)
+        np.maximum(idx, -self._counts_max, out=idx)
+        np.add(idx, self._row_offset, out=idx)
+        np.take(self._table, idx, out=self._tau_out)
+        for _ in range(self.params.substeps):
+            # step2 then step1: the kinematics left in data always belong to the new state.
+            mujoco.mj_step2(m, d)
+            mujoco.mj_step1(m, d)
+        self._read()
+        return self.reading
+
+    def _read(self) -> None:
+        r = self.reading
+        if self._quantise:
+            np.multiply(r.q_true, self._enc_scale, out=r.q)
+            np.rint(r.q, out=r.q)
+            np.multiply(r.q, self._enc_inv, out=r.q)
+        else:
+            np.copyto(r.q, r.q_true)
+        r.time = self.data.time
+
+    def lock_joints(self, locked: bool) -> None:
+        """Calibration stand: brake every joint at its present angle (True) or release (False).
+
+        The brakes are stiff MuJoCo joint-equality constraints; while they hold, the torque each
+        joint exerts on its brake is :meth:`brake_torque`.
+        """
+        for i, adr in enumerate(self.spec.qpos_ids):
+            self.model.eq_data[self._eq0 + i, 0] = self.data.qpos[adr]
+        self.data.eq_active[self._eq0 :] = locked
+
+    def brake_torque(self) -> Array:
+        """Torque (N m; N for slides) each joint exerts on the stand's brakes, shape (n,).
+
+        The reaction in the last physics step: minus the generalised constraint force (brake plus
+        friction rows) on the joint's dof. Static only: meaningful once the device has settled.
+        """
+        return -np.array(self._qfrc_constraint)
+
+    def warnings(self) -> dict[str, int]:
+        """MuJoCo's warning counters that are non-zero (name -> count); empty when healthy."""
+        return {mujoco.mjtWarning(i).name: int(w.number) for i, w in enumerate(self.data.warning) if int(w.number) > 0}

@@ -77,7 +77,7 @@ class CalibrationReport:
         return "\n".join(
             [
                 f"device {self.device}: fit RMS residual (counts) per joint {fmt(self.fit_rms_counts, precision=2)}",
-                f"  2 N test force along x at the grip, measured from brake reactions:",
+                "  2 N test force along x at the grip, measured from brake reactions:",
                 f"    linear curve : f = {fmt(self.force_linear[:3], precision=3)} N, error {self.error_linear:.3f} N",
                 f"    fitted curves: f = {fmt(self.force_fitted[:3], precision=3)} N, error {self.error_fitted:.3f} N",
                 f"  written: {self.written}" if self.written else "  (not written)",
@@ -107,7 +107,8 @@ def measure_joint_curves(plant: DevicePlant) -> tuple[list[tuple[Array, Array]],
     plant.lock_joints(True)
     zero = np.zeros(n, dtype=np.int64)
     tare = _settle(plant, zero)
-    levels = np.rint(np.linspace(0, motors.counts_max, SWEEP_POINTS + 1)[1:]).astype(np.int64)
+    # Denser at small counts, where the deadzone edge sets the curve's offset and small forces live.
+    levels = np.unique(np.rint(motors.counts_max * np.linspace(0, 1, SWEEP_POINTS + 1)[1:] ** 1.5).astype(np.int64))
     samples = []
     for j in range(n):
         cs = np.concatenate([levels, -levels])
@@ -198,8 +199,8 @@ def point_device_file_at(device_toml: Path, calibration_name: str) -> None:
     """Set ``calibration = ...`` and ``torque_curve = "calibrated"`` in the top table of ``device_toml``."""
     text = device_toml.read_text()
     head, sep, tail = text.partition("\n[")
-    head = re.sub(r'(?m)^calibration\s*=.*\n', "", head)
-    head = re.sub(r'(?m)^torque_curve\s*=.*$', 'torque_curve = "calibrated"', head)
+    head = re.sub(r"(?m)^calibration\s*=.*\n", "", head)
+    head = re.sub(r"(?m)^torque_curve\s*=.*$", 'torque_curve = "calibrated"', head)
     if "torque_curve" not in head:
         head = head.rstrip("\n") + '\ntorque_curve = "calibrated"\n'
     head = re.sub(r'(?m)^(torque_curve = "calibrated")$', rf'\1\ncalibration = "{calibration_name}"', head)
@@ -219,7 +220,9 @@ def calibrate(device: str | Path, write: bool = False) -> CalibrationReport:
     samples, limits = measure_joint_curves(plant)
     positive, negative, rms = fit_curves(samples, limits)
     motors = spec.data.motors
-    force_linear = measure_grip_wrench(plant, TorqueCurve.linear(np.array(motors.counts_per_nm), motors.counts_max), TEST_FORCE_G)
+    force_linear = measure_grip_wrench(
+        plant, TorqueCurve.linear(np.array(motors.counts_per_nm), motors.counts_max), TEST_FORCE_G
+    )
     force_fitted = measure_grip_wrench(plant, TorqueCurve(positive, negative, motors.counts_max), TEST_FORCE_G)
     written = None
     if write:
@@ -231,4 +234,6 @@ def calibrate(device: str | Path, write: bool = False) -> CalibrationReport:
         )
         write_calibration_toml(written, positive, negative, header)
         point_device_file_at(resolve_device_path(device), written.name)
-    return CalibrationReport(spec.name, positive, negative, rms, TEST_FORCE_G.copy(), force_linear, force_fitted, written)
+    return CalibrationReport(
+        spec.name, positive, negative, rms, TEST_FORCE_G.copy(), force_linear, force_fitted, written
+    )

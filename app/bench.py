@@ -1,0 +1,86 @@
+"""Benchmarks behind ``frhc bench``: each prints medians and p99 of the hot paths.
+
+Speed goals live here, not in timed tests: the figures depend on the machine.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from app.session.loop import STAGES
+
+
+def _stats(ns: np.ndarray) -> str:
+    us = ns / 1000.0
+    return f"median {np.median(us):8.1f} us   p99 {np.percentile(us, 99):8.1f} us   (n={len(us)})"
+
+
+def bench_controller(quick: bool = False) -> str:
+    """Controller step on the Kraft-like device, rate mode, reflecting a contact, >= 10k steps."""
+    from app.controller.frhc import FRHCController
+    from app.controller.types import FTReading, Switches
+    from app.device.spec import load_device
+    from app.world.scene import load_scene
+    from app.world.slave import VirtualSlave
+
+    device = load_device("kraft")
+    slave = VirtualSlave(load_scene("probe")).slave_model()
+    ctrl = FRHCController(device, device.data.gains, slave)
+    n = 3000 if quick else 20000
+    rng = np.random.default_rng(0)
+    q0 = np.array(device.data.home)
+    walk = q0 + np.cumsum(rng.normal(scale=2e-4, size=(n, device.n_joints)), axis=0) + 0.05
+    ft = FTReading(wrench_S=np.array([0.5, -0.2, 4.0, 0.01, 0.02, 0.0]))
+    sw = Switches(deadman=True, reflection=True)
+    ns = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        t0 = time.perf_counter_ns()
+        ctrl.step(walk[i], sw, ft, 1e-3)
+        ns[i] = time.perf_counter_ns() - t0
+    return f"controller step (kraft, rate mode, reflecting): {_stats(ns)}"
+
+
+def bench_tick(quick: bool = False) -> str:
+    """Whole servo tick per stage, scripted probing on the default scene and the large mesh."""
+    from app.session.run import run_session
+    from app.session.spec import load_session
+
+    lines = ["servo tick per stage (headless, no logging):"]
+    for scene in ("probe", "large_mesh"):
+        session = load_session("probe_rate").with_changes(scene=scene, duration=1.5 if quick else 5.0)
+        s = run_session(session, out_dir=None).summary
+        lines.append(f"  scene {scene}: contact fraction {s['contact_fraction']:.2f}")
+        for name in STAGES:
+            t = s["timing"][name]
+            lines.append(f"    {name:<11} median {t['median_us']:8.1f} us   p99 {t['p99_us']:8.1f} us")
+        lines.append(f"    real-time factor at 1 kHz (1 ms / median tick): {s['real_time_factor']:.1f}")
+    return "\n".join(lines)
+
+
+def _plant(quick: bool) -> str:
+    from app.device.bench import run
+
+    return run(quick=quick)
+
+
+def _contact(quick: bool) -> str:
+    from app.world.bench import run
+
+    return run(quick=quick)
+
+
+BENCHES: dict[str, Callable[[bool], str]] = {
+    "controller": bench_controller,
+    "plant": _plant,
+    "contact": _contact,
+    "tick": bench_tick,
+}
+
+
+def run(what: str = "all", quick: bool = False) -> str:
+    """Run one benchmark (or ``"all"``) and return its report."""
+    names = list(BENCHES) if what == "all" else [what]
+    return "\n\n".join(BENCHES[name](quick) for name in names)

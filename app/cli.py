@@ -1,0 +1,149 @@
+"""The ``frhc`` command line: run sessions, the paper's experiment, benchmarks, checks, the web demo.
+
+Every user error (a malformed scene, session or device file; an unknown name) is printed to
+stderr as one line naming the file and field, with exit code 2 and no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from app.errors import ConfigError, FrhcError
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from app.session.run import run_session
+    from app.session.spec import load_session
+
+    session = load_session(args.session)
+    out_dir = Path(args.out) if args.out else Path("runs") / Path(args.session).stem
+    result = run_session(session, out_dir=out_dir, plots=not args.no_plots, progress=True, realtime=args.realtime)
+    s = result.summary
+    print(f"log:      {result.log_dir}/ (Parquet)")
+    print(f"summary:  {out_dir / 'summary.json'}")
+    for p in result.plots:
+        print(f"plot:     {p}")
+    print(
+        f"work (Eq 13): {s['work_eq13']:.4f}   peak force: {s['peak_contact_force_N']:.2f} N   faults: {s['faults'] or 'none'}"
+    )
+    tick = s["timing"]["tick"]
+    print(
+        f"tick: median {tick['median_us']:.1f} us, p99 {tick['p99_us']:.1f} us, real-time factor {s['real_time_factor']:.1f}"
+    )
+    return 0
+
+
+def _cmd_experiment(args: argparse.Namespace) -> int:
+    from app.session.experiment import run_experiment
+
+    out_dir = Path(args.out)
+    report = run_experiment(out_dir, repetitions=args.repetitions, duration=args.duration, progress=True)
+    print(report.table)
+    print(f"\nchart: {report.chart}\nresults: {report.json_path}")
+    return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from app import bench
+
+    print(bench.run(args.what, quick=args.quick))
+    return 0
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    from app.check import check_file
+
+    for name in args.files:
+        print(f"ok: {check_file(name)}")
+    return 0
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from app.device.calibrate import calibrate
+
+    print(calibrate(args.device, write=args.write))
+    return 0
+
+
+def _cmd_web(args: argparse.Namespace) -> int:
+    from app.web.server import serve
+
+    serve(args.scene, args.device, host=args.host, port=args.port, session=args.session)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="frhc",
+        description="Cartesian control of force-reflecting hand controllers (Williams 1997): "
+        "a haptic virtual environment with a simulated FRHC.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("run", help="run a headless scripted session", description="Run a session file headless.")
+    p.add_argument("session", help="session name in sessions/ or a path to a session .toml")
+    p.add_argument("--out", help="output directory (default runs/<session>)")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument("--realtime", action="store_true", help="pace ticks to the wall clock")
+    p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser(
+        "experiment",
+        help="the paper's Table I experiment",
+        description="Dual peg-in-the-holes for several simulated operators, FRHC/NTRFC vs blind (paper Sec 4.3).",
+    )
+    p.add_argument("--out", default="runs/experiment", help="output directory")
+    p.add_argument("--repetitions", type=int, default=3, help="runs per operator and condition")
+    p.add_argument("--duration", type=float, default=None, help="override the session duration (s)")
+    p.set_defaults(func=_cmd_experiment)
+
+    p = sub.add_parser("bench", help="benchmarks (median and p99)", description="Print timing benchmarks.")
+    p.add_argument(
+        "what", nargs="?", default="all", choices=["all", "controller", "plant", "contact", "tick"], help="what to time"
+    )
+    p.add_argument("--quick", action="store_true", help="fewer iterations")
+    p.set_defaults(func=_cmd_bench)
+
+    p = sub.add_parser(
+        "check", help="check scene/device/session files", description="Load and check files without running."
+    )
+    p.add_argument("files", nargs="+", help="scene, device or session .toml files (or names)")
+    p.set_defaults(func=_cmd_check)
+
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate torque curves (Sec 4.2)",
+        description="Sweep motor counts on the simulated device and fit 5th-order curves.",
+    )
+    p.add_argument("device", help="device name or path")
+    p.add_argument("--write", action="store_true", help="write the fitted curves into the device folder")
+    p.set_defaults(func=_cmd_calibrate)
+
+    p = sub.add_parser("web", help="the browser demo (viser)", description="Serve the haptic demo in the browser.")
+    p.add_argument("--scene", default="probe", help="scene name or path (default: probe)")
+    p.add_argument("--device", default="kraft", help="device name or path (default: kraft)")
+    p.add_argument("--session", default=None, help="start with this session's gains and mode")
+    p.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1; others print a warning)")
+    p.add_argument("--port", type=int, default=8080)
+    p.set_defaults(func=_cmd_web)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``frhc``; returns the exit code (2 for bad input)."""
+    args = build_parser().parse_args(argv)
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        return func(args)
+    except (ConfigError, FrhcError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,105 @@
+"""The scripted operator: timed hand targets (smoothly interpolated) and switch events."""
+
+from __future__ import annotations
+
+import bisect
+import math
+
+import numpy as np
+
+from app.controller.types import Switches
+from app.session.spec import SessionFile, SwitchEvent
+from app.spatial import Array, make_pose, rotation_exp, rotation_log, zyx_to_matrix
+
+
+class OperatorScript:
+    """Plays a session's waypoints and switch events against simulated time.
+
+    Args:
+        data: The session file (waypoints, events, tremor, seed, time scale).
+        T_0_G_start: The grip's pose when the session starts (4, 4); waypoints are relative to it.
+
+    Between waypoints the hand moves with a smoothstep profile (zero velocity at each waypoint),
+    rotating along the geodesic. Before the first waypoint the hand holds the start pose; after
+    the last it holds the last one. Tremor is a seeded, low-passed random offset (m).
+    """
+
+    TREMOR_CUTOFF_HZ = 8.0
+
+    def __init__(self, data: SessionFile, T_0_G_start: Array) -> None:
+        scale = data.time_scale
+        self._times = [w.t * scale for w in data.waypoints]
+        R0 = T_0_G_start[0:3, 0:3]
+        p0 = T_0_G_start[0:3, 3]
+        self._poses = [
+            make_pose(R0 @ zyx_to_matrix(*(math.radians(a) for a in w.zyx_deg)), p0 + np.array(w.position))
+            for w in data.waypoints
+        ] or [T_0_G_start.copy()]
+        if not self._times:
+            self._times = [0.0]
+        self._events = sorted(data.events, key=lambda e: e.t)
+        self._event_times = [e.t * scale for e in self._events]
+        self._next_event = 0
+        self.switches = Switches()
+        self.hand_on = True
+        self._reference_pressed_at = -1
+        self._rate = data.servo_rate
+        n_ticks = math.ceil(data.duration * data.servo_rate) + 2
+        self._tremor = _tremor(n_ticks, data.tremor, data.seed, data.servo_rate, self.TREMOR_CUTOFF_HZ)
+        self._T = np.eye(4)
+
+    def hand_target(self, t: float, tick: int) -> Array:
+        """Hand-target pose ``T_0_H`` (4, 4) at time ``t`` (s); ``tick`` indexes the tremor."""
+        times = self._times
+        i = bisect.bisect_right(times, t)
+        T = self._T
+        if i == 0 or i == len(times):
+            T[:] = self._poses[0 if i == 0 else -1]
+        else:
+            a, b = self._poses[i - 1], self._poses[i]
+            s = (t - times[i - 1]) / (times[i] - times[i - 1])
+            s = s * s * (3.0 - 2.0 * s)
+            T[0:3, 3] = a[0:3, 3] + s * (b[0:3, 3] - a[0:3, 3])
+            T[0:3, 0:3] = a[0:3, 0:3] @ rotation_exp(s * rotation_log(a[0:3, 0:3].T @ b[0:3, 0:3]))
+        T[0:3, 3] += self._tremor[min(tick, len(self._tremor) - 1)]
+        return T
+
+    def update_switches(self, t: float, tick: int) -> Switches:
+        """Apply the events due by time ``t`` (s); a reference press lasts one tick."""
+        sw = self.switches
+        if self._reference_pressed_at >= 0 and tick > self._reference_pressed_at:
+            sw.reference = False
+            self._reference_pressed_at = -1
+        while self._next_event < len(self._events) and self._event_times[self._next_event] <= t:
+            self._apply(self._events[self._next_event], tick)
+            self._next_event += 1
+        return sw
+
+    def _apply(self, e: SwitchEvent, tick: int) -> None:
+        sw = self.switches
+        if e.deadman is not None:
+            sw.deadman = e.deadman
+        if e.reflection is not None:
+            sw.reflection = e.reflection
+        if e.hand is not None:
+            self.hand_on = e.hand
+        if e.reference:
+            sw.reference = True
+            self._reference_pressed_at = tick
+
+
+def _tremor(n: int, sigma: float, seed: int, rate: float, cutoff_hz: float) -> Array:
+    """Seeded tremor offsets (m), shape (n, 3): white noise through a first-order low-pass filter,
+    scaled to standard deviation ``sigma``."""
+    if sigma == 0.0:
+        return np.zeros((n, 3))
+    rng = np.random.default_rng(seed)
+    white = rng.standard_normal((n, 3))
+    alpha = 1.0 - math.exp(-2.0 * math.pi * cutoff_hz / rate)
+    out = np.empty_like(white)
+    acc = np.zeros(3)
+    for i in range(n):
+        acc += alpha * (white[i] - acc)
+        out[i] = acc
+    # Stationary standard deviation of that filter on unit white noise.
+    return out * (sigma / math.sqrt(alpha / (2.0 - alpha)))

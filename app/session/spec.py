@@ -1,0 +1,158 @@
+"""Session files: ``sessions/<name>.toml`` — scene, device, mode, gains, rate, duration, seed, script.
+
+Everything is checked before anything runs: unknown fields, unknown scene or device names,
+non-monotonic waypoint times or a negative duration raise one :class:`~app.errors.ConfigError`
+naming the file and the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from app.config import from_dict, load_toml
+from app.controller.gains import ControllerGains
+from app.device.hand import HandParams
+from app.device.spec import DeviceSpec, load_device
+from app.errors import ConfigError, InvalidField
+from app.world.scene import Scene, load_scene
+
+SESSIONS_DIR = Path(__file__).resolve().parents[2] / "sessions"
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    """One hand-target pose, relative to where the grip started.
+
+    Attributes:
+        t: Time (s) the hand reaches this pose.
+        position: Offset (m) from the grip's start position, base-frame axes.
+        zyx_deg: Z-Y-X angles ``[gamma, beta, alpha]`` (deg) of the rotation from the grip's
+            start orientation, applied in the grip's start frame.
+    """
+
+    t: float
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    zyx_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class SwitchEvent:
+    """Switch changes at time ``t`` (s). ``reference = true`` is a press: it releases one tick later.
+
+    ``hand = false`` lets go of the grip (the hand target is ignored until ``hand = true``).
+    """
+
+    t: float
+    deadman: bool | None = None
+    reflection: bool | None = None
+    reference: bool | None = None
+    hand: bool | None = None
+
+
+@dataclass(frozen=True)
+class SessionFile:
+    """The schema of a session file (see ``sessions/probe_rate.toml`` for a commented example).
+
+    Attributes:
+        scene: Scene name (in ``scenes/``) or path.
+        device: Device name (in ``devices/``) or path.
+        duration: Simulated time (s) to run.
+        mode: ``"rate"`` or ``"pose"``; overrides the device's default gains.
+        servo_rate: Servo rate (Hz) of plant, controller and slave.
+        seed: Seed of the operator's tremor (and anything else random).
+        accommodation: NTRFC rate-to-force accommodation on the slave (Sec 4.3).
+        tremor: Standard deviation (m) of a smoothed random hand tremor added to the targets.
+        time_scale: Stretches every waypoint and event time (a slower or faster operator).
+        gains: Overrides of the device's default :class:`ControllerGains` fields.
+        hand: The operator's hand impedance.
+        waypoints: Hand-target poses, interpolated smoothly between their times.
+        events: Switch events.
+    """
+
+    scene: str
+    device: str
+    duration: float
+    mode: Literal["rate", "pose"] = "rate"
+    servo_rate: float = 1000.0
+    seed: int = 0
+    accommodation: bool = True
+    tremor: float = 0.0
+    time_scale: float = 1.0
+    gains: dict[str, Any] = field(default_factory=dict)
+    hand: HandParams = field(default_factory=HandParams)
+    waypoints: tuple[Waypoint, ...] = ()
+    events: tuple[SwitchEvent, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not (self.duration > 0 and math.isfinite(self.duration)):
+            raise InvalidField("duration", "must be a positive number of seconds")
+        if not (100.0 <= self.servo_rate <= 20000.0):
+            raise InvalidField("servo_rate", "must be between 100 and 20000 Hz")
+        if not (self.tremor >= 0):
+            raise InvalidField("tremor", "must be >= 0")
+        if not (self.time_scale > 0):
+            raise InvalidField("time_scale", "must be positive")
+        times = [w.t for w in self.waypoints]
+        for i in range(1, len(times)):
+            if not times[i] > times[i - 1]:
+                raise InvalidField(
+                    f"waypoints[{i}].t", f"waypoint times must increase ({times[i]} after {times[i - 1]})"
+                )
+        for i, t in enumerate(times):
+            if t < 0:
+                raise InvalidField(f"waypoints[{i}].t", "must be >= 0")
+        for i, e in enumerate(self.events):
+            if e.t < 0:
+                raise InvalidField(f"events[{i}].t", "must be >= 0")
+
+
+@dataclass(frozen=True)
+class Session:
+    """A checked session: the file's data with its scene, device and gains resolved."""
+
+    path: Path | None
+    data: SessionFile
+    device: DeviceSpec
+    scene: Scene
+    gains: ControllerGains
+
+    def with_changes(self, **changes: Any) -> Session:
+        """A copy with fields of the session file replaced (e.g. ``accommodation=False``)."""
+        return resolve_session(dataclasses.replace(self.data, **changes), self.path)
+
+
+def resolve_session_path(name_or_path: str | Path) -> Path:
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    return SESSIONS_DIR / f"{name_or_path}.toml"
+
+
+def load_session(name_or_path: str | Path) -> Session:
+    """Load and check a session file (name in ``sessions/`` or a path)."""
+    path = resolve_session_path(name_or_path)
+    data = from_dict(SessionFile, load_toml(path), path)
+    return resolve_session(data, path)
+
+
+def resolve_session(data: SessionFile, path: Path | None) -> Session:
+    """Resolve scene, device and gains of a session, naming the session file's field on error."""
+    source: str | Path = path if path is not None else "<session>"
+    device = _resolve(load_device, data.device, source, "device")
+    scene = _resolve(load_scene, data.scene, source, "scene")
+    base = dataclasses.asdict(device.data.gains)
+    gains = from_dict(ControllerGains, {**base, **data.gains, "mode": data.mode}, source, "gains")
+    return Session(path, data, device, scene, gains)
+
+
+def _resolve(loader: Any, name: str, source: str | Path, field_name: str) -> Any:
+    try:
+        return loader(name)
+    except ConfigError as exc:
+        if exc.field == "<file>":
+            raise ConfigError(source, field_name, f"cannot load '{name}': {exc.reason}") from None
+        raise

@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 
 from app.controller.calibration import DEGREE, TorqueCurve, fit_torque_curve
-from app.device.plant import DevicePlant
+from app.device.plant import Counts, DevicePlant
 from app.device.spec import DeviceSpec, load_device, resolve_device_path
 from app.spatial import Array
 
@@ -85,7 +85,7 @@ class CalibrationReport:
         )
 
 
-def _settle(plant: DevicePlant, counts: Array) -> Array:
+def _settle(plant: DevicePlant, counts: Counts) -> Array:
     for _ in range(SETTLE_STEPS):
         plant.step(counts, DT)
     return plant.brake_torque()
@@ -181,7 +181,7 @@ def measure_grip_wrench(plant: DevicePlant, curve: TorqueCurve, F_G: Array) -> A
     tare = _settle(plant, np.zeros(spec.n_joints, dtype=np.int64))
     tau_measured = _settle(plant, counts) - tare
     plant.lock_joints(False)
-    return np.linalg.lstsq(J_G.T, tau_measured, rcond=None)[0]
+    return np.asarray(np.linalg.lstsq(J_G.T, tau_measured, rcond=None)[0], dtype=float)
 
 
 def _fmt_rows(rows: Array) -> str:

@@ -30,15 +30,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from typing import Any
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from app.config import from_dict
 from app.device.hand import HandParams, OperatorHand, add_hand
 from app.device.spec import DeviceSpec, MotorSpec
 from app.errors import ConfigError, InvalidField
 from app.spatial import Array
+
+#: Integer motor commands (counts), shape (n,).
+Counts = npt.NDArray[np.integer[Any]]
 
 #: Fields of :class:`PlantParams` holding one value per joint.
 PER_JOINT_FIELDS = (
@@ -66,6 +71,10 @@ _IDEAL = {
     "motor_softening_neg": 0.0,
     "motor_deadzone": 0.0,
 }
+
+
+#: Impedance (d0, d_width) of the joints' friction-loss constraints: near 1 for little creep.
+FRICTION_IMPEDANCE = (0.9999, 0.9999)
 
 
 @dataclass(frozen=True)
@@ -300,6 +309,9 @@ class DevicePlant:
             model.dof_frictionloss[dof] += params.per_joint("frictionloss", n)[i]
             model.dof_damping[dof] += params.per_joint("damping", n)[i]
             model.dof_armature[dof] += params.per_joint("armature", n)[i]
+        # MuJoCo's default soft friction (impedance 0.9-0.95) lets a joint creep at ~1e-3 rad/s under
+        # a load below its friction, so a gravity-compensated device would sag; real drivetrains stick.
+        model.dof_solimp[:, :2] = FRICTION_IMPEDANCE
         mujoco.mj_setConst(model, mujoco.MjData(model))  # derived constants (subtree masses...) after the edits
         return model
 
@@ -322,7 +334,7 @@ class DevicePlant:
         self.hand.set_target(T_0_H)
         mujoco.mj_step1(self.model, self.data)  # spring lengths for the next step see the new target
 
-    def step(self, counts: Array, dt: float) -> PlantReading:
+    def step(self, counts: Counts, dt: float) -> PlantReading:
         """Advance one servo period with motor commands held constant.
 
         Args:

@@ -13,6 +13,18 @@ from app.session.loop import STAGES, ServoLoop
 from app.spatial import Array, rotation_log
 
 
+def work_increment(T_prev: Array, T: Array, F_prev: Array, F: Array) -> Array:
+    """One trapezoid step of Eq 13 per axis: ``(F_prev + F)/2 * d xi`` (J), shape (6,).
+
+    ``d xi`` is the {MRF} displacement from ``T_prev`` to ``T`` (4, 4 poses in {w}) in the axes of
+    ``T_prev``: translation, and the rotation increment as a rotation vector. ``F_prev`` and ``F``
+    are the contact wrenches at {MRF} in {MRF} (N, N m), (6,).
+    """
+    R_prev = T_prev[0:3, 0:3]
+    dxi = np.concatenate((R_prev.T @ (T[0:3, 3] - T_prev[0:3, 3]), rotation_log(R_prev.T @ T[0:3, 0:3])))
+    return 0.5 * (F + F_prev) * dxi
+
+
 class SessionMetrics:
     """Accumulates a session's summary tick by tick (no need to keep the log in memory).
 
@@ -43,9 +55,7 @@ class SessionMetrics:
         loop = self._loop
         T = loop.slave.T_w_MRF
         F = loop.slave.wrench_MRF_contact
-        R_prev = self._T_prev[0:3, 0:3]
-        dxi = np.concatenate((R_prev.T @ (T[0:3, 3] - self._T_prev[0:3, 3]), rotation_log(R_prev.T @ T[0:3, 0:3])))
-        self._work += 0.5 * (F + self._F_prev) * dxi
+        self._work += work_increment(self._T_prev, T, self._F_prev, F)
         self._T_prev[:] = T
         self._F_prev[:] = F
         f = math.sqrt(float(F[0:3] @ F[0:3]))

@@ -1,0 +1,119 @@
+"""Whole sessions: determinism, logs that survive a crash, the command line and its errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from app.session import load_session, run_session
+from app.session.spec import SESSIONS_DIR
+
+FRHC = [sys.executable, "-m", "app.cli"]
+
+
+def frhc(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*FRHC, *args], capture_output=True, text=True, timeout=300, cwd=cwd, check=False)
+
+
+def test_same_file_and_seed_give_an_identical_log(tmp_path: Path) -> None:
+    """Everything but the wall-clock timing columns (*_us) is bit-identical between two runs."""
+    session = load_session("peg_ntrfc").with_changes(duration=0.6)
+    tables = []
+    for k in range(2):
+        run_session(session, out_dir=tmp_path / f"run{k}", plots=False)
+        table = pq.read_table(tmp_path / f"run{k}" / "log")
+        tables.append(table.drop([c for c in table.column_names if c.endswith("_us")]))
+    assert tables[0].num_rows == 600
+    assert tables[0].equals(tables[1])
+    other = run_session(session.with_changes(seed=99), out_dir=tmp_path / "other", plots=False)
+    assert other.log_dir is not None
+    t_other = pq.read_table(other.log_dir)
+    assert not np.array_equal(t_other.column("hand_target_x").to_numpy(), tables[0].column("hand_target_x").to_numpy())
+
+
+def test_cli_run_writes_log_summary_and_plot(tmp_path: Path) -> None:
+    session = tmp_path / "short.toml"
+    session.write_text((SESSIONS_DIR / "probe_rate.toml").read_text().replace("duration = 5.0", "duration = 1.2"))
+    res = frhc("run", str(session), "--out", str(tmp_path / "out"))
+    assert res.returncode == 0, res.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["ticks"] == 1200
+    assert set(summary) >= {"work_eq13", "peak_contact_force_N", "rms_contact_force_N", "faults", "timing"}
+    table = pq.read_table(tmp_path / "out" / "log")
+    assert table.num_rows == 1200
+    assert {"t", "q_0", "delta_x_z", "F_MRF_fz", "tau_sat_5", "counts_0", "tick_us", "faults"} <= set(table.column_names)
+    png = (tmp_path / "out" / "session.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_killed_run_leaves_a_readable_log(tmp_path: Path) -> None:
+    session = tmp_path / "long.toml"
+    session.write_text((SESSIONS_DIR / "probe_rate.toml").read_text().replace("duration = 5.0", "duration = 120.0"))
+    out = tmp_path / "out"
+    proc = subprocess.Popen([*FRHC, "run", str(session), "--out", str(out)], stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while len(list((out / "log").glob("part-*.parquet"))) < 2 and time.monotonic() < deadline:
+            time.sleep(0.2)
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    table = pq.read_table(out / "log")
+    assert table.num_rows >= 2000
+    assert table.num_rows % 1000 == 0
+    t = table.column("t").to_numpy()
+    np.testing.assert_allclose(np.diff(np.sort(t)), 1e-3, rtol=1e-6)
+
+
+BAD_SESSIONS = {
+    "unknown scene": ('scene = "probe"', 'scene = "moon"', "scene"),
+    "unknown device": ('device = "kraft"', 'device = "phantom"', "device"),
+    "negative duration": ("duration = 5.0", "duration = -1.0", "duration"),
+    "unknown field": ("seed = 0", "seed = 0\nspeed = 3", "speed"),
+    "non-monotonic waypoints": ("t = 1.0\n", "t = 0.2\n", "waypoints[1].t"),
+    "bad gain": ("accommodation = true", "accommodation = true\n[gains]\nk_v = [1.0, 2.0]", "gains.k_v"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_SESSIONS))
+def test_bad_session_files_fail_before_running_with_one_line(tmp_path: Path, case: str) -> None:
+    old, new, field = BAD_SESSIONS[case]
+    text = (SESSIONS_DIR / "probe_rate.toml").read_text()
+    assert old in text
+    path = tmp_path / "bad.toml"
+    path.write_text(text.replace(old, new, 1))
+    res = frhc("run", str(path), "--out", str(tmp_path / "out"))
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1, res.stderr
+    assert str(path) in lines[0]
+    assert f"field '{field}'" in lines[0]
+    assert "Traceback" not in res.stderr
+    assert not (tmp_path / "out").exists()  # nothing ran
+
+
+def test_check_subcommand(tmp_path: Path) -> None:
+    res = frhc("check", "kraft", "probe", "probe_rate")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.count("ok:") == 3
+    bad = tmp_path / "broken.toml"
+    bad.write_text("duration = [")
+    res = frhc("check", str(bad))
+    assert res.returncode == 2
+    assert "not valid TOML" in res.stderr
+
+
+def test_every_subcommand_has_help() -> None:
+    for sub in ("run", "experiment", "bench", "check", "calibrate", "web"):
+        res = frhc(sub, "--help")
+        assert res.returncode == 0
+        assert "usage: frhc" in res.stdout

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -26,7 +27,7 @@ def test_work_integral_of_a_round_trip_cancels_per_axis() -> None:
     """Eq 13 integrates signed work per axis before the absolute value: there and back is zero."""
     F = np.array([0.0, 0.0, 3.0, 0, 0, 0])
     path = [make_pose(np.eye(3), np.array([0.0, 0.0, z])) for z in (0, 0.01, 0.02, 0.01, 0.0)]
-    total = sum(work_increment(a, b, F, F) for a, b in zip(path[:-1], path[1:], strict=True))
+    total = sum(work_increment(a, b, F, F) for a, b in itertools.pairwise(path))
     np.testing.assert_allclose(total, 0.0, atol=1e-15)
 
 
@@ -58,7 +59,8 @@ def test_reference_press_lasts_one_tick_and_events_apply_in_time() -> None:
     assert not s.update_switches(0.05, 50).deadman
     assert s.update_switches(0.1, 100).deadman
     sw = s.update_switches(0.2, 200)
-    assert sw.reference and sw.reflection
+    assert sw.reference
+    assert sw.reflection
     assert not s.update_switches(0.201, 201).reference
 
 

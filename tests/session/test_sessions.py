@@ -50,7 +50,9 @@ def test_cli_run_writes_log_summary_and_plot(tmp_path: Path) -> None:
     assert set(summary) >= {"work_eq13", "peak_contact_force_N", "rms_contact_force_N", "faults", "timing"}
     table = pq.read_table(tmp_path / "out" / "log")
     assert table.num_rows == 1200
-    assert {"t", "q_0", "delta_x_z", "F_MRF_fz", "tau_sat_5", "counts_0", "tick_us", "faults"} <= set(table.column_names)
+    assert {"t", "q_0", "delta_x_z", "F_MRF_fz", "tau_sat_5", "counts_0", "tick_us", "faults"} <= set(
+        table.column_names
+    )
     png = (tmp_path / "out" / "session.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
 

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
+from device_helpers import replace_in
 
 from app.controller.calibration import TorqueCurve
 from app.device.hand import HandParams
@@ -173,13 +175,13 @@ def test_encoder_quantises_to_its_resolution() -> None:
     assert np.any(reading.q != q0)
 
 
-def test_substeps_keep_the_servo_period() -> None:
-    spec = load_device("kraft")
-    plant = DevicePlant(spec)
-    object.__setattr__(plant.params, "substeps", 4)  # frozen config: bypass only for this check
-    plant.step(np.zeros(6, dtype=np.int64), DT)
+def test_substeps_keep_the_servo_period(kraft_copy: Path) -> None:
+    replace_in(kraft_copy, "substeps = 1", "substeps = 4")
+    plant = DevicePlant(load_device(kraft_copy))
+    for _ in range(10):
+        plant.step(np.zeros(6, dtype=np.int64), DT)
     assert plant.model.opt.timestep == pytest.approx(DT / 4)
-    assert plant.reading.time == pytest.approx(DT)
+    assert plant.reading.time == pytest.approx(10 * DT)
 
 
 def test_jpl_nominal_gravity_torques_are_near_zero() -> None:

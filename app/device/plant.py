@@ -258,7 +258,9 @@ class DevicePlant:
 
         motors = spec.data.motors
         cmax = motors.counts_max
-        self._counts_max = cmax
+        self._counts_max = np.int64(cmax)
+        self._counts_min = np.int64(-cmax)
+        self._substep_range = range(self.params.substeps)
         # The true curve is tabulated at every integer count, so a step's motor stage is one gather.
         grid = np.broadcast_to(np.arange(-cmax, cmax + 1, dtype=float)[:, None], (2 * cmax + 1, n))
         gear = np.asarray(motors.gear_ratio)
@@ -353,12 +355,13 @@ class DevicePlant:
             m.opt.timestep = dt / self.params.substeps
             self._dt = dt
         idx = self._idx
-        # minimum/maximum rather than np.clip: np.clip's Python wrapper costs several microseconds.
+        # minimum/maximum and ndarray.take rather than np.clip/np.take, whose Python wrappers cost
+        # microseconds each: this method is the whole plant's per-tick Python overhead.
         np.minimum(counts, self._counts_max, out=idx)
-        np.maximum(idx, -self._counts_max, out=idx)
+        np.maximum(idx, self._counts_min, out=idx)
         np.add(idx, self._row_offset, out=idx)
-        np.take(self._table, idx, out=self._tau_out)
-        for _ in range(self.params.substeps):
+        self._table.take(idx, out=self._tau_out)
+        for _ in self._substep_range:
             # step2 then step1: the kinematics left in data always belong to the new state.
             mujoco.mj_step2(m, d)
             mujoco.mj_step1(m, d)
@@ -368,9 +371,10 @@ class DevicePlant:
     def _read(self) -> None:
         r = self.reading
         if self._quantise:
-            np.multiply(r.q_true, self._enc_scale, out=r.q)
-            np.rint(r.q, out=r.q)
-            np.multiply(r.q, self._enc_inv, out=r.q)
+            q = r.q
+            np.multiply(r.q_true, self._enc_scale, out=q)
+            np.rint(q, out=q)
+            np.multiply(q, self._enc_inv, out=q)
         else:
             np.copyto(r.q, r.q_true)
         r.time = self.data.time

@@ -20,6 +20,7 @@ with the fitted curves, and measure the force the grip actually produces from th
 
 from __future__ import annotations
 
+import argparse
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +30,7 @@ import numpy as np
 
 from app.controller.calibration import DEGREE, TorqueCurve, fit_torque_curve
 from app.device.plant import Counts, DevicePlant
-from app.device.spec import DeviceSpec, load_device, resolve_device_path
+from app.device.spec import DeviceSpec, available_devices, load_device, resolve_device_path
 from app.spatial import Array
 
 DT = 0.001  # s, servo period of the stand
@@ -237,3 +238,17 @@ def calibrate(device: str | Path, write: bool = False) -> CalibrationReport:
     return CalibrationReport(
         spec.name, positive, negative, rms, TEST_FORCE_G.copy(), force_linear, force_fitted, written
     )
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m app.device.calibrate [--write] [device ...]`` (default: every shipped device)."""
+    parser = argparse.ArgumentParser(description=main.__doc__)
+    parser.add_argument("devices", nargs="*", help="device names or paths (default: all shipped devices)")
+    parser.add_argument("--write", action="store_true", help="write calibration.toml and update device.toml")
+    args = parser.parse_args(argv)
+    for device in args.devices or available_devices():
+        print(calibrate(device, write=args.write))
+
+
+if __name__ == "__main__":
+    main()

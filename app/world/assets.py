@@ -24,7 +24,7 @@ HOLE_DEPTH = 0.025
 BLOCK_EXTENTS = (0.14, 0.08, 0.04)  # top face at z = 0 in the object frame
 
 BOWL_OUTER_RADIUS = 0.08
-BOWL_HEIGHT = 0.05
+BOWL_HEIGHT = 0.08  # deeper than the cavity, so the bowl has a bottom
 BOWL_CAVITY_RADIUS = 0.06  # spherical cavity centred on the top face (z = 0)
 
 TERRAIN_EXTENTS = (0.3, 0.3, 0.04)  # top face at z = 0 before the bumps

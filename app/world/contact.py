@@ -31,22 +31,21 @@ from dataclasses import dataclass, field
 
 import fcl
 import numpy as np
-import trimesh
 
 from app.errors import ContactQueryError
 from app.spatial import Array, invert_pose
-from app.world.scene import Scene, WorldObject
+from app.world.collision import CollisionMesh
+from app.world.scene import Scene
+from app.world.vec3 import cross3
 
 # Below this distance (m) the nearest-point direction is numerically meaningless and FCL's
 # zero-radius query may report uninitialised memory: the centre is treated as on the surface.
 _TOUCH = 1e-9
 # Offset (m) of the re-query used when the centre lies exactly on the surface.
 _NUDGE = 1e-6
-# Barycentric tolerance deciding that the nearest point lies on an edge or a vertex.
-_BARY_TOL = 1e-7
 # Tangential speed (m/s) below which friction is viscous (regularised Coulomb).
 _V_SLIP = 1e-3
-_FAR = 1e30
+_FAR = 1e30  # 'never queried' centre position (m)
 
 
 @dataclass(frozen=True)
@@ -86,82 +85,6 @@ class ContactResult:
         return len(self.depths)
 
 
-class _ObjectData:
-    """An object's FCL model and the per-feature pseudonormals used for inside/outside."""
-
-    __slots__ = (
-        "damping",
-        "edge_pn",
-        "face_edges",
-        "face_normals",
-        "faces",
-        "friction",
-        "fcl_object",
-        "hi",
-        "lo",
-        "n_faces",
-        "stiffness",
-        "vertex_pn",
-        "vertices",
-    )
-
-    def __init__(self, obj: WorldObject) -> None:
-        mesh: trimesh.Trimesh = obj.mesh
-        self.vertices = np.asarray(mesh.vertices, dtype=float)
-        self.faces = np.asarray(mesh.faces, dtype=np.int64)
-        self.n_faces = len(self.faces)
-        self.face_normals = np.asarray(mesh.face_normals, dtype=float)
-        # Edge pseudonormal: sum of the adjacent face normals. Vertex: angle-weighted sum.
-        self.face_edges = np.asarray(mesh.faces_unique_edges, dtype=np.int64)
-        edge_pn = np.zeros((len(mesh.edges_unique), 3))
-        np.add.at(edge_pn, self.face_edges.ravel(), np.repeat(self.face_normals, 3, axis=0))
-        vertex_pn = np.zeros_like(self.vertices)
-        weighted = np.asarray(mesh.face_angles)[:, :, None] * self.face_normals[:, None, :]
-        np.add.at(vertex_pn, self.faces.ravel(), weighted.reshape(-1, 3))
-        self.edge_pn = edge_pn / np.maximum(np.linalg.norm(edge_pn, axis=1), 1e-300)[:, None]
-        self.vertex_pn = vertex_pn / np.maximum(np.linalg.norm(vertex_pn, axis=1), 1e-300)[:, None]
-        bvh = fcl.BVHModel()
-        bvh.beginModel(len(self.vertices), self.n_faces)
-        bvh.addSubModel(self.vertices, self.faces)
-        bvh.endModel()
-        self.fcl_object = fcl.CollisionObject(bvh, fcl.Transform())
-        self.lo = self.vertices.min(axis=0)
-        self.hi = self.vertices.max(axis=0)
-        self.stiffness = obj.stiffness
-        self.damping = obj.damping
-        self.friction = obj.friction
-
-    def pseudonormal(self, tri: int, qx: float, qy: float, qz: float) -> tuple[float, float, float]:
-        """Outward pseudonormal of the feature of triangle ``tri`` nearest to point q (in {w})."""
-        ia, ib, ic = self.faces[tri].tolist()
-        ax, ay, az = self.vertices[ia].tolist()
-        bx, by, bz = self.vertices[ib].tolist()
-        cx, cy, cz = self.vertices[ic].tolist()
-        v0x, v0y, v0z = bx - ax, by - ay, bz - az
-        v1x, v1y, v1z = cx - ax, cy - ay, cz - az
-        v2x, v2y, v2z = qx - ax, qy - ay, qz - az
-        d00 = v0x * v0x + v0y * v0y + v0z * v0z
-        d01 = v0x * v1x + v0y * v1y + v0z * v1z
-        d11 = v1x * v1x + v1y * v1y + v1z * v1z
-        d20 = v2x * v0x + v2y * v0y + v2z * v0z
-        d21 = v2x * v1x + v2y * v1y + v2z * v1z
-        den = d00 * d11 - d01 * d01
-        l1 = (d11 * d20 - d01 * d21) / den
-        l2 = (d00 * d21 - d01 * d20) / den
-        bary = (1.0 - l1 - l2, l1, l2)
-        small = [k for k in range(3) if bary[k] < _BARY_TOL]
-        if len(small) >= 2:
-            k = 3 - small[0] - small[1]  # the one vertex that is not ~0
-            n = self.vertex_pn[(ia, ib, ic)[k]]
-        elif len(small) == 1:
-            # faces_unique_edges lists edges (v0 v1), (v1 v2), (v2 v0): the one opposite vertex k is k+1.
-            n = self.edge_pn[self.face_edges[tri, (small[0] + 1) % 3]]
-        else:
-            n = self.face_normals[tri]
-        nx, ny, nz = n.tolist()
-        return nx, ny, nz
-
-
 class ContactModel:
     """Contact wrench of the scene's tool against its objects, with per-pair memory.
 
@@ -179,32 +102,48 @@ class ContactModel:
         tool = scene.tool
         self._margin = scene.spec.margin if margin is None else margin
         self._centers_T = tool.centers_T
+        self._centers_T_list = [tuple(c) for c in tool.centers_T.tolist()]
         self._radii = tool.radii.tolist()
         self._T_MRF_T = invert_pose(tool.T_T_MRF)
-        self._T_T_S = tool.T_T_S
         self._T_MRF_S = tool.T_MRF_S
+        self._R_MRF_S = self._T_MRF_S[0:3, 0:3].tolist()
+        self._p_MRF_S = self._T_MRF_S[0:3, 3].tolist()
+        # Bounding sphere of the tool: centre c0 in {T}, radius of the centres and of the spheres.
         self._c0_T = tool.centers_T.mean(axis=0)
-        self._reach = float(np.max(np.linalg.norm(tool.centers_T - self._c0_T, axis=1) + tool.radii)) + self._margin
-        self._objects = [_ObjectData(o) for o in scene.objects]
-        self._lo = np.array([o.lo for o in self._objects]).reshape(-1, 3)
-        self._hi = np.array([o.hi for o in self._objects]).reshape(-1, 3)
+        spread = np.linalg.norm(tool.centers_T - self._c0_T, axis=1)
+        self._rho = float(spread.max())
+        self._reach = float(np.max(spread + tool.radii)) + self._margin
+        self._objects = list(scene.objects)
+        self._meshes = [o.collision for o in scene.objects]
+        self._lo = np.array([c.lo for c in self._meshes]).reshape(-1, 3)
+        self._hi = np.array([c.hi for c in self._meshes]).reshape(-1, 3)
         n, m = len(self._radii), len(self._objects)
+        # Per pair: centre at the last query and how far it may move before the next is needed.
         self._last_c = np.full((m, n, 3), _FAR)
-        self._slack2 = np.full((m, n), -1.0)
+        self._slack = np.full((m, n), -1.0)
+        # Per object: a base tool pose (c0, R) and the distance any sphere centre may move from it
+        # before the per-sphere test must run again; meanwhile only its "hot" spheres are queried.
+        self._base_c0 = [(0.0, 0.0, 0.0)] * m
+        self._base_R: list[list[float]] = [[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]] * m
+        self._obj_slack = [-1.0] * m
+        self._hot: list[list[int]] = [[] for _ in range(m)]
+        # Objects within reach of the tool's bounding sphere, valid while c0 moves < _near_slack.
+        self._near: list[int] = []
+        self._near_c0 = (0.0, 0.0, 0.0)
+        self._near_slack = -1.0
         self._memory: dict[int, tuple[float, float, float, float, float, float]] = {}
-        self._memory_objects = np.zeros(m, dtype=np.int64)
         self._core = fcl.CollisionObject(fcl.Sphere(0.0), fcl.Transform())
         self._request = fcl.DistanceRequest(enable_nearest_points=True)
-        self._zero6 = np.zeros(6)
 
     def reset(self) -> None:
         """Forget contact memory and culling caches (e.g. after the tool was teleported)."""
         self._last_c.fill(_FAR)
-        self._slack2.fill(-1.0)
+        self._slack.fill(-1.0)
+        self._obj_slack = [-1.0] * len(self._objects)
+        self._near_slack = -1.0
         self._memory.clear()
-        self._memory_objects.fill(0)
 
-    def _distance(self, obj: _ObjectData, c: Array) -> tuple[float, int, float, float, float]:
+    def _distance(self, obj: CollisionMesh, c: Array) -> tuple[float, int, float, float, float]:
         """FCL unsigned distance from point c (3,) to the mesh: (d, triangle, q) with q in {w}."""
         self._core.setTranslation(c)
         res = fcl.DistanceResult()
@@ -222,7 +161,7 @@ class ContactModel:
         return d, tri, qx, qy, qz
 
     def _signed(
-        self, obj: _ObjectData, c: Array, hint: tuple[float, float, float]
+        self, obj: CollisionMesh, c: Array, hint: tuple[float, float, float]
     ) -> tuple[float, float, float, float, float, float, float]:
         """Signed distance phi (> 0 outside), nearest point q and outward normal n at centre c."""
         d, tri, qx, qy, qz = self._distance(obj, c)
@@ -262,24 +201,38 @@ class ContactModel:
             return self._wrench(T_w_MRF, V_w_MRF)
         except ContactQueryError as exc:
             self.reset()
-            zero = self._zero6.copy()
-            return ContactResult(False, zero, zero.copy(), np.zeros(3), error=str(exc))
+            return ContactResult(False, np.zeros(6), np.zeros(6), np.zeros(3), error=str(exc))
+
+    def _near_objects(self, c0: tuple[float, float, float]) -> list[int]:
+        """Objects whose bounding box the tool's bounding sphere (centre c0 in {w}) may reach."""
+        dx, dy, dz = c0[0] - self._near_c0[0], c0[1] - self._near_c0[1], c0[2] - self._near_c0[2]
+        if self._near_slack > 0.0 and dx * dx + dy * dy + dz * dz < self._near_slack * self._near_slack:
+            return self._near
+        c = np.array(c0)
+        gap = np.maximum(self._lo - c, 0.0) + np.maximum(c - self._hi, 0.0)
+        dist = np.sqrt(np.einsum("ij,ij->i", gap, gap)) - self._reach
+        memory_objects = {key // len(self._radii) for key in self._memory}
+        near = dist <= 0.0
+        self._near = sorted(set(np.flatnonzero(near).tolist()) | memory_objects)
+        self._near_slack = float(dist[~near].min()) if (~near).any() else math.inf
+        self._near_c0 = c0
+        return self._near
 
     def _wrench(self, T_w_MRF: Array, V_w_MRF: Array | None) -> ContactResult:
-        if not np.isfinite(T_w_MRF).all() or (V_w_MRF is not None and not np.isfinite(V_w_MRF).all()):
-            raise ContactQueryError("non-finite tool pose or twist")
-        T_w_T = T_w_MRF @ self._T_MRF_T
-        R_w_T = T_w_T[0:3, 0:3]
-        p_w_T = T_w_T[0:3, 3]
-        C_w = self._centers_T @ R_w_T.T + p_w_T
-        # Objects whose box is beyond the reach of the tool's bounding sphere (or holding memory).
-        c0 = R_w_T @ self._c0_T + p_w_T
-        gap = np.maximum(self._lo - c0, 0.0) + np.maximum(c0 - self._hi, 0.0)
-        near = np.flatnonzero((np.einsum("ij,ij->i", gap, gap) <= self._reach * self._reach) | (self._memory_objects > 0))
-        pmx, pmy, pmz = T_w_MRF[0:3, 3].tolist()
+        T = T_w_MRF.tolist()
+        if not math.isfinite(sum(T[0]) + sum(T[1]) + sum(T[2])):
+            raise ContactQueryError("non-finite tool pose")
         if V_w_MRF is not None:
             vx, vy, vz, wx, wy, wz = V_w_MRF.tolist()
-        n_spheres = len(self._radii)
+            if not math.isfinite(vx + vy + vz + wx + wy + wz):
+                raise ContactQueryError("non-finite tool twist")
+        T_w_T = T_w_MRF @ self._T_MRF_T
+        (r00, r01, r02, tx), (r10, r11, r12, ty), (r20, r21, r22, tz), _ = T_w_T.tolist()
+        R_now = [r00, r01, r02, r10, r11, r12, r20, r21, r22]
+        ax, ay, az = self._c0_T.tolist()
+        c0 = (r00 * ax + r01 * ay + r02 * az + tx, r10 * ax + r11 * ay + r12 * az + ty, r20 * ax + r21 * ay + r22 * az + tz)
+        pmx, pmy, pmz = T[0][3], T[1][3], T[2][3]
+        C_w: Array | None = None  # all sphere centres in {w}, computed only if some object needs them
         pts: list[tuple[float, float, float]] = []
         nrm: list[tuple[float, float, float]] = []
         dep: list[float] = []
@@ -287,39 +240,31 @@ class ContactModel:
         oid: list[int] = []
         Fx = Fy = Fz = Mx = My = Mz = 0.0  # force on the tool and moment about the {MRF} origin, in {w}
         queries = 0
-        for j in near.tolist():
-            obj = self._objects[j]
-            diff = C_w - self._last_c[j]
-            for i in np.flatnonzero(np.einsum("ij,ij->i", diff, diff) >= self._slack2[j]).tolist():
-                c = C_w[i]
-                r = self._radii[i]
-                key = j * n_spheres + i
-                mem = self._memory.get(key)
-                hint = (mem[3], mem[4], mem[5]) if mem is not None else (0.0, 0.0, 1.0)
-                phi, qx, qy, qz, nx, ny, nz = self._signed(obj, c, hint)
+        for j in self._near_objects(c0):
+            # Largest displacement of any sphere centre since object j's base pose: c0 translation
+            # plus rotation about c0 (|(R - R0) y| = 2 sin(theta/2) |y|).
+            bc = self._base_c0[j]
+            dx, dy, dz = c0[0] - bc[0], c0[1] - bc[1], c0[2] - bc[2]
+            cos_sum = sum(a * b for a, b in zip(R_now, self._base_R[j], strict=True))  # = 1 + 2 cos(theta)
+            moved = math.sqrt(dx * dx + dy * dy + dz * dz) + self._rho * math.sqrt(max(0.0, 3.0 - cos_sum))
+            if moved < self._obj_slack[j]:
+                todo = self._hot[j]
+            else:
+                if C_w is None:
+                    C_w = self._centers_T @ T_w_T[0:3, 0:3].T + T_w_T[0:3, 3]
+                diff = C_w - self._last_c[j]
+                todo = np.flatnonzero(np.sqrt(np.einsum("ij,ij->i", diff, diff)) >= self._slack[j]).tolist()
+            for i in todo:
+                x, y, z = self._centers_T_list[i]
+                cx = r00 * x + r01 * y + r02 * z + tx
+                cy = r10 * x + r11 * y + r12 * z + ty
+                cz = r20 * x + r21 * y + r22 * z + tz
                 queries += 1
-                self._last_c[j, i] = c
-                cx, cy, cz = c.tolist()
-                if mem is not None and nx * mem[3] + ny * mem[4] + nz * mem[5] < 0.0:
-                    # Normal flipped: the centre crossed the middle of a thin part; keep the old plane.
-                    qx, qy, qz, nx, ny, nz = mem
-                    phi = (cx - qx) * nx + (cy - qy) * ny + (cz - qz) * nz
-                    in_memory = True
-                else:
-                    in_memory = False
-                depth = r - phi
-                if depth <= 0.0:
-                    if mem is not None:
-                        del self._memory[key]
-                        self._memory_objects[j] -= 1
-                    gap_ij = phi - r - self._margin
-                    self._slack2[j, i] = gap_ij * gap_ij if gap_ij > 0.0 else -1.0
+                hit = self._pair(j, i, cx, cy, cz)
+                if hit is None:
                     continue
-                if not in_memory:
-                    if mem is None:
-                        self._memory_objects[j] += 1
-                    self._memory[key] = (qx, qy, qz, nx, ny, nz)
-                self._slack2[j, i] = -1.0
+                depth, nx, ny, nz = hit
+                obj = self._objects[j]
                 fn = obj.stiffness * depth
                 fx = fy = fz = 0.0
                 if V_w_MRF is not None:
@@ -330,13 +275,13 @@ class ContactModel:
                     un = ux * nx + uy * ny + uz * nz
                     fn = max(0.0, fn - obj.damping * un)
                     if obj.friction > 0.0:
-                        tx, ty, tz = ux - un * nx, uy - un * ny, uz - un * nz
-                        scale = -obj.friction * fn / max(math.sqrt(tx * tx + ty * ty + tz * tz), _V_SLIP)
-                        fx, fy, fz = scale * tx, scale * ty, scale * tz
+                        ex, ey, ez = ux - un * nx, uy - un * ny, uz - un * nz
+                        scale = -obj.friction * fn / max(math.sqrt(ex * ex + ey * ey + ez * ez), _V_SLIP)
+                        fx, fy, fz = scale * ex, scale * ey, scale * ez
                 fx += fn * nx
                 fy += fn * ny
                 fz += fn * nz
-                s = r - depth  # contact point on the surface: centre minus (r - depth) along n
+                s = self._radii[i] - depth  # contact point on the surface: centre minus (r - depth) along n
                 px, py, pz = cx - s * nx, cy - s * ny, cz - s * nz
                 rx, ry, rz = px - pmx, py - pmy, pz - pmz
                 Fx += fx
@@ -350,23 +295,37 @@ class ContactModel:
                 dep.append(depth)
                 sid.append(i)
                 oid.append(j)
-        F_w = np.array((Fx, Fy, Fz))
-        M_w = np.array((Mx, My, Mz))
-        if not (np.isfinite(F_w).all() and np.isfinite(M_w).all()):
+            if moved >= self._obj_slack[j]:
+                self._rebase(j, c0, R_now, C_w)
+        if not math.isfinite(Fx + Fy + Fz + Mx + My + Mz):
             raise ContactQueryError("non-finite contact wrench")
-        R_w_MRF = T_w_MRF[0:3, 0:3]
-        wrench_MRF = np.concatenate((F_w @ R_w_MRF, M_w @ R_w_MRF))
-        # Moment about {S}: m_S = m_MRF - p_MRF_S x f (all in {MRF}), then rotate into {S}.
-        R_MRF_S = self._T_MRF_S[0:3, 0:3]
-        f_MRF = wrench_MRF[0:3]
-        m_about_S = wrench_MRF[3:6] - np.cross(self._T_MRF_S[0:3, 3], f_MRF)
-        wrench_S = np.concatenate((f_MRF @ R_MRF_S, m_about_S @ R_MRF_S))
+        # {w} -> {MRF} (transpose of R_w_MRF), then Eq 6 backwards for the moment about {S}.
+        (a00, a01, a02, _), (a10, a11, a12, _), (a20, a21, a22, _), _ = T
+        fmx = a00 * Fx + a10 * Fy + a20 * Fz
+        fmy = a01 * Fx + a11 * Fy + a21 * Fz
+        fmz = a02 * Fx + a12 * Fy + a22 * Fz
+        mmx = a00 * Mx + a10 * My + a20 * Mz
+        mmy = a01 * Mx + a11 * My + a21 * Mz
+        mmz = a02 * Mx + a12 * My + a22 * Mz
+        sx, sy, sz = self._p_MRF_S
+        ox, oy, oz = mmx - (sy * fmz - sz * fmy), mmy - (sz * fmx - sx * fmz), mmz - (sx * fmy - sy * fmx)
+        (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = self._R_MRF_S
+        wrench_S = np.array(
+            (
+                b00 * fmx + b10 * fmy + b20 * fmz,
+                b01 * fmx + b11 * fmy + b21 * fmz,
+                b02 * fmx + b12 * fmy + b22 * fmz,
+                b00 * ox + b10 * oy + b20 * oz,
+                b01 * ox + b11 * oy + b21 * oz,
+                b02 * ox + b12 * oy + b22 * oz,
+            )
+        )
         k = len(dep)
         return ContactResult(
             True,
             wrench_S,
-            wrench_MRF,
-            F_w,
+            np.array((fmx, fmy, fmz, mmx, mmy, mmz)),
+            np.array((Fx, Fy, Fz)),
             np.array(pts).reshape(k, 3),
             np.array(nrm).reshape(k, 3),
             np.array(dep),
@@ -374,6 +333,48 @@ class ContactModel:
             np.array(oid, dtype=int),
             queries,
         )
+
+    def _rebase(self, j: int, c0: tuple[float, float, float], R_now: list[float], C_w: Array | None) -> None:
+        """Make the current tool pose object j's base: hot spheres and the slack of the others."""
+        assert C_w is not None
+        diff = C_w - self._last_c[j]
+        slack = self._slack[j]
+        remaining = slack - np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        cold = slack >= 0.0
+        self._hot[j] = np.flatnonzero(~cold).tolist()
+        self._obj_slack[j] = float(remaining[cold].min()) if cold.any() else math.inf
+        self._base_c0[j] = c0
+        self._base_R[j] = R_now
+
+    def _pair(self, j: int, i: int, cx: float, cy: float, cz: float) -> tuple[float, float, float, float] | None:
+        """Query sphere i against object j; update its memory and slack. ``(depth, n)`` or None."""
+        r = self._radii[i]
+        key = j * len(self._radii) + i
+        mem = self._memory.get(key)
+        hint = (mem[3], mem[4], mem[5]) if mem is not None else (0.0, 0.0, 1.0)
+        c = np.array((cx, cy, cz))
+        phi, qx, qy, qz, nx, ny, nz = self._signed(self._meshes[j], c, hint)
+        self._last_c[j, i] = c
+        in_memory = False
+        if mem is not None and nx * mem[3] + ny * mem[4] + nz * mem[5] < 0.0:
+            s0 = (cx - mem[0]) * mem[3] + (cy - mem[1]) * mem[4] + (cz - mem[2]) * mem[5]
+            if s0 < 0.0:
+                # Normal flipped with the centre behind the remembered surface: it crossed the middle
+                # of a thin part (pop-through). A flip in front of it is a real new contact.
+                qx, qy, qz, nx, ny, nz = mem
+                phi = s0
+                in_memory = True
+        depth = r - phi
+        if depth <= 0.0:
+            if mem is not None:
+                del self._memory[key]
+            gap = phi - r - self._margin
+            self._slack[j, i] = gap if gap > 0.0 else -1.0
+            return None
+        if not in_memory:
+            self._memory[key] = (qx, qy, qz, nx, ny, nz)
+        self._slack[j, i] = -1.0
+        return depth, nx, ny, nz
 
 
 def contact_wrench(scene: Scene, T_w_MRF: Array, V_w_MRF: Array | None = None) -> ContactResult:

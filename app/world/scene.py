@@ -23,6 +23,7 @@ import trimesh
 from app.config import from_dict, load_toml
 from app.errors import ConfigError, InvalidField
 from app.spatial import Array, invert_pose, make_pose, quat_to_matrix, zyx_to_matrix
+from app.world.collision import CollisionMesh
 
 ROOT_DIR = Path(__file__).resolve().parents[2]
 SCENES_DIR = ROOT_DIR / "scenes"
@@ -306,6 +307,7 @@ class WorldObject:
         name: From the scene file.
         mesh: Triangle mesh with vertices in {w} (the object pose is already applied).
         stiffness, damping, friction: As in :class:`ObjectSpec`.
+        collision: Its FCL BVH and pseudonormals, shared by every contact model of the scene.
     """
 
     name: str
@@ -313,6 +315,7 @@ class WorldObject:
     stiffness: float
     damping: float
     friction: float
+    collision: CollisionMesh
 
 
 @dataclass(frozen=True)
@@ -473,7 +476,7 @@ def build_object(spec: ObjectSpec, source: str | Path, field_path: str) -> World
     elif mesh.volume < 0:
         mesh.invert()  # inward-facing triangles would swap inside and outside
     mesh.apply_transform(spec.pose.matrix())
-    return WorldObject(spec.name, mesh, spec.stiffness, spec.damping, spec.friction)
+    return WorldObject(spec.name, mesh, spec.stiffness, spec.damping, spec.friction, CollisionMesh(mesh))
 
 
 def build_scene(spec: SceneFile, source: str | Path = "<scene>", path: Path | None = None) -> Scene:

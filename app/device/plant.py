@@ -29,7 +29,7 @@ joint clip to ``gear_ratio * torque_limit`` then cuts it off.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 import mujoco
@@ -45,19 +45,6 @@ from app.spatial import Array
 #: Integer motor commands (counts), shape (n,).
 Counts = npt.NDArray[np.integer[Any]]
 
-#: Fields of :class:`PlantParams` holding one value per joint.
-PER_JOINT_FIELDS = (
-    "mass_scale",
-    "frictionloss",
-    "damping",
-    "armature",
-    "encoder_counts_per_rev",
-    "motor_gain_pos",
-    "motor_gain_neg",
-    "motor_softening_pos",
-    "motor_softening_neg",
-    "motor_deadzone",
-)
 #: Value a per-joint field takes for every joint when the table leaves it out (an ideal plant).
 _IDEAL = {
     "mass_scale": 1.0,
@@ -71,6 +58,8 @@ _IDEAL = {
     "motor_softening_neg": 0.0,
     "motor_deadzone": 0.0,
 }
+#: Fields of :class:`PlantParams` holding one value per joint.
+PER_JOINT_FIELDS = tuple(_IDEAL)
 
 
 #: Impedance (d0, d_width) of the joints' friction-loss constraints: near 1 for little creep.
@@ -149,10 +138,10 @@ def load_plant_params(spec: DeviceSpec) -> PlantParams:
     """
     params = from_dict(PlantParams, spec.data.plant, spec.path, "plant")
     n = spec.n_joints
-    for f in fields(PlantParams):
-        values = getattr(params, f.name)
-        if f.name in PER_JOINT_FIELDS and values and len(values) != n:
-            raise ConfigError(spec.path, f"plant.{f.name}", f"expected {n} values (one per joint), got {len(values)}")
+    for name in PER_JOINT_FIELDS:
+        values = getattr(params, name)
+        if values and len(values) != n:
+            raise ConfigError(spec.path, f"plant.{name}", f"expected {n} values (one per joint), got {len(values)}")
     return params
 
 

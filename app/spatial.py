@@ -9,37 +9,21 @@ Conventions (see ``docs/conventions.md``):
 * Delta X is ``[x, y, z, gamma, beta, alpha]`` (Eq 4) with ``R = Rz(alpha) Ry(beta) Rx(gamma)``.
 * Quaternions are ``wxyz`` (MuJoCo, viser).
 
-Scalar work uses :mod:`math` rather than numpy: for 3-vectors and single angles the
-numpy call overhead dominates, and these functions sit in the servo tick.
+The functions the servo tick uses are compiled with numba (``@njit``): for 3-vectors and single
+angles the interpreter and numpy call overheads would otherwise dominate the tick. From Python
+they are called like any function, with numpy arrays.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 Array = NDArray[np.float64]
-
-
-def rot_x(angle: float) -> Array:
-    """Rotation about x by ``angle`` (rad), shape (3, 3)."""
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def rot_y(angle: float) -> Array:
-    """Rotation about y by ``angle`` (rad), shape (3, 3)."""
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def rot_z(angle: float) -> Array:
-    """Rotation about z by ``angle`` (rad), shape (3, 3)."""
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+IntArray = NDArray[np.int64]
 
 
 def zyx_to_matrix(gamma: float, beta: float, alpha: float) -> Array:
@@ -56,32 +40,38 @@ def zyx_to_matrix(gamma: float, beta: float, alpha: float) -> Array:
     )
 
 
-def matrix_to_zyx(R: Array | Sequence[Sequence[float]]) -> tuple[float, float, float]:
-    """Z-Y-X angles ``(gamma, beta, alpha)`` (rad) of rotation ``R`` (Craig 1989).
+@njit(cache=True)
+def matrix_to_zyx(R: Array) -> tuple[float, float, float]:
+    """Z-Y-X angles ``(gamma, beta, alpha)`` (rad) of rotation ``R`` (3, 3) (Craig 1989).
 
-    ``R`` may be a (3, 3) array or nested lists (``R.tolist()``, faster in the servo tick).
     ``beta`` is in [-pi/2, pi/2]. At gimbal lock (cos(beta) = 0) only ``alpha -+ gamma`` is
     defined; there ``gamma`` is set to 0 so the result still reproduces ``R``.
     """
-    (r00, r01, _), (r10, r11, _), (r20, r21, r22) = R
-    cb = math.hypot(r00, r10)
-    beta = math.atan2(-r20, cb)
+    cb = math.hypot(R[0, 0], R[1, 0])
+    beta = math.atan2(-R[2, 0], cb)
     if cb > 1e-9:
-        return math.atan2(r21, r22), beta, math.atan2(r10, r00)
-    return 0.0, beta, math.atan2(-r01, r11)
+        return math.atan2(R[2, 1], R[2, 2]), beta, math.atan2(R[1, 0], R[0, 0])
+    return 0.0, beta, math.atan2(-R[0, 1], R[1, 1])
 
 
-def tmat_difference(T_0_G0: Array, T_0_G: Array) -> list[float]:
-    """Eq 2-4: Delta X of grip {G} relative to the reference {G0}, ``[x, y, z, gamma, beta, alpha]``.
+@njit(cache=True)
+def tmat_difference(T_0_G0: Array, R_0_G: Array, p_0_G: Array, out: Array) -> Array:
+    """Eq 2-4: Delta X of grip {G} relative to the reference {G0}, written into ``out`` (6,).
 
     Translation is ``p_0_G - p_0_G0`` in base {0} coordinates (Eq 2). Orientation is
     ``R_G0_G = R_0_G0^T R_0_G`` (Eq 3 read with the sign of Eq 2; the paper's printed right-hand
-    side is its transpose), expressed as Z-Y-X angles (Eq 4).
+    side is its transpose), expressed as Z-Y-X angles ``[gamma, beta, alpha]`` (Eq 4).
     """
-    x, y, z = (T_0_G[0:3, 3] - T_0_G0[0:3, 3]).tolist()
-    return [x, y, z, *matrix_to_zyx((T_0_G0[0:3, 0:3].T @ T_0_G[0:3, 0:3]).tolist())]
+    R_rel = np.empty((3, 3))
+    for i in range(3):
+        out[i] = p_0_G[i] - T_0_G0[i, 3]
+        for j in range(3):
+            R_rel[i, j] = T_0_G0[0, i] * R_0_G[0, j] + T_0_G0[1, i] * R_0_G[1, j] + T_0_G0[2, i] * R_0_G[2, j]
+    out[3], out[4], out[5] = matrix_to_zyx(R_rel)
+    return out
 
 
+@njit(cache=True)
 def body_rate_from_euler(gamma: float, beta: float, rates: tuple[float, float, float]) -> tuple[float, float, float]:
     """Eq 5: body angular velocity (rad/s) from Z-Y-X angle rates ``(gamma', beta', alpha')``.
 
@@ -113,26 +103,22 @@ def wrench_transform(R_a_b: Array, p_a_b: Array) -> Array:
     return X
 
 
-def move_wrench(R_a_b: Sequence[Sequence[float]], p_a_b: Sequence[float], F_b: Sequence[float]) -> list[float]:
-    """Eq 6 on plain floats: the wrench ``F_b`` at {b} in {b} as the equivalent at {a} in {a}.
+@njit(cache=True)
+def move_wrench(R_a_b: Array, p_a_b: Array, F_b: Array, out: Array) -> Array:
+    """Eq 6 without forming the matrix: ``F_b`` at {b} in {b} as the wrench at {a} in {a}, into ``out``.
 
-    Same as ``wrench_transform(R_a_b, p_a_b) @ F_b``, i.e. ``[R f; R m + p x (R f)]``, written
-    out in scalars because in the servo tick this is several times faster than numpy calls.
+    Same as ``wrench_transform(R_a_b, p_a_b) @ F_b``, i.e. ``[R f; R m + p x (R f)]``.
     """
-    f0, f1, f2, m0, m1, m2 = F_b
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R_a_b
-    fx = r00 * f0 + r01 * f1 + r02 * f2
-    fy = r10 * f0 + r11 * f1 + r12 * f2
-    fz = r20 * f0 + r21 * f1 + r22 * f2
-    px, py, pz = p_a_b
-    return [
-        fx,
-        fy,
-        fz,
-        r00 * m0 + r01 * m1 + r02 * m2 + py * fz - pz * fy,
-        r10 * m0 + r11 * m1 + r12 * m2 + pz * fx - px * fz,
-        r20 * m0 + r21 * m1 + r22 * m2 + px * fy - py * fx,
-    ]
+    for i in range(3):
+        out[i] = R_a_b[i, 0] * F_b[0] + R_a_b[i, 1] * F_b[1] + R_a_b[i, 2] * F_b[2]
+    for i in range(3):
+        out[3 + i] = R_a_b[i, 0] * F_b[3] + R_a_b[i, 1] * F_b[4] + R_a_b[i, 2] * F_b[5]
+    px, py, pz = p_a_b[0], p_a_b[1], p_a_b[2]
+    fx, fy, fz = out[0], out[1], out[2]
+    out[3] += py * fz - pz * fy
+    out[4] += pz * fx - px * fz
+    out[5] += px * fy - py * fx
+    return out
 
 
 def twist_transform(R_a_b: Array, p_a_b: Array) -> Array:
@@ -219,8 +205,3 @@ def rotation_exp(w: Array) -> Array:
     if theta < 1e-9:
         return np.eye(3) + K
     return np.eye(3) + (math.sin(theta) / theta) * K + ((1 - math.cos(theta)) / theta**2) * (K @ K)
-
-
-def wrap_angle(a: Array) -> Array:
-    """Wrap angles (rad) into [-pi, pi), elementwise."""
-    return (a + math.pi) % (2.0 * math.pi) - math.pi

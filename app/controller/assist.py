@@ -1,17 +1,21 @@
 """Operator-assist laws at the grip (paper Sec 3.3) and the uniform scalings of Sec 3.3-3.4.
 
-Each law acts on one Cartesian axis of Delta X ``[x, y, z, gamma, beta, alpha]`` at a time
-(the paper applies them "for each Cartesian axis independently"). They take and return Python
-floats: at six elements, scalar arithmetic is several times faster than numpy calls, and these
-run every servo tick.
+The laws act on one Cartesian axis of Delta X ``[x, y, z, gamma, beta, alpha]`` at a time (the
+paper applies them "for each Cartesian axis independently"). They are compiled with numba so the
+servo-tick kernel (:mod:`app.controller.kernel`) calls them at machine speed; from Python they
+are ordinary functions of floats and arrays.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+
+from numba import njit
+
+from app.spatial import Array
 
 
+@njit(cache=True)
 def deadband(dx: float, db: float) -> float:
     """Input channel of one axis: ``dx - sign(dx) db`` outside the deadband ``|dx| <= db``, else 0.
 
@@ -23,6 +27,7 @@ def deadband(dx: float, db: float) -> float:
     return math.copysign(excess, dx) if excess > 0.0 else 0.0
 
 
+@njit(cache=True)
 def constant_force_rtc(dx: float, a: float, db: float, wall_start: float, k_wall: float) -> float:
     """Constant-force return-to-centre for one axis (Eq 8, Fig. 4): odd in dx and continuous.
 
@@ -46,14 +51,18 @@ def constant_force_rtc(dx: float, a: float, db: float, wall_start: float, k_wall
     magnitude = a * inner * inner
     if u > wall_start:
         magnitude += k_wall * (u - wall_start)
-    return -math.copysign(magnitude, dx) if dx != 0.0 else 0.0
+    if dx == 0.0:
+        return 0.0
+    return -math.copysign(magnitude, dx)
 
 
+@njit(cache=True)
 def hooke_rtc(dx: float, k_r: float) -> float:
     """Hooke's-law return-to-centre ``-K_R dx`` for one axis (the paper's first try)."""
     return -k_r * dx
 
 
+@njit(cache=True)
 def damping(dx: float, dx_prev: float, k_d: float, dt: float, angular: bool) -> float:
     """Damping for one axis, ``-K_D (dx - dx_prev) / dt`` (Eq 9 per unit time).
 
@@ -67,23 +76,26 @@ def damping(dx: float, dx_prev: float, k_d: float, dt: float, angular: bool) -> 
     return -k_d * diff / dt
 
 
-def uniform_scale(values: Sequence[float], limits: Sequence[float]) -> float:
+@njit(cache=True)
+def uniform_scale(values: Array, limits: Array) -> float:
     """Largest ``s`` in (0, 1] with ``|s v_i| <= limit_i`` for all i (direction-keeping scaling).
 
     Used for the assist torques' share of capacity (Eq 11) and the final saturation (Sec 3.4).
     """
-    peak = max(abs(v) / lim for v, lim in zip(values, limits, strict=True))
+    peak = 0.0
+    for i in range(values.shape[0]):
+        peak = max(peak, abs(values[i]) / limits[i])
     return 1.0 if peak <= 1.0 else 1.0 / peak
 
 
-def saturate(values: Sequence[float], limits: Sequence[float]) -> tuple[list[float], float]:
+@njit(cache=True)
+def saturate(values: Array, limits: Array, out: Array) -> float:
     """Uniformly scale ``values`` into ``|v_i| <= limit_i`` (Sec 3.4), keeping their direction.
 
-    A final clamp only absorbs the last-bit rounding of ``s * v_i``, so no component ever exceeds
-    its limit, even for inputs of 1e300.
-
-    Returns:
-        The scaled values and the scale factor s.
+    Writes the result into ``out`` and returns the scale factor. A final clamp only absorbs the
+    last-bit rounding of ``s * v_i``, so no component ever exceeds its limit, even for 1e300.
     """
     s = uniform_scale(values, limits)
-    return [min(lim, max(-lim, v * s)) for v, lim in zip(values, limits, strict=True)], s
+    for i in range(values.shape[0]):
+        out[i] = min(limits[i], max(-limits[i], values[i] * s))
+    return s

@@ -8,14 +8,13 @@ either kind in the servo tick.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
+from numba import njit
 from numpy.polynomial import polynomial as npoly
 
 from app.device.spec import CalibrationSpec, DeviceSpec
 from app.errors import FrhcError
-from app.spatial import Array
+from app.spatial import Array, IntArray
 
 DEGREE = 5
 
@@ -50,6 +49,28 @@ def fit_joint_curves(tau_motor: Array, counts: Array, degree: int = DEGREE) -> t
     return fit_torque_curve(tau_motor[pos], counts[pos], degree), fit_torque_curve(tau_motor[neg], counts[neg], degree)
 
 
+@njit(cache=True)
+def curve_counts(tau_motor: Array, horner_pos: Array, horner_neg: Array, counts_max: int, out: IntArray) -> IntArray:
+    """Counts for motor torques ``tau_motor`` (N m), (n,), into ``out`` (int, (n,)), rounded and clipped.
+
+    ``horner_pos``/``horner_neg`` (n, k) are each joint's coefficients, highest order first, for
+    torques >= 0 and < 0 (the driving direction picks the curve, as the paper's Sec 4.2 fits).
+    Zero torque is always zero counts: a fitted curve's constant term (deadzone compensation)
+    must not drive a motor that is asked for nothing.
+    """
+    for j in range(tau_motor.shape[0]):
+        tau = tau_motor[j]
+        if tau == 0.0:
+            out[j] = 0
+            continue
+        c = horner_pos[j] if tau >= 0.0 else horner_neg[j]
+        acc = 0.0
+        for k in range(c.shape[0]):
+            acc = acc * tau + c[k]
+        out[j] = min(counts_max, max(-counts_max, round(acc)))
+    return out
+
+
 class TorqueCurve:
     """Maps motor torques (N m) of every joint to amplifier counts, per driving direction.
 
@@ -63,9 +84,9 @@ class TorqueCurve:
         self.positive = np.asarray(positive, dtype=float)
         self.negative = np.asarray(negative, dtype=float)
         self.counts_max = counts_max
-        # Horner's scheme runs from the highest order down; keep per-joint tuples for scalar speed.
-        self._pos = [tuple(row[::-1]) for row in self.positive.tolist()]
-        self._neg = [tuple(row[::-1]) for row in self.negative.tolist()]
+        # Horner's scheme runs from the highest order down.
+        self.horner_pos = np.ascontiguousarray(self.positive[:, ::-1])
+        self.horner_neg = np.ascontiguousarray(self.negative[:, ::-1])
 
     @classmethod
     def linear(cls, counts_per_nm: Array, counts_max: int) -> TorqueCurve:
@@ -87,13 +108,7 @@ class TorqueCurve:
             return cls.from_calibration(spec.calibration, motors.counts_max)
         return cls.linear(np.array(motors.counts_per_nm), motors.counts_max)
 
-    def counts(self, tau_motor: Sequence[float]) -> list[int]:
-        """Counts (rounded, clipped to +-counts_max) for motor torques ``tau_motor`` (N m), one per joint."""
-        cmax = self.counts_max
-        out = []
-        for tau, pos, neg in zip(tau_motor, self._pos, self._neg, strict=True):
-            acc = 0.0
-            for c in pos if tau >= 0.0 else neg:
-                acc = acc * tau + c
-            out.append(min(cmax, max(-cmax, round(acc))))
-        return out
+    def counts(self, tau_motor: Array) -> IntArray:
+        """Counts (int64, rounded, clipped to +-counts_max) for motor torques ``tau_motor`` (N m), (n,)."""
+        out = np.zeros(len(tau_motor), dtype=np.int64)
+        return curve_counts(np.asarray(tau_motor, dtype=float), self.horner_pos, self.horner_neg, self.counts_max, out)

@@ -74,7 +74,8 @@ big = st.floats(-1e300, 1e300, allow_nan=False)
 
 @given(st.lists(big, min_size=6, max_size=6), st.lists(st.floats(0.01, 100.0), min_size=6, max_size=6))
 def test_saturation_never_exceeds_and_keeps_direction(tau, limit) -> None:
-    out, s = saturate(tau, limit)
+    out = np.empty(6)
+    s = saturate(np.array(tau), np.array(limit), out)
     assert all(abs(o) <= lim for o, lim in zip(out, limit, strict=True))
     assert 0.0 < s <= 1.0
     # Direction kept: out is a positive multiple of tau (compare unit vectors, scaled first
@@ -88,7 +89,8 @@ def test_saturation_never_exceeds_and_keeps_direction(tau, limit) -> None:
 
 
 def test_saturation_of_huge_command_hits_the_binding_limit() -> None:
-    out, s = saturate([1e9, -5e8, 0, 0, 0, 0], [2.0, 2.0, 1, 1, 1, 1])
+    out = np.empty(6)
+    s = saturate(np.array([1e9, -5e8, 0, 0, 0, 0]), np.array([2.0, 2.0, 1, 1, 1, 1]), out)
     assert out[0] == 2.0
     assert math.isclose(out[1], -1.0)
     assert math.isclose(s, 2e-9)

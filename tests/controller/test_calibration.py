@@ -32,10 +32,10 @@ def test_curve_uses_the_direction_of_each_torque_and_clips() -> None:
     pos[:, 1] = 1000.0
     neg[:, 1] = 3000.0
     curve = TorqueCurve(pos, neg, counts_max=2047)
-    assert curve.counts([0.5, -0.5]) == [500, -1500]
-    assert curve.counts([10.0, -10.0]) == [2047, -2047]
+    np.testing.assert_array_equal(curve.counts(np.array([0.5, -0.5])), [500, -1500])
+    np.testing.assert_array_equal(curve.counts(np.array([10.0, -10.0])), [2047, -2047])
 
 
 def test_linear_manufacturer_curve() -> None:
     curve = TorqueCurve.linear(np.array([5000.0, 20000.0]), counts_max=2047)
-    assert curve.counts([0.2, -0.05]) == [1000, -1000]
+    np.testing.assert_array_equal(curve.counts(np.array([0.2, -0.05])), [1000, -1000])

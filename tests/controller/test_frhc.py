@@ -67,7 +67,7 @@ def test_rate_command_applies_kv_deadband_and_eq5(controller: FRHCController, kr
     q = q0 + np.array([0.1, 0.1, -0.1, 0.2, 0.15, 0.3])
     out = controller.step(q, Switches(deadman=True), FTReading(), DT)
     g = kraft.data.gains
-    dx = np.array(tmat_difference(T_0_G0, out.T_0_G))
+    dx = tmat_difference(T_0_G0, out.T_0_G[0:3, 0:3], out.T_0_G[0:3, 3], np.empty(6))
     dxc = np.sign(dx) * np.maximum(np.abs(dx) - np.array(g.deadband), 0.0)
     np.testing.assert_allclose(out.delta_x_cmd, dxc, atol=1e-12)
     np.testing.assert_allclose(out.command.twist[0:3], np.array(g.k_v[0:3]) * dxc[0:3], atol=1e-12)
@@ -192,7 +192,7 @@ def test_total_torque_saturates_uniformly_and_counts_follow_the_curve(kraft: Dev
     assert np.all(np.abs(out.tau_sat) <= limit)
     np.testing.assert_allclose(out.tau_sat, out.saturation_scale * out.tau, rtol=1e-12)
     np.testing.assert_allclose(out.tau_motor, out.tau_sat / np.array(kraft.data.motors.gear_ratio))
-    expected = np.clip(np.rint(np.array(kraft.data.motors.counts_per_nm) * out.tau_motor), -2047, 2047)
+    expected = ctrl.curve.counts(out.tau_motor)
     np.testing.assert_array_equal(out.counts, expected)
 
 

@@ -1,0 +1,29 @@
+"""frhc: Cartesian control of force-reflecting hand controllers (Williams 1997) in a virtual world.
+
+Rooms, in the order data flows through one servo tick: :mod:`app.device` (the simulated FRHC and
+the operator's hand), :mod:`app.controller` (the paper's Fig. 3), :mod:`app.world` (the virtual
+slave and its FCL contact), :mod:`app.session` (the loop, scripts, logs, metrics) and
+:mod:`app.web` (the browser UI).
+"""
+
+import hashlib
+import os
+from pathlib import Path
+
+
+def _numba_cache_dir() -> str:
+    """A numba cache folder keyed by the source of every compiled module.
+
+    numba invalidates a cached function only when its own file changes, not when a compiled
+    function it calls (in another module) does; keying the folder by all of their sources makes
+    any edit start a fresh cache instead of running a stale kernel.
+    """
+    here = Path(__file__).resolve().parent
+    digest = hashlib.sha1()
+    for src in sorted([here / "spatial.py", *(here / "controller").glob("*.py")]):
+        digest.update(src.read_bytes())
+    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "frhc" / "numba"
+    return str(base / digest.hexdigest()[:16])
+
+
+os.environ.setdefault("NUMBA_CACHE_DIR", _numba_cache_dir())

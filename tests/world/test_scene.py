@@ -1,0 +1,128 @@
+"""Scene files: the shipped ones load; bad ones fail with one ConfigError naming file and field."""
+
+from __future__ import annotations
+
+import textwrap
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from app.errors import ConfigError
+from app.world import available_scenes, contact_wrench, load_scene
+from app.world.scene import DEFAULT_SCENE
+
+SHIPPED = ["bowl", "large_mesh", "peg_in_hole", "probe"]
+
+GOOD = """
+name = "t"
+[[objects]]
+name = "surface"
+MESH_LINE
+stiffness = STIFFNESS
+[tool]
+mass = 0.5
+inertia = [1e-3, 1e-3, 1e-3, 0.0, 0.0, 0.0]
+home = { position = [0.0, 0.0, 0.1] }
+[[tool.spheres]]
+center = [0.0, 0.0, 0.0]
+radius = 0.01
+"""
+
+
+def write_scene(
+    tmp_path: Path, mesh_line: str = "box = [0.2, 0.2, 0.02]", stiffness: str = "1000.0", root: str = "", extra: str = ""
+) -> Path:
+    """Write the GOOD scene with one line changed, ``root`` keys first and ``extra`` tables last."""
+    path = tmp_path / "scene.toml"
+    path.write_text(root + textwrap.dedent(GOOD).replace("MESH_LINE", mesh_line).replace("STIFFNESS", stiffness) + extra)
+    return path
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_scene_loads(name: str) -> None:
+    scene = load_scene(name)
+    assert scene.name == name and scene.objects and len(scene.tool.radii) > 0
+    assert all(o.mesh.is_watertight for o in scene.objects)
+    # Home is free of contact.
+    res = contact_wrench(scene, scene.tool.T_w_MRF_home)
+    assert res.valid and res.count == 0
+
+
+def test_shipped_scene_list_and_default() -> None:
+    assert available_scenes() == SHIPPED and DEFAULT_SCENE == "probe"
+    assert max(len(o.mesh.faces) for o in load_scene("large_mesh").objects) > 100_000
+    total = sum(p.stat().st_size for p in (Path(__file__).parents[2] / "assets").iterdir())
+    assert total < 15e6
+
+
+def test_peg_task_goal_is_reached_only_when_inserted() -> None:
+    scene = load_scene("peg_in_hole")
+    task = scene.spec.task
+    assert task is not None
+    assert not task.done(scene.tool.T_w_MRF_home)
+    assert task.done(task.goal.matrix())
+
+
+def test_good_file_in_tmp_loads(tmp_path: Path) -> None:
+    scene = load_scene(write_scene(tmp_path))
+    assert scene.objects[0].stiffness == 1000.0
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"root": "colour = 'red'\n"}, "colour"),
+        ({"extra": "[[tool.capsules]]\nstart = [0, 0, 0]\nend = [0, 0, 1]\nradius = 0.01\nradus = 1\n"}, "tool.capsules[0].radus"),
+        ({"stiffness": "-5.0"}, "objects[0].stiffness"),
+        ({"mesh_line": 'mesh = "no_such_mesh.stl"'}, "objects[0].mesh"),
+        ({"mesh_line": "box = [0.2, 0.2, 0.02]\nsphere = 0.1"}, "objects[0].mesh"),
+        ({"extra": "[slave]\nkp_lin = 100.0\nki = 3.0\n"}, "slave.ki"),
+    ],
+)
+def test_bad_scene_names_file_and_field(tmp_path: Path, kwargs: dict, field: str) -> None:
+    path = write_scene(tmp_path, **kwargs)
+    with pytest.raises(ConfigError) as info:
+        load_scene(path)
+    assert info.value.field == field and info.value.source == str(path)
+
+
+def test_degenerate_mesh_is_rejected(tmp_path: Path) -> None:
+    flat = tmp_path / "flat.ply"
+    # Two triangles in one plane: zero volume, so there is no inside to push out of.
+    trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]], process=False).export(flat)
+    path = write_scene(tmp_path, mesh_line=f'mesh = "{flat}"')
+    with pytest.raises(ConfigError, match="degenerate") as info:
+        load_scene(path)
+    assert info.value.field == "objects[0].mesh"
+
+
+def test_unreadable_mesh_is_rejected(tmp_path: Path) -> None:
+    junk = tmp_path / "junk.stl"
+    junk.write_bytes(b"\x00\x01 not a mesh")
+    with pytest.raises(ConfigError) as info:
+        load_scene(write_scene(tmp_path, mesh_line=f'mesh = "{junk}"'))
+    assert info.value.field == "objects[0].mesh"
+
+
+def test_missing_scene_file_names_the_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError) as info:
+        load_scene(tmp_path / "nope.toml")
+    assert info.value.field == "<file>"
+
+
+def test_open_mesh_warns_but_contact_works(tmp_path: Path) -> None:
+    box = trimesh.creation.box(extents=(0.2, 0.2, 0.02))
+    top = np.flatnonzero(box.face_normals[:, 2] > 0.9)
+    open_box = trimesh.Trimesh(box.vertices, np.delete(box.faces, np.flatnonzero(box.face_normals[:, 2] < -0.9), axis=0))
+    assert len(top) == 2 and not open_box.is_watertight
+    path_mesh = tmp_path / "open.ply"
+    open_box.export(path_mesh)
+    with pytest.warns(UserWarning, match="not watertight"):
+        scene = load_scene(write_scene(tmp_path, mesh_line=f'mesh = "{path_mesh}"'))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = contact_wrench(scene, np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.01 + 0.009], [0, 0, 0, 1.0]]))
+    np.testing.assert_allclose(res.force_w, [0, 0, 1000.0 * 0.001], atol=1e-6)  # float32 vertices in the file

@@ -1,0 +1,145 @@
+"""The virtual slave: F/T sensor contents, NTRFC accommodation, stability."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+
+from app.controller.types import FTReading, SlaveCommand, SlaveModel
+from app.world import load_scene
+from app.world.scene import Scene
+from app.world.slave import VirtualSlave
+
+
+@functools.cache
+def scene(name: str) -> Scene:
+    return load_scene(name)
+
+
+def rate(v: tuple[float, ...]) -> SlaveCommand:
+    return SlaveCommand(active=True, mode="rate", twist=np.array(v, dtype=float))
+
+
+def run(slave: VirtualSlave, command: SlaveCommand, ticks: int) -> list[FTReading]:
+    return [slave.step(command) for _ in range(ticks)]
+
+
+def remove_payload(reading: FTReading, model: SlaveModel, inertial: bool) -> np.ndarray:
+    """What the controller does (paper Sec 3.2): subtract the payload weight (and inertial load)."""
+    R_w_S = reading.R_w_S
+    m, c = model.payload_mass, model.payload_com_S
+    f = m * (R_w_S.T @ model.gravity_w)
+    mom = np.cross(c, f)
+    if inertial:
+        a_S, alpha_w = R_w_S.T @ reading.acc_w[0:3], R_w_S.T @ reading.acc_w[3:6]
+        w = R_w_S.T @ reading.omega_w
+        a_com = a_S + np.cross(alpha_w, c) + np.cross(w, np.cross(w, c))
+        f = f - m * a_com
+        mom = np.cross(c, f) - (model.payload_inertia_S @ alpha_w + np.cross(w, model.payload_inertia_S @ w))
+    return reading.wrench_S - np.concatenate((f, mom))
+
+
+def tilted_peg_slave() -> VirtualSlave:
+    """The peg tool, tilted 20 deg, its {S} and centre of mass off the {MRF}: every term is non-zero."""
+    slave = VirtualSlave(scene("peg_in_hole"), accommodation=True)
+    T = slave.T_w_MRF
+    from app.spatial import zyx_to_matrix
+
+    T[0:3, 0:3] = zyx_to_matrix(0.35, 0.2, 0.4)
+    slave.reset(T)
+    return slave
+
+
+def test_payload_removal_leaves_the_contact_wrench_at_rest() -> None:
+    slave = VirtualSlave(scene("probe"), accommodation=True)
+    readings = run(slave, rate((0.0, 0.0, -0.02, 0.0, 0.0, 0.0)), 4000)
+    assert slave.contact.count == 1
+    contact = slave.contact.wrench_S
+    assert contact[2] == pytest.approx(5.0, rel=1e-3)  # v / K_acc, see the NTRFC test
+    assert readings[-1].wrench_S[2] == pytest.approx(5.0 - 0.5 * 9.81, rel=1e-2)  # the sensor also carries the weight
+    np.testing.assert_allclose(remove_payload(readings[-1], slave.slave_model(), inertial=False), contact, atol=1e-3)
+
+
+def test_payload_and_inertia_removal_is_exact_while_moving_in_contact() -> None:
+    slave = tilted_peg_slave()
+    model = slave.slave_model()
+    # Move down onto the block top beside the holes and swing around: contact, acceleration, rotation.
+    command = rate((0.03, 0.01, -0.05, 0.5, -0.3, 0.8))
+    worst = 0.0
+    seen_contact = False
+    for _ in range(1500):
+        reading = slave.step(command)
+        assert reading.valid
+        seen_contact |= slave.contact.count > 0
+        rest = remove_payload(reading, model, inertial=True)
+        worst = max(worst, float(np.abs(rest - slave.contact.wrench_S).max()))
+    assert seen_contact
+    assert worst < 1e-9
+
+
+@pytest.mark.parametrize("v", [0.005, 0.01, 0.02])
+def test_ntrfc_steady_contact_force_is_command_over_accommodation_gain(v: float) -> None:
+    s = scene("probe")
+    k_acc = s.spec.slave.accommodation[2]
+    slave = VirtualSlave(s, accommodation=True)
+    start = slave.T_w_MRF
+    start[2, 3] = 0.0055  # tip 0.5 mm above the surface
+    slave.reset(start)
+    run(slave, rate((0.0, 0.0, -v, 0.0, 0.0, 0.0)), 4000)
+    f = slave.wrench_MRF_contact
+    assert f[2] == pytest.approx(v / k_acc, rel=1e-3)
+    np.testing.assert_allclose(f[[0, 1, 3, 4, 5]], 0.0, atol=1e-9)
+
+
+def test_blind_mode_force_grows_to_the_robot_limit() -> None:
+    s = scene("probe")
+    slave = VirtualSlave(s, accommodation=False)
+    run(slave, rate((0.0, 0.0, -0.02, 0.0, 0.0, 0.0)), 5000)
+    f = slave.wrench_MRF_contact[2]
+    # No accommodation: the reference keeps going until the robot saturates (less its own weight).
+    assert f == pytest.approx(s.spec.slave.force_limit + 0.5 * 9.81, rel=2e-2)
+
+
+def test_releasing_the_deadman_stops_a_rate_slave() -> None:
+    slave = VirtualSlave(scene("probe"), accommodation=True)
+    run(slave, rate((0.05, 0.0, 0.0, 0.0, 0.0, 0.0)), 300)
+    run(slave, SlaveCommand(active=False), 800)
+    p = slave.T_w_MRF[0:3, 3].copy()
+    run(slave, SlaveCommand(active=False), 500)
+    assert np.linalg.norm(slave.T_w_MRF[0:3, 3] - p) < 1e-6
+    assert 0.01 < p[0] < 0.025
+
+
+def test_pose_mode_tracks_the_commanded_pose() -> None:
+    slave = VirtualSlave(scene("probe"), accommodation=True)
+    target = slave.T_w_MRF
+    target[0:3, 3] += [0.02, -0.01, 0.005]
+    run(slave, SlaveCommand(active=True, mode="pose", T_w_MRF=target), 1500)
+    # Gravity sag of the PD: m g / kp.
+    np.testing.assert_allclose(slave.T_w_MRF[0:3, 3], target[0:3, 3] - [0, 0, 0.5 * 9.81 / 3000.0], atol=1e-5)
+
+
+def test_nan_contact_reading_is_invalid() -> None:
+    slave = VirtualSlave(scene("probe"), accommodation=True)
+    bad = slave.T_w_MRF
+    bad[0, 3] = np.nan
+    slave.reset(bad)
+    reading = slave.step(SlaveCommand(active=False))
+    assert not reading.valid and np.all(reading.wrench_S == 0)
+
+
+@pytest.mark.parametrize("name", ["probe", "peg_in_hole"])
+def test_pressing_into_the_stiffest_surface_settles(name: str) -> None:
+    s = scene(name)
+    slave = VirtualSlave(s, accommodation=False)
+    target = slave.T_w_MRF
+    if name == "peg_in_hole":
+        target[1, 3] = 0.02  # pegs beside the holes, on the flat top
+    target[2, 3] = -0.02  # well into the surface: the PD pushes at its force limit
+    readings = run(slave, SlaveCommand(active=True, mode="pose", T_w_MRF=target), 3000)
+    fz = np.array([r.wrench_S[2] for r in readings])
+    tail = fz[-1000:]
+    assert slave.contact.count > 0
+    assert np.ptp(tail) < 1e-3 * abs(tail.mean())

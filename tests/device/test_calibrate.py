@@ -10,7 +10,13 @@ import pytest
 from numpy.polynomial import polynomial as npoly
 
 from app.config import from_dict, load_toml
-from app.device.calibrate import CalibrationReport, calibrate, write_calibration_toml
+from app.device.calibrate import (
+    CalibrationReport,
+    calibrate,
+    fit_curves,
+    measure_joint_curves,
+    write_calibration_toml,
+)
 from app.device.plant import DevicePlant, true_motor_torque
 from app.device.spec import DEVICES_DIR, CalibrationSpec, load_device
 
@@ -80,3 +86,14 @@ def test_calibration_toml_round_trips_exactly(tmp_path: Path) -> None:
     cal = from_dict(CalibrationSpec, load_toml(path), path)
     np.testing.assert_array_equal(np.array(cal.positive), positive)
     np.testing.assert_array_equal(np.array(cal.negative), negative)
+
+
+@pytest.mark.parametrize("name", ["jpl", "freflex"])
+def test_shipped_calibration_is_current(name: str) -> None:
+    """The committed calibration.toml is what the committed [plant] table measures (else re-run calibrate)."""
+    spec = load_device(name)
+    samples, limits = measure_joint_curves(DevicePlant(spec))
+    positive, negative, _ = fit_curves(samples, limits)
+    assert spec.calibration is not None
+    np.testing.assert_allclose(np.array(spec.calibration.positive), positive, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(np.array(spec.calibration.negative), negative, rtol=1e-6, atol=1e-6)

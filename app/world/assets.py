@@ -89,5 +89,5 @@ def write_all(directory: Path = ASSETS_DIR) -> list[Path]:
 
 if __name__ == "__main__":
     for p in write_all():
-        m = trimesh.load(p, force="mesh")
+        m = trimesh.load_mesh(p)
         print(f"{p.relative_to(ASSETS_DIR.parent)}: {len(m.faces)} triangles, {p.stat().st_size / 1e6:.2f} MB")

@@ -36,7 +36,6 @@ from app.errors import ContactQueryError
 from app.spatial import Array, invert_pose
 from app.world.collision import CollisionMesh
 from app.world.scene import Scene
-from app.world.vec3 import cross3
 
 # Below this distance (m) the nearest-point direction is numerically meaningless and FCL's
 # zero-radius query may report uninitialised memory: the centre is treated as on the surface.
@@ -230,7 +229,11 @@ class ContactModel:
         (r00, r01, r02, tx), (r10, r11, r12, ty), (r20, r21, r22, tz), _ = T_w_T.tolist()
         R_now = [r00, r01, r02, r10, r11, r12, r20, r21, r22]
         ax, ay, az = self._c0_T.tolist()
-        c0 = (r00 * ax + r01 * ay + r02 * az + tx, r10 * ax + r11 * ay + r12 * az + ty, r20 * ax + r21 * ay + r22 * az + tz)
+        c0 = (
+            r00 * ax + r01 * ay + r02 * az + tx,
+            r10 * ax + r11 * ay + r12 * az + ty,
+            r20 * ax + r21 * ay + r22 * az + tz,
+        )
         pmx, pmy, pmz = T[0][3], T[1][3], T[2][3]
         C_w: Array | None = None  # all sphere centres in {w}, computed only if some object needs them
         pts: list[tuple[float, float, float]] = []

@@ -106,7 +106,9 @@ class ObjectSpec:
     def __post_init__(self) -> None:
         given = [k for k in ("mesh", "box", "sphere", "cylinder", "plane") if getattr(self, k) is not None]
         if len(given) != 1:
-            raise InvalidField("mesh", f"give exactly one of mesh, box, sphere, cylinder, plane (got {given or 'none'})")
+            raise InvalidField(
+                "mesh", f"give exactly one of mesh, box, sphere, cylinder, plane (got {given or 'none'})"
+            )
         for name in ("stiffness", "damping", "friction"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):

@@ -31,8 +31,8 @@ import numpy as np
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
 from app.spatial import Array, matrix_to_quat, quat_to_matrix, rotation_exp, rotation_log
 from app.world.contact import ContactModel, ContactResult
-from app.world.vec3 import cross3
 from app.world.scene import Scene
+from app.world.vec3 import cross3
 
 DEFAULT_PERIOD = 1e-3  # s, the servo period
 
@@ -92,6 +92,7 @@ class VirtualSlave:
         self._V_ref_w = np.zeros(6)
         self._T_ref = np.eye(4)
         self._T_buf = np.eye(4)
+        self._V_buf = np.zeros(6)
         self._contact: ContactResult
         self.reset()
 
@@ -199,43 +200,36 @@ class VirtualSlave:
         h = dt / self._substeps
         self.model.opt.timestep = h
         d = self.data
-        T_w_MRF = self.T_w_MRF
-        self._update_reference(command, dt, T_w_MRF[0:3, 0:3], T_w_MRF[0:3, 3])
-        p_ref = self._T_ref[0:3, 3]
-        R_ref = self._T_ref[0:3, 0:3]
         xfrc = d.xfrc_applied[self._body]
-        for _ in range(self._substeps):
-            R_w_T = self._R_w_T()
+        T_buf = self._T_buf
+        V = self._V_buf
+        for sub in range(self._substeps):
+            R_w_T = quat_to_matrix(d.qpos[3:7])
             w_w = R_w_T @ d.qvel[3:6]
             r_com_MRF = R_w_T @ self._p_com_MRF_T
             p_MRF = d.qpos[0:3] + r_com_MRF
             R_w_MRF = R_w_T @ self._R_T_MRF
-            V = np.concatenate((d.qvel[0:3] + cross3(w_w, r_com_MRF), w_w))
-            T_buf = self._T_buf
+            if sub == 0:
+                self._update_reference(command, dt, R_w_MRF, p_MRF)
+            V[0:3] = d.qvel[0:3] + cross3(w_w, r_com_MRF)
+            V[3:6] = w_w
             T_buf[0:3, 0:3] = R_w_MRF
             T_buf[0:3, 3] = p_MRF
             contact = self.contact_model.wrench(T_buf, V)
             self._contact = contact
-            f_pd = _saturate(g.kp_lin * (p_ref - p_MRF) + g.kd_lin * (self._V_ref_w[0:3] - V[0:3]), g.force_limit)
-            t_pd = _saturate(
-                g.kp_rot * rotation_log(R_ref @ R_w_MRF.T) + g.kd_rot * (self._V_ref_w[3:6] - w_w), g.torque_limit
+            e_R = rotation_log(self._T_ref[0:3, 0:3] @ R_w_MRF.T)
+            f_pd = _saturate(
+                g.kp_lin * (self._T_ref[0:3, 3] - p_MRF) + g.kd_lin * (self._V_ref_w[0:3] - V[0:3]), g.force_limit
             )
-            F_c_w = contact.force_w
-            M_c_MRF_w = R_w_MRF @ contact.wrench_MRF[3:6]
-            xfrc[0:3] = f_pd + F_c_w
-            xfrc[3:6] = t_pd + M_c_MRF_w + cross3(r_com_MRF, f_pd + F_c_w)
-            R_w_T_last, w_last, contact_last = R_w_T, w_w, contact
-            v_last = d.qvel[0:3].copy()
+            t_pd = _saturate(g.kp_rot * e_R + g.kd_rot * (self._V_ref_w[3:6] - w_w), g.torque_limit)
+            f_total = f_pd + contact.force_w
+            xfrc[0:3] = f_total
+            xfrc[3:6] = t_pd + R_w_MRF @ contact.wrench_MRF[3:6] + cross3(r_com_MRF, f_total)
             mujoco.mj_step(self.model, d)
-        # Semi-implicit Euler: the accelerations applied in the last substep are the velocity jumps.
-        a_com = (d.qvel[0:3] - v_last) / h
-        w_new = self._R_w_T() @ d.qvel[3:6]
-        alpha = (w_new - w_last) / h
-        return self._sensor(R_w_T_last, w_last, a_com, alpha, contact_last)
+        # Semi-implicit Euler applied exactly qacc over the last substep: [a_com in {w}; dw/dt in {T}].
+        return self._sensor(R_w_T, w_w, d.qacc[0:3].copy(), R_w_T @ d.qacc[3:6], contact)
 
-    def _sensor(
-        self, R_w_T: Array, w_w: Array, a_com: Array, alpha_w: Array, contact: ContactResult
-    ) -> FTReading:
+    def _sensor(self, R_w_T: Array, w_w: Array, a_com: Array, alpha_w: Array, contact: ContactResult) -> FTReading:
         """F/T reading at {S}: contact + weight - inertial load of the outboard body, in {S}."""
         R_w_S = R_w_T @ self._R_T_S
         if not contact.valid:

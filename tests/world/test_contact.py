@@ -20,6 +20,7 @@ from app.world.scene import BoxSpec, CapsuleSpec, ObjectSpec, Pose, Scene, Spher
 K = 1000.0
 R = 0.01
 
+
 @functools.cache
 def _scene_of(mesh: str) -> Scene:
     """A shipped mesh at the origin and a 5 mm sphere tool (built once: hypothesis reuses it)."""
@@ -45,7 +46,8 @@ def test_sphere_on_plane_force_is_k_times_depth_with_no_moment(depth: float, x: 
     scene = _plane_scene()
     R_w_T = quat_to_matrix(np.array(q) / math.hypot(*q))
     res = contact_wrench(scene, make_pose(R_w_T, np.array([x, y, R - depth])))
-    assert res.valid and res.count == 1
+    assert res.valid
+    assert res.count == 1
     # The sensor is at the sphere centre: force K*depth along the world +z, in {S} axes, no moment.
     np.testing.assert_allclose(res.wrench_S[0:3], R_w_T.T @ [0.0, 0.0, K * depth], atol=1e-9)
     np.testing.assert_allclose(res.wrench_S[3:6], 0.0, atol=1e-12)
@@ -63,7 +65,8 @@ def test_sphere_offset_from_sensor_gives_r_cross_f() -> None:
     f = K * depth
     r_S_contact = np.array([0.1, 0.02, -0.05 - (R - depth)])
     np.testing.assert_allclose(res.wrench_S, [0, 0, f, *np.cross(r_S_contact, [0, 0, f])], atol=1e-12)
-    assert res.wrench_S[3] == pytest.approx(0.02 * f) and res.wrench_S[4] == pytest.approx(-0.1 * f)
+    assert res.wrench_S[3] == pytest.approx(0.02 * f)
+    assert res.wrench_S[4] == pytest.approx(-0.1 * f)
 
 
 def box_tool(sensor: Pose | None = None) -> ToolSpec:
@@ -114,7 +117,7 @@ def test_box_half_over_an_edge_gives_the_moment_of_each_contact() -> None:
             M_S += np.cross(point - p_S, f)
     assert res.count > 0
     np.testing.assert_allclose(res.force_w, F, rtol=1e-9, atol=1e-9)
-    assert any(0 < c[0] < 0.002 for c in res.points_w + [1e-3, 0, 0]) or np.any(res.normals_w[:, 0] > 0.1)
+    assert np.any(res.normals_w[:, 0] > 0.1)  # some spheres press on the edge, not the face
     np.testing.assert_allclose(res.wrench_S[3:6], M_S, rtol=1e-9, atol=1e-12)
     assert M_S[1] > 0.0  # the force acts left of the sensor: it tips the box toward the free side
 
@@ -135,7 +138,8 @@ def test_tilted_peg_on_the_hole_rim_is_pushed_from_the_rim_point() -> None:
     T = pose(tuple(c), (0.0, -theta, 0.0))
     assert T[0, 2] < 0
     res = contact_wrench(scene, T)
-    assert res.count == 1 and res.sphere_ids[0] == 0
+    assert res.count == 1
+    assert res.sphere_ids[0] == 0
     d = np.linalg.norm(c - rim)
     n = (c - rim) / d
     # Tolerances from the 256-gon rim: its nearest point may sit ~30 um along the tangent.
@@ -157,7 +161,9 @@ def test_tilted_peg_on_the_hole_rim_is_pushed_from_the_rim_point() -> None:
 @settings(max_examples=25, deadline=None)
 def test_contact_inside_the_bowl_cavity(azimuth: float, elevation: float, depth: float) -> None:
     scene = _scene_of("bowl.ply")
-    u = np.array([math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation)])
+    u = np.array(
+        [math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation)]
+    )
     c = u * (BOWL_CAVITY_RADIUS - 0.005 + depth)
     res = contact_wrench(scene, pose(tuple(c)))
     assert res.count == 1
@@ -208,7 +214,8 @@ def test_force_is_monotonic_in_depth_on_the_terrain(d1: float, d2: float, x: flo
     z_top = float(hit[0, 2])
     f1, f2 = (contact_wrench(scene, pose((x, y, z_top + 0.005 - d))).force_w for d in (d1, d2))
     assert (np.linalg.norm(f1) <= np.linalg.norm(f2) + 1e-9) == (d1 <= d2) or math.isclose(d1, d2, abs_tol=1e-9)
-    assert f1[2] > 0 and f2[2] > 0
+    assert f1[2] > 0
+    assert f2[2] > 0
 
 
 def test_no_pop_through_when_pushing_a_1mm_plate_10mm() -> None:
@@ -223,14 +230,16 @@ def test_no_pop_through_when_pushing_a_1mm_plate_10mm() -> None:
         forces.append(res.force_w.copy())
     F = np.array(forces)
     np.testing.assert_allclose(F[:, 0:2], 0.0, atol=1e-9)
-    assert np.all(np.diff(F[:, 2]) >= -1e-9) and F[-1, 2] == pytest.approx(K * 0.010, rel=1e-6)
+    assert np.all(np.diff(F[:, 2]) >= -1e-9)
+    assert F[-1, 2] == pytest.approx(K * 0.010, rel=1e-6)
     # Without the memory the same final pose pushes the wrong way or not at all.
     assert contact_wrench(scene, pose((0.01, 0.02, z_touch - 0.010))).force_w[2] <= 0.0
     # Backing out releases the memory at the original surface.
     for dz in np.linspace(0.010, -0.0005, 211):
         res = model.wrench(pose((0.01, 0.02, z_touch - dz)))
         assert res.force_w[2] == pytest.approx(K * max(dz, 0.0), abs=1e-9)
-    assert res.count == 0 and not model._memory
+    assert res.count == 0
+    assert not model._memory
 
 
 def test_no_double_counting_over_shared_edges_and_vertices(tmp_path) -> None:
@@ -245,7 +254,9 @@ def test_no_double_counting_over_shared_edges_and_vertices(tmp_path) -> None:
     inner = top[(np.abs(top[:, 0]) < 0.04) & (np.abs(top[:, 1]) < 0.04)]
     vertex = inner[0]
     edge_mid = mesh.vertices[mesh.edges_unique].mean(axis=1)
-    edge = edge_mid[(np.isclose(edge_mid[:, 2], 0.005)) & (np.abs(edge_mid[:, 0]) < 0.04) & (np.abs(edge_mid[:, 1]) < 0.04)]
+    edge = edge_mid[
+        (np.isclose(edge_mid[:, 2], 0.005)) & (np.abs(edge_mid[:, 0]) < 0.04) & (np.abs(edge_mid[:, 1]) < 0.04)
+    ]
     face = mesh.triangles_center[(mesh.face_normals[:, 2] > 0.99)][5]
     depth = 0.001
     for p in (vertex, *edge[:10], face):
@@ -266,11 +277,15 @@ def test_nan_pose_gives_an_invalid_zero_reading_then_recovers() -> None:
     bad = good.copy()
     bad[0, 3] = math.nan
     res = model.wrench(bad)
-    assert not res.valid and res.error
-    assert np.all(res.wrench_S == 0) and np.all(res.wrench_MRF == 0) and res.count == 0
+    assert not res.valid
+    assert res.error
+    assert np.all(res.wrench_S == 0)
+    assert np.all(res.wrench_MRF == 0)
+    assert res.count == 0
     assert not model.wrench(good, np.array([0, 0, math.inf, 0, 0, 0])).valid
     res = model.wrench(good)
-    assert res.valid and res.force_w[2] == pytest.approx(K * 0.001)
+    assert res.valid
+    assert res.force_w[2] == pytest.approx(K * 0.001)
 
 
 def test_culling_agrees_with_fresh_queries_along_a_random_walk() -> None:
@@ -299,7 +314,8 @@ def test_culling_agrees_with_fresh_queries_along_a_random_walk() -> None:
         culled, fresh = model.wrench(T), contact_wrench(scene, T)
         np.testing.assert_allclose(culled.wrench_S, fresh.wrench_S, atol=1e-9)
         queries.append(culled.queries)
-    assert fresh.queries == len(scene.tool.radii) * 2 and np.mean(queries) < 0.5 * fresh.queries
+    assert fresh.queries == len(scene.tool.radii) * 2
+    assert np.mean(queries) < 0.5 * fresh.queries
 
 
 def test_far_objects_cost_no_queries() -> None:
@@ -311,4 +327,23 @@ def test_far_objects_cost_no_queries() -> None:
     T = pose((0.0, 0.0, R - 0.001))
     model.wrench(T)
     res = model.wrench(T)
-    assert res.queries == 1 and res.count == 1
+    assert res.queries == 1
+    assert res.count == 1
+
+
+def test_centre_exactly_on_the_surface_pushes_out_with_depth_r() -> None:
+    res = contact_wrench(_plane_scene(), pose((0.013, 0.021, 0.0)))
+    assert res.valid
+    assert res.count == 1
+    np.testing.assert_allclose(res.force_w, [0, 0, K * R], atol=1e-9)
+
+
+def test_damping_and_friction_use_the_contact_point_velocity() -> None:
+    scene = make_scene([plane(K, damping=20.0, friction=0.5)])
+    depth, vz, vx = 0.002, -0.01, 0.05  # pressing in at 1 cm/s while sliding at 5 cm/s
+    res = contact_wrench(scene, pose((0.0, 0.0, R - depth)), np.array([vx, 0.0, vz, 0.0, 0.0, 0.0]))
+    fn = K * depth + 20.0 * 0.01
+    np.testing.assert_allclose(res.force_w, [-0.5 * fn, 0.0, fn], atol=1e-9)
+    # Pulling out faster than the spring pushes: the normal force clamps at 0 (no sticking).
+    res = contact_wrench(scene, pose((0.0, 0.0, R - depth)), np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0]))
+    np.testing.assert_allclose(res.force_w, 0.0, atol=1e-12)

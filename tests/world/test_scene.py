@@ -33,26 +33,36 @@ radius = 0.01
 
 
 def write_scene(
-    tmp_path: Path, mesh_line: str = "box = [0.2, 0.2, 0.02]", stiffness: str = "1000.0", root: str = "", extra: str = ""
+    tmp_path: Path,
+    mesh_line: str = "box = [0.2, 0.2, 0.02]",
+    stiffness: str = "1000.0",
+    root: str = "",
+    extra: str = "",
 ) -> Path:
     """Write the GOOD scene with one line changed, ``root`` keys first and ``extra`` tables last."""
     path = tmp_path / "scene.toml"
-    path.write_text(root + textwrap.dedent(GOOD).replace("MESH_LINE", mesh_line).replace("STIFFNESS", stiffness) + extra)
+    path.write_text(
+        root + textwrap.dedent(GOOD).replace("MESH_LINE", mesh_line).replace("STIFFNESS", stiffness) + extra
+    )
     return path
 
 
 @pytest.mark.parametrize("name", SHIPPED)
 def test_shipped_scene_loads(name: str) -> None:
     scene = load_scene(name)
-    assert scene.name == name and scene.objects and len(scene.tool.radii) > 0
+    assert scene.name == name
+    assert scene.objects
+    assert len(scene.tool.radii) > 0
     assert all(o.mesh.is_watertight for o in scene.objects)
     # Home is free of contact.
     res = contact_wrench(scene, scene.tool.T_w_MRF_home)
-    assert res.valid and res.count == 0
+    assert res.valid
+    assert res.count == 0
 
 
 def test_shipped_scene_list_and_default() -> None:
-    assert available_scenes() == SHIPPED and DEFAULT_SCENE == "probe"
+    assert available_scenes() == SHIPPED
+    assert DEFAULT_SCENE == "probe"
     assert max(len(o.mesh.faces) for o in load_scene("large_mesh").objects) > 100_000
     total = sum(p.stat().st_size for p in (Path(__file__).parents[2] / "assets").iterdir())
     assert total < 15e6
@@ -75,7 +85,10 @@ def test_good_file_in_tmp_loads(tmp_path: Path) -> None:
     ("kwargs", "field"),
     [
         ({"root": "colour = 'red'\n"}, "colour"),
-        ({"extra": "[[tool.capsules]]\nstart = [0, 0, 0]\nend = [0, 0, 1]\nradius = 0.01\nradus = 1\n"}, "tool.capsules[0].radus"),
+        (
+            {"extra": "[[tool.capsules]]\nstart = [0, 0, 0]\nend = [0, 0, 1]\nradius = 0.01\nradus = 1\n"},
+            "tool.capsules[0].radus",
+        ),
         ({"stiffness": "-5.0"}, "objects[0].stiffness"),
         ({"mesh_line": 'mesh = "no_such_mesh.stl"'}, "objects[0].mesh"),
         ({"mesh_line": "box = [0.2, 0.2, 0.02]\nsphere = 0.1"}, "objects[0].mesh"),
@@ -86,7 +99,8 @@ def test_bad_scene_names_file_and_field(tmp_path: Path, kwargs: dict, field: str
     path = write_scene(tmp_path, **kwargs)
     with pytest.raises(ConfigError) as info:
         load_scene(path)
-    assert info.value.field == field and info.value.source == str(path)
+    assert info.value.field == field
+    assert info.value.source == str(path)
 
 
 def test_degenerate_mesh_is_rejected(tmp_path: Path) -> None:
@@ -116,8 +130,11 @@ def test_missing_scene_file_names_the_file(tmp_path: Path) -> None:
 def test_open_mesh_warns_but_contact_works(tmp_path: Path) -> None:
     box = trimesh.creation.box(extents=(0.2, 0.2, 0.02))
     top = np.flatnonzero(box.face_normals[:, 2] > 0.9)
-    open_box = trimesh.Trimesh(box.vertices, np.delete(box.faces, np.flatnonzero(box.face_normals[:, 2] < -0.9), axis=0))
-    assert len(top) == 2 and not open_box.is_watertight
+    open_box = trimesh.Trimesh(
+        box.vertices, np.delete(box.faces, np.flatnonzero(box.face_normals[:, 2] < -0.9), axis=0)
+    )
+    assert len(top) == 2
+    assert not open_box.is_watertight
     path_mesh = tmp_path / "open.ply"
     open_box.export(path_mesh)
     with pytest.warns(UserWarning, match="not watertight"):

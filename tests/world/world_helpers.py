@@ -9,6 +9,7 @@ import numpy as np
 from app.spatial import make_pose, zyx_to_matrix
 from app.world.scene import ObjectSpec, Pose, Scene, SceneFile, SphereSpec, ToolSpec, build_scene
 
+
 def sphere_tool(radius: float = 0.01, center: tuple[float, float, float] = (0.0, 0.0, 0.0), **kw: Any) -> ToolSpec:
     """A one-sphere tool; {T} = {S} = {MRF} unless given otherwise."""
     return ToolSpec(

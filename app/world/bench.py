@@ -1,0 +1,128 @@
+"""Contact-wrench and slave-step timing: median and p99 per case, as a text table.
+
+Cases: the default tool of each shipped scene held in contact (``static``: the same pose every
+call; ``moving``: a random walk of 20 um / 0.01 deg steps, as a hand moves at 1 kHz); the probe
+tool pressed into icospheres of about 1k, 10k, 100k and 1M triangles; the probe scene with 1, 10
+and 100 objects (all but the surface far away); and one :meth:`VirtualSlave.step` in contact.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+import trimesh
+
+from app.controller.types import SlaveCommand
+from app.spatial import Array, make_pose, zyx_to_matrix
+from app.world.contact import ContactModel
+from app.world.scene import ObjectSpec, Pose, Scene, build_scene, load_scene
+from app.world.slave import VirtualSlave
+
+# Pose of {MRF} in contact for each shipped scene (m, Z-Y-X rad), see scenes/*.toml.
+CONTACT_POSES: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
+    "probe": ((0.0, 0.0, 0.004), (0.0, 0.0, 0.0)),  # tip 1 mm into the surface
+    "peg_in_hole": ((0.0007, 0.0, -0.01), (0.0, 0.0, 0.0)),  # pegs 15 mm into the holes, 0.2 mm into the walls
+    "bowl": ((0.02, 0.0, -0.0535), (0.0, 0.0, 0.0)),  # tip 2 mm into the cavity wall
+    "large_mesh": ((0.03, 0.02, 0.002), (0.0, 0.0, 0.0)),  # tip on the terrain's bumps
+}
+
+
+def _time(fn: Callable[[int], object], n: int) -> tuple[float, float]:
+    """Median and p99 (us) of ``fn(k)`` over ``n`` calls, after a warm-up."""
+    for k in range(min(50, n)):
+        fn(k)
+    t = np.empty(n)
+    clock = time.perf_counter_ns
+    for k in range(n):
+        t0 = clock()
+        fn(k)
+        t[k] = clock() - t0
+    return float(np.median(t)) / 1e3, float(np.percentile(t, 99)) / 1e3
+
+
+def _walk(T0: Array, n: int, seed: int = 0) -> list[Array]:
+    """A random walk of ``n`` poses around ``T0``: 20 um and 0.01 deg per step, bounded to +-0.2 mm."""
+    rng = np.random.default_rng(seed)
+    p = np.zeros(3)
+    a = np.zeros(3)
+    poses = []
+    for _ in range(n):
+        p = np.clip(p + rng.normal(0.0, 2e-5, 3), -2e-4, 2e-4)
+        a = np.clip(a + rng.normal(0.0, 1.7e-4, 3), -3e-3, 3e-3)
+        poses.append(T0 @ make_pose(zyx_to_matrix(*a), p))
+    return poses
+
+
+def _contact_row(label: str, scene: Scene, T: Array, n: int) -> list[str]:
+    model = ContactModel(scene)
+    res = model.wrench(T)
+    if not res.valid or res.count == 0:
+        raise RuntimeError(f"benchmark pose for {label} is not in contact")
+    static = _time(lambda _k: model.wrench(T), n)
+    poses = _walk(T, n + 50)
+    model.reset()
+    moving = _time(lambda k: model.wrench(poses[k]), n)
+    tris = sum(len(o.mesh.faces) for o in scene.objects)
+    return [label, f"{tris}", f"{len(scene.tool.radii)}", f"{res.count}", *(f"{v:.1f}" for v in (*static, *moving))]
+
+
+def _probe_scene(objects: list[ObjectSpec]) -> Scene:
+    base = load_scene("probe").spec
+    return build_scene(type(base)(name="bench", tool=base.tool, objects=tuple(objects), slave=base.slave))
+
+
+def _icosphere_scene(subdivisions: int, path_dir: str) -> Scene:
+    mesh = trimesh.creation.icosphere(subdivisions=subdivisions, radius=0.1)
+    mesh.apply_translation((0.0, 0.0, -0.1))  # top at z = 0, like the probe surface
+    path = f"{path_dir}/ico{subdivisions}.ply"
+    mesh.export(path)
+    return _probe_scene([ObjectSpec(name="ico", mesh=path, stiffness=3000.0)])
+
+
+def run(quick: bool = False) -> str:
+    """Run every case; return the table. ``quick`` uses fewer calls and skips the 1M mesh."""
+    import tempfile
+
+    n = 500 if quick else 3000
+    header = ["case", "triangles", "spheres", "contacts", "static med", "static p99", "moving med", "moving p99"]
+    rows: list[list[str]] = []
+    for name, (p, a) in CONTACT_POSES.items():
+        rows.append(_contact_row(f"scene {name}", load_scene(name), make_pose(zyx_to_matrix(*a), np.array(p)), n))
+    T_probe = make_pose(np.eye(3), np.array(CONTACT_POSES["probe"][0]))
+    with tempfile.TemporaryDirectory() as tmp:
+        for sub in (3, 5, 6) if quick else (3, 5, 6, 8):
+            rows.append(_contact_row(f"icosphere sub {sub}", _icosphere_scene(sub, tmp), T_probe, n))
+    surface = load_scene("probe").spec.objects[0]
+    for count in (1, 10, 100):
+        far = [
+            ObjectSpec(
+                name=f"far{i}",
+                box=(0.05, 0.05, 0.05),
+                pose=Pose((0.5 + 0.1 * (i % 10), 0.1 * (i // 10), 0.0)),
+                stiffness=3000.0,
+            )
+            for i in range(count - 1)
+        ]
+        rows.append(_contact_row(f"{count} objects", _probe_scene([surface, *far]), T_probe, n))
+    slave = VirtualSlave(load_scene("probe"), accommodation=True)
+    slave.reset(T_probe)
+    press = SlaveCommand(active=True, mode="rate", twist=np.array([0.0, 0.0, -0.01, 0.0, 0.0, 0.0]))
+    med, p99 = _time(lambda _k: slave.step(press), n)
+    rows.append(
+        [
+            "slave step (probe)",
+            "12",
+            f"{len(slave.scene.tool.radii)}",
+            f"{slave.contact.count}",
+            f"{med:.1f}",
+            f"{p99:.1f}",
+            "",
+            "",
+        ]
+    )
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)), "  ".join("-" * w for w in widths)]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
+    return "\n".join(lines) + "\n(times in microseconds per call)"

@@ -101,7 +101,9 @@ def test_tmat_difference_round_trips(q0, p0, dp, gamma, beta, alpha) -> None:
     T_0_G = make_pose(T_0_G0[0:3, 0:3] @ zyx_to_matrix(gamma, beta, alpha), p0 + dp)
     dx = tmat_difference(T_0_G0, T_0_G[0:3, 0:3], T_0_G[0:3, 3], np.empty(6))
     np.testing.assert_allclose(dx[0:3], dp, atol=1e-9)
-    np.testing.assert_allclose(dx[3:6], [gamma, beta, alpha], atol=1e-6)
+    # Angles are equal modulo 2 pi (+pi and -pi are the same rotation).
+    wrapped = np.remainder(dx[3:6] - np.array([gamma, beta, alpha]) + np.pi, 2 * np.pi) - np.pi
+    np.testing.assert_allclose(wrapped, 0.0, atol=1e-6)
 
 
 def test_tmat_difference_sign_convention() -> None:

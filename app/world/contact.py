@@ -12,13 +12,20 @@ correct for non-convex meshes. Penetration depth is ``r - phi`` with phi the sig
 the normal runs from q through the centre (outward), and there is exactly one contact per pair.
 
 Pop-through: each pair remembers its last contact plane (point q, outward normal n). If a new
-query's normal opposes the remembered one, the centre has crossed the middle of a thin part, so
-the remembered plane keeps giving the depth (pushing a 1 mm plate 10 mm never flips the force).
-The memory is released when the depth along it reaches 0.
+query's normal opposes the remembered one while the centre is behind the remembered plane, the
+centre has crossed the middle of a thin part, so the remembered plane keeps giving the depth
+(pushing a 1 mm plate 10 mm never flips the force). The memory is released when the depth along
+it reaches 0. (A flip with the centre still in front of the plane is a real new contact, e.g.
+the opposite wall of a hole.)
 
-Culling: the unsigned distance is 1-Lipschitz in the centre position, so a pair found at
-distance d > r cannot touch until its centre has moved ``d - r``; the query is skipped until
-then. Objects whose bounding box is out of reach of the tool's bounding sphere are skipped too.
+Culling, exact (no margin needed): the unsigned distance is 1-Lipschitz in the centre position,
+so a pair found at distance d > r cannot touch until its centre has moved ``d - r``. Per object,
+the pose at the last per-sphere check is kept with the smallest remaining slack; while every
+sphere centre provably moved less than that (tool translation + rotation times the tool's
+radius), only the spheres in contact ("hot") are queried, so a tick in steady contact costs one
+query per contact plus a few scalar operations. Objects whose bounding box is out of reach of
+the tool's bounding sphere are skipped, and that test is itself redone only when the tool has
+moved by the distance to the nearest far box.
 
 Any FCL result that is non-finite or inconsistent (e.g. from a NaN pose) makes the whole result
 invalid with a zero wrench; it never becomes a wrench.
@@ -45,6 +52,7 @@ _NUDGE = 1e-6
 # Tangential speed (m/s) below which friction is viscous (regularised Coulomb).
 _V_SLIP = 1e-3
 _FAR = 1e30  # 'never queried' centre position (m)
+_AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
 @dataclass(frozen=True)
@@ -166,13 +174,14 @@ class ContactModel:
         d, tri, qx, qy, qz = self._distance(obj, c)
         cx, cy, cz = c.tolist()
         if d == 0.0:
-            # On the surface: FCL gives no point, so query just off it and take that nearest point.
-            nudged = c + _NUDGE * np.array(hint)
-            d2, tri, qx, qy, qz = self._distance(obj, nudged)
-            if d2 == 0.0:
-                raise ContactQueryError("FCL distance degenerate at the surface twice")
-            nx, ny, nz = obj.pseudonormal(tri, qx, qy, qz)
-            return 0.0, qx, qy, qz, nx, ny, nz
+            # On the surface: FCL gives no point, so query just off it (along the reported face's
+            # normal, the remembered normal, then the axes: one of them leaves the surface).
+            for direction in (obj.face_normals[tri], hint, *_AXES):
+                d2, tri2, qx, qy, qz = self._distance(obj, c + _NUDGE * np.asarray(direction))
+                if d2 > 0.0:
+                    nx, ny, nz = obj.pseudonormal(tri2, qx, qy, qz)
+                    return 0.0, qx, qy, qz, nx, ny, nz
+            raise ContactQueryError("FCL distance degenerate at the surface in every direction")
         ux, uy, uz = (cx - qx) / d, (cy - qy) / d, (cz - qz) / d
         fx, fy, fz = obj.face_normals[tri].tolist()
         s = ux * fx + uy * fy + uz * fz

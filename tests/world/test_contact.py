@@ -338,6 +338,13 @@ def test_centre_exactly_on_the_surface_pushes_out_with_depth_r() -> None:
     np.testing.assert_allclose(res.force_w, [0, 0, K * R], atol=1e-9)
 
 
+def test_centre_exactly_on_a_vertical_face_pushes_out_sideways() -> None:
+    block = ObjectSpec(name="block", box=(0.1, 0.1, 0.1), stiffness=K)  # faces at +-0.05
+    res = contact_wrench(make_scene([block]), pose((0.05, 0.013, 0.021)))
+    assert res.valid
+    np.testing.assert_allclose(res.force_w, [K * R, 0, 0], atol=1e-9)
+
+
 def test_damping_and_friction_use_the_contact_point_velocity() -> None:
     scene = make_scene([plane(K, damping=20.0, friction=0.5)])
     depth, vz, vx = 0.002, -0.01, 0.05  # pressing in at 1 cm/s while sliding at 5 cm/s

@@ -29,7 +29,7 @@ import mujoco
 import numpy as np
 
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
-from app.spatial import Array, matrix_to_quat, quat_to_matrix, rotation_exp, rotation_log
+from app.spatial import Array, matrix_to_quat, rotation_exp, rotation_log
 from app.world.contact import ContactModel, ContactResult
 from app.world.scene import Scene
 from app.world.vec3 import cross3
@@ -93,6 +93,7 @@ class VirtualSlave:
         self._T_ref = np.eye(4)
         self._T_buf = np.eye(4)
         self._V_buf = np.zeros(6)
+        self._R_buf = np.zeros(9)
         self._contact: ContactResult
         self.reset()
 
@@ -112,7 +113,9 @@ class VirtualSlave:
         self._contact = self.contact_model.wrench(self.T_w_MRF, self.V_w_MRF)
 
     def _R_w_T(self) -> Array:
-        return quat_to_matrix(self.data.qpos[3:7])
+        """Orientation of {T} in {w} (3, 3), written into a buffer (mju_quat2Mat: no Python maths)."""
+        mujoco.mju_quat2Mat(self._R_buf, self.data.qpos[3:7])
+        return self._R_buf.reshape(3, 3).copy()
 
     @property
     def T_w_MRF(self) -> Array:
@@ -204,7 +207,8 @@ class VirtualSlave:
         T_buf = self._T_buf
         V = self._V_buf
         for sub in range(self._substeps):
-            R_w_T = quat_to_matrix(d.qpos[3:7])
+            mujoco.mju_quat2Mat(self._R_buf, d.qpos[3:7])
+            R_w_T = self._R_buf.reshape(3, 3)
             w_w = R_w_T @ d.qvel[3:6]
             r_com_MRF = R_w_T @ self._p_com_MRF_T
             p_MRF = d.qpos[0:3] + r_com_MRF

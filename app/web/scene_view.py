@@ -1,0 +1,251 @@
+"""The 3D scene in viser: device, grip frames, hand-target gizmo, world, tool, contacts, wrenches.
+
+The device base {0} and the slave world {w} are separate spaces. In the viser scene frame {v}
+(z up) they are placed side by side without rotation: {0} at :data:`DEVICE_ORIGIN_V` (left) and
+{w} at :data:`WORLD_ORIGIN_V` (right), so ``p_v = p_0 + DEVICE_ORIGIN_V`` and
+``p_v = p_w + WORLD_ORIGIN_V``. Wrench arrows are drawn at their reference points with
+:data:`FORCE_SCALE` metres per newton and :data:`MOMENT_SCALE` metres per newton-metre (a moment
+arrow points along its axis, right-hand rule).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TypeVar, cast
+
+import mujoco
+import numpy as np
+import trimesh
+import viser
+
+from app.session.loop import ServoLoop
+from app.spatial import Array, invert_pose, make_pose, matrix_to_quat, quat_to_matrix
+from app.web.realtime import Snapshot
+
+#: Where the device base {0} sits in the viser frame (m): on the left.
+DEVICE_ORIGIN_V = np.array([-0.5, 0.0, 0.0])
+#: Where the slave world {w} sits in the viser frame (m): on the right.
+WORLD_ORIGIN_V = np.array([0.3, 0.0, 0.0])
+#: Arrow length per newton of force (m/N).
+FORCE_SCALE = 0.01
+#: Arrow length per newton-metre of moment (m/(N m)).
+MOMENT_SCALE = 0.1
+#: Arrows shorter than this (m) are hidden rather than drawn as a degenerate cone.
+MIN_ARROW = 1e-3
+
+T_V_0 = make_pose(np.eye(3), DEVICE_ORIGIN_V)
+T_V_W = make_pose(np.eye(3), WORLD_ORIGIN_V)
+T_0_V = invert_pose(T_V_0)
+
+H = TypeVar("H", bound=viser.SceneNodeHandle)
+
+
+@dataclass(frozen=True)
+class WrenchArrow:
+    """One drawn wrench: which snapshot field, where it acts, its colour, and its legend text."""
+
+    key: str
+    label: str
+    color: tuple[int, int, int]
+
+
+#: The wrenches drawn, each as a force arrow and a (darker) moment arrow.
+WRENCH_ARROWS = (
+    WrenchArrow("task_MRF", "task wrench F_MRF at {MRF}", (230, 60, 40)),
+    WrenchArrow("reflected_G", "reflected task wrench K_T F_MRF at {G}", (240, 150, 20)),
+    WrenchArrow("assist_G", "assist wrench (return-to-centre + damping) at {G}", (60, 110, 230)),
+    WrenchArrow("hand_G", "operator's hand on the grip at {G}", (40, 170, 80)),
+)
+
+
+def pose_to_wxyz_position(T: Array) -> tuple[Array, Array]:
+    """A 4x4 pose as viser's ``(wxyz, position)``."""
+    return matrix_to_quat(T[0:3, 0:3]), T[0:3, 3].copy()
+
+
+def viser_to_device(wxyz: Array, position: Array) -> Array:
+    """A pose given in the viser frame, as ``T_0_X`` in the device base {0} (4, 4)."""
+    return T_0_V @ make_pose(quat_to_matrix(np.asarray(wxyz, dtype=float)), np.asarray(position, dtype=float))
+
+
+def _geom_mesh(model: mujoco.MjModel, g: int) -> trimesh.Trimesh | None:
+    """Geom ``g`` of ``model`` as a mesh in the geom's own frame, or None for planes/height fields."""
+    size = model.geom_size[g]
+    kind = int(model.geom_type[g])
+    geom = mujoco.mjtGeom
+    if kind == geom.mjGEOM_SPHERE:
+        return trimesh.creation.icosphere(subdivisions=2, radius=size[0])
+    if kind == geom.mjGEOM_CAPSULE:
+        return trimesh.creation.capsule(height=2 * size[1], radius=size[0])
+    if kind == geom.mjGEOM_CYLINDER:
+        return trimesh.creation.cylinder(radius=size[0], height=2 * size[1])
+    if kind == geom.mjGEOM_BOX:
+        return trimesh.creation.box(extents=2 * size)
+    if kind == geom.mjGEOM_ELLIPSOID:
+        mesh = trimesh.creation.icosphere(subdivisions=2)
+        mesh.apply_scale(size)
+        return mesh
+    if kind == geom.mjGEOM_MESH:
+        m = int(model.geom_dataid[g])
+        v0, nv = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
+        f0, nf = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
+        return trimesh.Trimesh(model.mesh_vert[v0 : v0 + nv], model.mesh_face[f0 : f0 + nf], process=False)
+    return None
+
+
+def _tool_mesh(centers_T: Array, radii: Array) -> trimesh.Trimesh:
+    """The tool's sphere shell as one mesh in the tool frame {T}."""
+    parts = []
+    for c, r in zip(centers_T, radii, strict=True):
+        s = trimesh.creation.icosphere(subdivisions=1, radius=float(r))
+        s.apply_translation(c)
+        parts.append(s)
+    return cast(trimesh.Trimesh, trimesh.util.concatenate(parts))
+
+
+def _rgb(rgba: Array) -> tuple[int, int, int]:
+    return (int(255 * rgba[0]), int(255 * rgba[1]), int(255 * rgba[2]))
+
+
+class SceneView:
+    """The viser scene nodes of one servo loop (device + scene); rebuilt when either changes.
+
+    Args:
+        server: The viser server (scene shared by every browser).
+        loop: The servo loop whose device and scene are drawn (only read at construction).
+        on_hand_moved: Called with ``T_0_H`` (4, 4, device base) when a browser drags the gizmo.
+    """
+
+    def __init__(self, server: viser.ViserServer, loop: ServoLoop, on_hand_moved: Callable[[Array], None]) -> None:
+        self.server = server
+        scene = server.scene
+        self._handles: list[viser.SceneNodeHandle] = []
+        self._last: dict[str, tuple[Array, Array]] = {}
+
+        self._add(scene.add_frame("/device", axes_length=0.08, axes_radius=0.003, position=DEVICE_ORIGIN_V))
+        self._add(scene.add_label("/device/label", "device base {0}", position=(0.0, 0.0, -0.03)))
+        self._add(scene.add_frame("/world", axes_length=0.08, axes_radius=0.003, position=WORLD_ORIGIN_V))
+        self._add(scene.add_label("/world/label", "slave world {w}", position=(0.0, 0.0, -0.05)))
+
+        model = loop.plant.model
+        self.geoms: dict[int, viser.MeshHandle] = {}
+        for g in range(model.ngeom):
+            mesh = _geom_mesh(model, g)
+            if mesh is None:
+                continue
+            handle = scene.add_mesh_simple(
+                f"/links/geom_{g}", mesh.vertices, mesh.faces, color=_rgb(model.geom_rgba[g]), flat_shading=False
+            )
+            self.geoms[g] = self._add(handle)
+
+        self.grip = self._add(scene.add_frame("/grip", axes_length=0.05, axes_radius=0.004))
+        self._add(scene.add_label("/grip/label", "{G}", position=(0.0, 0.0, 0.02)))
+        self.reference = self._add(scene.add_frame("/reference", axes_length=0.04, axes_radius=0.0015))
+        self._add(scene.add_label("/reference/label", "{G0}", position=(0.0, 0.0, -0.02)))
+        self.hand_target = self._add(
+            scene.add_transform_controls("/hand_target", scale=0.12, depth_test=False, opacity=0.8)
+        )
+        T_0_G = loop.reading.T_0_G
+        self.set_hand_target(T_0_G)
+
+        @self.hand_target.on_update
+        def _(event: viser.TransformControlsEvent) -> None:
+            on_hand_moved(viser_to_device(event.target.wxyz, event.target.position))
+
+        for i, obj in enumerate(loop.slave.scene.objects):
+            self._add(
+                scene.add_mesh_simple(
+                    f"/world/object_{i}", obj.mesh.vertices, obj.mesh.faces, color=(170, 175, 185), opacity=0.9
+                )
+            )
+        tool = loop.slave.scene.tool
+        self._T_MRF_T = invert_pose(tool.T_T_MRF)
+        tool_mesh = _tool_mesh(tool.centers_T, tool.radii)
+        self.tool = self._add(scene.add_mesh_simple("/tool", tool_mesh.vertices, tool_mesh.faces, color=(200, 160, 60)))
+        self.mrf = self._add(scene.add_frame("/mrf", axes_length=0.04, axes_radius=0.002))
+        self._add(scene.add_label("/mrf/label", "{MRF}", position=(0.015, 0.0, 0.0)))
+        self.sensor = self._add(scene.add_frame("/sensor", axes_length=0.03, axes_radius=0.002))
+        self._add(scene.add_label("/sensor/label", "{S}", position=(0.015, 0.0, 0.0)))
+        self.contacts = self._add(
+            scene.add_point_cloud(
+                "/contacts", np.zeros((1, 3)), colors=(255, 0, 200), point_size=0.006, point_shape="circle"
+            )
+        )
+
+        self.arrows: dict[str, viser.ArrowsHandle] = {}
+        for arrow in WRENCH_ARROWS:
+            for part, shade in (("force", 1.0), ("moment", 0.55)):
+                r, g, b = (int(c * shade) for c in arrow.color)
+                self.arrows[f"{arrow.key}/{part}"] = self._add(
+                    scene.add_arrows(
+                        f"/wrenches/{arrow.key}/{part}",
+                        np.zeros((1, 2, 3)),
+                        colors=(r, g, b),
+                        shaft_radius=0.002,
+                        head_radius=0.005,
+                        head_length=0.01,
+                        visible=False,
+                    )
+                )
+
+    def _add(self, handle: H) -> H:
+        self._handles.append(handle)
+        return handle
+
+    def remove(self) -> None:
+        """Take every node of this view out of the scene."""
+        for handle in reversed(self._handles):
+            handle.remove()
+        self._handles.clear()
+
+    def set_hand_target(self, T_0_H: Array) -> None:
+        """Put the gizmo at ``T_0_H`` (4, 4, device base); browsers see it move."""
+        self.hand_target.wxyz, self.hand_target.position = pose_to_wxyz_position(T_V_0 @ T_0_H)
+
+    def _place(self, key: str, handle: viser.SceneNodeHandle, T_v: Array) -> None:
+        """Move ``handle`` to pose ``T_v`` (viser frame), sending nothing when it has not moved."""
+        wxyz, position = pose_to_wxyz_position(T_v)
+        last = self._last.get(key)
+        if last is not None and np.allclose(last[0], wxyz, atol=1e-5) and np.allclose(last[1], position, atol=1e-6):
+            return
+        self._last[key] = (wxyz, position)
+        handle.wxyz, handle.position = wxyz, position
+
+    def _arrow(self, key: str, origin_v: Array, vector_v: Array) -> None:
+        handle = self.arrows[key]
+        if float(np.linalg.norm(vector_v)) < MIN_ARROW:
+            handle.visible = False
+            return
+        handle.points = np.stack((origin_v, origin_v + vector_v))[None].astype(np.float32)
+        handle.visible = True
+
+    def update(self, snap: Snapshot) -> None:
+        """Move every node to the state in ``snap`` (call from the UI thread)."""
+        for g, handle in self.geoms.items():
+            self._place(f"geom_{g}", handle, T_V_0 @ make_pose(snap.geom_xmat[g], snap.geom_xpos[g]))
+        T_v_G = T_V_0 @ snap.T_0_G
+        self._place("grip", self.grip, T_v_G)
+        self._place("reference", self.reference, T_V_0 @ snap.T_0_G0)
+        T_v_MRF = T_V_W @ snap.T_w_MRF
+        self._place("tool", self.tool, T_v_MRF @ self._T_MRF_T)
+        self._place("mrf", self.mrf, T_v_MRF)
+        self._place("sensor", self.sensor, T_V_W @ snap.T_w_S)
+
+        if len(snap.contact_points_w):
+            self.contacts.points = snap.contact_points_w + WORLD_ORIGIN_V
+            self.contacts.visible = True
+        else:
+            self.contacts.visible = False
+
+        R_v_MRF, R_v_G = T_v_MRF[0:3, 0:3], T_v_G[0:3, 0:3]
+        p_MRF, p_G = T_v_MRF[0:3, 3], T_v_G[0:3, 3]
+        in_v = {
+            "task_MRF": (p_MRF, R_v_MRF @ snap.F_MRF[0:3], R_v_MRF @ snap.F_MRF[3:6]),
+            "reflected_G": (p_G, R_v_G @ snap.G_F_T[0:3], R_v_G @ snap.G_F_T[3:6]),
+            "assist_G": (p_G, R_v_G @ snap.G_F_RD[0:3], R_v_G @ snap.G_F_RD[3:6]),
+            "hand_G": (p_G, snap.hand_wrench_0[0:3], snap.hand_wrench_0[3:6]),
+        }
+        for key, (origin, force, moment) in in_v.items():
+            self._arrow(f"{key}/force", origin, FORCE_SCALE * force)
+            self._arrow(f"{key}/moment", origin, MOMENT_SCALE * moment)

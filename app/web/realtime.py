@@ -1,14 +1,20 @@
-"""The servo loop paced to the wall clock in its own thread, and the snapshots the UI reads.
+"""The servo loop paced to the wall clock in its own process, and the snapshots the UI reads.
 
-The loop thread owns the :class:`~app.session.loop.ServoLoop`: nothing else touches it while the
-thread runs. Other threads (viser callbacks, the UI refresh) talk to it in two ways only:
+The loop runs in a child process (``spawn``) so that the web server's threads (websocket, callbacks,
+redraws) never compete with it for the GIL: in one process a redraw or a message encode held the
+interpreter for milliseconds and the period jitter p99 was ~2 ms; in its own process the loop only
+shares the CPU. The parent keeps an identical but never-ticked :class:`ServoLoop` for the static
+geometry the view needs (device geoms, world meshes, tool).
 
-- **Commands** go into a deque of functions the loop thread applies at the start of its next tick
-  (``deque.append``/``popleft`` are atomic), so a switch, a gain change or a hand-target drag takes
-  effect between ticks, never in the middle of one.
-- **Snapshots** come back: every ``publish_every`` ticks the loop thread copies what the display
-  needs into a new immutable :class:`Snapshot` and swaps the reference (an atomic assignment). A
-  slow or absent browser only ever reads an older snapshot; it cannot slow the loop.
+Parent and child talk through three channels, none of which can block the loop:
+
+- **Commands** (parent -> child): small tuples on a pipe, applied by the loop between ticks
+  (``poll`` is a non-blocking check each tick).
+- **Snapshots** (child -> parent): every ``publish_every`` ticks the loop pickles a
+  :class:`Snapshot` into a shared buffer guarded by a sequence counter (a seqlock): the writer never
+  waits, a reader retries if it raced a write. A slow or absent browser only ever reads an older one.
+- **Timing** (child -> parent): per-tick period and compute time in shared ring buffers; the parent
+  computes the statistics, so asking for them costs the loop nothing.
 
 Pacing uses absolute ``time.perf_counter_ns`` deadlines ``t0 + k dt``: sleep most of the wait and
 spin the last :data:`SPIN_NS`, because ``time.sleep`` wakes up to ~0.1 ms late on Linux. A tick that
@@ -18,20 +24,26 @@ loop fell more than :data:`MAX_LAG_TICKS` behind, in which case the schedule res
 
 from __future__ import annotations
 
-import collections
-import sys
+import ctypes
+import multiprocessing as mp
+import pickle
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from multiprocessing.connection import Connection
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from app.controller.gains import ControllerGains
+from app.device.hand import HandParams
+from app.device.spec import load_device
+from app.errors import ConfigError
 from app.session.log import TickLog
-from app.session.loop import ServoLoop
+from app.session.loop import LoopConfig, ServoLoop
 from app.spatial import Array
+from app.world.scene import load_scene
 
 #: The last part of each wait is spun rather than slept (ns): sleep wake-up latency is ~0.1 ms.
 SPIN_NS = 300_000
@@ -39,11 +51,10 @@ SPIN_NS = 300_000
 MAX_LAG_TICKS = 50
 #: Periods kept for the timing statistics (a ring buffer; 65 s at 1 kHz).
 TIMING_HISTORY = 1 << 16
-#: GIL switch interval (s) while the loop runs. Python's default 5 ms would let a UI thread hold
-#: the interpreter for up to 5 ms after the loop thread wakes; 0.1 ms bounds that wait.
-GIL_SWITCH_INTERVAL = 1e-4
-
-Command = Callable[[ServoLoop], None]
+#: Bytes of the shared snapshot buffer; contact points beyond what fits are dropped from display.
+SNAPSHOT_BYTES = 1 << 20
+#: Seconds to wait for the child to exit before it is terminated.
+STOP_TIMEOUT = 5.0
 
 
 @dataclass(frozen=True)
@@ -125,134 +136,298 @@ class TimingStats:
     slips: int
 
 
+def take_snapshot(loop: ServoLoop, T_0_H: Array | None, recording: Path | None) -> Snapshot:
+    """Copy the display state of ``loop`` after its last tick."""
+    out = loop.controller.out
+    data = loop.plant.data
+    T_w_MRF = loop.slave.T_w_MRF
+    return Snapshot(
+        time=loop.time,
+        ticks=loop.ticks,
+        geom_xpos=data.geom_xpos.copy(),
+        geom_xmat=data.geom_xmat.reshape(-1, 3, 3).copy(),
+        T_0_G=loop.reading.T_0_G.copy(),
+        T_0_G0=out.T_0_G0.copy(),
+        T_0_H=None if T_0_H is None else T_0_H.copy(),
+        T_w_MRF=T_w_MRF,
+        T_w_S=T_w_MRF @ loop.controller.slave.T_MRF_S,
+        contact_points_w=loop.slave.contact.points_w.copy(),
+        F_MRF=out.F_MRF.copy(),
+        G_F_T=out.G_F_T.copy(),
+        G_F_RD=out.G_F_RD.copy(),
+        hand_wrench_0=loop.reading.wrench_G.copy(),
+        delta_x=out.delta_x.copy(),
+        deadman=loop.switches.deadman,
+        reflection=loop.switches.reflection,
+        reflecting=out.reflecting,
+        mode=loop.controller.gains.mode,
+        faults=int(out.faults),
+        fault_message=out.fault_message,
+        saturation_scale=out.saturation_scale,
+        recording=recording,
+    )
+
+
+@dataclass(frozen=True)
+class LoopRecipe:
+    """How the child process rebuilds the parent's :class:`LoopConfig` (files, not live objects:
+    scenes hold FCL objects that cannot be pickled)."""
+
+    scene_path: Path
+    device_path: Path
+    gains: ControllerGains
+    hand: HandParams
+    accommodation: bool
+    servo_rate: float
+
+    @staticmethod
+    def of(config: LoopConfig) -> LoopRecipe:
+        if config.scene.path is None:
+            raise ConfigError("<scene>", "path", "the web demo needs a scene loaded from a file")
+        return LoopRecipe(
+            config.scene.path, config.device.path, config.gains, config.hand, config.accommodation, config.servo_rate
+        )
+
+    def build(self) -> ServoLoop:
+        scene, device = load_scene(self.scene_path), load_device(self.device_path)
+        return ServoLoop(LoopConfig(device, scene, self.gains, self.hand, self.accommodation, self.servo_rate))
+
+
+class _Shared:
+    """Memory both processes map: the seqlocked snapshot buffer and the timing ring buffers."""
+
+    def __init__(self) -> None:
+        ctx = mp.get_context("spawn")
+        self.seq = ctx.RawValue(ctypes.c_uint64, 0)
+        self.length = ctx.RawValue(ctypes.c_uint64, 0)
+        self.buffer = ctx.RawArray(ctypes.c_uint8, SNAPSHOT_BYTES)
+        self.count = ctx.RawValue(ctypes.c_int64, 0)
+        self.slips = ctx.RawValue(ctypes.c_int64, 0)
+        self.periods = ctx.RawArray(ctypes.c_int64, TIMING_HISTORY)
+        self.tick_ns = ctx.RawArray(ctypes.c_int64, TIMING_HISTORY)
+
+    def write_snapshot(self, snap: Snapshot) -> None:
+        data = pickle.dumps(snap, protocol=pickle.HIGHEST_PROTOCOL)
+        if len(data) > SNAPSHOT_BYTES:
+            data = pickle.dumps(_without_contacts(snap), protocol=pickle.HIGHEST_PROTOCOL)
+        self.seq.value += 1  # odd: a write is in progress
+        memoryview(self.buffer).cast("B")[: len(data)] = data
+        self.length.value = len(data)
+        self.seq.value += 1
+
+    def read_snapshot(self) -> Snapshot | None:
+        """The latest published snapshot, or None if nothing was published yet."""
+        view = memoryview(self.buffer).cast("B")
+        while True:
+            before = self.seq.value
+            if before == 0:
+                return None
+            if before % 2:
+                continue
+            data = bytes(view[: self.length.value])
+            if self.seq.value == before:
+                snap: Snapshot = pickle.loads(data)
+                return snap
+
+    def timing(self) -> tuple[int, Array, Array]:
+        """``(ticks counted, periods (ns), tick compute times (ns))`` as numpy views."""
+        return (
+            int(self.count.value),
+            np.frombuffer(memoryview(self.periods), dtype=np.int64),
+            np.frombuffer(memoryview(self.tick_ns), dtype=np.int64),
+        )
+
+
+def _without_contacts(snap: Snapshot) -> Snapshot:
+    return replace(snap, contact_points_w=snap.contact_points_w[:1000])
+
+
+def _apply(loop: ServoLoop, state: dict[str, Any], command: tuple[Any, ...]) -> bool:
+    """Apply one parent command in the loop process; False means stop."""
+    name = command[0]
+    if name == "hand":
+        state["hand"] = command[1]
+        loop.set_hand_target(command[1])
+    elif name == "deadman":
+        loop.switches.deadman = command[1]
+    elif name == "reflection":
+        loop.switches.reflection = command[1]
+    elif name == "reference":
+        loop.switches.reference = True
+    elif name == "gains":
+        loop.set_gains(command[1])
+    elif name == "reset":
+        loop.reset()
+        loop.set_hand_target(state["hand"])
+    elif name == "record":
+        if state["log"] is not None:
+            state["log"].close()
+        state["log"] = None if command[1] is None else TickLog(command[1], loop.config.device.n_joints)
+    elif name == "stop":
+        return False
+    return True
+
+
+def _child_main(recipe: LoopRecipe, conn: Connection, shared: _Shared, publish_every: int) -> None:
+    """The loop process: build the loop, then tick it on the wall clock until told to stop."""
+    loop = recipe.build()
+    loop.tick()  # the first tick loads the compiled kernels (~0.3 s): keep it off the clock
+    loop.reset()
+    state: dict[str, Any] = {"hand": None, "log": None}
+    dt_ns = round(loop.dt * 1e9)
+    periods = np.frombuffer(memoryview(shared.periods), dtype=np.int64)
+    tick_ns = np.frombuffer(memoryview(shared.tick_ns), dtype=np.int64)
+    clock = time.perf_counter_ns
+    running = True
+    count = 0
+    deadline = clock()
+    previous = deadline
+    try:
+        while running:
+            wait = deadline - clock()
+            if wait > SPIN_NS:
+                time.sleep((wait - SPIN_NS) * 1e-9)
+            while clock() < deadline:
+                pass
+            start = clock()
+            while running and conn.poll():
+                running = _apply(loop, state, conn.recv())
+            out = loop.tick()
+            loop.switches.reference = False  # momentary: one tick per press
+            log: TickLog | None = state["log"]
+            if log is not None:
+                log.record(loop, out, state["hand"])
+            if loop.ticks % publish_every == 0:
+                shared.write_snapshot(take_snapshot(loop, state["hand"], None if log is None else log.directory))
+            i = count % TIMING_HISTORY
+            periods[i] = start - previous
+            tick_ns[i] = clock() - start
+            count += 1
+            shared.count.value = count
+            previous = start
+            deadline += dt_ns
+            if clock() - deadline > MAX_LAG_TICKS * dt_ns:
+                deadline = clock()
+                shared.slips.value += 1
+    finally:
+        if state["log"] is not None:
+            state["log"].close()
+
+
 class RealtimeLoop:
-    """Runs a :class:`ServoLoop` at its configured rate in a daemon thread.
+    """Runs a servo loop at its configured rate in a child process.
 
     Args:
-        loop: The servo loop; owned by the thread between :meth:`start` and :meth:`stop`.
-        publish_every: Ticks between snapshots (10 at 1 kHz = 100 snapshots/s, above any UI rate).
+        config: The loop to run; its scene and device must come from files.
+        publish_every: Ticks between snapshots (20 at 1 kHz = 50 snapshots/s, above the UI rate).
+
+    Attributes:
+        loop: A parent-side copy of the loop, never ticked: static geometry for the view.
     """
 
-    def __init__(self, loop: ServoLoop, publish_every: int = 10) -> None:
-        self.loop = loop
+    def __init__(self, config: LoopConfig, publish_every: int = 20) -> None:
+        self.recipe = LoopRecipe.of(config)
+        self.loop = ServoLoop(config)
         self.publish_every = publish_every
-        self.dt_ns = round(loop.dt * 1e9)
-        self._commands: collections.deque[Command] = collections.deque()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._hand_target: Array | None = None
-        self._log: TickLog | None = None
-        self._gains = loop.controller.gains
-        self._periods = np.zeros(TIMING_HISTORY, dtype=np.int64)
-        self._tick_ns = np.zeros(TIMING_HISTORY, dtype=np.int64)
-        self._count = 0
-        self._slips = 0
-        self._old_switch_interval = sys.getswitchinterval()
-        self.snapshot: Snapshot = self._take_snapshot()
+        self.dt_ns = round(self.loop.dt * 1e9)
+        self._gains = config.gains
+        self._shared = _Shared()
+        self._initial = take_snapshot(self.loop, None, None)
+        self._conn, self._child_conn = mp.get_context("spawn").Pipe()
+        self._send_lock = threading.Lock()  # viser callbacks send from several threads
+        self._process: Any = None
 
     # -- lifetime -------------------------------------------------------------------------------
 
     def start(self) -> None:
-        """Start the paced thread."""
-        if self._thread is not None:
+        """Start the loop process (it begins ticking once it has built its loop, ~1-3 s)."""
+        if self._process is not None:
             return
-        self._old_switch_interval = sys.getswitchinterval()
-        sys.setswitchinterval(GIL_SWITCH_INTERVAL)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="servo-loop", daemon=True)
-        self._thread.start()
+        ctx = mp.get_context("spawn")
+        self._process = ctx.Process(
+            target=_child_main,
+            args=(self.recipe, self._child_conn, self._shared, self.publish_every),
+            name="servo-loop",
+            daemon=True,
+        )
+        self._process.start()
+
+    def wait_running(self, timeout: float = 30.0) -> bool:
+        """Block until the loop process has published its first snapshot; False on timeout."""
+        end = time.monotonic() + timeout
+        while self._shared.seq.value == 0:
+            if time.monotonic() > end or (self._process is not None and not self._process.is_alive()):
+                return False
+            time.sleep(0.01)
+        return True
 
     def stop(self) -> None:
-        """Stop the thread (after its current tick) and close any log being written."""
-        if self._thread is None:
+        """Stop the loop process after its current tick (it closes any log being written)."""
+        if self._process is None:
             return
-        self._stop.set()
-        self._thread.join()
-        self._thread = None
-        sys.setswitchinterval(self._old_switch_interval)
-        self._close_log()
+        self._send("stop")
+        self._process.join(STOP_TIMEOUT)
+        if self._process.is_alive():
+            self._process.terminate()
+            self._process.join()
+        self._process = None
 
     # -- commands (any thread) ------------------------------------------------------------------
 
-    def submit(self, command: Command) -> None:
-        """Run ``command(loop)`` in the loop thread before its next tick."""
-        self._commands.append(command)
+    def _send(self, *command: Any) -> None:
+        with self._send_lock:
+            self._conn.send(command)
 
     def set_hand_target(self, T_0_H: Array | None) -> None:
         """Where the operator's hand pulls the grip (4, 4, device base {0}); None lets go."""
-        target = None if T_0_H is None else np.array(T_0_H, dtype=float)
-
-        def apply(loop: ServoLoop) -> None:
-            self._hand_target = target
-            loop.set_hand_target(target)
-
-        self.submit(apply)
+        self._send("hand", None if T_0_H is None else np.array(T_0_H, dtype=float))
 
     def set_deadman(self, on: bool) -> None:
-        def apply(loop: ServoLoop) -> None:
-            loop.switches.deadman = on
-
-        self.submit(apply)
+        self._send("deadman", bool(on))
 
     def set_reflection(self, on: bool) -> None:
-        def apply(loop: ServoLoop) -> None:
-            loop.switches.reflection = on
-
-        self.submit(apply)
+        self._send("reflection", bool(on))
 
     def press_reference(self) -> None:
         """A momentary press of the reference switch: on for exactly one tick (Sec 4.1)."""
-
-        def apply(loop: ServoLoop) -> None:
-            loop.switches.reference = True
-
-        self.submit(apply)
+        self._send("reference")
 
     @property
     def gains(self) -> ControllerGains:
-        """The gains most recently set (possibly not yet applied by the loop thread)."""
+        """The gains most recently set (possibly not yet applied by the loop)."""
         return self._gains
 
     def set_gains(self, gains: ControllerGains) -> None:
         self._gains = gains
-
-        def apply(loop: ServoLoop) -> None:
-            loop.set_gains(gains)
-
-        self.submit(apply)
+        self._send("gains", gains)
 
     def reset(self) -> None:
         """Device and slave home, switches off; the hand keeps holding its current target."""
-
-        def apply(loop: ServoLoop) -> None:
-            loop.reset()
-            loop.set_hand_target(self._hand_target)
-
-        self.submit(apply)
+        self._send("reset")
 
     def start_recording(self, directory: Path) -> None:
         """Write the per-tick log (the same Parquet log as a headless session) into ``directory``."""
-
-        def apply(loop: ServoLoop) -> None:
-            self._close_log()
-            self._log = TickLog(directory, loop.config.device.n_joints)
-
-        self.submit(apply)
+        self._send("record", directory)
 
     def stop_recording(self) -> None:
-        self.submit(lambda loop: self._close_log())
+        self._send("record", None)
 
-    # -- statistics (any thread) ----------------------------------------------------------------
+    # -- state (any thread) ---------------------------------------------------------------------
+
+    @property
+    def snapshot(self) -> Snapshot:
+        """The latest snapshot (the loop's initial state until the process publishes)."""
+        return self._shared.read_snapshot() or self._initial
 
     def stats(self, last: int | None = None) -> TimingStats:
         """Timing over the last ``last`` periods (default: all kept, up to :data:`TIMING_HISTORY`)."""
-        count = self._count
+        count, all_periods, all_ticks = self._shared.timing()
         n = min(count - 1, TIMING_HISTORY - 1, last if last is not None else TIMING_HISTORY)
         if n < 1:
-            return TimingStats(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, self._slips)
+            return TimingStats(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, int(self._shared.slips.value))
         idx = np.arange(count - n, count) % TIMING_HISTORY
-        periods = self._periods[idx].astype(float) / 1e3
-        ticks = self._tick_ns[idx].astype(float) / 1e3
+        periods = all_periods[idx].astype(float) / 1e3
+        ticks = all_ticks[idx].astype(float) / 1e3
         jitter = np.abs(periods - self.dt_ns / 1e3)
         return TimingStats(
             ticks=n,
@@ -262,76 +437,5 @@ class RealtimeLoop:
             jitter_max_us=float(jitter.max()),
             tick_p50_us=float(np.median(ticks)),
             tick_p99_us=float(np.percentile(ticks, 99)),
-            slips=self._slips,
-        )
-
-    # -- the loop thread ------------------------------------------------------------------------
-
-    def _close_log(self) -> None:
-        if self._log is not None:
-            self._log.close()
-            self._log = None
-
-    def _run(self) -> None:
-        loop = self.loop
-        dt_ns = self.dt_ns
-        commands = self._commands
-        periods, tick_ns = self._periods, self._tick_ns
-        clock = time.perf_counter_ns
-        deadline = clock()
-        previous = deadline
-        while not self._stop.is_set():
-            wait = deadline - clock()
-            if wait > SPIN_NS:
-                time.sleep((wait - SPIN_NS) * 1e-9)
-            while clock() < deadline:
-                pass
-            start = clock()
-            while commands:
-                commands.popleft()(loop)
-            out = loop.tick()
-            loop.switches.reference = False  # momentary: one tick per press
-            if self._log is not None:
-                self._log.record(loop, out, self._hand_target)
-            if loop.ticks % self.publish_every == 0:
-                self.snapshot = self._take_snapshot()
-            i = self._count % TIMING_HISTORY
-            periods[i] = start - previous
-            tick_ns[i] = clock() - start
-            self._count += 1
-            previous = start
-            deadline += dt_ns
-            if clock() - deadline > MAX_LAG_TICKS * dt_ns:
-                deadline = clock()
-                self._slips += 1
-
-    def _take_snapshot(self) -> Snapshot:
-        loop = self.loop
-        out = loop.controller.out
-        data = loop.plant.data
-        T_w_MRF = loop.slave.T_w_MRF
-        return Snapshot(
-            time=loop.time,
-            ticks=loop.ticks,
-            geom_xpos=data.geom_xpos.copy(),
-            geom_xmat=data.geom_xmat.reshape(-1, 3, 3).copy(),
-            T_0_G=loop.reading.T_0_G.copy(),
-            T_0_G0=out.T_0_G0.copy(),
-            T_0_H=None if self._hand_target is None else self._hand_target.copy(),
-            T_w_MRF=T_w_MRF,
-            T_w_S=T_w_MRF @ loop.controller.slave.T_MRF_S,
-            contact_points_w=loop.slave.contact.points_w.copy(),
-            F_MRF=out.F_MRF.copy(),
-            G_F_T=out.G_F_T.copy(),
-            G_F_RD=out.G_F_RD.copy(),
-            hand_wrench_0=loop.reading.wrench_G.copy(),
-            delta_x=out.delta_x.copy(),
-            deadman=loop.switches.deadman,
-            reflection=loop.switches.reflection,
-            reflecting=out.reflecting,
-            mode=loop.controller.gains.mode,
-            faults=int(out.faults),
-            fault_message=out.fault_message,
-            saturation_scale=out.saturation_scale,
-            recording=None if self._log is None else self._log.directory,
+            slips=int(self._shared.slips.value),
         )

@@ -1,8 +1,9 @@
 """The browser haptic demo: :func:`serve` (behind ``frhc web``) and the :class:`DemoApp` it runs.
 
-Three kinds of thread share the process:
+Three kinds of thread run the demo:
 
-- the servo loop thread (:class:`~app.web.realtime.RealtimeLoop`), paced at the servo rate;
+- the servo loop, in its own process (:class:`~app.web.realtime.RealtimeLoop`), paced at the
+  servo rate;
 - viser's own threads (websocket event loop, callback pool), which turn browser input into loop
   commands and never touch the loop directly;
 - the UI thread here, which at :data:`UI_RATE` redraws the scene and the panel from the loop's
@@ -23,7 +24,7 @@ import viser
 from app.controller.gains import ControllerGains
 from app.device.hand import HandParams
 from app.device.spec import DeviceSpec, available_devices, load_device
-from app.session.loop import LoopConfig, ServoLoop
+from app.session.loop import LoopConfig
 from app.session.spec import Session, load_session
 from app.spatial import Array
 from app.web.controls import Controls
@@ -59,7 +60,7 @@ class DemoApp:
         self.session = session
         self._lock = threading.Lock()  # the UI thread redraws; a selection change rebuilds
         self._scene, self._device = scene, device
-        self.rt = RealtimeLoop(ServoLoop(_loop_config(device, scene, self._start_gains(device), session)))
+        self.rt = RealtimeLoop(_loop_config(device, scene, self._start_gains(device), session))
         server.scene.set_up_direction("+z")
         self.view = SceneView(server, self.rt.loop, self.rt.set_hand_target)
         self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
@@ -122,7 +123,7 @@ class DemoApp:
             self.controls.record.label = "Record"
             self.view.remove()
             self._scene, self._device = scene, device
-            self.rt = RealtimeLoop(ServoLoop(_loop_config(device, scene, gains, self.session)))
+            self.rt = RealtimeLoop(_loop_config(device, scene, gains, self.session))
             self.view = SceneView(self.server, self.rt.loop, self.rt.set_hand_target)
             self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
             self.rt.set_hand_target(self._home_T_0_G)

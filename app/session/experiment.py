@@ -94,7 +94,9 @@ def _table(work: dict[str, dict[str, list[float]]]) -> str:
     for cond in CONDITIONS:
         cells = "".join(f"{np.mean(work[n][cond]):>12.4f} +-{np.std(work[n][cond]):>6.4f}" for n in names)
         lines.append(f"{cond:<16}" + cells)
-    ratios = [float(np.mean(work[n]["No Force Info"])) / max(float(np.mean(work[n]["FRHC/NTRFC"])), 1e-12) for n in names]
+    ratios = [
+        float(np.mean(work[n]["No Force Info"])) / max(float(np.mean(work[n]["FRHC/NTRFC"])), 1e-12) for n in names
+    ]
     lines.append(f"{'blind / NTRFC':<16}" + "".join(f"{r:>20.2f}" for r in ratios))
     holds = all(r > 1.0 for r in ratios)
     lines.append("")

@@ -272,7 +272,7 @@ class Controls:
         for name, handle in self.six.items():
             _assign(handle, format_six(getattr(gains, name)))
 
-    def update(self, snap: Snapshot, timing: TimingStats) -> None:
+    def update(self, snap: Snapshot, timing: TimingStats, scheduling: str) -> None:
         """Redraw status and plots from ``snap`` (call from the UI thread)."""
         faults = Fault(snap.faults)
         fault_text = "none" if faults == Fault.NONE else f"{faults!r}: {snap.fault_message}"
@@ -280,7 +280,7 @@ class Controls:
             f"t = {snap.time:7.2f} s · mode **{snap.mode}** · deadman {'ON' if snap.deadman else 'off'} · "
             f"reflection {'ON' if snap.reflection else 'off'}\n\n"
             f"servo rate **{timing.rate_hz:7.1f} Hz** · tick {timing.tick_p50_us:.0f} us "
-            f"(p99 {timing.tick_p99_us:.0f}) · jitter p99 {timing.jitter_p99_us:.0f} us · slips {timing.slips}\n\n"
+            f"(p99 {timing.tick_p99_us:.0f}) · jitter p99 {timing.jitter_p99_us:.0f} us · slips {timing.slips} · {scheduling}\n\n"
             f"saturation scale {snap.saturation_scale:.3f} · contacts {len(snap.contact_points_w)} · "
             f"faults: {fault_text}"
         )

@@ -151,7 +151,7 @@ class DemoApp:
             with self._lock:
                 snap = self.rt.snapshot
                 self.view.update(snap)
-                self.controls.update(snap, self.rt.stats(last=round(1.0 / self.rt.loop.dt)))
+                self.controls.update(snap, self.rt.stats(last=round(1.0 / self.rt.loop.dt)), self.rt.scheduling)
             next_frame += period
             self._stop.wait(max(0.0, next_frame - time.perf_counter()))
             next_frame = max(next_frame, time.perf_counter() - period)

@@ -1,0 +1,113 @@
+"""The demo in a real (headless) browser: page, scene nodes and controls, then a press into the probe.
+
+Drives the demo through its server-side API (the same GUI handles and gizmo a browser changes) and
+checks what the browser displays. Needs Debian's chromium; skips without it.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.web.headless import CHROMIUM, free_port, open_page
+from app.web.server import DemoApp, start_demo
+from app.world.scene import ROOT_DIR
+
+pytestmark = pytest.mark.browser
+
+#: Where screenshots are copied for people to look at (runs/ is not committed).
+SCREENSHOT_DIR = ROOT_DIR / "runs" / "web-test"
+#: Seconds the page and the loop get for each step.
+STEP_TIMEOUT = 20.0
+
+
+@pytest.fixture(scope="module")
+def demo() -> Iterator[DemoApp]:
+    if not CHROMIUM.exists():
+        pytest.skip(f"{CHROMIUM} is missing: install Debian's chromium to run the browser tests")
+    app = start_demo("probe", "kraft", port=free_port())
+    try:
+        assert app.rt.wait_running(), "the servo loop process did not start"
+        yield app
+    finally:
+        app.close()
+        app.server.stop()
+
+
+@pytest.fixture(scope="module")
+def page(demo: DemoApp) -> Iterator[object]:
+    with open_page(f"http://127.0.0.1:{demo.server.get_port()}/") as p:
+        p.get_by_text("Deadman [D]").first.wait_for(timeout=STEP_TIMEOUT * 1000)
+        yield p
+
+
+def _task_force_shown(page: object) -> float:
+    """The task force the page displays (N), from the status readout."""
+    text = page.inner_text("body")  # type: ignore[attr-defined]
+    match = re.search(r"\|F_MRF\| = ([0-9.]+) N", text)
+    assert match, "the wrench readout is not on the page"
+    return float(match.group(1))
+
+
+def test_page_shows_controls_and_scene(demo: DemoApp, page: object) -> None:
+    text = page.inner_text("body")  # type: ignore[attr-defined]
+    for label in ("Deadman [D]", "Reference [R]", "Reflection [F]", "Status", "Mode and gains", "servo rate"):
+        assert label in text, label
+    scene = demo.server.scene
+    names = [
+        "/grip",
+        "/reference",
+        "/hand_target",
+        "/tool",
+        "/mrf",
+        "/sensor",
+        "/world/object_0",
+        "/links/geom_0",
+        "/wrenches/task_MRF/force",
+        "/wrenches/reflected_G/force",
+        "/wrenches/assist_G/force",
+        "/wrenches/hand_G/force",
+    ]
+    for name in names:
+        assert scene.get_handle_by_name(name) is not None, name
+
+
+def test_out_of_range_gain_is_refused_on_the_page(demo: DemoApp, page: object) -> None:
+    before = demo.gains
+    demo.controls.six["k_v"].value = "-1, 1, 1, 1, 1, 1"
+    assert demo.gains == before
+    page.get_by_text("Refused k_v").first.wait_for(state="attached", timeout=STEP_TIMEOUT * 1000)  # type: ignore[attr-defined]
+    demo.controls.six["k_v"].value = "1, 1, 1, 1, 1, 1"
+    assert demo.gains.k_v == (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+
+
+def test_press_into_probe_shows_wrench(demo: DemoApp, page: object, tmp_path: Path) -> None:
+    assert _task_force_shown(page) == 0.0
+    demo.controls.deadman.value = True
+    demo.controls.reflection.value = True
+    T_0_H = demo.rt.snapshot.T_0_G.copy()
+    T_0_H[2, 3] -= 0.03  # rate mode: 2 cm past the deadband -> 4 cm/s down; 2.5 cm to the surface
+    demo.move_hand_target(T_0_H)
+    assert np.allclose(demo.view.hand_target.position[2], T_0_H[2, 3], atol=1e-9)
+
+    end = time.monotonic() + STEP_TIMEOUT
+    while _task_force_shown(page) < 1.0:
+        assert time.monotonic() < end, "no task force reached the page"
+        time.sleep(0.2)
+    snap = demo.rt.snapshot
+    assert snap.F_MRF[2] > 1.0  # the surface pushes the tool up
+    assert len(snap.contact_points_w) > 0
+    assert demo.view.arrows["task_MRF/force"].visible
+    assert demo.view.arrows["reflected_G/force"].visible
+    assert demo.rt.stats().ticks > 1000  # rate and jitter are measured by bench/web_realtime.py, not here
+
+    shot = tmp_path / "web_probe_contact.png"
+    page.screenshot(path=str(shot))  # type: ignore[attr-defined]
+    SCREENSHOT_DIR.mkdir(parents=True, exist_ok=True)
+    shutil.copy(shot, SCREENSHOT_DIR / shot.name)

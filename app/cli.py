@@ -102,7 +102,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bench", help="benchmarks (median and p99)", description="Print timing benchmarks.")
     p.add_argument(
-        "what", nargs="?", default="all", choices=["all", "controller", "plant", "contact", "tick"], help="what to time"
+        "what",
+        nargs="?",
+        default="all",
+        choices=["all", "controller", "plant", "contact", "tick", "stability"],
+        help="what to time",
     )
     p.add_argument("--quick", action="store_true", help="fewer iterations")
     p.set_defaults(func=_cmd_bench)

@@ -12,17 +12,20 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from tqdm import tqdm
 
+from app.controller.frhc import ControllerOutput
 from app.session.log import TickLog
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.metrics import SessionMetrics
 from app.session.script import OperatorScript
 from app.session.spec import Session
+from app.spatial import Array
 
 
 @dataclass
@@ -47,6 +50,29 @@ def make_loop(session: Session) -> ServoLoop:
     return ServoLoop(LoopConfig(session.device, session.scene, session.gains, d.hand, d.accommodation, d.servo_rate))
 
 
+def drive(session: Session, loop: ServoLoop, realtime: bool = False) -> Iterator[tuple[ControllerOutput, Array | None]]:
+    """Play the session's operator script on ``loop``, one tick per iteration.
+
+    Yields the controller output and the hand target of each tick (None while the hand is off
+    the grip). With ``realtime`` the ticks are paced to the wall clock.
+    """
+    d = session.data
+    n_ticks = math.ceil(d.duration * d.servo_rate - 1e-9)
+    script = OperatorScript(d, loop.reading.T_0_G.copy())
+    loop.switches = script.switches
+    start = time.perf_counter()
+    for tick in range(n_ticks):
+        t = loop.time
+        script.update_switches(t, tick)
+        target = script.hand_target(t, tick) if script.hand_on else None
+        loop.set_hand_target(target)
+        yield loop.tick(), target
+        if realtime:
+            lag = start + (tick + 1) * loop.dt - time.perf_counter()
+            if lag > 0:
+                time.sleep(lag)
+
+
 def run_session(
     session: Session,
     out_dir: Path | None = None,
@@ -66,32 +92,15 @@ def run_session(
     loop = make_loop(session)
     d = session.data
     n_ticks = math.ceil(d.duration * d.servo_rate - 1e-9)
-    script = OperatorScript(d, loop.reading.T_0_G.copy())
     metrics = SessionMetrics(loop, n_ticks)
     log = TickLog(out_dir / "log", session.device.n_joints) if out_dir is not None else None
     bar = tqdm(total=n_ticks, unit="tick", disable=not progress, mininterval=0.5)
-    start = time.perf_counter()
     try:
-        for tick in range(n_ticks):
-            t = loop.time
-            script.update_switches(t, tick)
-            loop.switches.deadman, loop.switches.reference, loop.switches.reflection = (
-                script.switches.deadman,
-                script.switches.reference,
-                script.switches.reflection,
-            )
-            target = script.hand_target(t, tick) if script.hand_on else None
-            loop.set_hand_target(target)
-            out = loop.tick()
+        for out, target in drive(session, loop, realtime):
             metrics.record(out)
             if log is not None:
                 log.record(loop, out, target)
-            if tick % 100 == 0:
-                bar.update(100 if tick else 1)
-            if realtime:
-                lag = start + (tick + 1) * loop.dt - time.perf_counter()
-                if lag > 0:
-                    time.sleep(lag)
+            bar.update(1)
     finally:
         bar.close()
         if log is not None:

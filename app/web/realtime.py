@@ -314,8 +314,11 @@ def _child_main(recipe: LoopRecipe, conn: Connection, shared: _Shared, publish_e
             while clock() < deadline:
                 pass
             start = clock()
-            while running and conn.poll():
-                running = _apply(loop, state, conn.recv())
+            try:
+                while running and conn.poll():
+                    running = _apply(loop, state, conn.recv())
+            except (EOFError, OSError):  # the parent is gone: nobody to serve
+                running = False
             out = loop.tick()
             loop.switches.reference = False  # momentary: one tick per press
             log: TickLog | None = state["log"]

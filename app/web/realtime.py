@@ -379,11 +379,17 @@ class RealtimeLoop:
         )
         self._process.start()
 
-    def wait_running(self, timeout: float = 30.0) -> bool:
-        """Block until the loop process has published its first snapshot; False on timeout."""
+    def wait_running(self, timeout: float = 60.0) -> bool:
+        """Block until the loop process has published its first snapshot; False on timeout.
+
+        Raises:
+            RuntimeError: if the loop process died (its exit code is in the message).
+        """
         end = time.monotonic() + timeout
         while self._shared.seq.value == 0:
-            if time.monotonic() > end or (self._process is not None and not self._process.is_alive()):
+            if self._process is not None and not self._process.is_alive():
+                raise RuntimeError(f"the servo loop process exited with code {self._process.exitcode}")
+            if time.monotonic() > end:
                 return False
             time.sleep(0.01)
         return True

@@ -33,7 +33,7 @@ def demo() -> Iterator[DemoApp]:
         pytest.skip(f"{CHROMIUM} is missing: install Debian's chromium to run the browser tests")
     app = start_demo("probe", "kraft", port=free_port())
     try:
-        assert app.rt.wait_running(), "the servo loop process did not start"
+        assert app.rt.wait_running(), "the servo loop process did not publish within 60 s"
         yield app
     finally:
         app.close()

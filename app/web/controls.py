@@ -152,6 +152,7 @@ class Controls:
                 ),
                 title="Task wrench",
                 aspect=2.0,
+                scales={"x": viser.uplot.Scale(time=False)},
             )
             self.delta_plot = gui.add_uplot(
                 data=(empty, empty, empty, empty),
@@ -164,6 +165,7 @@ class Controls:
                 ),
                 title="Delta X (Eq 4)",
                 aspect=2.0,
+                scales={"x": viser.uplot.Scale(time=False)},
             )
 
         with gui.add_folder("Mode and gains", expand_by_default=False):
@@ -277,9 +279,9 @@ class Controls:
         faults = Fault(snap.faults)
         fault_text = "none" if faults == Fault.NONE else f"{faults!r}: {snap.fault_message}"
         self.status.content = (
-            f"t = {snap.time:7.2f} s · mode **{snap.mode}** · deadman {'ON' if snap.deadman else 'off'} · "
+            f"t = {snap.time:.2f} s · mode **{snap.mode}** · deadman {'ON' if snap.deadman else 'off'} · "
             f"reflection {'ON' if snap.reflection else 'off'}\n\n"
-            f"servo rate **{timing.rate_hz:7.1f} Hz** · tick {timing.tick_p50_us:.0f} us "
+            f"servo rate **{timing.rate_hz:.1f} Hz** · tick {timing.tick_p50_us:.0f} us "
             f"(p99 {timing.tick_p99_us:.0f}) · jitter p99 {timing.jitter_p99_us:.0f} us · slips {timing.slips} · {scheduling}\n\n"
             f"saturation scale {snap.saturation_scale:.3f} · contacts {len(snap.contact_points_w)} · "
             f"faults: {fault_text}"

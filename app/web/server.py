@@ -34,6 +34,9 @@ from app.world.scene import ROOT_DIR, Scene, available_scenes, load_scene
 
 #: Scene and panel redraws per second.
 UI_RATE = 30.0
+#: Initial camera position and target in the viser frame (m).
+INITIAL_CAMERA_POSITION = (-0.1, -1.1, 0.55)
+INITIAL_CAMERA_LOOK_AT = (-0.1, 0.0, 0.08)
 #: Where the record button writes ``web-<timestamp>/log``.
 RUNS_DIR = ROOT_DIR / "runs"
 
@@ -62,6 +65,9 @@ class DemoApp:
         self._scene, self._device = scene, device
         self.rt = RealtimeLoop(_loop_config(device, scene, self._start_gains(device), session))
         server.scene.set_up_direction("+z")
+        # In front of both spaces, slightly above: the device on the left, the world on the right.
+        server.initial_camera.position = INITIAL_CAMERA_POSITION
+        server.initial_camera.look_at = INITIAL_CAMERA_LOOK_AT
         self.view = SceneView(server, self.rt.loop, self.rt.set_hand_target)
         self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
         self.rt.set_hand_target(self._home_T_0_G)

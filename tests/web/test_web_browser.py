@@ -111,3 +111,24 @@ def test_press_into_probe_shows_wrench(demo: DemoApp, page: object, tmp_path: Pa
     page.screenshot(path=str(shot))  # type: ignore[attr-defined]
     SCREENSHOT_DIR.mkdir(parents=True, exist_ok=True)
     shutil.copy(shot, SCREENSHOT_DIR / shot.name)
+
+
+def test_hotkey_toggles_deadman(demo: DemoApp, page: object) -> None:
+    before = demo.controls.deadman.value
+    page.mouse.click(200, 700)  # type: ignore[attr-defined]  # focus the viewer (empty space)
+    page.keyboard.press("d")  # type: ignore[attr-defined]
+    end = time.monotonic() + STEP_TIMEOUT
+    while demo.controls.deadman.value == before:
+        assert time.monotonic() < end, "the D hotkey did not reach the server"
+        time.sleep(0.1)
+    assert _wait_deadman(demo, not before), "the loop did not see the deadman change"
+
+
+def _wait_deadman(demo: DemoApp, value: bool) -> bool:
+    """True once the loop's snapshot shows the deadman at ``value`` (False after the step timeout)."""
+    end = time.monotonic() + STEP_TIMEOUT
+    while demo.rt.snapshot.deadman is not value:
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.05)
+    return True

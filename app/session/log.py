@@ -7,6 +7,7 @@ the directory as one table.
 
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +71,9 @@ def _pose7(T: Array) -> list[float]:
 class TickLog:
     """Writes one row per tick into ``<directory>/part-NNNNN.parquet`` files of ``chunk`` rows.
 
+    Encoding and writing a part happen on a background thread while the servo loop fills the
+    next buffer, so recording does not stall a paced loop for milliseconds once a second.
+
     Args:
         directory: Created if missing; existing part files are removed first.
         n_joints: Joints of the device (sets the columns).
@@ -82,9 +86,12 @@ class TickLog:
         for old in directory.glob("part-*.parquet"):
             old.unlink()
         self.columns = log_columns(n_joints)
+        self._int_columns = [name in INT_COLUMNS or name.startswith("counts_") for name in self.columns]
         self._buf = np.zeros((chunk, len(self.columns)))
         self._rows = 0
         self._parts = 0
+        self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ticklog")
+        self._pending: Future[None] | None = None
 
     def record(self, loop: ServoLoop, out: ControllerOutput, hand_target: Array | None) -> None:
         """Append the state after one tick."""
@@ -125,21 +132,33 @@ class TickLog:
             self.flush()
 
     def flush(self) -> None:
-        """Write the buffered rows as the next part file."""
+        """Hand the buffered rows to the writer thread as the next part file."""
         if self._rows == 0:
             return
-        rows = self._buf[: self._rows]
-        arrays = [
-            pa.array(rows[:, i].astype(np.int32) if name in INT_COLUMNS or name.startswith("counts_") else rows[:, i])
-            for i, name in enumerate(self.columns)
-        ]
-        table = pa.Table.from_arrays(arrays, names=self.columns)
-        pq.write_table(table, self.directory / f"part-{self._parts:05d}.parquet")
+        self._wait()  # at most one part in flight: its rows are the buffer we are about to reuse
+        rows = self._buf[: self._rows].copy()
+        path = self.directory / f"part-{self._parts:05d}.parquet"
+        self._pending = self._writer.submit(self._write, rows, path)
         self._parts += 1
         self._rows = 0
 
+    def _write(self, rows: Array, path: Path) -> None:
+        arrays = [
+            pa.array(rows[:, i].astype(np.int32) if is_int else rows[:, i])
+            for i, is_int in enumerate(self._int_columns)
+        ]
+        pq.write_table(pa.Table.from_arrays(arrays, names=self.columns), path)
+
+    def _wait(self) -> None:
+        if self._pending is not None:
+            self._pending.result()  # re-raises a write error here, in the loop's thread
+            self._pending = None
+
     def close(self) -> None:
+        """Write what is buffered and wait until every part is on disk."""
         self.flush()
+        self._wait()
+        self._writer.shutdown()
 
 
 def read_log(directory: Path) -> pa.Table:

@@ -148,16 +148,15 @@ def invert_pose(T_a_b: Array) -> Array:
     return make_pose(R.T, -R.T @ T_a_b[0:3, 3])
 
 
+@njit(cache=True)
 def quat_to_matrix(q_wxyz: Array) -> Array:
     """Rotation (3, 3) of a unit quaternion ``[w, x, y, z]``."""
-    w, x, y, z = (float(v) for v in q_wxyz)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    w, x, y, z = q_wxyz[0], q_wxyz[1], q_wxyz[2], q_wxyz[3]
+    R = np.empty((3, 3))
+    R[0, 0], R[0, 1], R[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
+    R[1, 0], R[1, 1], R[1, 2] = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
+    R[2, 0], R[2, 1], R[2, 2] = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
+    return R
 
 
 def matrix_to_quat(R: Array) -> Array:
@@ -180,28 +179,52 @@ def matrix_to_quat(R: Array) -> Array:
     return out if out[0] >= 0 else -out
 
 
+@njit(cache=True)
+def cross3(a: Array, b: Array) -> Array:
+    """``a x b`` for two vectors of shape (3,) (``numpy.cross`` costs microseconds on 3-vectors)."""
+    return np.array((a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]))
+
+
+@njit(cache=True)
 def rotation_log(R: Array) -> Array:
     """Rotation vector (3,) (axis times angle, rad) of ``R``; the SO(3) log map."""
-    cos_t = max(-1.0, min(1.0, (float(R[0, 0] + R[1, 1] + R[2, 2]) - 1.0) * 0.5))
+    cos_t = max(-1.0, min(1.0, (R[0, 0] + R[1, 1] + R[2, 2] - 1.0) * 0.5))
     theta = math.acos(cos_t)
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    v = np.array((R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]))
     if theta < 1e-6:
         return 0.5 * v
     if math.pi - theta < 1e-4:
-        # Near pi the antisymmetric part vanishes; take the axis from the symmetric part.
-        M = (R + np.eye(3)) * 0.5
-        k = int(np.argmax(np.diag(M)))
-        axis = M[:, k] / math.sqrt(max(M[k, k], 1e-300))
-        if float(axis @ v) < 0:
+        # Near pi the antisymmetric part vanishes; take the axis from the symmetric part
+        # M = (R + I) / 2, column k of its largest diagonal entry.
+        k = 0
+        for i in (1, 2):
+            if R[i, i] > R[k, k]:
+                k = i
+        scale = 1.0 / math.sqrt(max((R[k, k] + 1.0) * 0.5, 1e-300))
+        axis = np.array([(R[i, k] + (1.0 if i == k else 0.0)) * 0.5 * scale for i in range(3)])
+        if axis[0] * v[0] + axis[1] * v[1] + axis[2] * v[2] < 0:
             axis = -axis
-        return axis / np.linalg.norm(axis) * theta
+        return axis * (theta / math.sqrt(axis[0] ** 2 + axis[1] ** 2 + axis[2] ** 2))
     return v * (theta / (2.0 * math.sin(theta)))
 
 
+@njit(cache=True)
 def rotation_exp(w: Array) -> Array:
     """Rotation (3, 3) of rotation vector ``w`` (3,); the SO(3) exp map (Rodrigues)."""
-    theta = math.sqrt(float(w @ w))
-    K = skew(w)
+    theta = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    # R = I + a K + b K^2 with K = skew(w) and K^2 = w w^T - |w|^2 I.
     if theta < 1e-9:
-        return np.eye(3) + K
-    return np.eye(3) + (math.sin(theta) / theta) * K + ((1 - math.cos(theta)) / theta**2) * (K @ K)
+        a, b = 1.0, 0.0
+    else:
+        a, b = math.sin(theta) / theta, (1 - math.cos(theta)) / theta**2
+    R = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            R[i, j] = b * (w[i] * w[j] - (theta * theta if i == j else 0.0)) + (1.0 if i == j else 0.0)
+    R[0, 1] -= a * w[2]
+    R[0, 2] += a * w[1]
+    R[1, 0] += a * w[2]
+    R[1, 2] -= a * w[0]
+    R[2, 0] -= a * w[1]
+    R[2, 1] += a * w[0]
+    return R

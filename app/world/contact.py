@@ -55,6 +55,18 @@ _FAR = 1e30  # 'never queried' centre position (m)
 _AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
+def _frozen(a: Array) -> Array:
+    a.flags.writeable = False
+    return a
+
+
+# The empty per-contact arrays of a result without contacts, shared (read-only): building them
+# anew was a good part of the cost of a free-space evaluation.
+_NO_POINTS = _frozen(np.zeros((0, 3)))
+_NO_DEPTHS = _frozen(np.zeros(0))
+_NO_IDS = _frozen(np.zeros(0, dtype=int))
+
+
 @dataclass(frozen=True)
 class ContactResult:
     """The contact state of the tool at one pose.
@@ -78,11 +90,11 @@ class ContactResult:
     wrench_S: Array
     wrench_MRF: Array
     force_w: Array
-    points_w: Array = field(default_factory=lambda: np.zeros((0, 3)))
-    normals_w: Array = field(default_factory=lambda: np.zeros((0, 3)))
-    depths: Array = field(default_factory=lambda: np.zeros(0))
-    sphere_ids: Array = field(default_factory=lambda: np.zeros(0, dtype=int))
-    object_ids: Array = field(default_factory=lambda: np.zeros(0, dtype=int))
+    points_w: Array = field(default_factory=lambda: _NO_POINTS)
+    normals_w: Array = field(default_factory=lambda: _NO_POINTS)
+    depths: Array = field(default_factory=lambda: _NO_DEPTHS)
+    sphere_ids: Array = field(default_factory=lambda: _NO_IDS)
+    object_ids: Array = field(default_factory=lambda: _NO_IDS)
     queries: int = 0
     error: str | None = None
 
@@ -152,7 +164,7 @@ class ContactModel:
 
     def _distance(self, obj: CollisionMesh, c: Array) -> tuple[float, int, float, float, float]:
         """FCL unsigned distance from point c (3,) to the mesh: (d, triangle, q) with q in {w}."""
-        self._core.setTranslation(c)
+        self._core.setTranslation(c)  # it needs an array (it calls astype)
         res = fcl.DistanceResult()
         d = fcl.distance(obj.fcl_object, self._core, self._request, res)
         tri = res.b1
@@ -257,7 +269,12 @@ class ContactModel:
             # plus rotation about c0 (|(R - R0) y| = 2 sin(theta/2) |y|).
             bc = self._base_c0[j]
             dx, dy, dz = c0[0] - bc[0], c0[1] - bc[1], c0[2] - bc[2]
-            cos_sum = sum(a * b for a, b in zip(R_now, self._base_R[j], strict=True))  # = 1 + 2 cos(theta)
+            b = self._base_R[j]
+            cos_sum = (  # trace(R_now R_base^T) = 1 + 2 cos(theta)
+                R_now[0] * b[0] + R_now[1] * b[1] + R_now[2] * b[2]
+                + R_now[3] * b[3] + R_now[4] * b[4] + R_now[5] * b[5]
+                + R_now[6] * b[6] + R_now[7] * b[7] + R_now[8] * b[8]
+            )  # fmt: skip
             moved = math.sqrt(dx * dx + dy * dy + dz * dz) + self._rho * math.sqrt(max(0.0, 3.0 - cos_sum))
             if moved < self._obj_slack[j]:
                 todo = self._hot[j]
@@ -332,14 +349,16 @@ class ContactModel:
                 b02 * ox + b12 * oy + b22 * oz,
             )
         )
-        k = len(dep)
+        wrench_MRF = np.array((fmx, fmy, fmz, mmx, mmy, mmz))
+        if not dep:
+            return ContactResult(True, wrench_S, wrench_MRF, np.array((Fx, Fy, Fz)), queries=queries)
         return ContactResult(
             True,
             wrench_S,
-            np.array((fmx, fmy, fmz, mmx, mmy, mmz)),
+            wrench_MRF,
             np.array((Fx, Fy, Fz)),
-            np.array(pts).reshape(k, 3),
-            np.array(nrm).reshape(k, 3),
+            np.array(pts),
+            np.array(nrm),
             np.array(dep),
             np.array(sid, dtype=int),
             np.array(oid, dtype=int),

@@ -17,8 +17,14 @@ One servo tick (:meth:`VirtualSlave.step`):
    outboard of it, ``contact + payload weight - payload inertial load``, with the accelerations
    the integrator applied in the step.
 
-Frames as in :mod:`app.world.scene`. The MuJoCo body frame is the tool's centre of mass with the
-axes of {T}, so the free joint's linear velocity is the centre-of-mass velocity.
+Frames as in :mod:`app.world.scene`. The MuJoCo body frame {C} is the tool's centre of mass with
+the axes of {T}, so the free joint's linear velocity is the centre-of-mass velocity. The
+arithmetic between MuJoCo and FCL is compiled (:mod:`app.world.kernel`).
+
+Non-finite input never reaches MuJoCo (which would reset its state and write ``MUJOCO_LOG.TXT``):
+a reset to a non-finite pose is refused and leaves the slave faulted (tool held, readings
+invalid) until a reset to a finite pose; a non-finite command or period gives an invalid reading
+for that tick and leaves the state as it was.
 """
 
 from __future__ import annotations
@@ -29,12 +35,15 @@ import mujoco
 import numpy as np
 
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
-from app.spatial import Array, matrix_to_quat, rotation_exp, rotation_log
+from app.spatial import Array, invert_pose, matrix_to_quat
 from app.world.contact import ContactModel, ContactResult
+from app.world.kernel import drive_wrench, mrf_state, rate_reference, sensor_reading
 from app.world.scene import Scene
-from app.world.vec3 import cross3
 
 DEFAULT_PERIOD = 1e-3  # s, the servo period
+# A read-only zero six-vector: the accelerations of a tool held at rest, no accommodation term.
+_ZERO6 = np.zeros(6)
+_ZERO6.flags.writeable = False
 
 
 def _tool_xml(scene: Scene, timestep: float) -> str:
@@ -55,9 +64,9 @@ def _tool_xml(scene: Scene, timestep: float) -> str:
 </mujoco>"""
 
 
-def _saturate(v: Array, limit: float) -> Array:
-    n = math.sqrt(float(v @ v))
-    return v * (limit / n) if n > limit else v
+def _finite(a: Array) -> bool:
+    """True if every entry of ``a`` is finite (a sum is NaN or inf otherwise, and cheaper than isfinite)."""
+    return math.isfinite(float(a.sum()))
 
 
 class VirtualSlave:
@@ -72,67 +81,85 @@ class VirtualSlave:
     def __init__(self, scene: Scene, accommodation: bool = True, period: float = DEFAULT_PERIOD) -> None:
         self.scene = scene
         self.accommodation = accommodation
-        self.gains = scene.spec.slave
+        self.gains = g = scene.spec.slave
         self.contact_model = ContactModel(scene)
         tool = scene.tool
-        self._substeps = self.gains.substeps
-        self.model = mujoco.MjModel.from_xml_string(_tool_xml(scene, period / self._substeps))
+        self._substeps = g.substeps
+        self._h = period / self._substeps
+        self.model = mujoco.MjModel.from_xml_string(_tool_xml(scene, self._h))
         self.data = mujoco.MjData(self.model)
-        self._body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "tool")
+        body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "tool")
+        # Views into MjData (its buffers are never reallocated), fetched once: attribute access
+        # on MjData costs about a microsecond.
+        self._qpos = self.data.qpos
+        self._qvel = self.data.qvel
+        self._qacc = self.data.qacc
+        self._xfrc = self.data.xfrc_applied[body]
         self._mass = tool.mass
-        self._inertia_T = tool.inertia_T
-        # Offsets of {MRF} and {S} from the centre of mass, in {T} axes (the body axes).
-        self._R_T_MRF = tool.T_T_MRF[0:3, 0:3]
-        self._p_com_MRF_T = tool.T_T_MRF[0:3, 3] - tool.com_T
-        self._R_T_S = tool.T_T_S[0:3, 0:3]
-        self._p_com_S_T = tool.T_T_S[0:3, 3] - tool.com_T
-        self._k_acc = np.array(self.gains.accommodation)
-        self._max_lead_lin = self.gains.force_limit / self.gains.kp_lin
-        self._max_lead_rot = self.gains.torque_limit / self.gains.kp_rot
+        self._inertia_C = tool.inertia_T
+        # Poses of {MRF} and {S} in the body frame {C} (centre of mass, {T} axes).
+        T_C_T = np.eye(4)
+        T_C_T[0:3, 3] = -tool.com_T
+        self._T_C_MRF = T_C_T @ tool.T_T_MRF
+        self._T_C_S = T_C_T @ tool.T_T_S
+        self._pd = np.array((g.kp_lin, g.kd_lin, g.kp_rot, g.kd_rot, g.force_limit, g.torque_limit))
+        self._k_acc = np.array(g.accommodation)
+        self._max_lead_lin = g.force_limit / g.kp_lin
+        self._max_lead_rot = g.torque_limit / g.kp_rot
         self._V_ref_w = np.zeros(6)
         self._T_ref = np.eye(4)
-        self._T_buf = np.eye(4)
-        self._V_buf = np.zeros(6)
-        self._R_buf = np.zeros(9)
+        # {MRF} pose and twist of the current MuJoCo state, valid while ``_fresh``.
+        self._T = np.eye(4)
+        self._V = np.zeros(6)
+        self._fresh = False
+        self._fault: str | None = None
         self._contact: ContactResult
+        self._reading: FTReading
         self.reset()
 
     # --- state -----------------------------------------------------------------------------
     def reset(self, T_w_MRF: Array | None = None) -> None:
-        """Put the tool at rest at ``T_w_MRF`` (default: the scene's home), reference there too."""
-        T = self.scene.tool.T_w_MRF_home if T_w_MRF is None else T_w_MRF
+        """Put the tool at rest at ``T_w_MRF`` (default: the scene's home), reference there too.
+
+        A non-finite pose is refused without touching the simulation: the tool stays where it
+        was, and :attr:`contact`, :meth:`reading` and every :meth:`step` report invalid until a
+        reset to a finite pose.
+        """
+        T = self.scene.tool.T_w_MRF_home if T_w_MRF is None else np.asarray(T_w_MRF, dtype=float)
+        if not _finite(T):
+            self._fault = "reset to a non-finite pose"
+            self._contact = self._invalid(self._fault)
+            return
+        self._fault = None
         mujoco.mj_resetData(self.model, self.data)
-        R_w_T = T[0:3, 0:3] @ self._R_T_MRF.T
-        p_w_com = T[0:3, 3] - R_w_T @ self._p_com_MRF_T
-        self.data.qpos[0:3] = p_w_com
-        self.data.qpos[3:7] = matrix_to_quat(R_w_T)
+        T_w_C = T @ invert_pose(self._T_C_MRF)
+        self._qpos[0:3] = T_w_C[0:3, 3]
+        self._qpos[3:7] = matrix_to_quat(T_w_C[0:3, 0:3])
         mujoco.mj_forward(self.model, self.data)
-        self._T_ref = np.array(T, dtype=float)
+        self._fresh = False
+        self._T_ref = T.copy()
         self._V_ref_w.fill(0.0)
         self.contact_model.reset()
-        self._contact = self.contact_model.wrench(self.T_w_MRF, self.V_w_MRF)
+        T_now, V_now = self._state()
+        self._contact = self.contact_model.wrench(T_now, V_now)
+        self._reading = self._sensor(self._contact, _ZERO6)
 
-    def _R_w_T(self) -> Array:
-        """Orientation of {T} in {w} (3, 3), written into a buffer (mju_quat2Mat: no Python maths)."""
-        mujoco.mju_quat2Mat(self._R_buf, self.data.qpos[3:7])
-        return self._R_buf.reshape(3, 3).copy()
+    def _state(self) -> tuple[Array, Array]:
+        """{MRF} pose (4, 4) and twist (6,) of the current state: the internal buffers, not copies."""
+        if not self._fresh:
+            mrf_state(self._qpos, self._qvel, self._T_C_MRF, self._T, self._V)
+            self._fresh = True
+        return self._T, self._V
 
     @property
     def T_w_MRF(self) -> Array:
-        """Current pose of {MRF} in {w}, (4, 4)."""
-        R_w_T = self._R_w_T()
-        T = np.eye(4)
-        T[0:3, 0:3] = R_w_T @ self._R_T_MRF
-        T[0:3, 3] = self.data.qpos[0:3] + R_w_T @ self._p_com_MRF_T
-        return T
+        """Current pose of {MRF} in {w}, (4, 4) (a new array)."""
+        return self._state()[0].copy()
 
     @property
     def V_w_MRF(self) -> Array:
-        """Current twist ``[v; w]`` of {MRF} (origin velocity, angular velocity) in {w}, (6,)."""
-        R_w_T = self._R_w_T()
-        w_w = R_w_T @ self.data.qvel[3:6]
-        v = self.data.qvel[0:3] + cross3(w_w, R_w_T @ self._p_com_MRF_T)
-        return np.concatenate((v, w_w))
+        """Current twist ``[v; w]`` of {MRF} (origin velocity, angular velocity) in {w}, (6,) (a new array)."""
+        return self._state()[1].copy()
 
     @property
     def T_w_MRF_ref(self) -> Array:
@@ -149,10 +176,21 @@ class VirtualSlave:
         """Contact wrench at the {MRF} origin in {MRF} (N, N m), (6,): for the work metric (Eq 13)."""
         return self._contact.wrench_MRF
 
+    def reading(self) -> FTReading:
+        """The F/T sensor's current reading, without stepping (new arrays).
+
+        After :meth:`reset` the tool is held at rest: the payload weight in {S} plus any contact
+        at that pose. After :meth:`step` it is the reading that step returned. Read it after a
+        reset so the controller's first tick does not see a zero wrench (which its payload
+        removal would turn into a false ``+m g``).
+        """
+        r = self._reading
+        return FTReading(r.wrench_S.copy(), r.R_w_S.copy(), r.acc_w.copy(), r.omega_w.copy(), r.valid)
+
     def slave_model(self) -> SlaveModel:
         """What the controller may know about this tool (for payload weight/inertia removal)."""
         tool = self.scene.tool
-        R_T_S = self._R_T_S
+        R_T_S = tool.T_T_S[0:3, 0:3]
         return SlaveModel(
             T_MRF_S=tool.T_MRF_S,
             payload_mass=tool.mass,
@@ -163,89 +201,79 @@ class VirtualSlave:
         )
 
     # --- servo tick --------------------------------------------------------------------------
-    def _update_reference(self, command: SlaveCommand, dt: float, R_w_MRF: Array, p_w_MRF: Array) -> None:
+    def _command_error(self, command: SlaveCommand, dt: float) -> str | None:
+        """Why ``command`` and ``dt`` cannot be applied this tick, or None."""
+        if not (math.isfinite(dt) and dt > 0.0):
+            return f"non-finite or non-positive period {dt!r}"
+        if not command.active:
+            return None
+        if command.mode == "rate":
+            return None if _finite(command.twist) else "non-finite twist command"
+        if command.mode == "pose":
+            return None if _finite(command.T_w_MRF) else "non-finite pose command"
+        raise ValueError(f"unknown slave command mode {command.mode!r}")
+
+    def _update_reference(self, command: SlaveCommand, dt: float) -> None:
         if not command.active:
             self._V_ref_w.fill(0.0)
-            return
-        if command.mode == "pose":
-            self._T_ref = np.array(command.T_w_MRF, dtype=float)
+        elif command.mode == "pose":
+            self._T_ref[:] = command.T_w_MRF
             self._V_ref_w.fill(0.0)
-            return
-        if command.mode != "rate":
-            raise ValueError(f"unknown slave command mode {command.mode!r}")
-        v_w = command.twist[0:3].copy()
-        w_MRF = command.twist[3:6].copy()
-        if self.accommodation and self._contact.valid:
-            F_MRF = self._contact.wrench_MRF
-            v_w += R_w_MRF @ (self._k_acc[0:3] * F_MRF[0:3])
-            w_MRF += self._k_acc[3:6] * F_MRF[3:6]
-        w_w = R_w_MRF @ w_MRF
-        self._V_ref_w[0:3] = v_w
-        self._V_ref_w[3:6] = w_w
-        T = self._T_ref
-        p_ref = T[0:3, 3] + v_w * dt
-        R_ref = rotation_exp(w_w * dt) @ T[0:3, 0:3]
-        # Following-error limit: never lead the tool by more than the PD can push against.
-        e_p = p_ref - p_w_MRF
-        n = math.sqrt(float(e_p @ e_p))
-        if n > self._max_lead_lin:
-            p_ref = p_w_MRF + e_p * (self._max_lead_lin / n)
-        e_r = rotation_log(R_ref @ R_w_MRF.T)
-        n = math.sqrt(float(e_r @ e_r))
-        if n > self._max_lead_rot:
-            R_ref = rotation_exp(e_r * (self._max_lead_rot / n)) @ R_w_MRF
-        T[0:3, 0:3] = R_ref
-        T[0:3, 3] = p_ref
+        else:
+            F_acc = self._k_acc * self._contact.wrench_MRF if self.accommodation and self._contact.valid else _ZERO6
+            rate_reference(
+                command.twist, F_acc, self._T, dt, self._max_lead_lin, self._max_lead_rot, self._T_ref, self._V_ref_w
+            )
 
     def step(self, command: SlaveCommand, dt: float = DEFAULT_PERIOD) -> FTReading:
-        """Advance one servo period ``dt`` (s) under ``command``; return the F/T sensor reading."""
-        g = self.gains
-        h = dt / self._substeps
-        self.model.opt.timestep = h
-        d = self.data
-        xfrc = d.xfrc_applied[self._body]
-        T_buf = self._T_buf
-        V = self._V_buf
-        for sub in range(self._substeps):
-            mujoco.mju_quat2Mat(self._R_buf, d.qpos[3:7])
-            R_w_T = self._R_buf.reshape(3, 3)
-            w_w = R_w_T @ d.qvel[3:6]
-            r_com_MRF = R_w_T @ self._p_com_MRF_T
-            p_MRF = d.qpos[0:3] + r_com_MRF
-            R_w_MRF = R_w_T @ self._R_T_MRF
-            if sub == 0:
-                self._update_reference(command, dt, R_w_MRF, p_MRF)
-            V[0:3] = d.qvel[0:3] + cross3(w_w, r_com_MRF)
-            V[3:6] = w_w
-            T_buf[0:3, 0:3] = R_w_MRF
-            T_buf[0:3, 3] = p_MRF
-            contact = self.contact_model.wrench(T_buf, V)
-            self._contact = contact
-            e_R = rotation_log(self._T_ref[0:3, 0:3] @ R_w_MRF.T)
-            f_pd = _saturate(
-                g.kp_lin * (self._T_ref[0:3, 3] - p_MRF) + g.kd_lin * (self._V_ref_w[0:3] - V[0:3]), g.force_limit
-            )
-            t_pd = _saturate(g.kp_rot * e_R + g.kd_rot * (self._V_ref_w[3:6] - w_w), g.torque_limit)
-            f_total = f_pd + contact.force_w
-            xfrc[0:3] = f_total
-            xfrc[3:6] = t_pd + R_w_MRF @ contact.wrench_MRF[3:6] + cross3(r_com_MRF, f_total)
-            mujoco.mj_step(self.model, d)
-        # Semi-implicit Euler applied exactly qacc over the last substep: [a_com in {w}; dw/dt in {T}].
-        return self._sensor(R_w_T, w_w, d.qacc[0:3].copy(), R_w_T @ d.qacc[3:6], contact)
+        """Advance one servo period ``dt`` (s) under ``command``; return the F/T sensor reading.
 
-    def _sensor(self, R_w_T: Array, w_w: Array, a_com: Array, alpha_w: Array, contact: ContactResult) -> FTReading:
-        """F/T reading at {S}: contact + weight - inertial load of the outboard body, in {S}."""
-        R_w_S = R_w_T @ self._R_T_S
-        if not contact.valid:
-            return FTReading(np.zeros(6), R_w_S, np.zeros(6), w_w.copy(), valid=False)
-        m = self._mass
-        r_S_com = -(R_w_T @ self._p_com_S_T)  # from the {S} origin to the centre of mass, {w}
-        I_w = R_w_T @ self._inertia_T @ R_w_T.T
-        f_body = m * (self.scene.gravity_w - a_com)  # weight minus inertial force, at the com
-        m_body = cross3(r_S_com, f_body) - (I_w @ alpha_w + cross3(w_w, I_w @ w_w))
-        F_S = contact.wrench_S.copy()
-        F_S[0:3] += f_body @ R_w_S
-        F_S[3:6] += m_body @ R_w_S
-        r_com_S = -r_S_com
-        a_S = a_com + cross3(alpha_w, r_com_S) + cross3(w_w, cross3(w_w, r_com_S))
-        return FTReading(F_S, R_w_S, np.concatenate((a_S, alpha_w)), w_w.copy(), valid=True)
+        A faulted slave (see :meth:`reset`), or a non-finite command or period, returns an
+        invalid reading and leaves the state as it was.
+        """
+        error = self._fault or self._command_error(command, dt)
+        if error is not None:
+            self._invalid(error)
+            return self._reading
+        h = dt / self._substeps
+        if h != self._h:
+            self.model.opt.timestep = self._h = h
+        model, data, T, V = self.model, self.data, self._T, self._V
+        for sub in range(self._substeps):
+            self._state()
+            if sub == 0:
+                self._update_reference(command, dt)
+            contact = self.contact_model.wrench(T, V)
+            self._contact = contact
+            drive_wrench(
+                T, V, self._T_ref, self._V_ref_w, self._pd, self._qpos, contact.force_w, contact.wrench_MRF, self._xfrc
+            )
+            mujoco.mj_step(model, data)
+            self._fresh = False
+        # The buffers still hold the pose and twist of the last substep's start, where its forces
+        # were computed; semi-implicit Euler then applied exactly qacc over the substep.
+        self._reading = self._sensor(contact, self._qacc)
+        return self._reading
+
+    def _invalid(self, error: str) -> ContactResult:
+        """Make the current reading invalid (zero wrench, the held state's orientation) for ``error``."""
+        contact = ContactResult(False, np.zeros(6), np.zeros(6), np.zeros(3), error=error)
+        self._state()
+        self._reading = self._sensor(contact, _ZERO6)
+        return contact
+
+    def _sensor(self, contact: ContactResult, qacc: Array) -> FTReading:
+        """F/T reading at {S} for the pose and twist in the buffers, accelerations ``qacc`` (6,)."""
+        F_S, R_w_S, acc_w, omega_w = sensor_reading(
+            self._T,
+            self._V,
+            qacc,
+            self._T_C_MRF,
+            self._T_C_S,
+            self._inertia_C,
+            self._mass,
+            self.scene.gravity_w,
+            contact.wrench_S,
+            contact.valid,
+        )
+        return FTReading(F_S, R_w_S, acc_w, omega_w, contact.valid)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 import pytest
@@ -144,3 +145,41 @@ def test_pressing_into_the_stiffest_surface_settles(name: str) -> None:
     tail = fz[-1000:]
     assert slave.contact.count > 0
     assert np.ptp(tail) < 1e-3 * abs(tail.mean())
+
+
+@pytest.mark.parametrize("name", ["probe", "peg_in_hole"])
+def test_reading_after_reset_is_the_payload_weight_in_free_space(name: str) -> None:
+    slave = tilted_peg_slave() if name == "peg_in_hole" else VirtualSlave(scene(name))
+    reading = slave.reading()
+    assert reading.valid
+    assert slave.contact.count == 0
+    np.testing.assert_allclose(reading.acc_w, 0.0, atol=1e-12)
+    np.testing.assert_allclose(remove_payload(reading, slave.slave_model(), inertial=False), 0.0, atol=1e-12)
+
+
+def test_reading_after_reset_in_contact_is_weight_plus_contact() -> None:
+    slave = VirtualSlave(scene("probe"))
+    T = slave.T_w_MRF
+    T[2, 3] = 0.004  # tip 1 mm into the surface
+    slave.reset(T)
+    assert slave.contact.count == 1
+    rest = remove_payload(slave.reading(), slave.slave_model(), inertial=False)
+    np.testing.assert_allclose(rest, slave.contact.wrench_S, atol=1e-12)
+
+
+def test_non_finite_input_keeps_the_last_good_state() -> None:
+    slave = VirtualSlave(scene("probe"))
+    home = slave.T_w_MRF
+    bad = home.copy()
+    bad[0, 3] = np.inf
+    slave.reset(bad)
+    assert not slave.contact.valid
+    assert not slave.reading().valid
+    np.testing.assert_array_equal(slave.T_w_MRF, home)
+    slave.reset(home)
+    twist = np.zeros(6)
+    twist[3] = np.nan
+    assert not slave.step(rate(tuple(twist))).valid
+    np.testing.assert_array_equal(slave.T_w_MRF, home)
+    assert not slave.step(SlaveCommand(active=False), dt=math.nan).valid
+    assert slave.step(SlaveCommand(active=False)).valid

@@ -28,7 +28,7 @@ DEVICE_ORIGIN_V = np.array([-0.5, 0.0, 0.0])
 #: Where the slave world {w} sits in the viser frame (m): on the right.
 WORLD_ORIGIN_V = np.array([0.3, 0.0, 0.0])
 #: Arrow length per newton of force (m/N).
-FORCE_SCALE = 0.01
+FORCE_SCALE = 0.025
 #: Arrow length per newton-metre of moment (m/(N m)).
 MOMENT_SCALE = 0.1
 #: Arrows shorter than this (m) are hidden rather than drawn as a degenerate cone.

@@ -22,7 +22,7 @@ import numpy as np
 
 from app.controller.frhc import ControllerOutput, FRHCController
 from app.controller.gains import ControllerGains
-from app.controller.types import FTReading, Switches
+from app.controller.types import Switches
 from app.device.hand import HandParams
 from app.device.plant import DevicePlant, PlantReading
 from app.device.spec import DeviceSpec
@@ -81,14 +81,19 @@ class ServoLoop:
         self.reading: PlantReading = self.plant.reset(home)
         self.slave.reset()
         self.controller.reset(self.reading.q)
-        self.ft = FTReading(R_w_S=self.slave.slave_model().T_MRF_S[0:3, 0:3].copy())
+        # The sensor already reads the payload's weight at rest: start from that, not from zero,
+        # or the first tick's payload removal would reflect a false +m g.
+        self.ft = self.slave.reading()
         self.counts = np.zeros(self.config.device.n_joints, dtype=np.int64)
         self.switches.deadman = self.switches.reference = self.switches.reflection = False
         self.time = 0.0
         self.ticks = 0
 
     def set_hand_target(self, T_0_H: Array | None) -> None:
-        """Where the operator's hand pulls the grip (4, 4, device base); None lets go."""
+        """Where the operator's hand pulls the grip (4, 4, device base); None lets go.
+
+        Not thread-safe: call it between ticks, from the thread that runs :meth:`tick`.
+        """
         self.plant.set_hand_target(T_0_H)
 
     def set_gains(self, gains: ControllerGains) -> None:

@@ -149,9 +149,11 @@ def drive_wrench(
     qpos: Array,
     contact_force_w: Array,
     contact_MRF: Array,
+    weight_w: Array,
     xfrc: Array,
 ) -> None:
-    """The wrench on the body for one substep: saturated PD at {MRF} plus contact, into ``xfrc``.
+    """The wrench on the body for one substep: saturated PD at {MRF}, contact, and the robot's
+    gravity feedforward for its known tool and payload, into ``xfrc``.
 
     Args:
         T_w_MRF, V_w_MRF: Tool pose (4, 4) and twist (6,) in {w}.
@@ -160,6 +162,8 @@ def drive_wrench(
         qpos: The free joint's position (7,); its first three entries are the centre of mass in {w}.
         contact_force_w: Total contact force in {w} (N), (3,).
         contact_MRF: Contact wrench at the {MRF} origin in {MRF} (N, N m), (6,).
+        weight_w: Weight of the tool and payload ``m g`` in {w} (N), (3,): the robot holds it up
+            (applied at the centre of mass), so the PD's force limit is all for the task.
         xfrc: Output, MuJoCo's ``xfrc_applied`` row: ``[force; torque about the centre of
             mass]`` (N, N m) in {w}, (6,).
     """
@@ -174,7 +178,7 @@ def drive_wrench(
     # Both forces act at the {MRF} origin (the contact moment is already about it); MuJoCo wants
     # the moment about the centre of mass.
     torque = t_pd + _apply(R_w_MRF, contact_MRF[3:6]) + cross3(p_w_MRF - qpos[0:3], f_total)
-    xfrc[0:3] = f_total
+    xfrc[0:3] = f_total - weight_w
     xfrc[3:6] = torque
 
 

@@ -102,6 +102,7 @@ class VirtualSlave:
         T_C_T[0:3, 3] = -tool.com_T
         self._T_C_MRF = T_C_T @ tool.T_T_MRF
         self._T_C_S = T_C_T @ tool.T_T_S
+        self._weight_w = tool.mass * np.asarray(scene.gravity_w, dtype=float)
         self._pd = np.array((g.kp_lin, g.kd_lin, g.kp_rot, g.kd_rot, g.force_limit, g.torque_limit))
         self._k_acc = np.array(g.accommodation)
         self._max_lead_lin = g.force_limit / g.kp_lin
@@ -246,7 +247,16 @@ class VirtualSlave:
             contact = self.contact_model.wrench(T, V)
             self._contact = contact
             drive_wrench(
-                T, V, self._T_ref, self._V_ref_w, self._pd, self._qpos, contact.force_w, contact.wrench_MRF, self._xfrc
+                T,
+                V,
+                self._T_ref,
+                self._V_ref_w,
+                self._pd,
+                self._qpos,
+                contact.force_w,
+                contact.wrench_MRF,
+                self._weight_w,
+                self._xfrc,
             )
             mujoco.mj_step(model, data)
             self._fresh = False

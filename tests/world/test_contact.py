@@ -169,7 +169,24 @@ def test_contact_inside_the_bowl_cavity(azimuth: float, elevation: float, depth:
     assert res.count == 1
     # The cavity is a 5-times subdivided icosphere: its facets sit up to ~10 um inside the sphere.
     assert res.depths[0] == pytest.approx(depth, abs=2e-5)
-    np.testing.assert_allclose(res.normals_w[0], -u, atol=0.02)
+    # Its facet normals differ from the sphere's radial direction by at most the facets' own
+    # tilt, measured from the mesh (about 1.2 degrees); the contact normal may not differ more.
+    angle = math.acos(min(1.0, float(res.normals_w[0] @ -u)))
+    assert angle <= _cavity_facet_tilt() + 1e-6
+
+
+@functools.cache
+def _cavity_facet_tilt() -> float:
+    """Largest angle (rad) between a cavity facet's normal and the radial line through its corners."""
+    mesh = _scene_of("bowl.ply").objects[0].mesh
+    radii = np.linalg.norm(mesh.vertices, axis=1)
+    cavity = np.all(np.abs(radii[mesh.faces] - BOWL_CAVITY_RADIUS) < 1e-3, axis=1)
+    corners = mesh.vertices[mesh.faces[cavity]]  # (k, 3, 3)
+    radial = corners / np.linalg.norm(corners, axis=2, keepdims=True)
+    # The cavity's surface normals point out of the solid, towards the centre: flip them.
+    normal_radial = -mesh.face_normals[cavity]
+    cos = np.einsum("kij,kj->ki", radial, normal_radial)
+    return float(np.arccos(np.clip(cos.min(), -1.0, 1.0)))
 
 
 def test_the_bowls_convex_hull_would_give_a_wrong_contact(tmp_path) -> None:

@@ -99,8 +99,9 @@ def test_blind_mode_force_grows_to_the_robot_limit() -> None:
     slave = VirtualSlave(s, accommodation=False)
     run(slave, rate((0.0, 0.0, -0.02, 0.0, 0.0, 0.0)), 5000)
     f = slave.wrench_MRF_contact[2]
-    # No accommodation: the reference keeps going until the robot saturates (less its own weight).
-    assert f == pytest.approx(s.spec.slave.force_limit + 0.5 * 9.81, rel=2e-2)
+    # No accommodation: the reference keeps going until the robot's PD saturates; the tool's weight
+    # is held by the gravity feedforward, so the contact force is the force limit.
+    assert f == pytest.approx(s.spec.slave.force_limit, rel=2e-2)
 
 
 def test_releasing_the_deadman_stops_a_rate_slave() -> None:
@@ -118,8 +119,8 @@ def test_pose_mode_tracks_the_commanded_pose() -> None:
     target = slave.T_w_MRF
     target[0:3, 3] += [0.02, -0.01, 0.005]
     run(slave, SlaveCommand(active=True, mode="pose", T_w_MRF=target), 1500)
-    # Gravity sag of the PD: m g / kp.
-    np.testing.assert_allclose(slave.T_w_MRF[0:3, 3], target[0:3, 3] - [0, 0, 0.5 * 9.81 / 3000.0], atol=1e-5)
+    # The robot's gravity feedforward holds the tool's weight: no sag.
+    np.testing.assert_allclose(slave.T_w_MRF[0:3, 3], target[0:3, 3], atol=1e-5)
 
 
 def test_nan_contact_reading_is_invalid() -> None:

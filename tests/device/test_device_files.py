@@ -44,44 +44,22 @@ def test_missing_mesh(kraft_copy: Path) -> None:
     assert "missing_base.stl" in expect_error(kraft_copy, "mjcf").reason
 
 
-def test_unknown_joint(kraft_copy: Path) -> None:
-    replace_in(kraft_copy, '"j5", "j6"]', '"j5", "j9"]')
-    expect_error(kraft_copy, "joints[5]")
-
-
-def test_non_positive_torque_limit(kraft_copy: Path) -> None:
-    replace_in(kraft_copy, "torque_limit = [0.40,", "torque_limit = [0.0,")
-    expect_error(kraft_copy, "motors.torque_limit")
-
-
-def test_mismatched_motor_array(kraft_copy: Path) -> None:
-    replace_in(kraft_copy, "gear_ratio = [15.0, 15.0, 15.0,", "gear_ratio = [15.0, 15.0,")
-    expect_error(kraft_copy, "motors.gear_ratio")
-
-
-def test_mismatched_plant_array(kraft_copy: Path) -> None:
-    replace_in(kraft_copy, "damping = [0.04, 0.04, 0.03,", "damping = [0.04, 0.03,")
-    expect_error(kraft_copy, "plant.damping")
-
-
-def test_unknown_plant_field(kraft_copy: Path) -> None:
-    replace_in(kraft_copy, "substeps = 1", "substeps = 1\nbacklash = 0.01")
-    assert "unknown field" in expect_error(kraft_copy, "plant.backlash").reason
-
-
-def test_plant_value_out_of_range(kraft_copy: Path) -> None:
-    replace_in(kraft_copy, "motor_deadzone = [0.04,", "motor_deadzone = [0.7,")
-    expect_error(kraft_copy, "plant.motor_deadzone[0]")
-
-
-def test_non_positive_plant_mass_scale(kraft_copy: Path) -> None:
-    replace_in(kraft_copy, "mass_scale = [1.0,", "mass_scale = [-1.0,")
-    expect_error(kraft_copy, "plant.mass_scale[0]")
-
-
-def test_zero_substeps(kraft_copy: Path) -> None:
-    replace_in(kraft_copy, "substeps = 1", "substeps = 0")
-    expect_error(kraft_copy, "plant.substeps")
+@pytest.mark.parametrize(
+    ("old", "new", "field", "reason"),
+    [
+        ('"j5", "j6"]', '"j5", "j9"]', "joints[5]", "unknown joint"),
+        ("torque_limit = [0.40,", "torque_limit = [0.0,", "motors.torque_limit", "positive"),
+        ("gear_ratio = [15.0, 15.0, 15.0,", "gear_ratio = [15.0, 15.0,", "motors.gear_ratio", "expected 6"),
+        ("damping = [0.04, 0.04, 0.03,", "damping = [0.04, 0.03,", "plant.damping", ""),
+        ("substeps = 1", "substeps = 1\nbacklash = 0.01", "plant.backlash", "unknown field"),
+        ("motor_deadzone = [0.04,", "motor_deadzone = [0.7,", "plant.motor_deadzone[0]", ""),
+        ("mass_scale = [1.0,", "mass_scale = [-1.0,", "plant.mass_scale[0]", ""),
+        ("substeps = 1", "substeps = 0", "plant.substeps", ""),
+    ],
+)
+def test_bad_field(kraft_copy: Path, old: str, new: str, field: str, reason: str) -> None:
+    replace_in(kraft_copy, old, new)
+    assert reason in expect_error(kraft_copy, field).reason
 
 
 def test_empty_plant_table_is_an_ideal_plant(kraft_copy: Path) -> None:

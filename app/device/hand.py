@@ -99,30 +99,36 @@ class OperatorHand:
         self._mocap = int(model.body_mocapid[body])
         first = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, "operator_hand_x")
         self._force_H = data.actuator_force[first : first + 6]
-        self._R_0_H6 = np.zeros((6, 6))  # blockdiag(R_0_H, R_0_H): {H} components -> {0}
         self._wrench_G = np.zeros(6)
+        self._T = np.eye(4)
+        self._R9 = np.zeros(9)
+        self._mocap_pos = data.mocap_pos[self._mocap]
+        self._mocap_quat = data.mocap_quat[self._mocap]
         #: Hand target pose T_0_H (4, 4), or None when the operator has let go.
         self.T_0_H: Array | None = None
         self.set_target(None)
 
     def set_target(self, T_0_H: Array | None) -> None:
-        """Grab the grip and pull it toward ``T_0_H`` (4, 4, base frame), or let go with None."""
+        """Grab the grip and pull it toward ``T_0_H`` (4, 4, base frame), or let go with None.
+
+        The pose is copied (callers may reuse their array). Scripts and the UI call this every
+        servo tick, so it only writes the mocap target, with no allocation.
+        """
         m = self._model
         if T_0_H is None:
             self.T_0_H = None
             m.opt.disableactuator |= 1 << HAND_GROUP
             return
-        T = np.array(T_0_H, dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        if T_0_H.shape != (4, 4) or not math.isfinite(float(T_0_H.sum())):
             raise ValueError("T_0_H must be a finite 4x4 pose")
+        T = self._T
+        T[:] = T_0_H
         self.T_0_H = T
-        self._data.mocap_pos[self._mocap] = T[:3, 3]
-        quat = np.zeros(4)
-        mujoco.mju_mat2Quat(quat, np.ascontiguousarray(T[:3, :3]).ravel())
-        self._data.mocap_quat[self._mocap] = quat
-        self._R_0_H6[:3, :3] = T[:3, :3]
-        self._R_0_H6[3:, 3:] = T[:3, :3]
-        m.opt.disableactuator &= ~(1 << HAND_GROUP)
+        self._mocap_pos[:] = T[:3, 3]
+        self._R9[:] = T[:3, :3].ravel()
+        mujoco.mju_mat2Quat(self._mocap_quat, self._R9)
+        if m.opt.disableactuator & (1 << HAND_GROUP):
+            m.opt.disableactuator &= ~(1 << HAND_GROUP)
 
     def wrench_G(self) -> Array:
         """The hand's wrench on the grip in the last physics step.
@@ -134,5 +140,7 @@ class OperatorHand:
         if self.T_0_H is None:
             self._wrench_G.fill(0.0)
         else:
-            np.dot(self._R_0_H6, self._force_H, out=self._wrench_G)
+            R_0_H = self._T[:3, :3]
+            np.dot(R_0_H, self._force_H[0:3], out=self._wrench_G[0:3])
+            np.dot(R_0_H, self._force_H[3:6], out=self._wrench_G[3:6])
         return self._wrench_G

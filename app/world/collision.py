@@ -31,6 +31,8 @@ class CollisionMesh:
         "hi",
         "lo",
         "n_faces",
+        "tri_centers",
+        "tri_radii",
         "vertex_pn",
         "vertices",
     )
@@ -54,6 +56,11 @@ class CollisionMesh:
         bvh.addSubModel(self.vertices, self.faces)
         bvh.endModel()
         self.fcl_object = fcl.CollisionObject(bvh, fcl.Transform())
+        # Bounding ball of each triangle (centroid, farthest vertex): the candidate filter of the
+        # contact model's cached nearest-triangle queries.
+        corners = self.vertices[self.faces]
+        self.tri_centers = np.ascontiguousarray(corners.mean(axis=1))
+        self.tri_radii = np.linalg.norm(corners - self.tri_centers[:, None, :], axis=2).max(axis=1) * (1.0 + 1e-9)
         self.lo = self.vertices.min(axis=0)
         self.hi = self.vertices.max(axis=0)
 

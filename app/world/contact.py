@@ -40,8 +40,9 @@ import fcl
 import numpy as np
 
 from app.errors import ContactQueryError
-from app.spatial import Array, invert_pose
+from app.spatial import Array, IntArray, invert_pose
 from app.world.collision import CollisionMesh
+from app.world.kernel import nearest_triangle, triangles_within
 from app.world.scene import Scene
 
 # Below this distance (m) the nearest-point direction is numerically meaningless and FCL's
@@ -53,6 +54,13 @@ _NUDGE = 1e-6
 _V_SLIP = 1e-3
 _FAR = 1e30  # 'never queried' centre position (m)
 _AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+# Cached candidate triangles (see ContactModel._distance): only for meshes this small (the filter
+# is a pass over every triangle), at most this many candidates, valid while the centre moves less
+# than max(_CACHE_MIN, _CACHE_FRAC * d) from where they were gathered.
+_CACHE_FACES = 20000
+_CACHE_MAX = 2048
+_CACHE_MIN = 1e-4
+_CACHE_FRAC = 0.02
 
 
 def _frozen(a: Array) -> Array:
@@ -151,6 +159,8 @@ class ContactModel:
         self._near_c0 = (0.0, 0.0, 0.0)
         self._near_slack = -1.0
         self._memory: dict[int, tuple[float, float, float, float, float, float]] = {}
+        # Per pair: (centre, radius of validity, candidate triangles or None) of the nearest-triangle cache.
+        self._cache: dict[int, tuple[float, float, float, float, IntArray | None]] = {}
         self._core = fcl.CollisionObject(fcl.Sphere(0.0), fcl.Transform())
         self._request = fcl.DistanceRequest(enable_nearest_points=True)
 
@@ -161,8 +171,42 @@ class ContactModel:
         self._obj_slack = [-1.0] * len(self._objects)
         self._near_slack = -1.0
         self._memory.clear()
+        self._cache.clear()
 
-    def _distance(self, obj: CollisionMesh, c: Array) -> tuple[float, int, float, float, float]:
+    def _distance(self, obj: CollisionMesh, c: Array, key: int = -1) -> tuple[float, int, float, float, float]:
+        """Unsigned distance from point c (3,) to the mesh: (d, triangle, q) with q in {w}.
+
+        FCL's BVH query, or, for pair ``key``, an exact scan of cached candidate triangles: FCL
+        gave distance d0 at centre c0, so while |c - c0| <= R the nearest triangle (at most
+        d0 + R from c) is within d0 + 2R of c0, and the cache holds every triangle whose bounding
+        ball reaches that far. Inside a hole every wall triangle is nearly equidistant from the
+        centre, so FCL cannot prune and the scan of a few hundred triangles is several times faster.
+        """
+        cached = self._cache.get(key) if key >= 0 else None
+        if cached is not None:
+            x0, y0, z0, R, cand = cached
+            cx, cy, cz = c.tolist()
+            if (cx - x0) ** 2 + (cy - y0) ** 2 + (cz - z0) ** 2 <= R * R:
+                if cand is None:
+                    return self._fcl_distance(obj, c)
+                d, tri, qx, qy, qz = nearest_triangle(obj.vertices, obj.faces, cand, cx, cy, cz)
+                if not (math.isfinite(d) and 0 <= tri < obj.n_faces):
+                    raise ContactQueryError(f"cached distance returned d={d!r}, triangle {tri!r}")
+                if d < _TOUCH:
+                    return 0.0, tri, math.nan, math.nan, math.nan
+                return d, tri, qx, qy, qz
+        out = self._fcl_distance(obj, c)
+        if key >= 0 and obj.n_faces <= _CACHE_FACES:
+            d = out[0]
+            R = max(_CACHE_MIN, _CACHE_FRAC * d)
+            cx, cy, cz = c.tolist()
+            cand = triangles_within(
+                obj.vertices, obj.faces, obj.tri_centers, obj.tri_radii, cx, cy, cz, d + 2.0 * R + 1e-9 + 1e-6 * d
+            )
+            self._cache[key] = (cx, cy, cz, R, cand if len(cand) <= _CACHE_MAX else None)
+        return out
+
+    def _fcl_distance(self, obj: CollisionMesh, c: Array) -> tuple[float, int, float, float, float]:
         """FCL unsigned distance from point c (3,) to the mesh: (d, triangle, q) with q in {w}."""
         self._core.setTranslation(c)  # it needs an array (it calls astype)
         res = fcl.DistanceResult()
@@ -180,10 +224,10 @@ class ContactModel:
         return d, tri, qx, qy, qz
 
     def _signed(
-        self, obj: CollisionMesh, c: Array, hint: tuple[float, float, float]
+        self, obj: CollisionMesh, c: Array, hint: tuple[float, float, float], key: int = -1
     ) -> tuple[float, float, float, float, float, float, float]:
         """Signed distance phi (> 0 outside), nearest point q and outward normal n at centre c."""
-        d, tri, qx, qy, qz = self._distance(obj, c)
+        d, tri, qx, qy, qz = self._distance(obj, c, key)
         cx, cy, cz = c.tolist()
         if d == 0.0:
             # On the surface: FCL gives no point, so query just off it (along the reported face's
@@ -384,7 +428,7 @@ class ContactModel:
         mem = self._memory.get(key)
         hint = (mem[3], mem[4], mem[5]) if mem is not None else (0.0, 0.0, 1.0)
         c = np.array((cx, cy, cz))
-        phi, qx, qy, qz, nx, ny, nz = self._signed(self._meshes[j], c, hint)
+        phi, qx, qy, qz, nx, ny, nz = self._signed(self._meshes[j], c, hint, key)
         self._last_c[j, i] = c
         in_memory = False
         if mem is not None and nx * mem[3] + ny * mem[4] + nz * mem[5] < 0.0:

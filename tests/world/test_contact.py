@@ -15,7 +15,7 @@ from world_helpers import make_scene, plane, pose, sphere_tool
 from app.spatial import make_pose, quat_to_matrix
 from app.world import ContactModel, contact_wrench
 from app.world.assets import BOWL_CAVITY_RADIUS, HOLE_RADIUS, PEG_SPACING
-from app.world.scene import BoxSpec, CapsuleSpec, ObjectSpec, Pose, Scene, SphereSpec, ToolSpec
+from app.world.scene import BoxSpec, CapsuleSpec, ObjectSpec, Pose, Scene, SphereSpec, ToolSpec, load_scene
 
 K = 1000.0
 R = 0.01
@@ -371,3 +371,28 @@ def test_damping_and_friction_use_the_contact_point_velocity() -> None:
     # Pulling out faster than the spring pushes: the normal force clamps at 0 (no sticking).
     res = contact_wrench(scene, pose((0.0, 0.0, R - depth)), np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0]))
     np.testing.assert_allclose(res.force_w, 0.0, atol=1e-12)
+
+
+def test_cached_triangle_scans_agree_with_fcl_with_the_pegs_in_the_holes() -> None:
+    # Small steps inside the holes: most queries scan a pair's cached candidate triangles instead
+    # of asking FCL; each tick must match a fresh model (FCL only) to rounding.
+    scene = load_scene("peg_in_hole")
+    model = ContactModel(scene)
+    rng = np.random.default_rng(2)
+    p = np.array([0.0007, 0.0, -0.01])
+    angles = np.zeros(3)
+    counts = []
+    for _ in range(300):
+        p = np.clip(p + rng.normal(0.0, 3e-5, 3), [-0.001, -0.001, -0.011], [0.001, 0.001, -0.009])
+        angles = np.clip(angles + rng.normal(0.0, 2e-4, 3), -3e-3, 3e-3)
+        T = pose(tuple(p), tuple(angles))
+        cached, fresh = model.wrench(T), contact_wrench(scene, T)
+        assert cached.valid
+        assert fresh.valid
+        assert cached.count == fresh.count
+        np.testing.assert_allclose(cached.wrench_S, fresh.wrench_S, atol=1e-9)
+        np.testing.assert_allclose(cached.points_w, fresh.points_w, atol=1e-12)
+        np.testing.assert_allclose(cached.depths, fresh.depths, atol=1e-12)
+        counts.append(cached.count)
+    assert min(counts) >= 2
+    assert any(cand is not None for *_, cand in model._cache.values())

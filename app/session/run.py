@@ -10,7 +10,6 @@ Example::
 from __future__ import annotations
 
 import json
-import math
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -57,11 +56,10 @@ def drive(session: Session, loop: ServoLoop, realtime: bool = False) -> Iterator
     the grip). With ``realtime`` the ticks are paced to the wall clock.
     """
     d = session.data
-    n_ticks = math.ceil(d.duration * d.servo_rate - 1e-9)
     script = OperatorScript(d, loop.reading.T_0_G.copy())
     loop.switches = script.switches
     start = time.perf_counter()
-    for tick in range(n_ticks):
+    for tick in range(d.n_ticks):
         t = loop.time
         script.update_switches(t, tick)
         target = script.hand_target(t, tick) if script.hand_on else None
@@ -91,7 +89,7 @@ def run_session(
     """
     loop = make_loop(session)
     d = session.data
-    n_ticks = math.ceil(d.duration * d.servo_rate - 1e-9)
+    n_ticks = d.n_ticks
     metrics = SessionMetrics(loop, n_ticks)
     log = TickLog(out_dir / "log", session.device.n_joints) if out_dir is not None else None
     bar = tqdm(total=n_ticks, unit="tick", disable=not progress, mininterval=0.5)

@@ -44,8 +44,7 @@ class OperatorScript:
         self.hand_on = True
         self._reference_pressed_at = -1
         self._rate = data.servo_rate
-        n_ticks = math.ceil(data.duration * data.servo_rate) + 2
-        self._tremor = _tremor(n_ticks, data.tremor, data.seed, data.servo_rate, self.TREMOR_CUTOFF_HZ)
+        self._tremor = _tremor(data.n_ticks, data.tremor, data.seed, data.servo_rate, self.TREMOR_CUTOFF_HZ)
         self._T = np.eye(4)
 
     def hand_target(self, t: float, tick: int) -> Array:

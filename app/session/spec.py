@@ -109,6 +109,11 @@ class SessionFile:
             if e.t < 0:
                 raise InvalidField(f"events[{i}].t", "must be >= 0")
 
+    @property
+    def n_ticks(self) -> int:
+        """Servo ticks in ``duration`` at ``servo_rate`` (the epsilon keeps 5.0 s at 1 kHz at 5000)."""
+        return math.ceil(self.duration * self.servo_rate - 1e-9)
+
 
 @dataclass(frozen=True)
 class Session:

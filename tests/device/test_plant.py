@@ -11,32 +11,25 @@ import pytest
 from device_helpers import replace_in
 
 from app.controller.calibration import TorqueCurve
+from app.controller.kinematics import DeviceKinematics
 from app.device.hand import HandParams
 from app.device.plant import DevicePlant, true_motor_torque
-from app.device.spec import DeviceSpec, available_devices, load_device
+from app.device.spec import available_devices, load_device
 from app.spatial import matrix_to_quat, rotation_exp
 
 DT = 0.001
 
 
-def nominal_gravity_torque(spec: DeviceSpec, q: np.ndarray) -> np.ndarray:
-    """tau_G = -sum_i J_i^T m_i g on the *nominal* model (paper Sec 3.3), from link CoM Jacobians."""
-    model = spec.model
-    data = mujoco.MjData(model)
-    data.qpos[list(spec.qpos_ids)] = q
-    mujoco.mj_kinematics(model, data)
-    mujoco.mj_comPos(model, data)
-    jacp = np.zeros((3, model.nv))
-    tau = np.zeros(model.nv)
-    for body in range(1, model.nbody):
-        mujoco.mj_jacBodyCom(model, data, jacp, None, body)
-        tau -= jacp.T @ (model.body_mass[body] * model.opt.gravity)
-    return tau[list(spec.dof_ids)]
+def nominal_gravity_torque(kin: DeviceKinematics, q: np.ndarray) -> np.ndarray:
+    """tau_G on the *nominal* model (paper Sec 3.3), the controller's own computation."""
+    kin.update(q)
+    return kin.gravity_torque(np.zeros(kin.n))
 
 
 def hold_for(plant: DevicePlant, q0: np.ndarray, seconds: float, compensate: bool) -> tuple[float, float]:
     """Run with the hand released; return the largest grip displacement (m) and rotation (rad)."""
     spec = plant.spec
+    kin = DeviceKinematics(spec)
     curve = TorqueCurve.for_device(spec)
     gear = np.asarray(spec.data.motors.gear_ratio)
     reading = plant.reset(q0)
@@ -45,7 +38,7 @@ def hold_for(plant: DevicePlant, q0: np.ndarray, seconds: float, compensate: boo
     worst_p = worst_r = 0.0
     for _ in range(int(seconds / DT)):
         if compensate:
-            tau_G = nominal_gravity_torque(spec, reading.q)  # from the encoders, as a controller must
+            tau_G = nominal_gravity_torque(kin, reading.q)  # from the encoders, as a controller must
             counts = np.array(curve.counts((tau_G / gear).tolist()), dtype=np.int64)
         else:
             counts = zero
@@ -186,13 +179,14 @@ def test_substeps_keep_the_servo_period(kraft_copy: Path) -> None:
 
 def test_jpl_nominal_gravity_torques_are_near_zero() -> None:
     spec = load_device("jpl")
+    kin = DeviceKinematics(spec)
     rng = np.random.default_rng(3)
     lo, hi = spec.model.jnt_range[list(spec.joint_ids)].T
     for _ in range(50):
-        assert np.max(np.abs(nominal_gravity_torque(spec, rng.uniform(lo, hi)))) < 1e-9
+        assert np.max(np.abs(nominal_gravity_torque(kin, rng.uniform(lo, hi)))) < 1e-9
     # The Kraft at the same test is far from balanced (the comparison makes the check meaningful).
     kraft = load_device("kraft")
-    assert np.max(np.abs(nominal_gravity_torque(kraft, np.asarray(kraft.data.home)))) > 1.0
+    assert np.max(np.abs(nominal_gravity_torque(DeviceKinematics(kraft), np.asarray(kraft.data.home)))) > 1.0
 
 
 def test_jpl_grip_and_wrist_coincide() -> None:

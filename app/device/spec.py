@@ -131,10 +131,6 @@ class DeviceSpec:
     def mjcf_path(self) -> Path:
         return self.path.parent / self.data.mjcf
 
-    @property
-    def calibration_path(self) -> Path | None:
-        return None if self.data.calibration is None else self.path.parent / self.data.calibration
-
 
 def resolve_device_path(name_or_path: str | Path) -> Path:
     """A device name (``"kraft"``) or a path to a ``device.toml`` or its folder."""

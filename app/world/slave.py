@@ -163,11 +163,6 @@ class VirtualSlave:
         return self._state()[1].copy()
 
     @property
-    def T_w_MRF_ref(self) -> Array:
-        """The reference pose of {MRF} the PD pulls toward, (4, 4)."""
-        return self._T_ref.copy()
-
-    @property
     def contact(self) -> ContactResult:
         """The last contact evaluation (points, normals, depths for display)."""
         return self._contact

@@ -1,4 +1,5 @@
-"""Collision data of one static mesh: its FCL BVH and the pseudonormals deciding inside/outside.
+"""Collision data of the static meshes: FCL BVHs, pseudonormals, and the packed arrays and grid the
+compiled contact kernel reads.
 
 Built once per object when a scene loads (building the BVH of a 1M-triangle mesh takes seconds)
 and shared, read-only, by every :class:`~app.world.contact.ContactModel` of that scene.
@@ -6,12 +7,20 @@ and shared, read-only, by every :class:`~app.world.contact.ContactModel` of that
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import fcl
 import numpy as np
 import trimesh
 
-# Barycentric tolerance deciding that the nearest point lies on an edge or a vertex.
-_BARY_TOL = 1e-7
+from app.spatial import Array, IntArray
+from app.world.contact_kernel import grid_entries
+
+# Grid cells per object: at most this many along the longest side, and at least twice the
+# median triangle's size (so a typical triangle touches a few cells and a cell holds a few triangles).
+_GRID_CELLS = 128
+_GRID_TRIANGLE_SIZES = 2.0
 
 
 class CollisionMesh:
@@ -24,6 +33,7 @@ class CollisionMesh:
 
     __slots__ = (
         "edge_pn",
+        "edges",
         "face_edges",
         "face_normals",
         "faces",
@@ -31,8 +41,6 @@ class CollisionMesh:
         "hi",
         "lo",
         "n_faces",
-        "tri_centers",
-        "tri_radii",
         "vertex_pn",
         "vertices",
     )
@@ -44,7 +52,8 @@ class CollisionMesh:
         self.face_normals = np.asarray(mesh.face_normals, dtype=float)
         # Edge pseudonormal: sum of the adjacent face normals. Vertex: angle-weighted sum.
         self.face_edges = np.asarray(mesh.faces_unique_edges, dtype=np.int64)
-        edge_pn = np.zeros((len(mesh.edges_unique), 3))
+        self.edges = len(mesh.edges_unique)
+        edge_pn = np.zeros((self.edges, 3))
         np.add.at(edge_pn, self.face_edges.ravel(), np.repeat(self.face_normals, 3, axis=0))
         vertex_pn = np.zeros_like(self.vertices)
         weighted = np.asarray(mesh.face_angles)[:, :, None] * self.face_normals[:, None, :]
@@ -56,40 +65,85 @@ class CollisionMesh:
         bvh.addSubModel(self.vertices, self.faces)
         bvh.endModel()
         self.fcl_object = fcl.CollisionObject(bvh, fcl.Transform())
-        # Bounding ball of each triangle (centroid, farthest vertex): the candidate filter of the
-        # contact model's cached nearest-triangle queries.
-        corners = self.vertices[self.faces]
-        self.tri_centers = np.ascontiguousarray(corners.mean(axis=1))
-        self.tri_radii = np.linalg.norm(corners - self.tri_centers[:, None, :], axis=2).max(axis=1) * (1.0 + 1e-9)
         self.lo = self.vertices.min(axis=0)
         self.hi = self.vertices.max(axis=0)
 
-    def pseudonormal(self, tri: int, qx: float, qy: float, qz: float) -> tuple[float, float, float]:
-        """Outward pseudonormal of the feature of triangle ``tri`` nearest to point q (in {w})."""
-        ia, ib, ic = self.faces[tri].tolist()
-        ax, ay, az = self.vertices[ia].tolist()
-        bx, by, bz = self.vertices[ib].tolist()
-        cx, cy, cz = self.vertices[ic].tolist()
-        v0x, v0y, v0z = bx - ax, by - ay, bz - az
-        v1x, v1y, v1z = cx - ax, cy - ay, cz - az
-        v2x, v2y, v2z = qx - ax, qy - ay, qz - az
-        d00 = v0x * v0x + v0y * v0y + v0z * v0z
-        d01 = v0x * v1x + v0y * v1y + v0z * v1z
-        d11 = v1x * v1x + v1y * v1y + v1z * v1z
-        d20 = v2x * v0x + v2y * v0y + v2z * v0z
-        d21 = v2x * v1x + v2y * v1y + v2z * v1z
-        den = d00 * d11 - d01 * d01
-        l1 = (d11 * d20 - d01 * d21) / den
-        l2 = (d00 * d21 - d01 * d20) / den
-        bary = (1.0 - l1 - l2, l1, l2)
-        small = [k for k in range(3) if bary[k] < _BARY_TOL]
-        if len(small) >= 2:
-            k = 3 - small[0] - small[1]  # the one vertex that is not ~0
-            n = self.vertex_pn[(ia, ib, ic)[k]]
-        elif len(small) == 1:
-            # faces_unique_edges lists edges (v0 v1), (v1 v2), (v2 v0): the one opposite vertex k is k+1.
-            n = self.edge_pn[self.face_edges[tri, (small[0] + 1) % 3]]
-        else:
-            n = self.face_normals[tri]
-        nx, ny, nz = n.tolist()
-        return nx, ny, nz
+
+@dataclass(frozen=True)
+class PackedMeshes:
+    """Every object's mesh in one set of arrays, indices global, as :mod:`app.world.contact_kernel` reads them.
+
+    Attributes:
+        vertices, vertex_pn: Vertices (m, {w}) and their pseudonormals, (V, 3).
+        faces, face_normals, face_edges: Vertex indices (F, 3), unit normals (F, 3), edge indices (F, 3).
+        edge_pn: Edge pseudonormals, (E, 3).
+        tri_balls: Bounding ball of each triangle: centroid (m) and radius to its farthest vertex, (F, 4).
+        face0: Object j owns triangles ``face0[j]:face0[j + 1]``, (m + 1,).
+        grid_f, grid_i: Per object, the grid's origin (3) and cell size (m), and its cells per axis
+            (3) and first key, (m, 4) each.
+        grid_keys, grid_start, grid_tris: The occupied cells' keys (sorted), where each cell's
+            triangles start in ``grid_tris`` (one more entry than keys), and the triangles.
+    """
+
+    vertices: Array
+    faces: IntArray
+    face_normals: Array
+    face_edges: IntArray
+    edge_pn: Array
+    vertex_pn: Array
+    tri_balls: Array
+    face0: IntArray
+    grid_f: Array
+    grid_i: IntArray
+    grid_keys: IntArray
+    grid_start: IntArray
+    grid_tris: IntArray
+
+
+def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
+    """Concatenate the meshes (offsetting their indices) and build one uniform grid per object."""
+    v0 = np.cumsum([0, *(len(c.vertices) for c in meshes)])
+    e0 = np.cumsum([0, *(c.edges for c in meshes)])
+    face0 = np.cumsum([0, *(c.n_faces for c in meshes)]).astype(np.int64)
+
+    def cat(parts: list[Array]) -> Array:
+        return np.ascontiguousarray(np.concatenate(parts) if parts else np.zeros((0, 3)), dtype=float)
+
+    def cat_int(parts: list[IntArray]) -> IntArray:
+        return np.ascontiguousarray(np.concatenate(parts) if parts else np.zeros((0, 3)), dtype=np.int64)
+
+    vertices = cat([c.vertices for c in meshes])
+    faces = cat_int([c.faces + v0[k] for k, c in enumerate(meshes)])
+    corners = vertices[faces]
+    centers = corners.mean(axis=1)
+    radii = np.linalg.norm(corners - centers[:, None, :], axis=2).max(axis=1) * (1.0 + 1e-9)
+    grid_f = np.zeros((len(meshes), 4))
+    grid_i = np.zeros((len(meshes), 4), dtype=np.int64)
+    base = 0
+    for j, c in enumerate(meshes):
+        extent = c.hi - c.lo
+        tri_size = np.ptp(c.vertices[c.faces], axis=1).max(axis=1)
+        h = max(float(extent.max()) / _GRID_CELLS, _GRID_TRIANGLE_SIZES * float(np.median(tri_size)), 1e-9)
+        dims = np.floor(extent / h).astype(np.int64) + 1
+        grid_f[j] = (*c.lo, h)
+        grid_i[j] = (*dims, base)
+        base += int(np.prod(dims))
+    keys, tris = grid_entries(vertices, faces, face0, grid_f, grid_i)
+    order = np.argsort(keys, kind="stable")
+    keys, tris = keys[order], tris[order]
+    grid_keys, first = np.unique(keys, return_index=True)
+    return PackedMeshes(
+        vertices=vertices,
+        faces=faces,
+        face_normals=cat([c.face_normals for c in meshes]),
+        face_edges=cat_int([c.face_edges + e0[k] for k, c in enumerate(meshes)]),
+        edge_pn=cat([c.edge_pn for c in meshes]),
+        vertex_pn=cat([c.vertex_pn for c in meshes]),
+        tri_balls=np.ascontiguousarray(np.column_stack([centers, radii])),
+        face0=face0,
+        grid_f=grid_f,
+        grid_i=grid_i,
+        grid_keys=np.ascontiguousarray(grid_keys, dtype=np.int64),
+        grid_start=np.append(first, len(keys)).astype(np.int64),
+        grid_tris=np.ascontiguousarray(tris, dtype=np.int64),
+    )

@@ -19,7 +19,7 @@ import math
 import numpy as np
 from numba import njit
 
-from app.spatial import Array, IntArray, cross3, quat_to_matrix, rotation_exp, rotation_log
+from app.spatial import Array, cross3, quat_to_matrix, rotation_exp, rotation_log
 
 # Slots of the PD gain vector handed to :func:`drive_wrench` (see ``SlaveGains``).
 KP_LIN, KD_LIN, KP_ROT, KD_ROT, FORCE_LIMIT, TORQUE_LIMIT = range(6)
@@ -230,88 +230,3 @@ def sensor_reading(
     acc_w[0:3] = a_com + cross3(alpha_w, r_com_S) + cross3(w_w, cross3(w_w, r_com_S))
     acc_w[3:6] = alpha_w
     return F_S, R_w_S, acc_w, w_w
-
-
-@njit(cache=True)
-def _closest(
-    vertices: Array, faces: IntArray, t: int, cx: float, cy: float, cz: float
-) -> tuple[float, float, float, float]:
-    """Squared distance from c to triangle t and its nearest point q (Ericson 5.1.5)."""
-    ia, ib, ic = faces[t, 0], faces[t, 1], faces[t, 2]
-    ax, ay, az = vertices[ia, 0], vertices[ia, 1], vertices[ia, 2]
-    abx, aby, abz = vertices[ib, 0] - ax, vertices[ib, 1] - ay, vertices[ib, 2] - az
-    acx, acy, acz = vertices[ic, 0] - ax, vertices[ic, 1] - ay, vertices[ic, 2] - az
-    apx, apy, apz = cx - ax, cy - ay, cz - az
-    d1 = abx * apx + aby * apy + abz * apz
-    d2 = acx * apx + acy * apy + acz * apz
-    if d1 <= 0.0 and d2 <= 0.0:
-        u, v = 0.0, 0.0
-    else:
-        bpx, bpy, bpz = apx - abx, apy - aby, apz - abz
-        d3 = abx * bpx + aby * bpy + abz * bpz
-        d4 = acx * bpx + acy * bpy + acz * bpz
-        if d3 >= 0.0 and d4 <= d3:
-            u, v = 1.0, 0.0
-        else:
-            vc = d1 * d4 - d3 * d2
-            if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-                u, v = d1 / (d1 - d3), 0.0
-            else:
-                cpx, cpy, cpz = apx - acx, apy - acy, apz - acz
-                d5 = abx * cpx + aby * cpy + abz * cpz
-                d6 = acx * cpx + acy * cpy + acz * cpz
-                if d6 >= 0.0 and d5 <= d6:
-                    u, v = 0.0, 1.0
-                else:
-                    vb = d5 * d2 - d1 * d6
-                    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-                        u, v = 0.0, d2 / (d2 - d6)
-                    else:
-                        va = d3 * d6 - d5 * d4
-                        if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-                            w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-                            u, v = 1.0 - w, w
-                        else:
-                            den = 1.0 / (va + vb + vc)
-                            u, v = vb * den, vc * den
-    qx = ax + u * abx + v * acx
-    qy = ay + u * aby + v * acy
-    qz = az + u * abz + v * acz
-    return (cx - qx) ** 2 + (cy - qy) ** 2 + (cz - qz) ** 2, qx, qy, qz
-
-
-@njit(cache=True)
-def nearest_triangle(
-    vertices: Array, faces: IntArray, candidates: IntArray, cx: float, cy: float, cz: float
-) -> tuple[float, int, float, float, float]:
-    """Nearest point to c on the ``candidates`` triangles: ``(d, triangle, q)``.
-
-    The exact point-triangle distance over a candidate set that a caller proved contains the
-    nearest triangle (see :class:`~app.world.contact.ContactModel`); -1 as the triangle if empty.
-    """
-    best = math.inf
-    best_t = -1
-    bx = by = bz = 0.0
-    for k in range(candidates.shape[0]):
-        t = candidates[k]
-        dd, qx, qy, qz = _closest(vertices, faces, t, cx, cy, cz)
-        if dd < best:
-            best, best_t, bx, by, bz = dd, t, qx, qy, qz
-    return math.sqrt(best), best_t, bx, by, bz
-
-
-@njit(cache=True)
-def triangles_within(
-    vertices: Array, faces: IntArray, centers: Array, radii: Array, cx: float, cy: float, cz: float, reach: float
-) -> IntArray:
-    """Indices of the triangles within distance ``reach`` of c (bounding balls ``centers``, ``radii``
-    first, then the exact distance)."""
-    out = np.empty(centers.shape[0], dtype=np.int64)
-    n = 0
-    for t in range(centers.shape[0]):
-        dx, dy, dz = centers[t, 0] - cx, centers[t, 1] - cy, centers[t, 2] - cz
-        r = reach + radii[t]
-        if dx * dx + dy * dy + dz * dz <= r * r and _closest(vertices, faces, t, cx, cy, cz)[0] <= reach * reach:
-            out[n] = t
-            n += 1
-    return out[:n].copy()

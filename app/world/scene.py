@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,7 @@ import trimesh
 from app.config import from_dict, load_toml
 from app.errors import ConfigError, InvalidField
 from app.spatial import Array, invert_pose, make_pose, quat_to_matrix, zyx_to_matrix
-from app.world.collision import CollisionMesh
+from app.world.collision import CollisionMesh, PackedMeshes, pack_meshes
 
 ROOT_DIR = Path(__file__).resolve().parents[2]
 SCENES_DIR = ROOT_DIR / "scenes"
@@ -371,6 +372,11 @@ class Scene:
     @property
     def name(self) -> str:
         return self.spec.name
+
+    @cached_property
+    def packed(self) -> PackedMeshes:
+        """All objects' meshes packed for the compiled contact kernel (built on first use, then shared)."""
+        return pack_meshes([o.collision for o in self.objects])
 
 
 def _inertia_matrix(i: tuple[float, ...]) -> Array:

@@ -17,10 +17,10 @@ import trimesh
 from app.spatial import Array, IntArray
 from app.world.contact_kernel import grid_entries
 
-# Grid cells per object: at most this many along the longest side, and at least twice the
-# median triangle's size (so a typical triangle touches a few cells and a cell holds a few triangles).
+# Grid cells per object: at most this many along the longest side, and no smaller than the median
+# triangle (size sqrt(2 area): long thin triangles count by their width, so the walls of a hole do
+# not make the cells as big as the hole), so a cell holds a few triangles.
 _GRID_CELLS = 128
-_GRID_TRIANGLE_SIZES = 2.0
 
 
 class CollisionMesh:
@@ -77,7 +77,7 @@ class PackedMeshes:
         vertices, vertex_pn: Vertices (m, {w}) and their pseudonormals, (V, 3).
         faces, face_normals, face_edges: Vertex indices (F, 3), unit normals (F, 3), edge indices (F, 3).
         edge_pn: Edge pseudonormals, (E, 3).
-        tri_balls: Bounding ball of each triangle: centroid (m) and radius to its farthest vertex, (F, 4).
+        tri_boxes: Bounding box of each triangle: minimum (3) and maximum (3) corner (m), (F, 6).
         face0: Object j owns triangles ``face0[j]:face0[j + 1]``, (m + 1,).
         grid_f, grid_i: Per object, the grid's origin (3) and cell size (m), and its cells per axis
             (3) and first key, (m, 4) each.
@@ -91,7 +91,7 @@ class PackedMeshes:
     face_edges: IntArray
     edge_pn: Array
     vertex_pn: Array
-    tri_balls: Array
+    tri_boxes: Array
     face0: IntArray
     grid_f: Array
     grid_i: IntArray
@@ -115,15 +115,15 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
     vertices = cat([c.vertices for c in meshes])
     faces = cat_int([c.faces + v0[k] for k, c in enumerate(meshes)])
     corners = vertices[faces]
-    centers = corners.mean(axis=1)
-    radii = np.linalg.norm(corners - centers[:, None, :], axis=2).max(axis=1) * (1.0 + 1e-9)
     grid_f = np.zeros((len(meshes), 4))
     grid_i = np.zeros((len(meshes), 4), dtype=np.int64)
     base = 0
     for j, c in enumerate(meshes):
         extent = c.hi - c.lo
-        tri_size = np.ptp(c.vertices[c.faces], axis=1).max(axis=1)
-        h = max(float(extent.max()) / _GRID_CELLS, _GRID_TRIANGLE_SIZES * float(np.median(tri_size)), 1e-9)
+        ab = c.vertices[c.faces[:, 1]] - c.vertices[c.faces[:, 0]]
+        ac = c.vertices[c.faces[:, 2]] - c.vertices[c.faces[:, 0]]
+        tri_size = np.sqrt(np.linalg.norm(np.cross(ab, ac), axis=1))  # sqrt(2 area)
+        h = max(float(extent.max()) / _GRID_CELLS, float(np.median(tri_size)), 1e-9)
         dims = np.floor(extent / h).astype(np.int64) + 1
         grid_f[j] = (*c.lo, h)
         grid_i[j] = (*dims, base)
@@ -139,7 +139,7 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
         face_edges=cat_int([c.face_edges + e0[k] for k, c in enumerate(meshes)]),
         edge_pn=cat([c.edge_pn for c in meshes]),
         vertex_pn=cat([c.vertex_pn for c in meshes]),
-        tri_balls=np.ascontiguousarray(np.column_stack([centers, radii])),
+        tri_boxes=np.ascontiguousarray(np.column_stack([corners.min(axis=1), corners.max(axis=1)])),
         face0=face0,
         grid_f=grid_f,
         grid_i=grid_i,

@@ -41,21 +41,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import fcl
 import numpy as np
 
 from app.errors import ContactQueryError
-from app.spatial import Array, invert_pose
+from app.spatial import Array, IntArray, invert_pose
 from app.world import contact_kernel as ck
 from app.world.scene import Scene
 
-# Cached candidate triangles: at most this many per pair, valid while the centre moves less than
-# max(_CACHE_MIN, _CACHE_FRAC * d) from where they were gathered (d: the distance there). A larger
-# radius means fewer FCL queries on the move but more triangles to scan each tick.
+ArrayT = TypeVar("ArrayT", Array, IntArray)
+
+# Cached candidate triangles per pair, at most (more: the pair has no cache and FCL answers it).
 _CACHE_MAX = 2048
-_CACHE_MIN = 1e-4
-_CACHE_FRAC = 0.02
 _AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 _ERRORS = {
     ck.ERR_POSE: "non-finite tool pose",
@@ -64,7 +63,7 @@ _ERRORS = {
 }
 
 
-def _frozen(a: Array) -> Array:
+def _frozen(a: ArrayT) -> ArrayT:
     a.flags.writeable = False
     return a
 
@@ -73,7 +72,7 @@ def _frozen(a: Array) -> Array:
 # anew was a good part of the cost of a free-space evaluation.
 _NO_POINTS = _frozen(np.zeros((0, 3)))
 _NO_DEPTHS = _frozen(np.zeros(0))
-_NO_IDS = _frozen(np.zeros(0, dtype=int))
+_NO_IDS = _frozen(np.zeros(0, dtype=np.int64))
 
 
 @dataclass(slots=True)
@@ -106,8 +105,8 @@ class ContactResult:
     points_w: Array = field(default_factory=lambda: _NO_POINTS)
     normals_w: Array = field(default_factory=lambda: _NO_POINTS)
     depths: Array = field(default_factory=lambda: _NO_DEPTHS)
-    sphere_ids: Array = field(default_factory=lambda: _NO_IDS)
-    object_ids: Array = field(default_factory=lambda: _NO_IDS)
+    sphere_ids: IntArray = field(default_factory=lambda: _NO_IDS)
+    object_ids: IntArray = field(default_factory=lambda: _NO_IDS)
     queries: int = 0
     fcl_queries: int = 0
     error: str | None = None
@@ -168,8 +167,17 @@ class ContactModel:
         self._misses = np.zeros(m * n, dtype=np.int64)
         self._out_w = np.zeros(15)
         self._out_c = np.zeros((m * n, ck.OC_COLS))
-        self._stamp = np.zeros(len(geo.faces), dtype=np.int64)
-        self._serial = 0
+        self._out_ci = np.zeros((m * n, 2), dtype=np.int64)
+        self._grid = (
+            geo.tri_boxes,
+            geo.grid_f,
+            geo.grid_i,
+            geo.grid_keys,
+            geo.grid_start,
+            geo.grid_tris,
+            np.zeros(len(geo.faces), dtype=np.int64),
+            np.zeros(1, dtype=np.int64),
+        )
         self._no_twist = np.zeros(6)
         self._core = fcl.CollisionObject(fcl.Sphere(0.0), fcl.Transform())
         self._request = fcl.DistanceRequest(enable_nearest_points=True)
@@ -184,6 +192,7 @@ class ContactModel:
         pi[:, ck.PI_CACHE_N] = -1
         pi[:, ck.PI_FCL_TRI] = -1
         pi[:, ck.PI_HOT] = 0
+        pi[:, ck.PI_NEAREST] = -1
         self._obj_f[:, ck.OF_SLACK] = -1.0
         self._glob_f[ck.GF_NEAR_SLACK] = -1.0
 
@@ -218,22 +227,22 @@ class ContactModel:
         except ContactQueryError as exc:
             self.reset()
             return ContactResult(False, np.zeros(6), np.zeros(6), np.zeros(3), error=str(exc))
-        w = self._out_w
+        # One copy per output block; the result's fields are views of it.
+        w = self._out_w.copy()
         if code == 0:
-            return ContactResult(
-                True, w[0:6].copy(), w[6:12].copy(), w[12:15].copy(), queries=queries, fcl_queries=fcl_queries
-            )
-        c = self._out_c[:code]
+            return ContactResult(True, w[0:6], w[6:12], w[12:15], queries=queries, fcl_queries=fcl_queries)
+        c = self._out_c[:code].copy()
+        ids = self._out_ci[:code].copy()
         return ContactResult(
             True,
-            w[0:6].copy(),
-            w[6:12].copy(),
-            w[12:15].copy(),
-            c[:, ck.OC_P : ck.OC_P + 3].copy(),
-            c[:, ck.OC_N : ck.OC_N + 3].copy(),
-            c[:, ck.OC_DEPTH].copy(),
-            c[:, ck.OC_SPHERE].astype(int),
-            c[:, ck.OC_OBJECT].astype(int),
+            w[0:6],
+            w[6:12],
+            w[12:15],
+            c[:, ck.OC_P : ck.OC_P + 3],
+            c[:, ck.OC_N : ck.OC_N + 3],
+            c[:, ck.OC_DEPTH],
+            ids[:, 0],
+            ids[:, 1],
             queries,
             fcl_queries,
         )
@@ -258,6 +267,7 @@ class ContactModel:
             self._pair_f,
             self._pair_i,
             self._pool,
+            self._grid,
             self._obj_f,
             self._near,
             self._glob_f,
@@ -266,6 +276,7 @@ class ContactModel:
             self._misses,
             self._out_w,
             self._out_c,
+            self._out_ci,
         )
 
     def _answer(self, k: int) -> None:
@@ -289,30 +300,21 @@ class ContactModel:
         f[ck.PF_FCL_D] = d
         f[ck.PF_FCL_Q : ck.PF_FCL_Q + 3] = q
         self._pair_i[k, ck.PI_FCL_TRI] = tri
-        R = max(_CACHE_MIN, _CACHE_FRAC * d)
-        self._serial += 1
-        g = self._geo
-        found = ck.gather(
+        ck.refill(
+            k,
             j,
             float(c[0]),
             float(c[1]),
             float(c[2]),
-            d + 2.0 * R + 1e-9 + 1e-6 * d,
-            g.vertices,
-            g.faces,
-            g.tri_balls,
-            g.grid_f,
-            g.grid_i,
-            g.grid_keys,
-            g.grid_start,
-            g.grid_tris,
-            self._stamp,
-            self._serial,
-            self._pool[k],
+            d,
+            max(ck.CACHE_MIN, ck.CACHE_FRAC * d),
+            self._geo.vertices,
+            self._geo.faces,
+            self._pair_f,
+            self._pair_i,
+            self._pool,
+            self._grid,
         )
-        f[ck.PF_CACHE_C : ck.PF_CACHE_C + 3] = c
-        f[ck.PF_CACHE_R] = R
-        self._pair_i[k, ck.PI_CACHE_N] = found
 
     def _fcl_distance(self, j: int, c: Array) -> tuple[float, int, Array]:
         """FCL unsigned distance from point c (3,) to object j: ``(d, global triangle, q (3,))``.

@@ -35,13 +35,15 @@ PF_CACHE_R = 13  # its radius of validity (m)
 PF_FCL_C = 14  # 14:17 centre of the pair's last FCL answer
 PF_FCL_D = 17  # FCL distance there (m); 0 = on the surface (then q/tri come from a nudged query)
 PF_FCL_Q = 18  # 18:21 FCL nearest point
-PF_COLS = 21
+PF_LAST_D = 21  # unsigned distance (m) to the mesh at PF_LAST
+PF_COLS = 22
 # Columns of the per-pair int state ``pair_i``.
 PI_MEM = 0  # 1 while the memory holds a plane
 PI_CACHE_N = 1  # number of cached candidates in ``pool[k]``; -1 = no cache
 PI_FCL_TRI = 2  # global triangle of the FCL answer; -1 = none
 PI_HOT = 3  # 1 if the sphere is queried every tick while its object's slack holds
-PI_COLS = 4
+PI_NEAREST = 4  # triangle nearest to the centre at the pair's last scan (-1: none): the next scan's seed
+PI_COLS = 5
 # Columns of the per-object float state ``obj_f``.
 OF_BASE_C0 = 0  # 0:3 tool bounding-sphere centre at the object's base pose
 OF_BASE_R = 3  # 3:12 tool rotation (row-major) at the base pose
@@ -62,11 +64,12 @@ TP_C0, TP_RHO, TP_REACH, TP_MARGIN, TP_P_MRF_S, TP_R_MRF_S = 0, 3, 4, 5, 6, 9
 TP_COLS = 18
 # Output slots of ``out_w``: wrench at {S} in {S}, at {MRF} in {MRF}, total force in {w}.
 OW_S, OW_MRF, OW_F = 0, 6, 12
-# Columns of the per-contact outputs ``out_c``: point (3), outward normal (3), depth, sphere, object.
-OC_P, OC_N, OC_DEPTH, OC_SPHERE, OC_OBJECT = 0, 3, 6, 7, 8
-OC_COLS = 9
+# Columns of the per-contact outputs ``out_c``: point (3), outward normal (3), depth; and of
+# ``out_ci``: sphere, object.
+OC_P, OC_N, OC_DEPTH = 0, 3, 6
+OC_COLS = 7
 # Return codes of :func:`contact_step` (besides >= 0 for success).
-ERR_POSE, ERR_TWIST, ERR_WRENCH, ERR_SURFACE = -1, -2, -3, -4
+ERR_POSE, ERR_TWIST, ERR_WRENCH = -1, -2, -3
 
 # Below this distance (m) the nearest-point direction is numerically meaningless (and FCL's
 # zero-radius query may report uninitialised memory): the centre is treated as on the surface.
@@ -79,13 +82,19 @@ _V_SLIP = 1e-3
 _BARY_TOL = 1e-7
 # A gather visiting more grid cells than this gives up (the pair is far: FCL answers it each time).
 _MAX_CELLS = 4096
+# A pair's candidate cache stays valid while its centre moves less than max(CACHE_MIN, CACHE_FRAC * d)
+# (m) from where it was gathered (d: the distance there). A larger radius means fewer gathers on
+# the move but more triangles to scan each tick.
+CACHE_MIN = 1e-4
+CACHE_FRAC = 0.05
 
 
 @njit(cache=True)
 def closest_on_triangle(
     vertices: Array, faces: IntArray, t: int, cx: float, cy: float, cz: float
-) -> tuple[float, float, float, float]:
-    """Squared distance from c to triangle t and its nearest point q (Ericson 5.1.5)."""
+) -> tuple[float, float, float, float, bool]:
+    """Squared distance from c to triangle t, its nearest point q, and whether q is inside the face
+    (not on an edge or a vertex; then ``c - q`` is along the face normal). Ericson 5.1.5."""
     ia, ib, ic = faces[t, 0], faces[t, 1], faces[t, 2]
     ax, ay, az = vertices[ia, 0], vertices[ia, 1], vertices[ia, 2]
     abx, aby, abz = vertices[ib, 0] - ax, vertices[ib, 1] - ay, vertices[ib, 2] - az
@@ -93,6 +102,7 @@ def closest_on_triangle(
     apx, apy, apz = cx - ax, cy - ay, cz - az
     d1 = abx * apx + aby * apy + abz * apz
     d2 = acx * apx + acy * apy + acz * apz
+    interior = False
     if d1 <= 0.0 and d2 <= 0.0:
         u, v = 0.0, 0.0
     else:
@@ -123,10 +133,11 @@ def closest_on_triangle(
                         else:
                             den = 1.0 / (va + vb + vc)
                             u, v = vb * den, vc * den
+                            interior = True
     qx = ax + u * abx + v * acx
     qy = ay + u * aby + v * acy
     qz = az + u * abz + v * acz
-    return (cx - qx) ** 2 + (cy - qy) ** 2 + (cz - qz) ** 2, qx, qy, qz
+    return (cx - qx) ** 2 + (cy - qy) ** 2 + (cz - qz) ** 2, qx, qy, qz, interior
 
 
 @njit(cache=True)
@@ -214,6 +225,21 @@ def _cell(x: float, origin: float, h: float, n: int) -> int:
     return math.floor(min(max((x - origin) / h, 0.0), n - 1.0))
 
 
+# The grid and its scratch, as one argument: triangle bounding boxes (F, 6), grid_f, grid_i,
+# grid_keys, grid_start, grid_tris (see :class:`~app.world.collision.PackedMeshes`), the per-triangle
+# stamps of a gather (F,), and the last stamp used (1,).
+GridArgs = tuple[Array, Array, IntArray, IntArray, IntArray, IntArray, IntArray, IntArray]
+
+
+@njit(cache=True)
+def _box_distance2(boxes: Array, t: int, cx: float, cy: float, cz: float) -> float:
+    """Squared distance from c to box t (rows: minimum (3), maximum (3)); a lower bound for its triangle."""
+    dx = max(boxes[t, 0] - cx, 0.0, cx - boxes[t, 3])
+    dy = max(boxes[t, 1] - cy, 0.0, cy - boxes[t, 4])
+    dz = max(boxes[t, 2] - cz, 0.0, cz - boxes[t, 5])
+    return dx * dx + dy * dy + dz * dz
+
+
 @njit(cache=True)
 def gather(
     j: int,
@@ -223,22 +249,14 @@ def gather(
     reach: float,
     vertices: Array,
     faces: IntArray,
-    tri_balls: Array,
-    grid_f: Array,
-    grid_i: IntArray,
-    grid_keys: IntArray,
-    grid_start: IntArray,
-    grid_tris: IntArray,
-    stamp: IntArray,
-    serial: int,
+    grid: GridArgs,
     out: IntArray,
 ) -> int:
     """Write into ``out`` every triangle of object j within distance ``reach`` of c; return the count.
 
     -1 if they do not fit in ``out`` or the search box covers more than ``_MAX_CELLS`` cells.
-    ``stamp`` (one entry per triangle) marks triangles already seen in this gather with ``serial``,
-    which must differ from every earlier gather's.
     """
+    tri_boxes, grid_f, grid_i, grid_keys, grid_start, grid_tris, stamp, serial = grid
     h = grid_f[j, 3]
     lo = np.empty(3, dtype=np.int64)
     hi = np.empty(3, dtype=np.int64)
@@ -249,23 +267,26 @@ def gather(
         cells *= hi[a] - lo[a] + 1
     if cells > _MAX_CELLS:
         return -1
+    # A triangle spans several cells: stamp it with this gather's number the first time it is seen.
+    serial[0] += 1
+    mark = serial[0]
     ny, nz, base = grid_i[j, 1], grid_i[j, 2], grid_i[j, 3]
     n = 0
+    n_keys = grid_keys.shape[0]
     for x in range(lo[0], hi[0] + 1):
         for y in range(lo[1], hi[1] + 1):
-            for z in range(lo[2], hi[2] + 1):
-                key = base + (x * ny + y) * nz + z
-                s = np.searchsorted(grid_keys, key)
-                if s == grid_keys.shape[0] or grid_keys[s] != key:
-                    continue
-                for e in range(grid_start[s], grid_start[s + 1]):
+            # The column's cells have consecutive keys: one search finds its first occupied cell.
+            first = base + (x * ny + y) * nz + lo[2]
+            last = first + hi[2] - lo[2]
+            s = np.searchsorted(grid_keys, first)
+            while s < n_keys and grid_keys[s] <= last:
+                s += 1
+                for e in range(grid_start[s - 1], grid_start[s]):
                     t = grid_tris[e]
-                    if stamp[t] == serial:
+                    if stamp[t] == mark:
                         continue
-                    stamp[t] = serial
-                    dx, dy, dz = tri_balls[t, 0] - cx, tri_balls[t, 1] - cy, tri_balls[t, 2] - cz
-                    r = reach + tri_balls[t, 3]
-                    if dx * dx + dy * dy + dz * dz > r * r:
+                    stamp[t] = mark
+                    if _box_distance2(tri_boxes, t, cx, cy, cz) > reach * reach:
                         continue
                     if closest_on_triangle(vertices, faces, t, cx, cy, cz)[0] > reach * reach:
                         continue
@@ -277,19 +298,66 @@ def gather(
 
 
 @njit(cache=True)
+def refill(
+    k: int,
+    j: int,
+    cx: float,
+    cy: float,
+    cz: float,
+    d: float,
+    R: float,
+    vertices: Array,
+    faces: IntArray,
+    pair_f: Array,
+    pair_i: IntArray,
+    pool: IntArray,
+    grid: GridArgs,
+) -> int:
+    """Regather pair k's (object j) candidate cache at centre c, valid for radius R, given that the
+    distance from c to the mesh is at most d; returns the count (-1: no cache, too many)."""
+    n = gather(j, cx, cy, cz, d + 2.0 * R + 1e-9 + 1e-6 * d, vertices, faces, grid, pool[k])
+    f = pair_f[k]
+    f[PF_CACHE_C], f[PF_CACHE_C + 1], f[PF_CACHE_C + 2] = cx, cy, cz
+    f[PF_CACHE_R] = R
+    pair_i[k, PI_CACHE_N] = n
+    return n
+
+
+@njit(cache=True)
 def _scan(
-    vertices: Array, faces: IntArray, pool_k: IntArray, n: int, cx: float, cy: float, cz: float
-) -> tuple[float, int, float, float, float]:
-    """Nearest point to c on the n cached candidates: ``(d, triangle, q)``."""
+    vertices: Array,
+    faces: IntArray,
+    boxes: Array,
+    pool_k: IntArray,
+    n: int,
+    seed: int,
+    cx: float,
+    cy: float,
+    cz: float,
+) -> tuple[float, int, float, float, float, bool]:
+    """Nearest point to c on the n cached candidates: ``(d, triangle, q, inside the face)``.
+
+    Starting from triangle ``seed`` (the last nearest, -1 for none) lets the bounding-box test skip
+    most candidates: between ticks the nearest triangle rarely changes.
+    """
     best = math.inf
     best_t = -1
     bx = by = bz = 0.0
+    best_in = False
+    if seed >= 0:
+        best, bx, by, bz, best_in = closest_on_triangle(vertices, faces, seed, cx, cy, cz)
+        best_t = seed
     for s in range(n):
         t = pool_k[s]
-        dd, qx, qy, qz = closest_on_triangle(vertices, faces, t, cx, cy, cz)
+        if _box_distance2(boxes, t, cx, cy, cz) >= best:
+            continue
+        dd, qx, qy, qz, interior = closest_on_triangle(vertices, faces, t, cx, cy, cz)
         if dd < best:
-            best, best_t, bx, by, bz = dd, t, qx, qy, qz
-    return math.sqrt(best), best_t, bx, by, bz
+            best, best_t, bx, by, bz, best_in = dd, t, qx, qy, qz, interior
+    return math.sqrt(best), best_t, bx, by, bz, best_in
+
+
+_MISS = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @njit(cache=True)
@@ -310,26 +378,43 @@ def _lookup(
     pair_f: Array,
     pair_i: IntArray,
     pool: IntArray,
+    j: int,
+    grid: GridArgs,
 ) -> tuple[bool, float, float, float, float, float, float, float]:
     """Signed distance of pair k's centre c: ``(found, phi, q (3), n (3))``; found False is a miss.
 
     phi > 0 outside; n is the outward normal at q. ``h`` is the hint for a centre exactly on the
     surface (the remembered normal): the re-query goes off the surface along the face normal,
-    the hint, then the axes.
+    the hint, then the axes. A centre that left its cache regathers it here when the distance at
+    the pair's last evaluation bounds the new one (the distance is 1-Lipschitz); only a pair
+    without one (never evaluated, or too many triangles in reach) is a miss for FCL. The nearest
+    point on FCL's triangle is recomputed here, so both sources give identical numbers.
     """
     f = pair_f[k]
     if pair_i[k, PI_FCL_TRI] >= 0 and f[PF_FCL_C] == cx and f[PF_FCL_C + 1] == cy and f[PF_FCL_C + 2] == cz:
-        d, t = f[PF_FCL_D], pair_i[k, PI_FCL_TRI]
-        qx, qy, qz = f[PF_FCL_Q], f[PF_FCL_Q + 1], f[PF_FCL_Q + 2]
+        t = pair_i[k, PI_FCL_TRI]
+        if f[PF_FCL_D] == 0.0:
+            d, qx, qy, qz, interior = 0.0, f[PF_FCL_Q], f[PF_FCL_Q + 1], f[PF_FCL_Q + 2], False
+        else:
+            dd, qx, qy, qz, interior = closest_on_triangle(vertices, faces, t, cx, cy, cz)
+            d = math.sqrt(dd)
     else:
         n = pair_i[k, PI_CACHE_N]
         R = f[PF_CACHE_R]
         ex, ey, ez = cx - f[PF_CACHE_C], cy - f[PF_CACHE_C + 1], cz - f[PF_CACHE_C + 2]
         if n < 0 or ex * ex + ey * ey + ez * ez > R * R:
-            return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-        d, t, qx, qy, qz = _scan(vertices, faces, pool[k], n, cx, cy, cz)
+            ex, ey, ez = cx - f[PF_LAST], cy - f[PF_LAST + 1], cz - f[PF_LAST + 2]
+            bound = f[PF_LAST_D] + math.sqrt(ex * ex + ey * ey + ez * ez)
+            if not bound < math.inf:
+                return _MISS
+            R = max(CACHE_MIN, CACHE_FRAC * bound)
+            n = refill(k, j, cx, cy, cz, bound, R, vertices, faces, pair_f, pair_i, pool, grid)
+            if n < 0:
+                return _MISS
+        d, t, qx, qy, qz, interior = _scan(vertices, faces, grid[0], pool[k], n, pair_i[k, PI_NEAREST], cx, cy, cz)
         if t < 0:
-            return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            return _MISS
+        pair_i[k, PI_NEAREST] = t
         if d < TOUCH:
             resolved = False
             for s in range(5):
@@ -342,22 +427,25 @@ def _lookup(
                 nx, ny, nz = cx + NUDGE * ux, cy + NUDGE * uy, cz + NUDGE * uz
                 ex, ey, ez = nx - f[PF_CACHE_C], ny - f[PF_CACHE_C + 1], nz - f[PF_CACHE_C + 2]
                 if ex * ex + ey * ey + ez * ez > R * R:
-                    return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-                d2, t2, qx2, qy2, qz2 = _scan(vertices, faces, pool[k], n, nx, ny, nz)
+                    return _MISS
+                d2, t2, qx2, qy2, qz2, _ = _scan(vertices, faces, grid[0], pool[k], n, t, nx, ny, nz)
                 if d2 >= TOUCH:
-                    d, t, qx, qy, qz = 0.0, t2, qx2, qy2, qz2
+                    d, t, qx, qy, qz, interior = 0.0, t2, qx2, qy2, qz2, False
                     resolved = True
                     break
             if not resolved:
-                return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+                return _MISS
     if d == 0.0:
         nx, ny, nz = pseudonormal(vertices, faces, face_normals, face_edges, edge_pn, vertex_pn, t, qx, qy, qz)
         return True, 0.0, qx, qy, qz, nx, ny, nz
-    ux, uy, uz = (cx - qx) / d, (cy - qy) / d, (cz - qz) / d
-    fx, fy, fz = face_normals[t, 0], face_normals[t, 1], face_normals[t, 2]
-    s = ux * fx + uy * fy + uz * fz
-    if abs(s) < 0.9999:
+    if interior:
+        # c - q is along the face normal: take the direction u from it exactly, not from q.
+        fx, fy, fz = face_normals[t, 0], face_normals[t, 1], face_normals[t, 2]
+        s = (cx - qx) * fx + (cy - qy) * fy + (cz - qz) * fz
+        ux, uy, uz = (fx, fy, fz) if s >= 0.0 else (-fx, -fy, -fz)
+    else:
         # q is on an edge or a vertex: only the feature's pseudonormal gives the right side.
+        ux, uy, uz = (cx - qx) / d, (cy - qy) / d, (cz - qz) / d
         fx, fy, fz = pseudonormal(vertices, faces, face_normals, face_edges, edge_pn, vertex_pn, t, qx, qy, qz)
         s = ux * fx + uy * fy + uz * fz
     if s >= 0.0:
@@ -384,6 +472,7 @@ def contact_step(
     pair_f: Array,
     pair_i: IntArray,
     pool: IntArray,
+    grid: GridArgs,
     obj_f: Array,
     near: IntArray,
     glob_f: Array,
@@ -392,11 +481,12 @@ def contact_step(
     misses: IntArray,
     out_w: Array,
     out_c: Array,
+    out_ci: IntArray,
 ) -> tuple[int, int, int]:
     """One contact evaluation at ``T_w_MRF`` (4, 4), twist ``V_w_MRF`` (6,) if ``has_twist``.
 
     Returns ``(code, queries, n_miss)``. ``code >= 0`` is the number of contacts, written to
-    ``out_c`` (rows, columns ``OC_*``), with the wrench in ``out_w`` (slots ``OW_*``) and the state
+    ``out_c`` (rows, columns ``OC_*``) and ``out_ci`` (sphere, object), with the wrench in ``out_w`` (slots ``OW_*``) and the state
     updated. ``n_miss > 0``: the state is unchanged and ``misses[:n_miss]`` lists the pairs whose
     cache cannot answer (their centres are in ``scratch[k, 0:3]``). ``code < 0``: an ``ERR_*``.
     ``queries`` counts the pair distance evaluations. ``scratch`` (P, 10) and ``todo`` (P,)
@@ -486,7 +576,7 @@ def contact_step(
                 hx, hy, hz = pair_f[k, PF_MEM + 3], pair_f[k, PF_MEM + 4], pair_f[k, PF_MEM + 5]
             found, phi, qx, qy, qz, nx, ny, nz = _lookup(
                 k, cx, cy, cz, hx, hy, hz, vertices, faces, face_normals, face_edges, edge_pn, vertex_pn,
-                pair_f, pair_i, pool,
+                pair_f, pair_i, pool, j, grid,
             )  # fmt: skip
             if not found:
                 misses[n_miss] = k
@@ -509,6 +599,7 @@ def contact_step(
         cx, cy, cz, phi = sc[0], sc[1], sc[2], sc[3]
         qx, qy, qz, nx, ny, nz = sc[4], sc[5], sc[6], sc[7], sc[8], sc[9]
         pf[PF_LAST], pf[PF_LAST + 1], pf[PF_LAST + 2] = cx, cy, cz
+        pf[PF_LAST_D] = abs(phi)
         mem = pair_i[k, PI_MEM] == 1
         in_memory = False
         if mem and nx * pf[PF_MEM + 3] + ny * pf[PF_MEM + 4] + nz * pf[PF_MEM + 5] < 0.0:
@@ -561,7 +652,8 @@ def contact_step(
         oc = out_c[n_c]
         oc[OC_P], oc[OC_P + 1], oc[OC_P + 2] = px, py, pz
         oc[OC_N], oc[OC_N + 1], oc[OC_N + 2] = nx, ny, nz
-        oc[OC_DEPTH], oc[OC_SPHERE], oc[OC_OBJECT] = depth, i, j
+        oc[OC_DEPTH] = depth
+        out_ci[n_c, 0], out_ci[n_c, 1] = i, j
         n_c += 1
     for j in range(m):
         if not near[j]:

@@ -7,9 +7,10 @@ Back: F/T reading ``F_S`` -> payload removal -> ``F_MRF`` (Eq 6) -> K_T -> ``G_F
 -> ``tau_RD`` scaled to a fraction of capacity (Eq 10-11); + gravity compensation ``tau_G``;
 total (Eq 12) -> uniform saturation -> gear ratios -> torque curve -> motor counts.
 
-MuJoCo does the kinematics, Jacobian and gravity sums; the arithmetic of Eq 2-12 runs in the
-compiled kernel :func:`app.controller.kernel.cartesian_tick` on preallocated arrays. This class
-keeps what needs Python: the switches, the reference, faults and the pose command.
+MuJoCo does the forward kinematics; everything after it (input checks, Jacobian, gravity sum,
+switch edges, reference, Eq 2-12 and the pose command) runs in one compiled call,
+:func:`app.controller.kernel.controller_tick`, on the controller's preallocated record. This
+class keeps what needs Python: configuration, the fault messages and the safe output.
 """
 
 from __future__ import annotations
@@ -21,10 +22,10 @@ import numpy as np
 from app.controller import kernel
 from app.controller.calibration import TorqueCurve
 from app.controller.gains import ControllerGains
-from app.controller.kinematics import DeviceKinematics
+from app.controller.kinematics import DeviceKinematics, RecordArray, topology_fields
 from app.controller.types import Fault, FTReading, SlaveCommand, SlaveModel, Switches
 from app.device.spec import DeviceSpec
-from app.spatial import Array, wrench_transform, zyx_to_matrix
+from app.spatial import Array, IntArray, wrench_transform
 
 VECTOR_ROWS = ("delta_x", "delta_x_cmd", "F_S_task", "F_MRF", "G_F_T", "G_F_R", "G_F_D", "G_F_RD", "W_F_T")
 TORQUE_ROWS = ("tau_T", "tau_RD", "tau_RDs", "tau_G", "tau", "tau_sat", "tau_motor")
@@ -36,7 +37,8 @@ class ControllerOutput:
     The controller reuses one instance and overwrites it every tick: copy what you keep.
     Wrenches are ``[f; m]`` (N, N m); torques are joint-side (N m, or N for slides) unless named
     ``motor``. Six-vectors are rows of ``vectors`` (9, 6) and torques rows of ``torques`` (7, n);
-    the named attributes are views of those rows.
+    the named attributes are views of those rows. All arrays are views into the controller's
+    record (:func:`app.controller.kernel.record_dtype`), which the compiled tick writes.
 
     Attributes:
         T_0_G: Grip pose in the base frame (Eq 1), (4, 4).
@@ -81,19 +83,20 @@ class ControllerOutput:
     tau_sat: Array
     tau_motor: Array
 
-    def __init__(self, n: int) -> None:
-        self.n = n
-        self.T_0_G = np.eye(4)
-        self.T_0_G0 = np.eye(4)
-        self.vectors = np.zeros((len(VECTOR_ROWS), 6))
-        self.scalars = np.ones(3)  # assist_scale, saturation_scale, rot_weight (kernel slots)
-        self.torques = np.zeros((len(TORQUE_ROWS), n))
+    def __init__(self, rec: RecordArray) -> None:
+        """Views of the outputs in ``rec``, a one-element array of :func:`kernel.record_dtype`."""
+        self.T_0_G: Array = rec["T_0_G"][0]
+        self.T_0_G0: Array = rec["T_0_G0"][0]
+        self.vectors: Array = rec["vectors"][0]
+        self.scalars: Array = rec["scalars"][0]  # assist_scale, saturation_scale, rot_weight (kernel slots)
+        self.torques: Array = rec["torques"][0]
+        self.n = self.torques.shape[1]
         for i, name in enumerate(VECTOR_ROWS):
             setattr(self, name, self.vectors[i])
         for i, name in enumerate(TORQUE_ROWS):
             setattr(self, name, self.torques[i])
-        self.counts = np.zeros(n, dtype=np.int64)
-        self.command = SlaveCommand()
+        self.counts: IntArray = rec["counts"][0]
+        self.command = SlaveCommand(twist=rec["twist"][0], T_w_MRF=rec["T_w_MRF"][0])
         self.reflecting = False
         self.faults = Fault.NONE
         self.fault_message = ""
@@ -133,32 +136,39 @@ class FRHCController:
         curve: TorqueCurve | None = None,
     ) -> None:
         self.device = device
-        self.kin = DeviceKinematics(device)
+        self.kin = kin = DeviceKinematics(device)
         self.slave = slave
         self.curve = curve if curve is not None else TorqueCurve.for_device(device)
-        n = device.n_joints
         motors = device.data.motors
-        self.gear_ratio = np.array(motors.gear_ratio, dtype=float)
-        self.joint_limit = self.gear_ratio * np.array(motors.torque_limit)
-        self.out = ControllerOutput(n)
-        self._J = np.zeros((6, n))
-        self._F_S = np.zeros(6)
-        self._dx_prev = np.zeros(6)
-        self._T_w_MRF0 = np.array(slave.T_w_MRF_home, dtype=float)
+        self._rec = rec = np.zeros(
+            1, dtype=kernel.record_dtype(device.n_joints, kin.model.nbody, self.curve.horner_pos.shape[1])
+        )
+        for name, *_ in topology_fields(device.n_joints, kin.model.nbody):
+            rec[name] = getattr(kin, name)
+        for name in ("T_0_G", "T_0_G0", "T_w_MRF", "T_w_MRF0"):
+            rec[name] = np.eye(4)
+        rec["scalars"] = 1.0
+        rec["gear_ratio"] = motors.gear_ratio
+        rec["joint_limit"] = rec["gear_ratio"] * np.array(motors.torque_limit)
+        rec["horner_pos"] = self.curve.horner_pos
+        rec["horner_neg"] = self.curve.horner_neg
+        rec["counts_max"] = self.curve.counts_max
+        rec["payload_mass"] = slave.payload_mass
+        rec["payload_com_S"] = slave.payload_com_S
+        rec["payload_inertia_S"] = slave.payload_inertia_S
+        rec["gravity_w"] = slave.gravity_w
         T_MRF_S = np.asarray(slave.T_MRF_S, dtype=float)
-        self._X_MRF_S = wrench_transform(T_MRF_S[0:3, 0:3], T_MRF_S[0:3, 3])
-        self._payload = np.zeros(8)
-        self._payload[0] = slave.payload_mass
-        self._payload[1:4] = slave.payload_com_S
-        self._payload[4:7] = slave.gravity_w
+        rec["X_MRF_S"] = wrench_transform(T_MRF_S[0:3, 0:3], T_MRF_S[0:3, 3])
+        self.gear_ratio: Array = rec["gear_ratio"][0]
+        self.joint_limit: Array = rec["joint_limit"][0]
+        self.out = ControllerOutput(rec)
         # {G} is rigidly attached to {W}: its offset is fixed by the device geometry.
-        self.kin.update(np.array(device.data.home))
-        R_0_W = self.kin.R_0_W
-        self._R_W_G = R_0_W.T @ self.kin.R_0_G
-        self._p_W_G = R_0_W.T @ (self.kin.p_0_G - self.kin.p_0_W)
-        self._prev_reference = False
-        self._prev_deadman = False
-        self._restart_damping = True
+        kin.update(np.array(device.data.home))
+        R_0_W = kin.R_0_W
+        rec["R_W_G"] = R_0_W.T @ kin.R_0_G
+        rec["p_W_G"] = R_0_W.T @ (kin.p_0_G - kin.p_0_W)
+        # The compiled tick's arguments that stay the same objects for this controller's life.
+        self._fixed_args = (*kin.fk_arrays, rec)
         self.set_gains(gains)
         self.reset(np.array(device.data.home))
 
@@ -168,26 +178,29 @@ class FRHCController:
         """Switch gains (and mode) between ticks. Changing the mode re-references (no jump)."""
         previous: ControllerGains | None = getattr(self, "gains", None)
         self.gains = gains
-        self._gains = np.array(
-            [
-                gains.k_v,
-                gains.k_p,
-                gains.k_t,
-                gains.k_d,
-                gains.rtc_a,
-                gains.deadband,
-                gains.k_r,
-                gains.wall_start,
-                gains.k_wall,
-            ]
-        )
-        self._rtc_kind = {"off": kernel.RTC_OFF, "constant": kernel.RTC_CONSTANT, "hooke": kernel.RTC_HOOKE}[gains.rtc]
-        self._assist_limit = gains.assist_fraction * self.joint_limit
-        self._taper = np.radians(gains.euler_taper_deg)
-        self._payload[7] = 1.0 if gains.remove_payload else 0.0
+        rec = self._rec
+        rec["gains"] = [
+            gains.k_v,
+            gains.k_p,
+            gains.k_t,
+            gains.k_d,
+            gains.rtc_a,
+            gains.deadband,
+            gains.k_r,
+            gains.wall_start,
+            gains.k_wall,
+        ]
+        rec["rate_mode"] = gains.mode == "rate"
+        rec["rtc_kind"] = {"off": kernel.RTC_OFF, "constant": kernel.RTC_CONSTANT, "hooke": kernel.RTC_HOOKE}[gains.rtc]
+        rec["taper"] = np.radians(gains.euler_taper_deg)
+        rec["gravity_compensation"] = gains.gravity_compensation
+        rec["remove_payload"] = gains.remove_payload
+        rec["remove_inertia"] = gains.remove_inertia
+        rec["max_period"] = gains.max_period
+        rec["assist_limit"] = gains.assist_fraction * self.joint_limit
         self.out.command.mode = gains.mode
         if previous is not None and previous.mode != gains.mode:
-            self._set_reference()
+            kernel.set_reference(rec)
 
     def reset(self, q: Array, T_w_MRF_home: Array | None = None) -> None:
         """Start over at joint angles ``q``: reference {G0} = FK(q), slave reference = home."""
@@ -195,19 +208,9 @@ class FRHCController:
         self.kin.update(np.asarray(q, dtype=float))
         self.out.T_0_G[0:3, 0:3] = self.kin.R_0_G
         self.out.T_0_G[0:3, 3] = self.kin.p_0_G
-        self._set_reference()
-        self._prev_reference = False
-        self._prev_deadman = False
-
-    def _set_reference(self) -> None:
-        """Reference switch (Sec 3.1, 4.1): {G0} := {G}; the slave reference := its last command.
-
-        In pose mode this is indexing: the new zero of Delta X maps onto where the slave was
-        commanded to be, so the slave never jumps. Damping restarts from the new Delta X.
-        """
-        self.out.T_0_G0[:] = self.out.T_0_G
-        self._T_w_MRF0[:] = self.out.command.T_w_MRF
-        self._restart_damping = True
+        kernel.set_reference(self._rec)
+        self._rec["prev_reference"] = False
+        self._rec["prev_deadman"] = False
 
     # -- the tick -------------------------------------------------------------------------------
 
@@ -226,111 +229,39 @@ class FRHCController:
             compensation only (zero torque when even the joint angles are unusable), stops the
             slave and names the fault.
         """
-        o = self.out
-        g = self.gains
-        # A sum is finite only if every term is (huge finite values overflowing to inf also trip
-        # it, which is the safe side); one reduction per array keeps this cheap.
-        if not math.isfinite(float(q.sum())):
-            return self._safe_output(Fault.NONFINITE_INPUT, "non-finite joint angles", gravity=False)
-        faults = Fault.NONE
-        if not 0.0 < dt <= g.max_period:  # also catches a NaN period
-            faults |= Fault.BAD_PERIOD
-        if not ft.valid:
-            faults |= Fault.FT_INVALID
-        elif not math.isfinite(float(ft.wrench_S.sum()) + float(ft.R_w_S.sum())):
-            faults |= Fault.NONFINITE_INPUT
-
-        kin = self.kin
-        kin.update(q)
-        o.T_0_G[0:3, 0:3] = kin.R_0_G
-        o.T_0_G[0:3, 3] = kin.p_0_G
-        if g.gravity_compensation:
-            kin.gravity_torque(o.tau_G)
-        else:
-            o.tau_G[:] = 0.0
-        if faults:
-            return self._safe_output(faults, _fault_text(faults), gravity=True)
-
-        # Switches (Sec 4.1). A deadman press in pose mode is a clutch: re-reference, no jump.
-        reference_edge = switches.reference and not self._prev_reference
-        deadman_edge = switches.deadman and not self._prev_deadman
-        self._prev_reference = switches.reference
-        self._prev_deadman = switches.deadman
-        if reference_edge or (deadman_edge and g.mode == "pose"):
-            self._set_reference()
-
-        reflecting = switches.deadman and switches.reflection
-        F_S = self._remove_inertia(ft) if g.remove_inertia else ft.wrench_S
-        ok = kernel.cartesian_tick(
-            o.T_0_G0,
-            kin.R_0_G,
-            kin.p_0_G,
-            kin.p_0_W,
-            kin.jacobian_W(self._J),
-            F_S,
+        # FK runs even on unusable angles (MuJoCo just computes NaN poses): the kernel checks q
+        # before it reads them, for a fraction of what a numpy check here would cost.
+        self.kin.update(q)
+        code = kernel.controller_tick(
+            q,
+            ft.wrench_S,
             ft.R_w_S,
-            self._payload,
-            self._X_MRF_S,
-            self._R_W_G,
-            self._p_W_G,
-            self._gains,
-            g.mode == "rate",
-            self._rtc_kind,
-            self._taper,
-            self._assist_limit,
-            self.joint_limit,
-            self.gear_ratio,
-            self.curve.horner_pos,
-            self.curve.horner_neg,
-            self.curve.counts_max,
-            switches.deadman,
-            reflecting,
+            ft.acc_w,
+            ft.omega_w,
             dt,
-            self._dx_prev,
-            self._restart_damping,
-            o.vectors,
-            o.torques,
-            o.counts,
-            o.command.twist,
-            o.scalars,
+            ft.valid,
+            switches.deadman,
+            switches.reference,
+            switches.reflection,
+            *self._fixed_args,
         )
-        self._restart_damping = False
-        if not ok:
-            return self._safe_output(Fault.NONFINITE_OUTPUT, "non-finite torque (singular pose?)", gravity=True)
+        if code:
+            return self._fault(code)
+        o = self.out
         o.command.active = switches.deadman
-        if switches.deadman and g.mode == "pose":
-            self._pose_command()
-        o.reflecting = reflecting
+        o.reflecting = switches.deadman and switches.reflection
         o.faults = Fault.NONE
         o.fault_message = ""
         return o
 
-    def _pose_command(self) -> None:
-        """Sec 3.5: Delta X (after the deadband) scaled by K_P and applied to the slave reference pose.
-
-        Translations are in base/world axes; the rotation is applied in the reference frame's own
-        axes. Without the deadman the last command is held.
-        """
-        dxc = self.out.delta_x_cmd
-        T0 = self._T_w_MRF0
-        T = self.out.command.T_w_MRF
-        T[0:3, 3] = T0[0:3, 3] + self._gains[kernel.K_P, 0:3] * dxc[0:3]
-        T[0:3, 0:3] = T0[0:3, 0:3] @ zyx_to_matrix(float(dxc[3]), float(dxc[4]), float(dxc[5]))
-
-    def _remove_inertia(self, ft: FTReading) -> Array:
-        """The reading with the payload's inertial load added back (the sensor reads minus its
-        d'Alembert load); the kernel then removes the weight."""
-        s = self.slave
-        R_S_w = ft.R_w_S.T
-        c_S = s.payload_com_S
-        w_S = R_S_w @ ft.omega_w
-        alpha_S = R_S_w @ ft.acc_w[3:6]
-        a_com = R_S_w @ ft.acc_w[0:3] + np.cross(alpha_S, c_S) + np.cross(w_S, np.cross(w_S, c_S))
-        f = s.payload_mass * a_com
-        I = s.payload_inertia_S
-        self._F_S[0:3] = ft.wrench_S[0:3] + f
-        self._F_S[3:6] = ft.wrench_S[3:6] + np.cross(c_S, f) + I @ alpha_S + np.cross(w_S, I @ w_S)
-        return self._F_S
+    def _fault(self, code: int) -> ControllerOutput:
+        """The safe output for a non-zero :func:`kernel.controller_tick` result."""
+        if code == kernel.JOINTS_NONFINITE:
+            return self._safe_output(Fault.NONFINITE_INPUT, "non-finite joint angles", gravity=False)
+        faults = Fault(code)
+        if faults == Fault.NONFINITE_OUTPUT:
+            return self._safe_output(faults, "non-finite torque (singular pose?)", gravity=True)
+        return self._safe_output(faults, _fault_text(faults), gravity=True)
 
     def _safe_output(self, faults: Fault, message: str, gravity: bool) -> ControllerOutput:
         """Fallback: gravity compensation only (zero without usable q), slave stopped, fault named."""
@@ -341,7 +272,7 @@ class FRHCController:
         o.command.active = False
         o.command.twist[:] = 0.0
         o.vectors[:] = 0.0
-        self._restart_damping = True
+        self._rec["restart_damping"] = True
         tau_G = o.tau_G.copy() if gravity and math.isfinite(float(o.tau_G.sum())) else np.zeros(o.n)
         o.torques[:] = 0.0
         o.tau_G[:] = tau_G

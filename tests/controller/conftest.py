@@ -1,4 +1,5 @@
-"""Shared fixtures for controller tests: the Kraft-like device and a simple slave tool."""
+"""Shared fixtures for controller tests: the Kraft-like device, a kinematic variant of it, and a
+simple slave tool."""
 
 from __future__ import annotations
 
@@ -7,13 +8,52 @@ import pytest
 
 from app.controller.frhc import FRHCController
 from app.controller.types import SlaveModel
-from app.device.spec import DeviceSpec, load_device
+from app.device.spec import DEVICES_DIR, DeviceSpec, load_device
 from app.spatial import make_pose, zyx_to_matrix
+
+VARIANT_TOML = """
+name = "variant"
+description = "kraft with j3 a slide joint and an extra hinge 'tilt' in link5, listed after j5"
+mjcf = "variant.xml"
+grip_site = "grip"
+wrist_site = "wrist"
+joints = ["j1", "j2", "j3", "j4", "j5", "tilt", "j6"]
+home = [0.0, 0.2, 0.01, 0.0, -0.5, 0.1, 0.0]
+
+[motors]
+torque_limit = [0.4, 0.4, 0.4, 0.1, 0.1, 0.1, 0.1]
+gear_ratio = [15.0, 15.0, 15.0, 10.0, 10.0, 10.0, 10.0]
+counts_max = 2047
+counts_per_nm = [5117.5, 5117.5, 5117.5, 20470.0, 20470.0, 20470.0, 20470.0]
+"""
 
 
 @pytest.fixture(scope="session")
 def kraft() -> DeviceSpec:
     return load_device("kraft")
+
+
+@pytest.fixture(scope="session")
+def variant(tmp_path_factory: pytest.TempPathFactory) -> DeviceSpec:
+    """The Kraft geometry with what the shipped devices lack: a slide joint (j3, along x), and
+    two joints in one body ('tilt' then j5 in link5) whose motor order is not MuJoCo's."""
+    folder = tmp_path_factory.mktemp("variant")
+    mjcf = (DEVICES_DIR / "kraft" / "kraft.xml").read_text()
+    for old, new in (
+        (
+            '<joint name="j3" axis="0 1 0" range="-1.2 2.2"/>',
+            '<joint name="j3" type="slide" axis="1 0 0" range="-0.05 0.05"/>',
+        ),
+        (
+            '<joint name="j5" axis="0 1 0"',
+            '<joint name="tilt" axis="0 0 1" range="-0.5 0.5"/>\n<joint name="j5" axis="0 1 0"',
+        ),
+    ):
+        assert mjcf.count(old) == 1
+        mjcf = mjcf.replace(old, new)
+    (folder / "variant.xml").write_text(mjcf)
+    (folder / "device.toml").write_text(VARIANT_TOML)
+    return load_device(folder / "device.toml")
 
 
 @pytest.fixture

@@ -505,7 +505,6 @@ def contact_step(
             return ERR_TWIST, 0, 0
     # T_w_T = T_w_MRF T_MRF_T
     R = np.empty(9)
-    tx = ty = tz = 0.0
     for a in range(3):
         for b in range(3):
             R[3 * a + b] = T_w_MRF[a, 0] * T_MRF_T[0, b] + T_w_MRF[a, 1] * T_MRF_T[1, b] + T_w_MRF[a, 2] * T_MRF_T[2, b]

@@ -23,12 +23,11 @@ from app.controller import kernel
 from app.controller.calibration import TorqueCurve
 from app.controller.gains import ControllerGains
 from app.controller.kinematics import DeviceKinematics, RecordArray, topology_fields
+from app.controller.layout import GAIN_ROWS, RTC_LAWS, TORQUE_ROWS, vector_row_names
+from app.controller.record import ASSIST_SCALE, ROT_WEIGHT, SATURATION_SCALE, record_dtype
 from app.controller.types import Fault, FTReading, SlaveCommand, SlaveModel, Switches
 from app.device.spec import DeviceSpec
 from app.spatial import Array, IntArray, wrench_transform
-
-VECTOR_ROWS = ("delta_x", "delta_x_cmd", "F_S_task", "F_MRF", "G_F_T", "G_F_R", "G_F_D", "G_F_RD", "W_F_T")
-TORQUE_ROWS = ("tau_T", "tau_RD", "tau_RDs", "tau_G", "tau", "tau_sat", "tau_motor")
 
 
 class ControllerOutput:
@@ -36,9 +35,10 @@ class ControllerOutput:
 
     The controller reuses one instance and overwrites it every tick: copy what you keep.
     Wrenches are ``[f; m]`` (N, N m); torques are joint-side (N m, or N for slides) unless named
-    ``motor``. Six-vectors are rows of ``vectors`` (9, 6) and torques rows of ``torques`` (7, n);
-    the named attributes are views of those rows. All arrays are views into the controller's
-    record (:func:`app.controller.kernel.record_dtype`), which the compiled tick writes.
+    ``motor``. Six-vectors are rows of ``vectors`` (9, 6), torques rows of ``torques`` (7, n) and
+    the scale factors slots of ``scalars`` (3,); the named attributes are views of those rows,
+    named and ordered by :mod:`app.controller.layout`. All arrays are views into the controller's
+    record (:func:`app.controller.record.record_dtype`), which the compiled tick writes.
 
     Attributes:
         T_0_G: Grip pose in the base frame (Eq 1), (4, 4).
@@ -84,14 +84,14 @@ class ControllerOutput:
     tau_motor: Array
 
     def __init__(self, rec: RecordArray) -> None:
-        """Views of the outputs in ``rec``, a one-element array of :func:`kernel.record_dtype`."""
+        """Views of the outputs in ``rec``, a one-element array of :func:`record_dtype`."""
         self.T_0_G: Array = rec["T_0_G"][0]
         self.T_0_G0: Array = rec["T_0_G0"][0]
         self.vectors: Array = rec["vectors"][0]
-        self.scalars: Array = rec["scalars"][0]  # assist_scale, saturation_scale, rot_weight (kernel slots)
+        self.scalars: Array = rec["scalars"][0]
         self.torques: Array = rec["torques"][0]
         self.n = self.torques.shape[1]
-        for i, name in enumerate(VECTOR_ROWS):
+        for i, name in enumerate(vector_row_names()):
             setattr(self, name, self.vectors[i])
         for i, name in enumerate(TORQUE_ROWS):
             setattr(self, name, self.torques[i])
@@ -103,15 +103,15 @@ class ControllerOutput:
 
     @property
     def assist_scale(self) -> float:
-        return float(self.scalars[kernel.ASSIST_SCALE])
+        return float(self.scalars[ASSIST_SCALE])
 
     @property
     def saturation_scale(self) -> float:
-        return float(self.scalars[kernel.SATURATION_SCALE])
+        return float(self.scalars[SATURATION_SCALE])
 
     @property
     def rot_weight(self) -> float:
-        return float(self.scalars[kernel.ROT_WEIGHT])
+        return float(self.scalars[ROT_WEIGHT])
 
 
 class FRHCController:
@@ -141,7 +141,7 @@ class FRHCController:
         self.curve = curve if curve is not None else TorqueCurve.for_device(device)
         motors = device.data.motors
         self._rec = rec = np.zeros(
-            1, dtype=kernel.record_dtype(device.n_joints, kin.model.nbody, self.curve.horner_pos.shape[1])
+            1, dtype=record_dtype(device.n_joints, kin.model.nbody, self.curve.horner_pos.shape[1])
         )
         for name, *_ in topology_fields(device.n_joints, kin.model.nbody):
             rec[name] = getattr(kin, name)
@@ -162,6 +162,7 @@ class FRHCController:
         self.gear_ratio: Array = rec["gear_ratio"][0]
         self.joint_limit: Array = rec["joint_limit"][0]
         self.out = ControllerOutput(rec)
+        self._motors = kernel.record_motors(rec)
         # {G} is rigidly attached to {W}: its offset is fixed by the device geometry.
         kin.update(np.array(device.data.home))
         R_0_W = kin.R_0_W
@@ -179,19 +180,9 @@ class FRHCController:
         previous: ControllerGains | None = getattr(self, "gains", None)
         self.gains = gains
         rec = self._rec
-        rec["gains"] = [
-            gains.k_v,
-            gains.k_p,
-            gains.k_t,
-            gains.k_d,
-            gains.rtc_a,
-            gains.deadband,
-            gains.k_r,
-            gains.wall_start,
-            gains.k_wall,
-        ]
+        rec["gains"] = [getattr(gains, name) for name in GAIN_ROWS]
         rec["rate_mode"] = gains.mode == "rate"
-        rec["rtc_kind"] = {"off": kernel.RTC_OFF, "constant": kernel.RTC_CONSTANT, "hooke": kernel.RTC_HOOKE}[gains.rtc]
+        rec["rtc_kind"] = RTC_LAWS.index(gains.rtc)
         rec["taper"] = np.radians(gains.euler_taper_deg)
         rec["gravity_compensation"] = gains.gravity_compensation
         rec["remove_payload"] = gains.remove_payload
@@ -277,16 +268,8 @@ class FRHCController:
         o.torques[:] = 0.0
         o.tau_G[:] = tau_G
         o.tau[:] = tau_G
-        o.scalars[kernel.ASSIST_SCALE] = 1.0
-        o.scalars[kernel.SATURATION_SCALE] = kernel.motor_commands(
-            o.torques,
-            self.joint_limit,
-            self.gear_ratio,
-            self.curve.horner_pos,
-            self.curve.horner_neg,
-            self.curve.counts_max,
-            o.counts,
-        )
+        o.scalars[ASSIST_SCALE] = 1.0
+        o.scalars[SATURATION_SCALE] = kernel.motor_commands(o.torques, self._motors, o.counts)
         return o
 
 

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields, replace
-from typing import Any, Literal
+from typing import Any
 
+from app.controller.layout import Mode, RtcLaw
 from app.errors import InvalidField
 
 Six = tuple[float, float, float, float, float, float]
@@ -48,12 +49,12 @@ class ControllerGains:
         max_period: Longest servo period (s) accepted; a longer one is an overrun fault.
     """
 
-    mode: Literal["rate", "pose"] = "rate"
+    mode: Mode = "rate"
     k_v: Six = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
     k_p: Six = ONE6
     k_t: Six = ONE6
     k_d: Six = (2.0, 2.0, 2.0, 0.02, 0.02, 0.02)
-    rtc: Literal["constant", "hooke", "off"] = "constant"
+    rtc: RtcLaw = "constant"
     rtc_a: Six = (2.0e3, 2.0e3, 2.0e3, 2.0, 2.0, 2.0)
     deadband: Six = (0.01, 0.01, 0.01, 0.05, 0.05, 0.05)
     k_r: Six = (50.0, 50.0, 50.0, 0.5, 0.5, 0.5)

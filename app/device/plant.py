@@ -177,10 +177,24 @@ class PlantReading:
         qdot: True joint velocities (rad/s), shape (n,) (read-only view).
         tau_joint: Joint torques the motors applied in the last step (N m), shape (n,), after
             the true curve, gear ratio and clip to the joint limits (read-only view).
+        geom_xpos, geom_xmat: Every device geom's position (m) and orientation in {0},
+            (ngeom, 3) and (ngeom, 9) row-major (read-only views, for display).
         time: Simulated time (s).
     """
 
-    __slots__ = ("_T_0_G", "_hand", "_xmat_G", "_xpos_G", "q", "q_true", "qdot", "tau_joint", "time")
+    __slots__ = (
+        "_T_0_G",
+        "_hand",
+        "_xmat_G",
+        "_xpos_G",
+        "geom_xmat",
+        "geom_xpos",
+        "q",
+        "q_true",
+        "qdot",
+        "tau_joint",
+        "time",
+    )
 
     def __init__(self, plant: DevicePlant) -> None:
         d = plant.data
@@ -189,7 +203,9 @@ class PlantReading:
         self.q_true = d.qpos[plant.qpos_slice]
         self.qdot = d.qvel[plant.dof_slice]
         self.tau_joint = d.qfrc_applied[plant.dof_slice]
-        for view in (self.q_true, self.qdot, self.tau_joint):
+        self.geom_xpos = d.geom_xpos[:]
+        self.geom_xmat = d.geom_xmat[:]
+        for view in (self.q_true, self.qdot, self.tau_joint, self.geom_xpos, self.geom_xmat):
             view.flags.writeable = False
         self.time = 0.0
         self._hand = plant.hand

@@ -14,62 +14,64 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from app.controller.frhc import ControllerOutput
-from app.session.loop import STAGES, ServoLoop
+from app.controller.layout import SCALARS, TORQUE_ROWS, TWIST_AXES, VECTOR_ROWS, WRENCH_AXES
+from app.session.tick import STAGES, TickRecord
 from app.spatial import Array, matrix_to_quat
 
 XYZ = ("x", "y", "z")
 POSE = ("x", "y", "z", "qw", "qx", "qy", "qz")
-DELTA_X = ("x", "y", "z", "gamma", "beta", "alpha")
-WRENCH = ("fx", "fy", "fz", "mx", "my", "mz")
-TWIST = ("vx", "vy", "vz", "wx", "wy", "wz")
 INT_COLUMNS = ("deadman", "reference", "reflection", "contacts", "faults")
+
+
+def _group(prefix: str, names: tuple[str, ...] | list[str]) -> list[str]:
+    return [f"{prefix}_{s}" for s in names]
+
+
+def _layout(n_joints: int) -> list[tuple[str, list[str]]]:
+    """The row's blocks in order: each block's name and its column names.
+
+    The controller's blocks (every row of its vectors and torques, and its scale factors) are
+    named from :mod:`app.controller.layout`, so the columns follow the kernel's layout.
+    """
+    joints = [f"{i}" for i in range(n_joints)]
+    return [
+        ("t", ["t"]),
+        ("q", _group("q", joints)),
+        ("grip", _group("grip", POSE)),
+        ("hand_target", _group("hand_target", XYZ)),
+        ("vectors", [c for name, axes in VECTOR_ROWS for c in _group(name, axes)]),
+        ("cmd", _group("cmd", TWIST_AXES)),
+        ("tool", _group("tool", POSE)),
+        ("F_S", _group("F_S", WRENCH_AXES)),
+        ("contact_MRF", _group("contact_MRF", WRENCH_AXES)),
+        ("hand_G", _group("hand_G", WRENCH_AXES)),
+        ("torques", [c for name in TORQUE_ROWS for c in _group(name, joints)]),
+        ("counts", _group("counts", joints)),
+        ("scalars", list(SCALARS)),
+        ("switches", list(INT_COLUMNS)),
+        ("stages", [f"{s}_us" for s in STAGES]),
+    ]
 
 
 def log_columns(n_joints: int) -> list[str]:
     """Column names of the log for a device with ``n_joints`` joints, in row order."""
-    joints = [f"{i}" for i in range(n_joints)]
-
-    def group(prefix: str, names: tuple[str, ...] | list[str]) -> list[str]:
-        return [f"{prefix}_{s}" for s in names]
-
-    return [
-        "t",
-        *group("q", joints),
-        *group("grip", POSE),
-        *group("hand_target", XYZ),
-        *group("delta_x", DELTA_X),
-        *group("delta_x_cmd", DELTA_X),
-        *group("cmd", TWIST),
-        *group("tool", POSE),
-        *group("F_S", WRENCH),
-        *group("F_S_task", WRENCH),
-        *group("F_MRF", WRENCH),
-        *group("contact_MRF", WRENCH),
-        *group("G_F_T", WRENCH),
-        *group("G_F_R", WRENCH),
-        *group("G_F_D", WRENCH),
-        *group("hand_G", WRENCH),
-        *group("tau_T", joints),
-        *group("tau_RD", joints),
-        *group("tau_RDs", joints),
-        *group("tau_G", joints),
-        *group("tau", joints),
-        *group("tau_sat", joints),
-        *group("counts", joints),
-        "assist_scale",
-        "saturation_scale",
-        *INT_COLUMNS,
-        *(f"{s}_us" for s in STAGES),
-    ]
+    return [c for _, columns in _layout(n_joints) for c in columns]
 
 
-def _pose7(T: Array) -> list[float]:
-    return [*T[0:3, 3].tolist(), *matrix_to_quat(T[0:3, 0:3]).tolist()]
+def _blocks(n_joints: int) -> dict[str, slice]:
+    """Where each block of :func:`_layout` lies in a row."""
+    at: dict[str, slice] = {}
+    start = 0
+    for name, columns in _layout(n_joints):
+        at[name] = slice(start, start + len(columns))
+        start += len(columns)
+    return at
 
 
 class TickLog:
     """Writes one row per tick into ``<directory>/part-NNNNN.parquet`` files of ``chunk`` rows.
+
+    A tick observer (:meth:`~app.session.loop.ServoLoop.observe`).
 
     Encoding and writing a part happen on a background thread while the servo loop fills the
     next buffer, so recording does not stall a paced loop for milliseconds once a second.
@@ -86,6 +88,7 @@ class TickLog:
         for old in directory.glob("part-*.parquet"):
             old.unlink()
         self.columns = log_columns(n_joints)
+        self._at = _blocks(n_joints)
         self._int_columns = [name in INT_COLUMNS or name.startswith("counts_") for name in self.columns]
         self._buf = np.zeros((chunk, len(self.columns)))
         self._rows = 0
@@ -93,40 +96,29 @@ class TickLog:
         self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ticklog")
         self._pending: Future[None] | None = None
 
-    def record(self, loop: ServoLoop, out: ControllerOutput, hand_target: Array | None) -> None:
+    def on_tick(self, tick: TickRecord) -> None:
         """Append the state after one tick."""
-        sw = loop.switches
-        slave = loop.slave
-        reading = loop.reading
-        hand = hand_target[0:3, 3].tolist() if hand_target is not None else [float("nan")] * 3
-        row = [
-            loop.time,
-            *reading.q.tolist(),
-            *_pose7(out.T_0_G),
-            *hand,
-            *out.vectors[0:2].ravel().tolist(),
-            *out.command.twist.tolist(),
-            *_pose7(slave.T_w_MRF),
-            *loop.ft.wrench_S.tolist(),
-            *out.F_S_task.tolist(),
-            *out.F_MRF.tolist(),
-            *slave.wrench_MRF_contact.tolist(),
-            *out.G_F_T.tolist(),
-            *out.G_F_R.tolist(),
-            *out.G_F_D.tolist(),
-            *reading.wrench_G.tolist(),
-            *out.torques[0:6].ravel().tolist(),
-            *out.counts.tolist(),
-            out.assist_scale,
-            out.saturation_scale,
-            sw.deadman,
-            sw.reference,
-            sw.reflection,
-            slave.contact.count,
-            int(out.faults),
-            *(loop.stage_ns / 1000.0).tolist(),
-        ]
-        self._buf[self._rows] = row
+        out = tick.out
+        reading = tick.reading
+        row = self._buf[self._rows]
+        c = self._at
+        row[c["t"]] = tick.time
+        row[c["q"]] = reading.q
+        _pose7(reading.T_0_G, row[c["grip"]])
+        hand = tick.hand_target
+        row[c["hand_target"]] = hand[0:3, 3] if hand is not None else np.nan
+        row[c["vectors"]] = out.vectors.ravel()
+        row[c["cmd"]] = out.command.twist
+        _pose7(tick.T_w_MRF, row[c["tool"]])
+        row[c["F_S"]] = tick.ft.wrench_S
+        row[c["contact_MRF"]] = tick.contact_wrench_MRF
+        row[c["hand_G"]] = reading.wrench_G
+        row[c["torques"]] = out.torques.ravel()
+        row[c["counts"]] = out.counts
+        row[c["scalars"]] = out.scalars
+        row[c["switches"]] = (tick.deadman, tick.reference, tick.reflection, tick.contact.count, int(out.faults))
+        row[c["stages"]] = tick.stage_ns
+        row[c["stages"]] *= 1e-3
         self._rows += 1
         if self._rows == len(self._buf):
             self.flush()
@@ -164,3 +156,9 @@ class TickLog:
 def read_log(directory: Path) -> pa.Table:
     """The whole log as one Arrow table (``.to_pandas()`` for a DataFrame)."""
     return pq.read_table(directory)
+
+
+def _pose7(T: Array, out: Array) -> None:
+    """Position and wxyz quaternion of the pose ``T`` (4, 4) into ``out`` (7,)."""
+    out[0:3] = T[0:3, 3]
+    out[3:7] = matrix_to_quat(T[0:3, 0:3])

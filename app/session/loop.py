@@ -1,6 +1,6 @@
 """The servo loop: hand -> device plant -> controller -> virtual slave and contact -> motors.
 
-One :meth:`ServoLoop.tick` (paper Fig. 3, DESIGN.md "one servo tick"):
+One :meth:`ServoLoop.tick` (paper Fig. 3, ``docs/conventions.md`` "one servo tick"):
 
 1. The plant integrates one period under the motor counts of the previous tick and the
    operator's hand spring, and reports quantised encoder angles.
@@ -10,32 +10,44 @@ One :meth:`ServoLoop.tick` (paper Fig. 3, DESIGN.md "one servo tick"):
 3. The virtual slave moves toward the command, meets the world through FCL contact, and its
    F/T sensor produces the reading the controller reflects next tick.
 
-The same loop object serves headless sessions (as fast as possible) and the web UI (paced).
+The tick returns a :class:`~app.session.tick.TickRecord` and hands it to every observer (the log,
+the metrics, the web snapshot, a user's monitor). The same loop object serves headless sessions
+(as fast as possible, or paced by :class:`~app.session.pacer.Pacer`) and the web UI's loop process.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
-from app.controller.frhc import ControllerOutput, FRHCController
+from app.controller.frhc import FRHCController
 from app.controller.gains import ControllerGains
 from app.controller.types import Switches
 from app.device.hand import HandParams
-from app.device.plant import DevicePlant, PlantReading
-from app.device.spec import DeviceSpec
-from app.spatial import Array
-from app.world.scene import Scene
+from app.device.plant import DevicePlant
+from app.device.spec import DeviceSpec, load_device
+from app.errors import ConfigError
+from app.session.tick import STAGES, TickObserver, TickRecord
+from app.spatial import Array, IntArray
+from app.world.scene import Scene, load_scene
 from app.world.slave import VirtualSlave
 
-STAGES = ("plant", "controller", "slave", "tick")
+if TYPE_CHECKING:
+    from app.session.spec import Session
+
+ObserverT = TypeVar("ObserverT", bound=TickObserver)
 
 
 @dataclass(frozen=True)
 class LoopConfig:
     """What a servo loop is made of.
+
+    Pickles as file paths plus values (scenes hold FCL objects that cannot be pickled), so a
+    loop process can rebuild the same loop: the scene and device must then come from files.
 
     Attributes:
         device: The FRHC (plant and controller model come from the same device file).
@@ -49,9 +61,42 @@ class LoopConfig:
     device: DeviceSpec
     scene: Scene
     gains: ControllerGains
-    hand: HandParams
+    hand: HandParams = field(default_factory=HandParams)
     accommodation: bool = True
     servo_rate: float = 1000.0
+
+    @staticmethod
+    def from_session(
+        session: Session,
+        scene: Scene | None = None,
+        device: DeviceSpec | None = None,
+        gains: ControllerGains | None = None,
+    ) -> LoopConfig:
+        """The loop a session runs: its scene, device, gains, hand, accommodation and rate.
+
+        ``scene``, ``device`` and ``gains`` replace the session's own when given.
+        """
+        d = session.data
+        return LoopConfig(
+            device or session.device,
+            scene or session.scene,
+            gains or session.gains,
+            d.hand,
+            d.accommodation,
+            d.servo_rate,
+        )
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        if self.scene.path is None:
+            raise ConfigError("<scene>", "path", "a loop run in another process needs a scene loaded from a file")
+        values = (self.gains, self.hand, self.accommodation, self.servo_rate)
+        return (_rebuild_config, (self.scene.path, self.device.path, *values))
+
+
+def _rebuild_config(
+    scene: Path, device: Path, gains: ControllerGains, hand: HandParams, accommodation: bool, rate: float
+) -> LoopConfig:
+    return LoopConfig(load_device(device), load_scene(scene), gains, hand, accommodation, rate)
 
 
 class ServoLoop:
@@ -59,8 +104,10 @@ class ServoLoop:
 
     Attributes:
         plant, controller, slave: The three rooms.
-        switches: The switch state the next tick uses (set by a script or the UI).
-        stage_ns: Durations (ns) of the last tick's stages, in the order of :data:`STAGES`.
+        switches: The switch state the next tick uses (set by a script or the UI). The
+            reference switch is momentary: the loop releases it after the tick that used it.
+        record: The :class:`TickRecord` of the last tick (or of the reset state).
+        observers: Called with :attr:`record` after every tick, in order.
         time: Simulated time (s).
         ticks: Ticks run since the last reset.
     """
@@ -72,13 +119,34 @@ class ServoLoop:
         self.slave = VirtualSlave(config.scene, accommodation=config.accommodation, period=self.dt)
         self.controller = FRHCController(config.device, config.gains, self.slave.slave_model())
         self.switches = Switches()
-        self.stage_ns = np.zeros(len(STAGES), dtype=np.int64)
+        self.observers: list[TickObserver] = []
+        self._hand = np.eye(4)
+        self.record = TickRecord(
+            self.plant.reading, self.controller.out, self.slave, self._hand, np.zeros(len(STAGES), dtype=np.int64)
+        )
         self.reset()
 
+    @property
+    def stage_ns(self) -> IntArray:
+        """Durations (ns) of the last tick's stages, in the order of :data:`STAGES`."""
+        return self.record.stage_ns
+
+    def observe(self, observer: ObserverT) -> ObserverT:
+        """Add ``observer`` (called after every tick); returns it."""
+        self.observers.append(observer)
+        return observer
+
+    def unobserve(self, observer: TickObserver) -> None:
+        """Stop calling ``observer``."""
+        self.observers.remove(observer)
+
     def reset(self) -> None:
-        """Everything back to the start: device at home, slave at home, switches off."""
+        """Everything back to the start: device at home, slave at home, switches off.
+
+        The hand keeps its target; the observers stay attached.
+        """
         home = np.array(self.config.device.data.home)
-        self.reading: PlantReading = self.plant.reset(home)
+        self.reading = self.plant.reset(home)
         self.slave.reset()
         self.controller.reset(self.reading.q)
         # The sensor already reads the payload's weight at rest: start from that, not from zero,
@@ -88,32 +156,53 @@ class ServoLoop:
         self.switches.deadman = self.switches.reference = self.switches.reflection = False
         self.time = 0.0
         self.ticks = 0
+        rec = self.record
+        rec.index, rec.time, rec.ft, rec.contact = 0, 0.0, self.ft, self.slave.contact
+        rec.deadman = rec.reference = rec.reflection = False
+        rec.stage_ns[:] = 0
 
     def set_hand_target(self, T_0_H: Array | None) -> None:
         """Where the operator's hand pulls the grip (4, 4, device base); None lets go.
 
         Not thread-safe: call it between ticks, from the thread that runs :meth:`tick`.
         """
+        self.record.hand_on = T_0_H is not None
+        if T_0_H is not None:
+            self._hand[:] = T_0_H
         self.plant.set_hand_target(T_0_H)
+
+    def press_reference(self) -> None:
+        """Press the momentary reference switch: on for the next tick only (Sec 4.1)."""
+        self.switches.reference = True
 
     def set_gains(self, gains: ControllerGains) -> None:
         self.controller.set_gains(gains)
 
-    def tick(self) -> ControllerOutput:
-        """Run one servo period; returns the controller's output (reused object)."""
+    def tick(self) -> TickRecord:
+        """Run one servo period; returns its record (reused object) after the observers saw it."""
+        sw = self.switches
         t0 = time.perf_counter_ns()
         self.reading = self.plant.step(self.counts, self.dt)
         t1 = time.perf_counter_ns()
-        out = self.controller.step(self.reading.q, self.switches, self.ft, self.dt)
+        out = self.controller.step(self.reading.q, sw, self.ft, self.dt)
         t2 = time.perf_counter_ns()
         self.ft = self.slave.step(out.command, self.dt)
         t3 = time.perf_counter_ns()
         self.counts[:] = out.counts
         self.time += self.dt
         self.ticks += 1
-        ns = self.stage_ns
+        rec = self.record
+        ns = rec.stage_ns
         ns[0] = t1 - t0
         ns[1] = t2 - t1
         ns[2] = t3 - t2
         ns[3] = t3 - t0
-        return out
+        rec.index = self.ticks
+        rec.time = self.time
+        rec.ft = self.ft
+        rec.contact = self.slave.contact
+        rec.deadman, rec.reference, rec.reflection = sw.deadman, sw.reference, sw.reflection
+        sw.reference = False
+        for observer in self.observers:
+            observer.on_tick(rec)
+        return rec

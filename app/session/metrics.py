@@ -7,10 +7,10 @@ from typing import Any
 
 import numpy as np
 
-from app.controller.frhc import ControllerOutput
 from app.controller.types import Fault
-from app.session.loop import STAGES, ServoLoop
+from app.session.tick import STAGES, TickRecord
 from app.spatial import Array, rotation_log
+from app.world.scene import TaskSpec
 
 
 def work_increment(T_prev: Array, T: Array, F_prev: Array, F: Array) -> Array:
@@ -26,7 +26,12 @@ def work_increment(T_prev: Array, T: Array, F_prev: Array, F: Array) -> Array:
 
 
 class SessionMetrics:
-    """Accumulates a session's summary tick by tick (no need to keep the log in memory).
+    """Accumulates a session's summary tick by tick (a tick observer; no need to keep the log).
+
+    Args:
+        start: The loop's record at the start (its reset state): where the work integral starts.
+        task: The scene's task, if it has one (its completion is reported).
+        n_ticks: Ticks expected (sizes the timing table). dt: Servo period (s).
 
     The work metric is the paper's Eq 13, ``W = sum_i |integral F_MRF,i d xi_i|``: the contact
     wrench at {MRF} in {MRF} axes times the {MRF} displacement in its own axes (translation,
@@ -34,11 +39,12 @@ class SessionMetrics:
     axis; absolute values are taken per axis at the end.
     """
 
-    def __init__(self, loop: ServoLoop, n_ticks: int) -> None:
-        self._loop = loop
+    def __init__(self, start: TickRecord, task: TaskSpec | None, n_ticks: int, dt: float) -> None:
+        self._dt = dt
+        self._time = start.time
         self._work = np.zeros(6)
-        self._T_prev = loop.slave.T_w_MRF.copy()
-        self._F_prev = loop.slave.wrench_MRF_contact.copy()
+        self._T_prev = start.T_w_MRF.copy()
+        self._F_prev = start.contact_wrench_MRF.copy()
         self._peak_force = 0.0
         self._peak_moment = 0.0
         self._sum_f2 = 0.0
@@ -47,14 +53,15 @@ class SessionMetrics:
         self._ticks = 0
         self._fault_ticks: dict[str, int] = {}
         self._saturated_ticks = 0
-        self._stage_us = np.zeros((n_ticks, len(STAGES)))
+        self._stage_ns = np.zeros((n_ticks, len(STAGES)), dtype=np.int64)
         self.task_done_at: float | None = None
-        self._task = loop.config.scene.spec.task
+        self._task = task
 
-    def record(self, out: ControllerOutput) -> None:
-        loop = self._loop
-        T = loop.slave.T_w_MRF
-        F = loop.slave.wrench_MRF_contact
+    def on_tick(self, tick: TickRecord) -> None:
+        out = tick.out
+        T = tick.T_w_MRF
+        F = tick.contact_wrench_MRF
+        self._time = tick.time
         self._work += work_increment(self._T_prev, T, self._F_prev, F)
         self._T_prev[:] = T
         self._F_prev[:] = F
@@ -64,18 +71,19 @@ class SessionMetrics:
         self._peak_moment = max(self._peak_moment, m)
         self._sum_f2 += f * f
         self._sum_m2 += m * m
-        self._contact_ticks += loop.slave.contact.count > 0
+        self._contact_ticks += tick.contact.count > 0
         if out.faults:
             for flag in Fault:
                 if flag and out.faults & flag:
                     name = str(flag.name)
                     self._fault_ticks[name] = self._fault_ticks.get(name, 0) + 1
         self._saturated_ticks += out.saturation_scale < 1.0
-        if self._ticks < len(self._stage_us):
-            self._stage_us[self._ticks] = loop.stage_ns / 1000.0
+        if self._ticks < len(self._stage_ns):
+            self._stage_ns[self._ticks] = tick.stage_ns
+
         self._ticks += 1
         if self._task is not None and self.task_done_at is None and self._task.done(T):
-            self.task_done_at = loop.time
+            self.task_done_at = tick.time
 
     @property
     def work_per_axis(self) -> Array:
@@ -85,7 +93,7 @@ class SessionMetrics:
     def summary(self) -> dict[str, Any]:
         """The session summary as plain JSON-able values."""
         n = max(self._ticks, 1)
-        stages = self._stage_us[: self._ticks]
+        stages = self._stage_ns[: self._ticks] / 1000.0
         timing = (
             {
                 name: {"median_us": float(np.median(stages[:, i])), "p99_us": float(np.percentile(stages[:, i], 99))}
@@ -113,7 +121,7 @@ class SessionMetrics:
             "faults": self._fault_ticks,
             "saturated_ticks": self._saturated_ticks,
             "ticks": self._ticks,
-            "simulated_s": self._loop.time,
+            "simulated_s": self._time,
             "timing": timing,
-            "real_time_factor": (self._loop.dt / tick_median_s) if timing else None,
+            "real_time_factor": (self._dt / tick_median_s) if timing else None,
         }

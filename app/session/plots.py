@@ -10,7 +10,8 @@ matplotlib.use("Agg")  # headless: never needs a display
 import matplotlib.pyplot as plt
 import numpy as np
 
-from app.session.log import DELTA_X, TWIST, WRENCH, read_log
+from app.controller.layout import DELTA_X_AXES, TWIST_AXES, WRENCH_AXES
+from app.session.log import read_log
 
 
 def _shade_contacts(ax: plt.Axes, t: np.ndarray, contacts: np.ndarray) -> None:
@@ -33,10 +34,10 @@ def plot_session(log_dir: Path, out_dir: Path) -> list[Path]:
     t = col["t"]
     fig, axes = plt.subplots(4, 1, figsize=(10, 11), sharex=True)
     panels = [
-        ("contact force at {MRF} (N)", [f"contact_MRF_{s}" for s in WRENCH[0:3]]),
-        ("reflected wrench at {G}: force (N)", [f"G_F_T_{s}" for s in WRENCH[0:3]]),
-        ("Delta X: translation (m), angles (rad)", [f"delta_x_{s}" for s in DELTA_X]),
-        ("slave rate command (m/s, rad/s)", [f"cmd_{s}" for s in TWIST]),
+        ("contact force at {MRF} (N)", [f"contact_MRF_{s}" for s in WRENCH_AXES[0:3]]),
+        ("reflected wrench at {G}: force (N)", [f"G_F_T_{s}" for s in WRENCH_AXES[0:3]]),
+        ("Delta X: translation (m), angles (rad)", [f"delta_x_{s}" for s in DELTA_X_AXES]),
+        ("slave rate command (m/s, rad/s)", [f"cmd_{s}" for s in TWIST_AXES]),
     ]
     for ax, (title, names) in zip(axes, panels, strict=True):
         for name in names:

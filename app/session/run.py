@@ -10,7 +10,6 @@ Example::
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,13 +17,13 @@ from typing import Any
 
 from tqdm import tqdm
 
-from app.controller.frhc import ControllerOutput
 from app.session.log import TickLog
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.metrics import SessionMetrics
-from app.session.script import OperatorScript
+from app.session.pacer import Pacer
+from app.session.script import Operator, OperatorScript
 from app.session.spec import Session
-from app.spatial import Array
+from app.session.tick import TickRecord
 
 
 @dataclass
@@ -44,31 +43,27 @@ class SessionResult:
     loop: ServoLoop
 
 
-def make_loop(session: Session) -> ServoLoop:
-    d = session.data
-    return ServoLoop(LoopConfig(session.device, session.scene, session.gains, d.hand, d.accommodation, d.servo_rate))
+def drive(loop: ServoLoop, operator: Operator, n_ticks: int, pacer: Pacer | None = None) -> Iterator[TickRecord]:
+    """Run ``n_ticks`` ticks of ``loop`` with ``operator`` acting before each; yields each record.
 
-
-def drive(session: Session, loop: ServoLoop, realtime: bool = False) -> Iterator[tuple[ControllerOutput, Array | None]]:
-    """Play the session's operator script on ``loop``, one tick per iteration.
-
-    Yields the controller output and the hand target of each tick (None while the hand is off
-    the grip). With ``realtime`` the ticks are paced to the wall clock.
+    With a ``pacer`` the ticks are held to the wall clock.
     """
-    d = session.data
-    script = OperatorScript(d, loop.reading.T_0_G.copy())
-    loop.switches = script.switches
-    start = time.perf_counter()
-    for tick in range(d.n_ticks):
-        t = loop.time
-        script.update_switches(t, tick)
-        target = script.hand_target(t, tick) if script.hand_on else None
-        loop.set_hand_target(target)
-        yield loop.tick(), target
-        if realtime:
-            lag = start + (tick + 1) * loop.dt - time.perf_counter()
-            if lag > 0:
-                time.sleep(lag)
+    if pacer is not None:
+        pacer.restart()
+    for _ in range(n_ticks):
+        if pacer is not None:
+            pacer.wait()
+        operator.before_tick(loop)
+        record = loop.tick()
+        if pacer is not None:
+            pacer.done()
+        yield record
+
+
+def play(session: Session, loop: ServoLoop | None = None, pacer: Pacer | None = None) -> Iterator[TickRecord]:
+    """Play ``session``'s operator script to its duration on ``loop`` (default: the session's own loop)."""
+    loop = loop if loop is not None else ServoLoop(LoopConfig.from_session(session))
+    return drive(loop, OperatorScript.for_loop(session.data, loop), session.data.n_ticks, pacer)
 
 
 def run_session(
@@ -85,19 +80,18 @@ def run_session(
         out_dir: Where to write ``log/`` (Parquet parts), ``summary.json`` and plots; None = no files.
         plots: Write the PNG plots (needs ``out_dir``).
         progress: Show a progress bar.
-        realtime: Pace ticks to the wall clock instead of running as fast as possible.
+        realtime: Pace ticks to the wall clock instead of running as fast as possible; the
+            summary then has the pacing figures under ``pacing``.
     """
-    loop = make_loop(session)
+    loop = ServoLoop(LoopConfig.from_session(session))
     d = session.data
     n_ticks = d.n_ticks
-    metrics = SessionMetrics(loop, n_ticks)
-    log = TickLog(out_dir / "log", session.device.n_joints) if out_dir is not None else None
+    metrics = loop.observe(SessionMetrics(loop.record, session.scene.spec.task, n_ticks, loop.dt))
+    log = loop.observe(TickLog(out_dir / "log", session.device.n_joints)) if out_dir is not None else None
+    pacer = Pacer(loop.dt) if realtime else None
     bar = tqdm(total=n_ticks, unit="tick", disable=not progress, mininterval=0.5)
     try:
-        for out, target in drive(session, loop, realtime):
-            metrics.record(out)
-            if log is not None:
-                log.record(loop, out, target)
+        for _ in play(session, loop, pacer):
             bar.update(1)
     finally:
         bar.close()
@@ -109,6 +103,8 @@ def run_session(
     summary["device"] = session.device.name
     summary["mode"] = d.mode
     summary["accommodation"] = d.accommodation
+    if pacer is not None:
+        summary["pacing"] = pacer.stats().as_dict()
     written: list[Path] = []
     if out_dir is not None:
         (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))

@@ -1,15 +1,31 @@
-"""The scripted operator: timed hand targets (smoothly interpolated) and switch events."""
+"""Simulated operators: what acts on the loop before each tick (hand target and switches).
+
+:class:`Operator` is the protocol; :class:`OperatorScript` plays a session file's timed hand
+targets (smoothly interpolated) and switch events. A reacting operator is any object with a
+``before_tick`` that reads the last :class:`~app.session.tick.TickRecord` (``loop.record``).
+"""
 
 from __future__ import annotations
 
 import bisect
 import math
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from app.controller.types import Switches
 from app.session.spec import SessionFile, SwitchEvent
 from app.spatial import Array, make_pose, rotation_exp, rotation_log, zyx_to_matrix
+
+if TYPE_CHECKING:
+    from app.session.loop import ServoLoop
+
+
+class Operator(Protocol):
+    """A simulated operator: sets the hand target and the switches before each tick."""
+
+    def before_tick(self, loop: ServoLoop) -> None:
+        """Act on ``loop`` (``set_hand_target``, ``switches``, ``press_reference``) for its next tick."""
 
 
 class OperatorScript:
@@ -18,6 +34,7 @@ class OperatorScript:
     Args:
         data: The session file (waypoints, events, tremor, seed, time scale).
         T_0_G_start: The grip's pose when the session starts (4, 4); waypoints are relative to it.
+        switches: The switches the events act on (a loop's ``switches``); a new set by default.
 
     Between waypoints the hand moves with a smoothstep profile (zero velocity at each waypoint),
     rotating along the geodesic. Before the first waypoint the hand holds the start pose; after
@@ -26,7 +43,7 @@ class OperatorScript:
 
     TREMOR_CUTOFF_HZ = 8.0
 
-    def __init__(self, data: SessionFile, T_0_G_start: Array) -> None:
+    def __init__(self, data: SessionFile, T_0_G_start: Array, switches: Switches | None = None) -> None:
         scale = data.time_scale
         self._times = [w.t * scale for w in data.waypoints]
         R0 = T_0_G_start[0:3, 0:3]
@@ -40,9 +57,8 @@ class OperatorScript:
         self._events = sorted(data.events, key=lambda e: e.t)
         self._event_times = [e.t * scale for e in self._events]
         self._next_event = 0
-        self.switches = Switches()
+        self.switches = Switches() if switches is None else switches
         self.hand_on = True
-        self._reference_pressed_at = -1
         self._rate = data.servo_rate
         self._tremor = _tremor(data.n_ticks, data.tremor, data.seed, data.servo_rate, self.TREMOR_CUTOFF_HZ)
         self._T = np.eye(4)
@@ -63,18 +79,27 @@ class OperatorScript:
         T[0:3, 3] += self._tremor[min(tick, len(self._tremor) - 1)]
         return T
 
-    def update_switches(self, t: float, tick: int) -> Switches:
-        """Apply the events due by time ``t`` (s); a reference press lasts one tick."""
+    @staticmethod
+    def for_loop(data: SessionFile, loop: ServoLoop) -> OperatorScript:
+        """The script of ``data`` acting on ``loop``, relative to its grip pose now."""
+        return OperatorScript(data, loop.reading.T_0_G.copy(), loop.switches)
+
+    def before_tick(self, loop: ServoLoop) -> None:
+        """Apply the events due by ``loop.time`` and move the hand (:class:`Operator`)."""
+        t, tick = loop.time, loop.ticks
+        self.update_switches(t)
+        loop.set_hand_target(self.hand_target(t, tick) if self.hand_on else None)
+
+    def update_switches(self, t: float) -> Switches:
+        """Apply the events due by time ``t`` (s). A reference press sets the switch; the loop
+        releases it after one tick (:meth:`~app.session.loop.ServoLoop.tick`)."""
         sw = self.switches
-        if self._reference_pressed_at >= 0 and tick > self._reference_pressed_at:
-            sw.reference = False
-            self._reference_pressed_at = -1
         while self._next_event < len(self._events) and self._event_times[self._next_event] <= t:
-            self._apply(self._events[self._next_event], tick)
+            self._apply(self._events[self._next_event])
             self._next_event += 1
         return sw
 
-    def _apply(self, e: SwitchEvent, tick: int) -> None:
+    def _apply(self, e: SwitchEvent) -> None:
         sw = self.switches
         if e.deadman is not None:
             sw.deadman = e.deadman
@@ -84,7 +109,6 @@ class OperatorScript:
             self.hand_on = e.hand
         if e.reference:
             sw.reference = True
-            self._reference_pressed_at = tick
 
 
 def _tremor(n: int, sigma: float, seed: int, rate: float, cutoff_hz: float) -> Array:

@@ -11,10 +11,11 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from app.config import from_dict, load_toml
 from app.controller.gains import ControllerGains
+from app.controller.layout import Mode
 from app.device.hand import HandParams
 from app.device.spec import DeviceSpec, load_device
 from app.errors import ConfigError, InvalidField
@@ -76,7 +77,7 @@ class SessionFile:
     scene: str
     device: str
     duration: float
-    mode: Literal["rate", "pose"] = "rate"
+    mode: Mode = "rate"
     servo_rate: float = 1000.0
     seed: int = 0
     accommodation: bool = True

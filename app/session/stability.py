@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from app.session.run import drive, make_loop
+from app.session.run import play
 from app.session.spec import load_session
 from app.world.scene import SCENES_DIR
 
@@ -65,8 +65,7 @@ def press(
         session = load_session("probe_rate").with_changes(
             scene=str(scene), mode=mode, duration=seconds, gains=gains or {}
         )
-    loop = make_loop(session)
-    forces = np.array([loop.slave.wrench_MRF_contact[2] for _ in drive(session, loop)])
+    forces = np.array([tick.contact_wrench_MRF[2] for tick in play(session)])
     tail = forces[-round(window * session.data.servo_rate) :]
     mean = float(np.mean(tail))
     ripple = float(np.ptp(tail))

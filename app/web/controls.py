@@ -3,7 +3,7 @@
 The panel is created once on the server (``server.gui``), so every connected browser sees and
 drives the same state. It holds no servo state itself: every input calls a method of a
 :class:`DemoActions` (the demo application), and :meth:`Controls.update` redraws status and plots
-from a loop :class:`~app.web.realtime.Snapshot`.
+from a loop :class:`~app.web.snapshot.Snapshot`.
 
 Keyboard: viser's command palette hotkeys (key presses only; there is no key-release event, so the
 deadman is a toggle rather than a hold): ``D`` deadman, ``R`` reference, ``F`` reflection.
@@ -20,10 +20,12 @@ import viser
 import viser.uplot
 
 from app.controller.gains import ControllerGains
+from app.controller.layout import MODES, RTC_LAWS
 from app.controller.types import Fault
 from app.errors import ConfigError, InvalidField
-from app.web.realtime import Snapshot, TimingStats
+from app.session.pacer import TimingStats
 from app.web.scene_view import DEVICE_ORIGIN_V, FORCE_SCALE, MOMENT_SCALE, WORLD_ORIGIN_V, WRENCH_ARROWS
+from app.web.snapshot import Snapshot
 
 #: Gain fields typed as six comma-separated numbers, with their labels and units (translations; rotations).
 SIX_GAINS = (
@@ -170,8 +172,8 @@ class Controls:
 
         with gui.add_folder("Mode and gains", expand_by_default=False):
             gains = actions.gains
-            self.mode = gui.add_dropdown("Mode", ("rate", "pose"), initial_value=gains.mode)
-            self.rtc = gui.add_dropdown("Return-to-centre", ("constant", "hooke", "off"), initial_value=gains.rtc)
+            self.mode = gui.add_dropdown("Mode", MODES, initial_value=gains.mode)
+            self.rtc = gui.add_dropdown("Return-to-centre", RTC_LAWS, initial_value=gains.rtc)
             self.six: dict[str, viser.GuiTextHandle] = {}
             for name, label, unit in SIX_GAINS:
                 self.six[name] = gui.add_text(

@@ -21,7 +21,7 @@ import viser
 
 from app.session.loop import ServoLoop
 from app.spatial import Array, invert_pose, make_pose, matrix_to_quat, quat_to_matrix
-from app.web.realtime import Snapshot
+from app.web.snapshot import Snapshot
 
 #: Where the device base {0} sits in the viser frame (m): on the left.
 DEVICE_ORIGIN_V = np.array([-0.5, 0.0, 0.0])

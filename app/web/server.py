@@ -22,7 +22,6 @@ from pathlib import Path
 import viser
 
 from app.controller.gains import ControllerGains
-from app.device.hand import HandParams
 from app.device.spec import DeviceSpec, available_devices, load_device
 from app.session.loop import LoopConfig
 from app.session.spec import Session, load_session
@@ -41,14 +40,6 @@ INITIAL_CAMERA_LOOK_AT = (-0.1, 0.0, 0.08)
 RUNS_DIR = ROOT_DIR / "runs"
 
 
-def _loop_config(device: DeviceSpec, scene: Scene, gains: ControllerGains, session: Session | None) -> LoopConfig:
-    """The servo loop for ``device`` and ``scene``; a session adds its hand, accommodation and rate."""
-    if session is None:
-        return LoopConfig(device, scene, gains, HandParams())
-    d = session.data
-    return LoopConfig(device, scene, gains, d.hand, d.accommodation, d.servo_rate)
-
-
 class DemoApp:
     """The demo: one servo loop in real time, its 3D view and the control panel, on one viser server.
 
@@ -63,7 +54,7 @@ class DemoApp:
         self.session = session
         self._lock = threading.Lock()  # the UI thread redraws; a selection change rebuilds
         self._scene, self._device = scene, device
-        self.rt = RealtimeLoop(_loop_config(device, scene, self._start_gains(device), session))
+        self.rt = RealtimeLoop(self._loop_config(device, scene, self._start_gains(device)))
         server.scene.set_up_direction("+z")
         # In front of both spaces, slightly above: the device on the left, the world on the right.
         server.initial_camera.position = INITIAL_CAMERA_POSITION
@@ -77,6 +68,12 @@ class DemoApp:
         self._ui = threading.Thread(target=self._ui_loop, name="web-ui", daemon=True)
         self.rt.start()
         self._ui.start()
+
+    def _loop_config(self, device: DeviceSpec, scene: Scene, gains: ControllerGains) -> LoopConfig:
+        """The loop for ``device`` and ``scene``; the session, if any, adds its hand, accommodation and rate."""
+        if self.session is None:
+            return LoopConfig(device, scene, gains)
+        return LoopConfig.from_session(self.session, scene, device, gains)
 
     def _start_gains(self, device: DeviceSpec) -> ControllerGains:
         if self.session is not None and self.session.device.path == device.path:
@@ -129,7 +126,7 @@ class DemoApp:
             self.controls.record.label = "Record"
             self.view.remove()
             self._scene, self._device = scene, device
-            self.rt = RealtimeLoop(_loop_config(device, scene, gains, self.session))
+            self.rt = RealtimeLoop(self._loop_config(device, scene, gains))
             self.view = SceneView(self.server, self.rt.loop, self.rt.set_hand_target)
             self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
             self.rt.set_hand_target(self._home_T_0_G)

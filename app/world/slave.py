@@ -157,6 +157,11 @@ class VirtualSlave:
         """Current pose of {MRF} in {w}, (4, 4) (a new array)."""
         return self._state()[0].copy()
 
+    def pose_view(self) -> Array:
+        """Current pose of {MRF} in {w}, (4, 4): the slave's own buffer, overwritten by the next
+        step (read it, do not modify it). For per-tick observers that must not allocate."""
+        return self._state()[0]
+
     @property
     def V_w_MRF(self) -> Array:
         """Current twist ``[v; w]`` of {MRF} (origin velocity, angular velocity) in {w}, (6,) (a new array)."""

@@ -33,7 +33,7 @@ def test_released_device_holds_its_pose_on_gravity_compensation(device: str, off
     T0 = loop.plant.reading.T_0_G.copy()
     worst_p = worst_r = 0.0
     for _ in range(5000):
-        out = loop.tick()
+        out = loop.tick().out
         assert out.faults == Fault.NONE
         T = loop.plant.reading.T_0_G
         worst_p = max(worst_p, float(np.linalg.norm(T[0:3, 3] - T0[0:3, 3])))
@@ -61,7 +61,7 @@ def test_redundant_freflex_reflects_a_contact_through_seven_joints() -> None:
     loop.set_hand_target(T_target)
     loop.switches.deadman = loop.switches.reflection = True
     for _ in range(3000):
-        out = loop.tick()
+        out = loop.tick().out
     assert loop.slave.contact.count > 0
     assert out.G_F_T[2] > 1.0  # the surface pushes the tool (and the hand) up
     assert out.tau_T.shape == (7,)

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from app.session.metrics import work_increment
+from app.session.run import play
 from app.session.script import OperatorScript
-from app.session.spec import SessionFile, SwitchEvent, Waypoint
+from app.session.spec import SessionFile, SwitchEvent, Waypoint, load_session
 from app.spatial import make_pose, rotation_log, zyx_to_matrix
 
 
@@ -56,12 +57,19 @@ def test_hand_target_interpolates_smoothly_between_waypoints() -> None:
 def test_reference_press_lasts_one_tick_and_events_apply_in_time() -> None:
     data = script(events=(SwitchEvent(0.1, deadman=True), SwitchEvent(0.2, reference=True, reflection=True)))
     s = OperatorScript(data, np.eye(4))
-    assert not s.update_switches(0.05, 50).deadman
-    assert s.update_switches(0.1, 100).deadman
-    sw = s.update_switches(0.2, 200)
+    assert not s.update_switches(0.05).deadman
+    assert s.update_switches(0.1).deadman
+    sw = s.update_switches(0.2)
     assert sw.reference
     assert sw.reflection
-    assert not s.update_switches(0.201, 201).reference
+    # Through the loop: the press is on for exactly the one tick that starts at 0.2 s.
+    session = load_session("probe_rate").with_changes(events=data.events, waypoints=(), duration=0.25)
+    ticks = [(tick.time, tick.deadman, tick.reference, tick.reflection) for tick in play(session)]
+    pressed = [t for t, _, reference, _ in ticks if reference]
+    assert len(pressed) == 1
+    assert pressed[0] == pytest.approx(0.201, abs=1e-9)
+    assert all(deadman == (t > 0.1005) for t, deadman, _, _ in ticks)
+    assert all(reflection == (t > 0.2005) for t, _, _, reflection in ticks)
 
 
 def test_tremor_is_seeded_and_has_the_requested_size() -> None:

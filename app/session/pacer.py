@@ -1,0 +1,153 @@
+"""Pacing a servo loop to the wall clock: one :class:`Pacer` for every paced loop.
+
+Used by headless sessions run with ``--realtime`` and by the web demo's loop process.
+
+Deadlines are absolute, ``t0 + k dt`` on ``time.perf_counter_ns``: the pacer sleeps most of the
+wait and spins the last :data:`SPIN_NS`, because ``time.sleep`` wakes up to ~0.1 ms late on
+Linux. A tick that starts late is followed by catch-up ticks (so simulated time keeps up with
+real time) unless the loop fell more than :data:`MAX_LAG_TICKS` behind; then the schedule
+restarts from now and the restart is counted as a *slip* (simulated time then lags wall time).
+
+Each tick's period (start to next start) and compute time go into ring buffers
+(:class:`TimingRings`); :func:`timing_stats` turns them into rate, jitter and slip figures. The
+rings may live in shared memory, so another process can read the statistics without costing the
+loop anything.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.spatial import Array, IntArray
+
+#: The last part of each wait is spun rather than slept (ns): sleep wake-up latency is ~0.1 ms.
+SPIN_NS = 300_000
+#: Behind by more than this many periods, the schedule restarts instead of catching up.
+MAX_LAG_TICKS = 50
+#: Periods kept for the timing statistics (a ring buffer; 65 s at 1 kHz).
+TIMING_HISTORY = 1 << 16
+
+
+@dataclass(frozen=True)
+class TimingRings:
+    """Ring buffers of the last :data:`TIMING_HISTORY` ticks.
+
+    Attributes:
+        periods: Tick start to next tick start (ns), int64 (TIMING_HISTORY,).
+        tick_ns: Compute time of each tick (ns), int64 (TIMING_HISTORY,).
+        counters: ``[ticks counted, slips]``, int64 (2,).
+    """
+
+    periods: IntArray
+    tick_ns: IntArray
+    counters: IntArray
+
+    @staticmethod
+    def allocate() -> TimingRings:
+        """Rings in this process's memory."""
+        return TimingRings(
+            np.zeros(TIMING_HISTORY, dtype=np.int64), np.zeros(TIMING_HISTORY, dtype=np.int64), np.zeros(2, np.int64)
+        )
+
+
+@dataclass(frozen=True)
+class TimingStats:
+    """How well a loop kept its period, over the last ``ticks`` ticks.
+
+    Attributes:
+        ticks: Periods measured (tick start to next tick start).
+        rate_hz: Achieved ticks per second of wall time over those periods.
+        period_p50_us: Median period (us).
+        jitter_p99_us: 99th percentile of ``|period - dt|`` (us).
+        jitter_max_us: Largest ``|period - dt|`` (us).
+        tick_p50_us, tick_p99_us: Compute time of one tick, median and p99 (us).
+        slips: Times since start the loop fell more than :data:`MAX_LAG_TICKS` behind and restarted
+            its schedule (simulated time then lags wall time).
+    """
+
+    ticks: int
+    rate_hz: float
+    period_p50_us: float
+    jitter_p99_us: float
+    jitter_max_us: float
+    tick_p50_us: float
+    tick_p99_us: float
+    slips: int
+
+    def as_dict(self) -> dict[str, float]:
+        return {name: float(getattr(self, name)) for name in self.__dataclass_fields__}
+
+
+def timing_stats(rings: TimingRings, period_ns: int, last: int | None = None) -> TimingStats:
+    """Statistics of the last ``last`` periods in ``rings`` (default: all kept)."""
+    count, slips = int(rings.counters[0]), int(rings.counters[1])
+    n = min(count - 1, TIMING_HISTORY - 1, last if last is not None else TIMING_HISTORY)
+    if n < 1:
+        return TimingStats(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, slips)
+    idx = np.arange(count - n, count) % TIMING_HISTORY
+    periods: Array = rings.periods[idx].astype(float) / 1e3
+    ticks: Array = rings.tick_ns[idx].astype(float) / 1e3
+    jitter = np.abs(periods - period_ns / 1e3)
+    return TimingStats(
+        ticks=n,
+        rate_hz=float(n / (periods.sum() * 1e-6)),
+        period_p50_us=float(np.median(periods)),
+        jitter_p99_us=float(np.percentile(jitter, 99)),
+        jitter_max_us=float(jitter.max()),
+        tick_p50_us=float(np.median(ticks)),
+        tick_p99_us=float(np.percentile(ticks, 99)),
+        slips=slips,
+    )
+
+
+class Pacer:
+    """Holds a loop to its period: call :meth:`wait` before each tick and :meth:`done` after it.
+
+    Args:
+        period: Servo period (s).
+        rings: Where the timing goes (default: new rings in this process).
+    """
+
+    def __init__(self, period: float, rings: TimingRings | None = None) -> None:
+        self.period_ns = round(period * 1e9)
+        self.rings = rings if rings is not None else TimingRings.allocate()
+        self._periods = self.rings.periods
+        self._tick_ns = self.rings.tick_ns
+        self._counters = self.rings.counters
+        self._deadline = self._previous = self._start = 0
+        self.restart()
+
+    def restart(self) -> None:
+        """Start the schedule from now (the next :meth:`wait` returns at once)."""
+        self._deadline = self._previous = time.perf_counter_ns()
+
+    def wait(self) -> None:
+        """Sleep, then spin, until the next tick's deadline."""
+        clock = time.perf_counter_ns
+        wait = self._deadline - clock()
+        if wait > SPIN_NS:
+            time.sleep((wait - SPIN_NS) * 1e-9)
+        while clock() < self._deadline:
+            pass
+        self._start = clock()
+
+    def done(self) -> None:
+        """Record the tick that started at the last :meth:`wait` and schedule the next one."""
+        now = time.perf_counter_ns()
+        counters = self._counters
+        i = int(counters[0]) % TIMING_HISTORY
+        self._periods[i] = self._start - self._previous
+        self._tick_ns[i] = now - self._start
+        counters[0] += 1
+        self._previous = self._start
+        self._deadline += self.period_ns
+        if now - self._deadline > MAX_LAG_TICKS * self.period_ns:
+            self._deadline = now
+            counters[1] += 1
+
+    def stats(self, last: int | None = None) -> TimingStats:
+        """:func:`timing_stats` of this pacer's rings."""
+        return timing_stats(self.rings, self.period_ns, last)

@@ -1,0 +1,106 @@
+"""What one servo tick produced, as one read-only value, and the observers that consume it.
+
+:meth:`~app.session.loop.ServoLoop.tick` returns a :class:`TickRecord`. Its attributes are views of
+the rooms' own buffers (plant reading, controller output, slave reading and contact result), so
+building it allocates nothing; the next tick overwrites them. An observer that keeps data copies
+it. The log, the session metrics and the web snapshot are observers of this record, and so is any
+monitor a user adds (:meth:`~app.session.loop.ServoLoop.observe`); none of them reaches into the
+rooms.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+from app.controller.frhc import ControllerOutput
+from app.controller.types import FTReading, SlaveCommand
+from app.device.plant import PlantReading
+from app.spatial import Array, IntArray
+from app.world.contact import ContactResult
+from app.world.slave import VirtualSlave
+
+STAGES = ("plant", "controller", "slave", "tick")
+"""Stages of one tick timed in :attr:`TickRecord.stage_ns`, in order (``tick`` is their sum)."""
+
+
+class TickRecord:
+    """Everything one servo tick produced (paper Fig. 3), valid until the next tick.
+
+    Treat it as read-only: the arrays are the rooms' own buffers.
+
+    Attributes:
+        index: Ticks run since the last reset (0 for the state right after a reset).
+        time: Simulated time at the end of the tick (s).
+        reading: The device plant's reading: encoder angles ``q`` (n,), true angles and
+            velocities, the grip pose ``T_0_G`` (4, 4, base {0}) and the hand's wrench ``wrench_G``.
+        hand_target: Where the operator's hand pulled the grip, ``T_0_H`` (4, 4, {0}), or None
+            while the hand is off the grip.
+        deadman, reference, reflection: The switches as this tick used them (a reference press
+            is True for exactly one tick).
+        out: The controller's output with all its intermediates (Delta X, task wrench at each
+            frame, assists, every torque stage, counts, faults).
+        command: The slave command of this tick (``out.command``).
+        ft: The F/T reading the slave produced this tick (the controller reflects it next tick).
+        contact: The tool's contact with the world at the end of the tick.
+        stage_ns: Durations (ns) of the stages in :data:`STAGES`, (4,) int64.
+    """
+
+    __slots__ = (
+        "_hand",
+        "_slave",
+        "command",
+        "contact",
+        "deadman",
+        "ft",
+        "hand_on",
+        "index",
+        "out",
+        "reading",
+        "reference",
+        "reflection",
+        "stage_ns",
+        "time",
+    )
+
+    def __init__(
+        self, reading: PlantReading, out: ControllerOutput, slave: VirtualSlave, hand: Array, stage_ns: IntArray
+    ) -> None:
+        self.index = 0
+        self.time = 0.0
+        self.reading = reading
+        self.out = out
+        self.command: SlaveCommand = out.command
+        self._slave = slave
+        self._hand = hand
+        self.hand_on = False
+        self.deadman = self.reference = self.reflection = False
+        self.ft: FTReading = slave.reading()
+        self.contact: ContactResult = slave.contact
+        self.stage_ns = stage_ns
+
+    @property
+    def hand_target(self) -> Array | None:
+        """``T_0_H`` (4, 4) the hand pulled toward this tick, or None when it let go."""
+        return self._hand if self.hand_on else None
+
+    @property
+    def T_w_MRF(self) -> Array:
+        """Pose of the tool's {MRF} in the slave world {w} at the end of the tick, (4, 4)."""
+        return self._slave.pose_view()
+
+    @property
+    def contact_wrench_MRF(self) -> Array:
+        """Contact wrench at the {MRF} origin in {MRF} (N, N m), (6,): what Eq 13 integrates."""
+        return self.contact.wrench_MRF
+
+    @property
+    def stage_us(self) -> Array:
+        """:attr:`stage_ns` in microseconds (a new array)."""
+        return self.stage_ns / 1000.0
+
+
+class TickObserver(Protocol):
+    """Anything that watches the ticks of a loop (:meth:`~app.session.loop.ServoLoop.observe`)."""
+
+    def on_tick(self, tick: TickRecord) -> None:
+        """Called after every tick with its record; copy what you keep."""

@@ -1,0 +1,87 @@
+"""The commands the web server sends to the servo loop process, one small frozen dataclass each.
+
+They travel over a pipe and are applied between two ticks by
+:meth:`~app.web.loop_process.LoopHost.apply`. Anything that is not one of :data:`COMMANDS` is
+refused with :class:`UnknownCommand` on both sides: the sender checks before sending, and the loop
+process stops rather than ignore a command it does not know.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from app.controller.gains import ControllerGains
+from app.errors import FrhcError
+from app.spatial import Array
+
+
+class UnknownCommand(FrhcError):
+    """Something that is not a loop command was sent to the loop process."""
+
+
+@dataclass(frozen=True)
+class SetHandTarget:
+    """The operator's hand pulls the grip toward ``T_0_H`` (4, 4, device base {0}); None lets go."""
+
+    T_0_H: Array | None
+
+
+@dataclass(frozen=True)
+class SetDeadman:
+    on: bool
+
+
+@dataclass(frozen=True)
+class SetReflection:
+    on: bool
+
+
+@dataclass(frozen=True)
+class PressReference:
+    """A momentary press of the reference switch: on for exactly one tick (Sec 4.1)."""
+
+
+@dataclass(frozen=True)
+class SetGains:
+    gains: ControllerGains
+
+
+@dataclass(frozen=True)
+class Reset:
+    """Device and slave home, switches off; the hand keeps its target. Stops a playing script."""
+
+
+@dataclass(frozen=True)
+class Record:
+    """Start the per-tick Parquet log in ``directory``, or stop it (None)."""
+
+    directory: Path | None
+
+
+@dataclass(frozen=True)
+class Play:
+    """Reset and play the session file ``session``'s operator script to its end (None stops it).
+
+    The loop must have been built for that session (same scene, device, hand, rate). With
+    ``record`` the log of exactly the played ticks is written there.
+    """
+
+    session: Path | None
+    record: Path | None = None
+
+
+@dataclass(frozen=True)
+class Stop:
+    """End the loop process after the current tick (closing any log)."""
+
+
+LoopCommand = SetHandTarget | SetDeadman | SetReflection | PressReference | SetGains | Reset | Record | Play | Stop
+COMMANDS = (SetHandTarget, SetDeadman, SetReflection, PressReference, SetGains, Reset, Record, Play, Stop)
+
+
+def check_command(command: object) -> LoopCommand:
+    """``command`` if it is a loop command; raises :class:`UnknownCommand` otherwise."""
+    if not isinstance(command, COMMANDS):
+        raise UnknownCommand(f"not a loop command: {command!r} (known: {', '.join(c.__name__ for c in COMMANDS)})")
+    return command

@@ -1,0 +1,188 @@
+"""The servo loop's own process: build the loop, apply commands between ticks, tick on the clock.
+
+The loop runs in a child process (``spawn``) so that the web server's threads (websocket,
+callbacks, redraws) never compete with it for the GIL: in one process a redraw or a message
+encode held the interpreter for milliseconds and the period jitter p99 was ~2 ms; in its own
+process the loop only shares the CPU. :func:`loop_main` is the process's entry point;
+:class:`LoopHost` holds its state and applies the :mod:`~app.web.commands`.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import multiprocessing as mp
+import os
+from multiprocessing.connection import Connection
+from pathlib import Path
+
+import numpy as np
+
+from app.session.log import TickLog
+from app.session.loop import LoopConfig, ServoLoop
+from app.session.pacer import TIMING_HISTORY, Pacer, TimingRings
+from app.session.script import OperatorScript
+from app.session.spec import load_session
+from app.web.commands import (
+    Play,
+    PressReference,
+    Record,
+    Reset,
+    SetDeadman,
+    SetGains,
+    SetHandTarget,
+    SetReflection,
+    Stop,
+    check_command,
+)
+from app.web.snapshot import SharedSnapshot, SnapshotPublisher
+
+#: SCHED_FIFO priority asked for the loop process. Without it, a headless browser rendering WebGL in
+#: software on a 2-core machine preempted the loop for tens of milliseconds (~570 Hz achieved).
+RT_PRIORITY = 50
+#: Niceness tried when real-time scheduling is not permitted.
+FALLBACK_NICE = -10
+#: What :func:`raise_priority` obtained, as stored in shared memory.
+SCHEDULING = ("normal", f"nice {FALLBACK_NICE}", f"SCHED_FIFO {RT_PRIORITY}")
+
+
+class SharedTiming:
+    """The pacer's timing rings and the scheduling obtained, in memory both processes map."""
+
+    def __init__(self) -> None:
+        ctx = mp.get_context("spawn")
+        self.periods = ctx.RawArray(ctypes.c_int64, TIMING_HISTORY)
+        self.tick_ns = ctx.RawArray(ctypes.c_int64, TIMING_HISTORY)
+        self.counters = ctx.RawArray(ctypes.c_int64, 2)
+        self.scheduling = ctx.RawValue(ctypes.c_int64, 0)
+
+    def rings(self) -> TimingRings:
+        """numpy views of the shared rings (call it in the process that uses them)."""
+        return TimingRings(
+            *(np.frombuffer(memoryview(a), dtype=np.int64) for a in (self.periods, self.tick_ns, self.counters))
+        )
+
+
+def raise_priority() -> int:
+    """Ask for real-time scheduling, else a lower niceness; returns an index into :data:`SCHEDULING`."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(RT_PRIORITY))
+        return 2
+    except (OSError, AttributeError):
+        pass
+    try:
+        os.nice(FALLBACK_NICE)
+        return 1
+    except OSError:
+        return 0
+
+
+class LoopHost:
+    """The loop process's state: the loop, its snapshot publisher, a log, a playing script.
+
+    Args:
+        loop: The servo loop (at its reset state).
+        shared: Where snapshots are published. publish_every: Ticks between snapshots.
+    """
+
+    def __init__(self, loop: ServoLoop, shared: SharedSnapshot, publish_every: int) -> None:
+        self.loop = loop
+        self.publisher = loop.observe(SnapshotPublisher(shared, loop.controller.slave.T_MRF_S, publish_every))
+        self.log: TickLog | None = None
+        self.operator: OperatorScript | None = None
+        self.ticks_left = 0
+        self.running = True
+        self._log_ends_with_play = False
+
+    def apply(self, command: object) -> None:
+        """Apply one command between ticks. Raises :class:`~app.web.commands.UnknownCommand`."""
+        loop = self.loop
+        match check_command(command):
+            case SetHandTarget(T_0_H):
+                loop.set_hand_target(T_0_H)
+            case SetDeadman(on):
+                loop.switches.deadman = on
+            case SetReflection(on):
+                loop.switches.reflection = on
+            case PressReference():
+                loop.press_reference()
+            case SetGains(gains):
+                loop.set_gains(gains)
+            case Reset():
+                self._end_play()
+                loop.reset()
+            case Record(directory):
+                self._record(directory)
+            case Play(session, record):
+                self._play(session, record)
+            case Stop():
+                self.running = False
+
+    def tick(self) -> None:
+        """One tick, with the playing script acting first."""
+        operator = self.operator
+        if operator is not None:
+            operator.before_tick(self.loop)
+        self.loop.tick()
+        if operator is not None:
+            self.ticks_left -= 1
+            if self.ticks_left == 0:
+                self._end_play()
+
+    def close(self) -> None:
+        """Close a log being written."""
+        self._record(None)
+
+    def _record(self, directory: Path | None) -> None:
+        if self.log is not None:
+            self.loop.unobserve(self.log)
+            self.log.close()
+            self.log = None
+        if directory is not None:
+            self.log = self.loop.observe(TickLog(directory, self.loop.config.device.n_joints))
+        self.publisher.recording = directory
+        self._log_ends_with_play = False
+
+    def _play(self, path: Path | None, record: Path | None) -> None:
+        self._end_play()
+        if path is None:
+            return
+        session = load_session(path)
+        loop = self.loop
+        loop.set_gains(session.gains)
+        loop.reset()
+        self.operator = OperatorScript.for_loop(session.data, loop)
+        self.ticks_left = session.data.n_ticks
+        self.publisher.playing = path
+        if record is not None:
+            self._record(record)
+            self._log_ends_with_play = True
+
+    def _end_play(self) -> None:
+        if self._log_ends_with_play:
+            self._record(None)
+        self.operator = None
+        self.publisher.playing = None
+
+
+def loop_main(
+    config: LoopConfig, conn: Connection, snapshot: SharedSnapshot, timing: SharedTiming, publish_every: int
+) -> None:
+    """The loop process: build the loop, then tick it on the wall clock until told to stop."""
+    loop = ServoLoop(config)
+    loop.tick()  # the first tick loads the compiled kernels (~0.3 s): keep it off the clock
+    loop.reset()
+    host = LoopHost(loop, snapshot, publish_every)
+    timing.scheduling.value = raise_priority()
+    pacer = Pacer(loop.dt, timing.rings())
+    try:
+        while host.running:
+            pacer.wait()
+            try:
+                while host.running and conn.poll():
+                    host.apply(conn.recv())
+            except (EOFError, OSError):  # the parent is gone: nobody to serve
+                host.running = False
+            host.tick()
+            pacer.done()
+    finally:
+        host.close()

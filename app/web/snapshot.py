@@ -1,0 +1,178 @@
+"""What the browser view shows of one tick, and how it crosses from the loop process to the server.
+
+:class:`SnapshotPublisher` is a tick observer in the loop process: every ``every`` ticks it copies
+the display state out of the :class:`~app.session.tick.TickRecord` into a :class:`Snapshot` and
+writes it into :class:`SharedSnapshot`, a buffer in shared memory guarded by a sequence counter
+(a seqlock): the writer never waits, a reader retries if it raced a write. A slow or absent
+browser only ever reads an older snapshot.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import multiprocessing as mp
+import pickle
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from app.session.tick import TickRecord
+from app.spatial import Array
+
+#: Bytes of the shared snapshot buffer; contact points beyond what fits are dropped from display.
+SNAPSHOT_BYTES = 1 << 20
+#: Contact points kept when a snapshot does not fit the buffer.
+MAX_SHOWN_CONTACTS = 1000
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """A consistent copy of the loop state after one tick, for display. Arrays are owned copies.
+
+    Attributes:
+        time: Simulated time (s); equal to the wall time since start while the loop keeps up.
+        ticks: Ticks since the last reset.
+        geom_xpos: Device geom positions in the device base {0} (m), (ngeom, 3).
+        geom_xmat: Device geom orientations in {0}, (ngeom, 3, 3).
+        T_0_G: Grip pose in {0}, (4, 4).
+        T_0_G0: Reference grip pose in {0}, (4, 4).
+        T_0_H: Hand target in {0}, (4, 4), or None when the hand has let go.
+        T_w_MRF: Tool {MRF} pose in the slave world {w}, (4, 4).
+        T_w_S: F/T sensor {S} pose in {w}, (4, 4).
+        contact_points_w: Contact points on object surfaces in {w} (m), (k, 3).
+        F_MRF: Task wrench ``[f; m]`` (N, N m) at {MRF} in {MRF} (Eq 6).
+        G_F_T: Task wrench to be felt at the grip ``K_T F_MRF`` in {G}.
+        G_F_RD: Assist wrench (return-to-centre + damping, Eq 10) in {G}.
+        hand_wrench_0: The operator's hand wrench on the grip at {G} in {0} coordinates.
+        delta_x: Delta X (Eq 4) ``[x, y, z, gamma, beta, alpha]`` (m, rad).
+        deadman, reflection: Switch states the tick used.
+        reflecting: Task wrench and assists were rendered this tick.
+        mode: ``"rate"`` or ``"pose"``.
+        faults: :class:`~app.controller.types.Fault` bits of the tick (0 = none).
+        fault_message: Why the controller used its safe output, or ``""``.
+        saturation_scale: Uniform torque saturation factor in (0, 1] (1 = not saturated).
+        recording: The log directory being written, or None.
+        playing: The session file whose script drives the loop, or None.
+    """
+
+    time: float
+    ticks: int
+    geom_xpos: Array
+    geom_xmat: Array
+    T_0_G: Array
+    T_0_G0: Array
+    T_0_H: Array | None
+    T_w_MRF: Array
+    T_w_S: Array
+    contact_points_w: Array
+    F_MRF: Array
+    G_F_T: Array
+    G_F_RD: Array
+    hand_wrench_0: Array
+    delta_x: Array
+    deadman: bool
+    reflection: bool
+    reflecting: bool
+    mode: str
+    faults: int
+    fault_message: str
+    saturation_scale: float
+    recording: Path | None = None
+    playing: Path | None = None
+
+
+def take_snapshot(
+    tick: TickRecord, T_MRF_S: Array, recording: Path | None = None, playing: Path | None = None
+) -> Snapshot:
+    """Copy the display state of ``tick``; ``T_MRF_S`` (4, 4) places the F/T sensor on the tool."""
+    out = tick.out
+    reading = tick.reading
+    T_w_MRF = tick.T_w_MRF.copy()
+    hand = tick.hand_target
+    return Snapshot(
+        time=tick.time,
+        ticks=tick.index,
+        geom_xpos=reading.geom_xpos.copy(),
+        geom_xmat=reading.geom_xmat.reshape(-1, 3, 3).copy(),
+        T_0_G=reading.T_0_G.copy(),
+        T_0_G0=out.T_0_G0.copy(),
+        T_0_H=None if hand is None else hand.copy(),
+        T_w_MRF=T_w_MRF,
+        T_w_S=T_w_MRF @ T_MRF_S,
+        contact_points_w=tick.contact.points_w.copy(),
+        F_MRF=out.F_MRF.copy(),
+        G_F_T=out.G_F_T.copy(),
+        G_F_RD=out.G_F_RD.copy(),
+        hand_wrench_0=reading.wrench_G.copy(),
+        delta_x=out.delta_x.copy(),
+        deadman=tick.deadman,
+        reflection=tick.reflection,
+        reflecting=out.reflecting,
+        mode=out.command.mode,
+        faults=int(out.faults),
+        fault_message=out.fault_message,
+        saturation_scale=out.saturation_scale,
+        recording=recording,
+        playing=playing,
+    )
+
+
+class SharedSnapshot:
+    """The seqlocked snapshot buffer both processes map (create it before starting the child)."""
+
+    def __init__(self) -> None:
+        ctx = mp.get_context("spawn")
+        self.seq = ctx.RawValue(ctypes.c_uint64, 0)
+        self.length = ctx.RawValue(ctypes.c_uint64, 0)
+        self.buffer = ctx.RawArray(ctypes.c_uint8, SNAPSHOT_BYTES)
+
+    @property
+    def published(self) -> bool:
+        """Whether anything was written yet."""
+        return bool(self.seq.value)
+
+    def write(self, snap: Snapshot) -> None:
+        data = pickle.dumps(snap, protocol=pickle.HIGHEST_PROTOCOL)
+        if len(data) > SNAPSHOT_BYTES:
+            trimmed = replace(snap, contact_points_w=snap.contact_points_w[:MAX_SHOWN_CONTACTS])
+            data = pickle.dumps(trimmed, protocol=pickle.HIGHEST_PROTOCOL)
+        self.seq.value += 1  # odd: a write is in progress
+        memoryview(self.buffer).cast("B")[: len(data)] = data
+        self.length.value = len(data)
+        self.seq.value += 1
+
+    def read(self) -> Snapshot | None:
+        """The latest published snapshot, or None if nothing was published yet."""
+        view = memoryview(self.buffer).cast("B")
+        while True:
+            before = self.seq.value
+            if before == 0:
+                return None
+            if before % 2:
+                continue
+            data = bytes(view[: self.length.value])
+            if self.seq.value == before:
+                snap: Snapshot = pickle.loads(data)
+                return snap
+
+
+class SnapshotPublisher:
+    """Tick observer: writes a :class:`Snapshot` of every ``every``-th tick into ``shared``.
+
+    Attributes:
+        recording, playing: Shown in the snapshot (set by the loop process's command handler).
+    """
+
+    def __init__(self, shared: SharedSnapshot, T_MRF_S: Array, every: int) -> None:
+        self.shared = shared
+        self.T_MRF_S = T_MRF_S
+        self.every = every
+        self.recording: Path | None = None
+        self.playing: Path | None = None
+
+    def on_tick(self, tick: TickRecord) -> None:
+        if tick.index % self.every == 0:
+            self.publish(tick)
+
+    def publish(self, tick: TickRecord) -> None:
+        """Write ``tick`` now, whatever its index."""
+        self.shared.write(take_snapshot(tick, self.T_MRF_S, self.recording, self.playing))

@@ -1,0 +1,58 @@
+"""The paced loop process of the web demo, without a browser: it runs the same ticks as a headless loop."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.session.log import read_log
+from app.session.loop import LoopConfig
+from app.session.run import run_session
+from app.session.spec import SESSIONS_DIR, load_session
+from app.web.commands import UnknownCommand, check_command
+from app.web.realtime import RealtimeLoop
+
+
+def test_played_session_gives_the_headless_ticks_exactly(tmp_path: Path) -> None:
+    """Fed the same script, the real-time loop process logs bit-identical ticks (all but timing)."""
+    text = (SESSIONS_DIR / "probe_rate.toml").read_text().replace("duration = 5.0", "duration = 2.5")
+    path = tmp_path / "probe_short.toml"
+    path.write_text(text)
+    session = load_session(path)
+    headless = run_session(session, out_dir=tmp_path / "headless", plots=False)
+    assert headless.summary["contact_fraction"] > 0.05  # the short run still reaches the surface
+
+    rt = RealtimeLoop(LoopConfig.from_session(session))
+    rt.start()
+    try:
+        assert rt.wait_running()
+        rt.set_deadman(True)  # state from before the play must not leak into it
+        rt.play(session, record=tmp_path / "web" / "log")
+        seen_playing = False
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end:
+            playing = rt.snapshot.playing
+            seen_playing |= playing == path
+            if seen_playing and playing is None:
+                break
+            time.sleep(0.01)
+        assert seen_playing
+        assert rt.snapshot.playing is None
+        assert rt.stats().ticks > session.data.n_ticks
+    finally:
+        rt.stop()
+
+    a = read_log(tmp_path / "headless" / "log")
+    b = read_log(tmp_path / "web" / "log")
+    assert a.num_rows == b.num_rows == session.data.n_ticks
+    for name in a.column_names:
+        if not name.endswith("_us"):
+            np.testing.assert_array_equal(b[name].to_numpy(), a[name].to_numpy(), err_msg=name)
+
+
+def test_unknown_commands_are_refused_loudly() -> None:
+    with pytest.raises(UnknownCommand, match="not a loop command"):
+        check_command(("deadman", True))

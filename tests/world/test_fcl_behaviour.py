@@ -1,4 +1,4 @@
-"""The python-fcl behaviour the contact model is designed around (DESIGN.md), pinned on this version.
+"""The python-fcl behaviour the contact model is designed around (docs/conventions.md), pinned on this version.
 
 If one of these starts failing after an upgrade, revisit the workarounds in app/world/contact.py.
 """

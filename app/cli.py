@@ -20,7 +20,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     session = load_session(args.session)
     out_dir = Path(args.out) if args.out else Path("runs") / Path(args.session).stem
-    result = run_session(session, out_dir=out_dir, plots=not args.no_plots, progress=True, realtime=args.realtime)
+    result = run_session(
+        session,
+        out_dir=out_dir,
+        plots=not args.no_plots,
+        progress=True,
+        realtime=args.realtime,
+        flush_interval=args.flush_interval,
+    )
     s = result.summary
     print(f"log:      {result.log_dir}/ (Parquet)")
     print(f"summary:  {out_dir / 'summary.json'}")
@@ -33,7 +40,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
     print(
         f"tick: median {tick['median_us']:.1f} us, p99 {tick['p99_us']:.1f} us, real-time factor {s['real_time_factor']:.1f}"
     )
+    if "pacing" in s:
+        pace = s["pacing"]
+        print(
+            f"pacing: {pace['rate_hz']:.1f} Hz, jitter p99 {pace['jitter_p99_us']:.0f} us, "
+            f"max {pace['jitter_max_us']:.0f} us, slips {pace['slips']:.0f}"
+        )
     return 0
+
+
+def _positive_seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 1e-3 <= value <= 3600.0:
+        raise argparse.ArgumentTypeError(f"must be between 0.001 and 3600 s, got {text}")
+    return value
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
@@ -88,6 +111,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output directory (default runs/<session>)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--realtime", action="store_true", help="pace ticks to the wall clock")
+    p.add_argument(
+        "--flush-interval",
+        type=_positive_seconds,
+        default=0.1,
+        help="simulated seconds of ticks per log part: the most a crash can lose (default 0.1)",
+    )
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser(

@@ -10,7 +10,6 @@ every operator (its Table I: 1.66/2.55/1.51 blind against 0.59/0.61/0.42).
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from tqdm import tqdm
 
+from app.session.log import write_json
 from app.session.run import run_session
 from app.session.spec import Session, load_session
 
@@ -82,7 +82,7 @@ def run_experiment(
     table = _table(work)
     chart = _chart(work, out_dir / "table1.png")
     json_path = out_dir / "table1.json"
-    json_path.write_text(json.dumps({"work_eq13": work, "table": table}, indent=2))
+    write_json(json_path, {"work_eq13": work, "table": table})
     (out_dir / "table1.txt").write_text(table + "\n")
     return ExperimentReport(table, chart, json_path, work)
 

@@ -1,14 +1,21 @@
-"""The per-tick log: a Parquet dataset written incrementally, one part file per chunk of ticks.
+"""The per-tick log: a Parquet dataset written incrementally, one part file per flush interval.
 
-Each part is a complete Parquet file when it is closed, so a crash mid-run leaves every finished
-part readable: ``pyarrow.parquet.read_table(log_dir)`` or ``pandas.read_parquet(log_dir)`` open
-the directory as one table.
+Crash safety: a part is written under a hidden temporary name (``.part-NNNNN.parquet.tmp``) and
+renamed to ``part-NNNNN.parquet`` only once complete, and the rename is atomic, so a crash at any
+moment (``kill -9`` included) leaves only complete parts under their final names, and at most one
+flush interval of ticks (0.1 s by default) is lost. Readers ignore the temporary files (pyarrow
+skips names starting with ``.``): ``read_log(log_dir)``, ``pyarrow.parquet.read_table(log_dir)``
+or ``pandas.read_parquet(log_dir)`` open the directory as one table.
 """
 
 from __future__ import annotations
 
+import json
+import math
+import os
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -68,33 +75,41 @@ def _blocks(n_joints: int) -> dict[str, slice]:
     return at
 
 
+#: Parts handed to the writer thread and not yet on disk before ``flush`` waits (bounds memory if
+#: the disk stalls; the loop never waits while the writer keeps up).
+MAX_PENDING_PARTS = 64
+
+
 class TickLog:
-    """Writes one row per tick into ``<directory>/part-NNNNN.parquet`` files of ``chunk`` rows.
+    """Writes one row per tick into ``<directory>/part-NNNNN.parquet`` files, one per flush interval.
 
     A tick observer (:meth:`~app.session.loop.ServoLoop.observe`).
 
     Encoding and writing a part happen on a background thread while the servo loop fills the
-    next buffer, so recording does not stall a paced loop for milliseconds once a second.
+    next buffer, so recording does not stall a paced loop.
 
     Args:
         directory: Created if missing; existing part files are removed first.
         n_joints: Joints of the device (sets the columns).
-        chunk: Rows per part file (1000 = one second at 1 kHz).
+        period: Servo period (s).
+        flush_interval: Simulated seconds of ticks per part: the most a crash can lose.
     """
 
-    def __init__(self, directory: Path, n_joints: int, chunk: int = 1000) -> None:
+    def __init__(self, directory: Path, n_joints: int, period: float = 1e-3, flush_interval: float = 0.1) -> None:
+        if not (flush_interval > 0 and period > 0):
+            raise ValueError(f"flush_interval and period must be positive, got {flush_interval}, {period}")
         self.directory = directory
         directory.mkdir(parents=True, exist_ok=True)
-        for old in directory.glob("part-*.parquet"):
+        for old in [*directory.glob("part-*.parquet"), *directory.glob(".part-*.tmp")]:
             old.unlink()
         self.columns = log_columns(n_joints)
         self._at = _blocks(n_joints)
         self._int_columns = [name in INT_COLUMNS or name.startswith("counts_") for name in self.columns]
-        self._buf = np.zeros((chunk, len(self.columns)))
+        self._buf = np.zeros((max(1, round(flush_interval / period)), len(self.columns)))
         self._rows = 0
         self._parts = 0
         self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ticklog")
-        self._pending: Future[None] | None = None
+        self._pending: list[Future[None]] = []
 
     def on_tick(self, tick: TickRecord) -> None:
         """Append the state after one tick."""
@@ -127,34 +142,40 @@ class TickLog:
         """Hand the buffered rows to the writer thread as the next part file."""
         if self._rows == 0:
             return
-        self._wait()  # at most one part in flight: its rows are the buffer we are about to reuse
+        self._collect(wait=len(self._pending) >= MAX_PENDING_PARTS)
         rows = self._buf[: self._rows].copy()
-        path = self.directory / f"part-{self._parts:05d}.parquet"
-        self._pending = self._writer.submit(self._write, rows, path)
+        name = f"part-{self._parts:05d}.parquet"
+        self._pending.append(self._writer.submit(self._write, rows, self.directory / f".{name}.tmp", name))
         self._parts += 1
         self._rows = 0
 
-    def _write(self, rows: Array, path: Path) -> None:
+    def _write(self, rows: Array, tmp: Path, name: str) -> None:
         arrays = [
             pa.array(rows[:, i].astype(np.int32) if is_int else rows[:, i])
             for i, is_int in enumerate(self._int_columns)
         ]
-        pq.write_table(pa.Table.from_arrays(arrays, names=self.columns), path)
+        pq.write_table(pa.Table.from_arrays(arrays, names=self.columns), tmp)
+        os.replace(tmp, tmp.with_name(name))
 
-    def _wait(self) -> None:
-        if self._pending is not None:
-            self._pending.result()  # re-raises a write error here, in the loop's thread
-            self._pending = None
+    def _collect(self, wait: bool) -> None:
+        """Forget finished writes, re-raising a write error here in the loop's thread; with
+        ``wait``, first wait for the oldest."""
+        if wait and self._pending:
+            self._pending[0].result()
+        while self._pending and self._pending[0].done():
+            self._pending.pop(0).result()
 
     def close(self) -> None:
         """Write what is buffered and wait until every part is on disk."""
         self.flush()
-        self._wait()
+        for future in self._pending:
+            future.result()
+        self._pending.clear()
         self._writer.shutdown()
 
 
 def read_log(directory: Path) -> pa.Table:
-    """The whole log as one Arrow table (``.to_pandas()`` for a DataFrame)."""
+    """The whole log as one Arrow table (``.to_pandas()`` for a DataFrame): every complete part."""
     return pq.read_table(directory)
 
 
@@ -162,3 +183,24 @@ def _pose7(T: Array, out: Array) -> None:
     """Position and wxyz quaternion of the pose ``T`` (4, 4) into ``out`` (7,)."""
     out[0:3] = T[0:3, 3]
     out[3:7] = matrix_to_quat(T[0:3, 0:3])
+
+
+def write_json(path: Path, data: Any) -> None:
+    """Write ``data`` as JSON atomically (temporary file, then rename); non-finite floats become null.
+
+    JSON has no NaN or infinity (Python's ``Infinity`` is not JSON): a non-finite value means
+    "undefined" here, e.g. a peak force of a run whose contact model failed.
+    """
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(_finite_json(data), indent=2, allow_nan=False))
+    os.replace(tmp, path)
+
+
+def _finite_json(value: Any) -> Any:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite_json(v) for v in value]
+    return value

@@ -9,7 +9,6 @@ Example::
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,7 +16,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from app.session.log import TickLog
+from app.session.log import TickLog, write_json
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.metrics import SessionMetrics
 from app.session.pacer import Pacer
@@ -72,6 +71,7 @@ def run_session(
     plots: bool = True,
     progress: bool = False,
     realtime: bool = False,
+    flush_interval: float = 0.1,
 ) -> SessionResult:
     """Run ``session`` to its duration.
 
@@ -82,12 +82,15 @@ def run_session(
         progress: Show a progress bar.
         realtime: Pace ticks to the wall clock instead of running as fast as possible; the
             summary then has the pacing figures under ``pacing``.
+        flush_interval: Simulated seconds of ticks per log part: the most a crash can lose (s).
     """
     loop = ServoLoop(LoopConfig.from_session(session))
     d = session.data
     n_ticks = d.n_ticks
     metrics = loop.observe(SessionMetrics(loop.record, session.scene.spec.task, n_ticks, loop.dt))
-    log = loop.observe(TickLog(out_dir / "log", session.device.n_joints)) if out_dir is not None else None
+    log = None
+    if out_dir is not None:
+        log = loop.observe(TickLog(out_dir / "log", session.device.n_joints, loop.dt, flush_interval))
     pacer = Pacer(loop.dt) if realtime else None
     bar = tqdm(total=n_ticks, unit="tick", disable=not progress, mininterval=0.5)
     try:
@@ -107,7 +110,7 @@ def run_session(
         summary["pacing"] = pacer.stats().as_dict()
     written: list[Path] = []
     if out_dir is not None:
-        (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        write_json(out_dir / "summary.json", summary)
         if plots and log is not None:
             from app.session.plots import plot_session
 

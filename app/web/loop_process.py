@@ -138,7 +138,7 @@ class LoopHost:
             self.log.close()
             self.log = None
         if directory is not None:
-            self.log = self.loop.observe(TickLog(directory, self.loop.config.device.n_joints))
+            self.log = self.loop.observe(TickLog(directory, self.loop.config.device.n_joints, self.loop.dt))
         self.publisher.recording = directory
         self._log_ends_with_play = False
 

@@ -18,7 +18,7 @@ from app.device.calibrate import (
     write_calibration_toml,
 )
 from app.device.plant import DevicePlant, true_motor_torque
-from app.device.spec import DEVICES_DIR, CalibrationSpec, load_device
+from app.device.spec import DEVICES_DIR, CalibrationSpec, DeviceSpec, load_device
 
 
 @pytest.fixture(scope="module")
@@ -72,10 +72,9 @@ def test_written_files_load_and_match_the_committed_calibration(
     np.testing.assert_array_equal(np.array(spec.calibration.positive), report.positive)
     np.testing.assert_array_equal(np.array(spec.calibration.negative), report.negative)
     # The shipped file must be what the shipped plant table produces (re-run calibrate after editing it).
-    shipped = load_device("kraft").calibration
-    assert shipped is not None
-    np.testing.assert_allclose(np.array(shipped.positive), report.positive, rtol=1e-6, atol=1e-6)
-    np.testing.assert_allclose(np.array(shipped.negative), report.negative, rtol=1e-6, atol=1e-6)
+    shipped = load_device("kraft")
+    assert shipped.calibration is not None
+    assert counts_gap(shipped, shipped.calibration, report.positive, report.negative) < MAX_COUNTS_GAP
 
 
 def test_calibration_toml_round_trips_exactly(tmp_path: Path) -> None:
@@ -88,6 +87,25 @@ def test_calibration_toml_round_trips_exactly(tmp_path: Path) -> None:
     np.testing.assert_array_equal(np.array(cal.negative), negative)
 
 
+#: Largest difference (counts) between the shipped curves and a fresh calibration over the whole
+#: torque range: less than the DAC's quantum. The fitted coefficients themselves are compared no
+#: more tightly: a 5th-order fit is ill-conditioned, and MuJoCo releases (3.x to 4.0) moved its
+#: coefficients by up to 2e-4 relative while the counts it renders moved by < 0.3.
+MAX_COUNTS_GAP = 0.5
+
+
+def counts_gap(spec: DeviceSpec, stored: CalibrationSpec, positive: np.ndarray, negative: np.ndarray) -> float:
+    """Largest |counts| difference between ``stored`` curves and ``positive``/``negative`` ones,
+    over each joint's motor torque range in both directions."""
+    limits = np.asarray(spec.data.motors.torque_limit)
+    gap = 0.0
+    for sign, fresh, old in ((1, positive, stored.positive), (-1, negative, stored.negative)):
+        for j, limit in enumerate(limits):
+            tau = sign * np.linspace(0.0, 1.0, 201) * limit
+            gap = max(gap, float(np.max(np.abs(npoly.polyval(tau, fresh[j]) - npoly.polyval(tau, np.asarray(old[j]))))))
+    return gap
+
+
 @pytest.mark.parametrize("name", ["jpl", "freflex"])
 def test_shipped_calibration_is_current(name: str) -> None:
     """The committed calibration.toml is what the committed [plant] table measures (else re-run calibrate)."""
@@ -95,5 +113,23 @@ def test_shipped_calibration_is_current(name: str) -> None:
     samples, limits = measure_joint_curves(DevicePlant(spec))
     positive, negative, _ = fit_curves(samples, limits)
     assert spec.calibration is not None
-    np.testing.assert_allclose(np.array(spec.calibration.positive), positive, rtol=1e-6, atol=1e-6)
-    np.testing.assert_allclose(np.array(spec.calibration.negative), negative, rtol=1e-6, atol=1e-6)
+    assert counts_gap(spec, spec.calibration, positive, negative) < MAX_COUNTS_GAP
+
+
+def test_a_one_percent_motor_change_makes_the_shipped_calibration_stale(tmp_path: Path) -> None:
+    """The check above can fail: 1 % more motor gain on one joint moves its curve by many counts."""
+    dest = tmp_path / "jpl"
+    shutil.copytree(DEVICES_DIR / "jpl", dest)
+    spec = load_device(dest / "device.toml")
+    gains = list(DevicePlant(spec).params.per_joint("motor_gain_pos", spec.n_joints))
+    gains[0] *= 1.01
+    text = (dest / "device.toml").read_text()
+    table = "motor_gain_pos = [" + ", ".join(repr(float(g)) for g in gains) + "]\n"
+    text = "\n".join(line for line in text.splitlines() if not line.startswith("motor_gain_pos")) + "\n"
+    text = text.replace("[plant]\n", "[plant]\n" + table) if "[plant]" in text else text + "[plant]\n" + table
+    (dest / "device.toml").write_text(text)
+    changed = load_device(dest / "device.toml")
+    samples, limits = measure_joint_curves(DevicePlant(changed))
+    positive, negative, _ = fit_curves(samples, limits)
+    assert changed.calibration is not None
+    assert counts_gap(changed, changed.calibration, positive, negative) > 10 * MAX_COUNTS_GAP

@@ -42,5 +42,10 @@ class InvalidField(ValueError):
         super().__init__(f"{field}: {reason}")
 
 
+class InputError(FrhcError, ValueError):
+    """An argument of a public API call has the wrong type, dtype or shape (a programming error;
+    non-finite *values* are faults the controller handles, not errors)."""
+
+
 class ContactQueryError(FrhcError):
     """A collision query failed or returned a non-finite result."""

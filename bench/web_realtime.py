@@ -40,7 +40,7 @@ def main(seconds: float, browser: bool) -> int:
             T_0_H[2, 3] -= 0.03
             app.move_hand_target(T_0_H)
             time.sleep(SETTLE_SECONDS)
-            ticks_before = app.rt.stats().ticks
+            ticks_before = app.rt.stats().counted
             time.sleep(seconds)
             stats = app.rt.stats(last=round(seconds * 1000.0))
             snap = app.rt.snapshot

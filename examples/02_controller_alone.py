@@ -3,7 +3,8 @@
 No plant and no world: this is what a driver for a real hand controller would call every servo
 period. The Kraft-like device sits at its home pose, the deadman and reflection switches are on,
 and the slave's wrist sensor reads a constant 4 N push along z (plus the payload weight, which the
-controller removes). The output shows each stage of the paper's Fig. 3.
+controller removes). The rendered wrench ramps in over the safety ramp (0.2 s by default) after
+reflection starts; the output shows each stage of the paper's Fig. 3 once it is at full strength.
 
     .venv/bin/python examples/02_controller_alone.py
 """
@@ -25,11 +26,13 @@ weight_S = slave_model.payload_mass * slave_model.gravity_w  # the sensor's {S} 
 reading = FTReading(wrench_S=np.array([0.0, 0.0, 4.0, 0.0, 0.0, 0.0]) + np.r_[weight_S, 0.0, 0.0, 0.0])
 switches = Switches(deadman=True, reflection=True)
 
-for _ in range(3):  # the first tick references {G0}; later ticks see the same inputs
+for tick in range(300):  # 0.3 s at 1 kHz: past the ramp
     out = controller.step(q, switches, reading, dt=1e-3)
+    if tick in (0, 99):
+        print(f"tick {tick + 1:3d}: ramp {out.ramp:.2f}, tau_T {out.tau_T.round(4)}")
 
 np.set_printoptions(precision=4, suppress=True)
-print("faults:            ", out.faults.name)
+print("faults:            ", out.faults.name, f" ramp {out.ramp:.2f}")
 print("F_S_task (N, N m): ", out.F_S_task, " <- the reading with the payload weight removed")
 print("F_MRF:             ", out.F_MRF, " <- moved to the tool frame (Eq 6)")
 print("G_F_T:             ", out.G_F_T, " <- K_T F_MRF, to be felt at the grip")

@@ -24,10 +24,16 @@ from app.controller.calibration import TorqueCurve
 from app.controller.gains import ControllerGains
 from app.controller.kinematics import DeviceKinematics, RecordArray, topology_fields
 from app.controller.layout import GAIN_ROWS, RTC_LAWS, TORQUE_ROWS, vector_row_names
-from app.controller.record import ASSIST_SCALE, ROT_WEIGHT, SATURATION_SCALE, record_dtype
+from app.controller.record import ASSIST_SCALE, RAMP, ROT_WEIGHT, SATURATION_SCALE, record_dtype
+from app.controller.safety import SafetyLimits
 from app.controller.types import Fault, FTReading, SlaveCommand, SlaveModel, Switches
 from app.device.spec import DeviceSpec
+from app.errors import InputError
 from app.spatial import Array, IntArray, wrench_transform
+
+_ND = np.ndarray
+_F8 = np.dtype(np.float64)
+_SHAPE_3, _SHAPE_6, _SHAPE_33 = (3,), (6,), (3, 3)
 
 
 class ControllerOutput:
@@ -60,6 +66,7 @@ class ControllerOutput:
         counts: Motor commands (counts), int64, shape (n,).
         assist_scale: Factor applied to ``tau_RD`` (Eq 11), in (0, 1].
         saturation_scale: Factor applied to ``tau`` by the final saturation, in (0, 1].
+        ramp: Safety ramp level in [0, 1] on ``tau_T`` and ``tau_RDs`` (0 right after a fault).
         rot_weight: 1 normally; tapers to 0 near the Z-Y-X singularity |beta| -> 90 deg.
         reflecting: Task wrench and assists were rendered this tick (deadman and reflection on).
         faults: Why the safe output was used this tick (``Fault.NONE`` if it was not).
@@ -113,6 +120,11 @@ class ControllerOutput:
     def rot_weight(self) -> float:
         return float(self.scalars[ROT_WEIGHT])
 
+    @property
+    def ramp(self) -> float:
+        """Safety ramp level in [0, 1] applied to the task and assist torques (:mod:`app.controller.safety`)."""
+        return float(self.scalars[RAMP])
+
 
 class FRHCController:
     """Cartesian controller of one force-reflecting hand controller (paper Sec 3-4).
@@ -122,6 +134,7 @@ class FRHCController:
         gains: Gains and options; see :class:`ControllerGains`.
         slave: What the controller knows of the slave tool: {MRF}-{S} transform, payload, gravity.
         curve: Torque-to-counts curve; by default the one the device file selects.
+        safety: Ramps, velocity brake and accepted periods (:class:`SafetyLimits`).
 
     Frames: {0} device base, {G} grip, {G0} reference grip pose, {W} wrist, {w} slave world,
     {MRF} slave moving reference frame, {S} F/T sensor. The FRHC base axes are taken aligned
@@ -134,8 +147,10 @@ class FRHCController:
         gains: ControllerGains,
         slave: SlaveModel,
         curve: TorqueCurve | None = None,
+        safety: SafetyLimits | None = None,
     ) -> None:
         self.device = device
+        self.safety = safety = safety if safety is not None else SafetyLimits()
         self.kin = kin = DeviceKinematics(device)
         self.slave = slave
         self.curve = curve if curve is not None else TorqueCurve.for_device(device)
@@ -148,6 +163,12 @@ class FRHCController:
         for name in ("T_0_G", "T_0_G0", "T_w_MRF", "T_w_MRF0"):
             rec[name] = np.eye(4)
         rec["scalars"] = 1.0
+        rec["min_period"] = safety.min_period
+        rec["ramp_rate"] = safety.ramp_rate
+        rec["max_joint_speed"] = safety.max_joint_speed
+        rec["release_speed"] = safety.release_fraction * safety.max_joint_speed
+        self._brake_damping = safety.brake_damping
+        self._shape_q = (device.n_joints,)
         rec["gear_ratio"] = motors.gear_ratio
         rec["joint_limit"] = rec["gear_ratio"] * np.array(motors.torque_limit)
         rec["horner_pos"] = self.curve.horner_pos
@@ -200,8 +221,15 @@ class FRHCController:
         self.out.T_0_G[0:3, 0:3] = self.kin.R_0_G
         self.out.T_0_G[0:3, 3] = self.kin.p_0_G
         kernel.set_reference(self._rec)
-        self._rec["prev_reference"] = False
-        self._rec["prev_deadman"] = False
+        for flag in ("prev_reference", "prev_deadman", "prev_reflecting", "have_q_prev", "braking"):
+            self._rec[flag] = False
+        self.out.scalars[RAMP] = 0.0
+
+    def resume(self) -> None:
+        """After a gap in the servo ticks (an overrun): no velocity across the gap, and the wrench
+        ramps in again."""
+        self._rec["have_q_prev"] = False
+        self.out.scalars[RAMP] = 0.0
 
     # -- the tick -------------------------------------------------------------------------------
 
@@ -220,20 +248,43 @@ class FRHCController:
             compensation only (zero torque when even the joint angles are unusable), stops the
             slave and names the fault.
         """
+        w, R, acc, omega = ft.wrench_S, ft.R_w_S, ft.acc_w, ft.omega_w
+        # Types and shapes at the boundary, the cheap way (identity tests): anything else would
+        # make numba compile a new kernel, or read past the end of an array.
+        if not (
+            type(q) is _ND
+            and type(w) is _ND
+            and type(R) is _ND
+            and type(acc) is _ND
+            and type(omega) is _ND
+            and q.dtype is _F8
+            and w.dtype is _F8
+            and R.dtype is _F8
+            and acc.dtype is _F8
+            and omega.dtype is _F8
+            and q.shape == self._shape_q
+            and w.shape == _SHAPE_6
+            and R.shape == _SHAPE_33
+            and acc.shape == _SHAPE_6
+            and omega.shape == _SHAPE_3
+        ):
+            q, w, R, acc, omega = self._checked_arrays(q, w, R, acc, omega)
+        if type(dt) is not float:
+            dt = _checked_float(dt, "dt")
         # FK runs even on unusable angles (MuJoCo just computes NaN poses): the kernel checks q
         # before it reads them, for a fraction of what a numpy check here would cost.
         self.kin.update(q)
         code = kernel.controller_tick(
             q,
-            ft.wrench_S,
-            ft.R_w_S,
-            ft.acc_w,
-            ft.omega_w,
+            w,
+            R,
+            acc,
+            omega,
             dt,
-            ft.valid,
-            switches.deadman,
-            switches.reference,
-            switches.reflection,
+            bool(ft.valid),
+            bool(switches.deadman),
+            bool(switches.reference),
+            bool(switches.reflection),
             *self._fixed_args,
         )
         if code:
@@ -244,6 +295,23 @@ class FRHCController:
         o.faults = Fault.NONE
         o.fault_message = ""
         return o
+
+    def _checked_arrays(self, *arrays: object) -> tuple[Array, ...]:
+        """The step's arrays as C-contiguous float64 of their shapes, or :class:`InputError`."""
+        shapes = (self._shape_q, _SHAPE_6, _SHAPE_33, _SHAPE_6, _SHAPE_3)
+        names = ("q", "ft.wrench_S", "ft.R_w_S", "ft.acc_w", "ft.omega_w")
+        checked = []
+        for a, shape, name in zip(arrays, shapes, names, strict=True):
+            try:
+                x = np.asarray(a)
+            except (TypeError, ValueError) as exc:
+                raise InputError(f"{name}: not an array of numbers ({exc})") from None
+            if x.dtype.kind not in "iuf":
+                raise InputError(f"{name}: expected real numbers, got dtype {x.dtype}")
+            if x.shape != shape:
+                raise InputError(f"{name}: expected shape {shape}, got {x.shape}")
+            checked.append(np.ascontiguousarray(x, dtype=np.float64))
+        return tuple(checked)
 
     def _fault(self, code: int) -> ControllerOutput:
         """The safe output for a non-zero :func:`kernel.controller_tick` result."""
@@ -268,15 +336,27 @@ class FRHCController:
         o.torques[:] = 0.0
         o.tau_G[:] = tau_G
         o.tau[:] = tau_G
+        if faults & Fault.OVERSPEED:
+            o.tau[:] -= self._brake_damping * self._rec["qdot"][0]
         o.scalars[ASSIST_SCALE] = 1.0
+        o.scalars[RAMP] = 0.0  # the wrench ramps in again once the fault clears
         o.scalars[SATURATION_SCALE] = kernel.motor_commands(o.torques, self._motors, o.counts)
         return o
 
 
+def _checked_float(value: object, name: str) -> float:
+    """``value`` as a float, or :class:`InputError` (a NaN stays NaN: the tick then faults)."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
+        raise InputError(f"{name}: expected a number, got {type(value).__name__}")
+    return float(value)
+
+
 def _fault_text(faults: Fault) -> str:
     parts = []
+    if faults & Fault.OVERSPEED:
+        parts.append("a joint moved faster than the velocity brake allows: damping only until it slows")
     if faults & Fault.BAD_PERIOD:
-        parts.append("servo period not in (0, max_period] (an overrun, or a bad clock)")
+        parts.append("servo period not in [min_period, max_period] (an overrun, or a bad clock)")
     if faults & Fault.FT_INVALID:
         parts.append("F/T reading marked invalid by the world (failed contact query)")
     if faults & Fault.NONFINITE_INPUT:

@@ -48,6 +48,7 @@ from app.controller.record import (
     K_T,
     K_V,
     K_WALL,
+    RAMP,
     ROT_WEIGHT,
     RTC_A,
     RTC_CONSTANT,
@@ -76,6 +77,7 @@ from app.spatial import Array, IntArray, body_rate_from_euler, move_wrench, tmat
 NONFINITE_INPUT = int(Fault.NONFINITE_INPUT)
 BAD_PERIOD = int(Fault.BAD_PERIOD)
 FT_INVALID = int(Fault.FT_INVALID)
+OVERSPEED = int(Fault.OVERSPEED)
 NONFINITE_OUTPUT = int(Fault.NONFINITE_OUTPUT)
 JOINTS_NONFINITE = -1
 
@@ -156,6 +158,7 @@ def controller_tick(
     # A sum is finite only if every term is (huge finite values overflowing to inf also trip
     # it, which is the safe side).
     if not math.isfinite(_total(q)):
+        r.have_q_prev = False  # no velocity across the gap
         return JOINTS_NONFINITE
     # The record's array fields as plain arrays (``[:]``): numba types a field by its shape,
     # which would compile every worker again for each device.
@@ -173,8 +176,11 @@ def controller_tick(
         for j in range(torques.shape[1]):
             torques[TAU_G, j] = 0.0
     faults = 0
-    if not 0.0 < dt <= r.max_period:  # also catches a NaN period
+    period_ok = r.min_period <= dt <= r.max_period  # also False for a NaN period
+    if not period_ok:
         faults |= BAD_PERIOD
+    if velocity_brake(q, dt if period_ok else 0.0, rec):
+        faults |= OVERSPEED
     if not ft_valid:
         faults |= FT_INVALID
     elif not math.isfinite(_total(wrench_S) + _total(R_w_S)):
@@ -201,6 +207,11 @@ def controller_tick(
     grip = Grip(r.T_0_G0[:], T_0_G[0:3, 0:3], T_0_G[0:3, 3], p_0_W, J_W, r.R_W_G[:], r.p_W_G[:])
     payload = Payload(r.remove_payload, r.payload_mass, r.payload_com_S[:], r.gravity_w[:], r.X_MRF_S[:])
     laws = Laws(r.gains[:], r.rate_mode, r.rtc_kind, r.taper[:], r.assist_limit[:])
+    reflecting = deadman and reflection
+    if reflecting and not r.prev_reflecting:
+        out.scalars[RAMP] = 0.0  # rendering starts: ramp the wrench in
+    r.prev_reflecting = reflecting
+    out.scalars[RAMP] = min(1.0, out.scalars[RAMP] + r.ramp_rate * dt)
     ok = cartesian_tick(
         grip,
         R_w_S,
@@ -331,15 +342,40 @@ def cartesian_tick(
     # Eq 11: the assists use at most a set fraction of capacity so the task wrench dominates.
     a = uniform_scale(torques[TAU_RD], laws.assist_limit)
     scalars[ASSIST_SCALE] = a
+    # The safety ramp (app.controller.safety) scales what is rendered, never gravity compensation.
+    ramp = scalars[RAMP]
     total = 0.0
     for j in range(n):
-        torques[TAU_RDS, j] = a * torques[TAU_RD, j]
+        torques[TAU_T, j] *= ramp
+        torques[TAU_RDS, j] = ramp * a * torques[TAU_RD, j]
         torques[TAU, j] = torques[TAU_T, j] + torques[TAU_RDS, j] + torques[TAU_G, j]  # Eq 12
         total += torques[TAU, j]
     if not math.isfinite(total):
         return False
     scalars[SATURATION_SCALE] = motor_commands(torques, motors, out.counts)
     return True
+
+
+@njit(cache=True)
+def velocity_brake(q: Array, dt: float, rec: RecordArray) -> bool:
+    """Joint velocities from encoder differences and the brake's state (:mod:`app.controller.safety`).
+
+    ``dt`` is the period (s), or 0 when it is unusable (no velocity this tick). Writes ``qdot``
+    and ``q_prev``; returns whether the brake holds.
+    """
+    r = rec[0]
+    q_prev, qdot = r.q_prev[:], r.qdot[:]
+    fastest = 0.0
+    for j in range(q.shape[0]):
+        qdot[j] = (q[j] - q_prev[j]) / dt if r.have_q_prev and dt > 0.0 else 0.0
+        fastest = max(fastest, abs(qdot[j]))
+        q_prev[j] = q[j]
+    r.have_q_prev = True
+    if r.braking:
+        r.braking = fastest >= r.release_speed
+    else:
+        r.braking = fastest > r.max_joint_speed
+    return r.braking
 
 
 @njit(cache=True)

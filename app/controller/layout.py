@@ -38,8 +38,9 @@ VECTOR_ROWS: tuple[tuple[str, tuple[str, ...]], ...] = (
 TORQUE_ROWS = ("tau_T", "tau_RD", "tau_RDs", "tau_G", "tau", "tau_sat", "tau_motor")
 """Rows of the ``torques`` block (7, n): joint-side torques, then motor-side ``tau_motor``."""
 
-SCALARS = ("assist_scale", "saturation_scale", "rot_weight")
-"""Slots of the ``scalars`` block (3,)."""
+SCALARS = ("assist_scale", "saturation_scale", "rot_weight", "ramp")
+"""Slots of the ``scalars`` block (4,): the Eq 11 assist scale, the Sec 3.4 saturation scale, the
+rotational fade near gimbal lock and the safety ramp level (:mod:`app.controller.safety`)."""
 
 Mode = Literal["rate", "pose"]
 """How the grip commands the slave: a twist (Eq 5, K_V) or a pose (Sec 3.5, K_P)."""

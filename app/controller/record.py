@@ -29,8 +29,8 @@ DELTA_X, DELTA_X_CMD, F_S_TASK, F_MRF, G_F_T, G_F_R, G_F_D, G_F_RD, W_F_T = (
 TAU_T, TAU_RD, TAU_RDS, TAU_G, TAU, TAU_SAT, TAU_MOTOR = (
     TORQUE_ROWS.index(name) for name in ("tau_T", "tau_RD", "tau_RDs", "tau_G", "tau", "tau_sat", "tau_motor")
 )
-ASSIST_SCALE, SATURATION_SCALE, ROT_WEIGHT = (
-    SCALARS.index(name) for name in ("assist_scale", "saturation_scale", "rot_weight")
+ASSIST_SCALE, SATURATION_SCALE, ROT_WEIGHT, RAMP = (
+    SCALARS.index(name) for name in ("assist_scale", "saturation_scale", "rot_weight", "ramp")
 )
 
 
@@ -114,7 +114,8 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         gains: The (9, 6) gain rows. rate_mode: rate (else pose) commands. rtc_kind: index into
         ``RTC_LAWS``. taper: ``[start, stop]`` |beta| (rad) of the rotational fade near gimbal
         lock. gravity_compensation, remove_payload, remove_inertia: the options of the same
-        names. max_period: longest accepted period (s). assist_limit, joint_limit, gear_ratio:
+        names. min_period, max_period: accepted periods (s). ramp_rate (1/s), max_joint_speed and
+        release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. assist_limit, joint_limit, gear_ratio:
         (n,) each (N m or N; -). horner_pos, horner_neg: (n, n_coeffs) torque curves, highest
         order first; counts_max: the amplifier's range. payload_mass (kg), payload_com_S (m, in
         {S}), payload_inertia_S (kg m^2, about the centre of mass, {S} axes), gravity_w (m/s^2,
@@ -124,10 +125,12 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
     State:
         T_w_MRF0: The slave reference pose (4, 4). dx_prev: Delta X of the previous tick (6,).
         restart_damping: No previous Delta X on this reference (Eq 9 starts from zero).
-        prev_reference, prev_deadman: Last tick's switches, for edges. J_W: wrist Jacobian (6, n).
+        prev_reference, prev_deadman, prev_reflecting: Last tick's switches, for edges. J_W:
+        wrist Jacobian (6, n). q_prev, have_q_prev: last finite joint angles; qdot: joint
+        velocities from their difference (n,). braking: the velocity brake is on.
 
     Outputs (see :class:`~app.controller.frhc.ControllerOutput`):
-        T_0_G, T_0_G0 (4, 4); vectors (9, 6); torques (7, n); counts (n,) int64; scalars (3,);
+        T_0_G, T_0_G0 (4, 4); vectors (9, 6); torques (7, n); counts (n,) int64; scalars (4,);
         twist (6,) and T_w_MRF (4, 4): the slave command.
     """
     f8, i8, b1 = np.float64, np.int64, np.bool_
@@ -142,6 +145,10 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("remove_payload", b1),
             ("remove_inertia", b1),
             ("max_period", f8),
+            ("min_period", f8),
+            ("ramp_rate", f8),
+            ("max_joint_speed", f8),
+            ("release_speed", f8),
             ("assist_limit", f8, (n,)),
             ("joint_limit", f8, (n,)),
             ("gear_ratio", f8, (n,)),
@@ -160,6 +167,11 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("restart_damping", b1),
             ("prev_reference", b1),
             ("prev_deadman", b1),
+            ("prev_reflecting", b1),
+            ("q_prev", f8, (n,)),
+            ("have_q_prev", b1),
+            ("qdot", f8, (n,)),
+            ("braking", b1),
             ("J_W", f8, (6, n)),
             ("T_0_G", f8, (4, 4)),
             ("T_0_G0", f8, (4, 4)),

@@ -103,6 +103,7 @@ class Fault(IntFlag):
 
     NONE = 0
     NONFINITE_INPUT = 1  # q, the F/T reading or dt had NaN or inf
-    BAD_PERIOD = 2  # dt <= 0 or longer than ``max_period`` (an overrun)
+    BAD_PERIOD = 2  # dt outside [min_period, max_period] (an overrun, or a bad clock)
     FT_INVALID = 4  # the world said its reading is not trustworthy
     NONFINITE_OUTPUT = 8  # a torque came out non-finite (e.g. a singular pose)
+    OVERSPEED = 16  # a joint moved faster than the velocity brake allows: damping only until it slows

@@ -62,6 +62,9 @@ _IDEAL = {
 PER_JOINT_FIELDS = tuple(_IDEAL)
 
 
+#: The amplifier's servo watchdog (s): 20 servo periods at 1 kHz without new counts.
+WATCHDOG = 0.02
+
 #: Impedance (d0, d_width) of the joints' friction-loss constraints: near 1 for little creep.
 FRICTION_IMPEDANCE = (0.9999, 0.9999)
 
@@ -179,6 +182,9 @@ class PlantReading:
             the true curve, gear ratio and clip to the joint limits (read-only view).
         geom_xpos, geom_xmat: Every device geom's position (m) and orientation in {0},
             (ngeom, 3) and (ngeom, 9) row-major (read-only views, for display).
+        motors_off: The amplifier's watchdog switched the motors off in the last step (no new
+            counts for longer than :attr:`DevicePlant.watchdog`).
+        watchdog_trips: How many times since the reset the watchdog switched the motors off.
         time: Simulated time (s).
     """
 
@@ -189,11 +195,13 @@ class PlantReading:
         "_xpos_G",
         "geom_xmat",
         "geom_xpos",
+        "motors_off",
         "q",
         "q_true",
         "qdot",
         "tau_joint",
         "time",
+        "watchdog_trips",
     )
 
     def __init__(self, plant: DevicePlant) -> None:
@@ -208,6 +216,8 @@ class PlantReading:
         for view in (self.q_true, self.qdot, self.tau_joint, self.geom_xpos, self.geom_xmat):
             view.flags.writeable = False
         self.time = 0.0
+        self.motors_off = False
+        self.watchdog_trips = 0
         self._hand = plant.hand
         self._xmat_G = d.site_xmat[plant.grip_site_id].reshape(3, 3)
         self._xpos_G = d.site_xpos[plant.grip_site_id]
@@ -239,13 +249,19 @@ class DevicePlant:
     Args:
         spec: The loaded device (nominal model, motors, ``[plant]`` table).
         hand: Impedance of the operator's hand.
+        watchdog: The amplifier's servo watchdog (s): with no new counts for longer than this, the
+            motors are switched off until counts arrive again (as on real amplifiers).
 
     Raises:
         ConfigError: for a malformed ``[plant]`` table or joints without consecutive qpos/dof slots.
     """
 
-    def __init__(self, spec: DeviceSpec, hand: HandParams | None = None) -> None:
+    def __init__(self, spec: DeviceSpec, hand: HandParams | None = None, watchdog: float = WATCHDOG) -> None:
+        if not 0.0 < watchdog <= 1.0:
+            raise ValueError(f"watchdog must be in (0, 1] s, got {watchdog}")
         self.spec = spec
+        self.watchdog = watchdog
+        self._since_counts = 0.0
         self.params = load_plant_params(spec)
         n = spec.n_joints
         self.n_joints = n
@@ -329,6 +345,9 @@ class DevicePlant:
         """
         d = self.data
         mujoco.mj_resetData(self.model, d)
+        self._since_counts = 0.0
+        self.reading.motors_off = False
+        self.reading.watchdog_trips = 0
         d.qpos[self.qpos_slice] = self.spec.data.home if q is None else np.asarray(q, dtype=float)
         if self.hand.T_0_H is not None:
             self.hand.set_target(self.hand.T_0_H)  # resetData moved the mocap body home
@@ -348,12 +367,14 @@ class DevicePlant:
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_transmission(self.model, self.data)
 
-    def step(self, counts: Counts, dt: float) -> PlantReading:
+    def step(self, counts: Counts | None, dt: float) -> PlantReading:
         """Advance one servo period with motor commands held constant.
 
         Args:
             counts: Integer motor commands (counts), shape (n,); out-of-range values clip to
-                ``+-counts_max`` as the amplifier would.
+                ``+-counts_max`` as the amplifier would. None: no new counts this period (the
+                controller missed it): the amplifier holds the last ones until its watchdog
+                expires, then switches the motors off.
             dt: Servo period (s); the physics takes ``substeps`` steps of ``dt / substeps``.
 
         Returns:
@@ -366,13 +387,23 @@ class DevicePlant:
                 raise ValueError(f"dt must be positive, got {dt}")
             m.opt.timestep = dt / self.params.substeps
             self._dt = dt
-        idx = self._idx
-        # minimum/maximum and ndarray.take rather than np.clip/np.take, whose Python wrappers cost
-        # microseconds each: this method is the whole plant's per-tick Python overhead.
-        np.minimum(counts, self._counts_max, out=idx)
-        np.maximum(idx, self._counts_min, out=idx)
-        np.add(idx, self._row_offset, out=idx)
-        self._table.take(idx, out=self._tau_out)
+        if counts is None:
+            self._since_counts += dt
+            # The relative margin keeps a sum of periods equal to the watchdog from tripping it.
+            if self._since_counts > self.watchdog * (1.0 + 1e-9) and not self.reading.motors_off:
+                self._tau_out[:] = 0.0
+                self.reading.motors_off = True
+                self.reading.watchdog_trips += 1
+        else:
+            self._since_counts = 0.0
+            self.reading.motors_off = False
+            idx = self._idx
+            # minimum/maximum and ndarray.take rather than np.clip/np.take, whose Python wrappers
+            # cost microseconds each: this method is the whole plant's per-tick Python overhead.
+            np.minimum(counts, self._counts_max, out=idx)
+            np.maximum(idx, self._counts_min, out=idx)
+            np.add(idx, self._row_offset, out=idx)
+            self._table.take(idx, out=self._tau_out)
         for _ in self._substep_range:
             # step2 then step1: the kinematics left in data always belong to the new state.
             mujoco.mj_step2(m, d)

@@ -27,7 +27,7 @@ from app.spatial import Array, matrix_to_quat
 
 XYZ = ("x", "y", "z")
 POSE = ("x", "y", "z", "qw", "qx", "qy", "qz")
-INT_COLUMNS = ("deadman", "reference", "reflection", "contacts", "faults")
+INT_COLUMNS = ("deadman", "reference", "reflection", "contacts", "faults", "watchdog_trips")
 
 
 def _group(prefix: str, names: tuple[str, ...] | list[str]) -> list[str]:
@@ -131,7 +131,14 @@ class TickLog:
         row[c["torques"]] = out.torques.ravel()
         row[c["counts"]] = out.counts
         row[c["scalars"]] = out.scalars
-        row[c["switches"]] = (tick.deadman, tick.reference, tick.reflection, tick.contact.count, int(out.faults))
+        row[c["switches"]] = (
+            tick.deadman,
+            tick.reference,
+            tick.reflection,
+            tick.contact.count,
+            int(out.faults),
+            reading.watchdog_trips,
+        )
         row[c["stages"]] = tick.stage_ns
         row[c["stages"]] *= 1e-3
         self._rows += 1

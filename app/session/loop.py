@@ -26,9 +26,10 @@ import numpy as np
 
 from app.controller.frhc import FRHCController
 from app.controller.gains import ControllerGains
+from app.controller.safety import SafetyLimits
 from app.controller.types import Switches
 from app.device.hand import HandParams
-from app.device.plant import DevicePlant
+from app.device.plant import WATCHDOG, DevicePlant
 from app.device.spec import DeviceSpec, load_device
 from app.errors import ConfigError
 from app.session.tick import STAGES, TickObserver, TickRecord
@@ -56,6 +57,8 @@ class LoopConfig:
         hand: The operator's hand impedance.
         accommodation: NTRFC accommodation on the slave.
         servo_rate: Ticks per second (Hz).
+        safety: The controller's ramps, velocity brake and accepted periods.
+        watchdog: The simulated amplifier's servo watchdog (s).
     """
 
     device: DeviceSpec
@@ -64,6 +67,8 @@ class LoopConfig:
     hand: HandParams = field(default_factory=HandParams)
     accommodation: bool = True
     servo_rate: float = 1000.0
+    safety: SafetyLimits = field(default_factory=SafetyLimits)
+    watchdog: float = WATCHDOG
 
     @staticmethod
     def from_session(
@@ -89,14 +94,12 @@ class LoopConfig:
     def __reduce__(self) -> tuple[Any, ...]:
         if self.scene.path is None:
             raise ConfigError("<scene>", "path", "a loop run in another process needs a scene loaded from a file")
-        values = (self.gains, self.hand, self.accommodation, self.servo_rate)
+        values = (self.gains, self.hand, self.accommodation, self.servo_rate, self.safety, self.watchdog)
         return (_rebuild_config, (self.scene.path, self.device.path, *values))
 
 
-def _rebuild_config(
-    scene: Path, device: Path, gains: ControllerGains, hand: HandParams, accommodation: bool, rate: float
-) -> LoopConfig:
-    return LoopConfig(load_device(device), load_scene(scene), gains, hand, accommodation, rate)
+def _rebuild_config(scene: Path, device: Path, *values: Any) -> LoopConfig:
+    return LoopConfig(load_device(device), load_scene(scene), *values)
 
 
 class ServoLoop:
@@ -115,9 +118,9 @@ class ServoLoop:
     def __init__(self, config: LoopConfig) -> None:
         self.config = config
         self.dt = 1.0 / config.servo_rate
-        self.plant = DevicePlant(config.device, config.hand)
+        self.plant = DevicePlant(config.device, config.hand, config.watchdog)
         self.slave = VirtualSlave(config.scene, accommodation=config.accommodation, period=self.dt)
-        self.controller = FRHCController(config.device, config.gains, self.slave.slave_model())
+        self.controller = FRHCController(config.device, config.gains, self.slave.slave_model(), safety=config.safety)
         self.switches = Switches()
         self.observers: list[TickObserver] = []
         self._hand = np.eye(4)
@@ -177,6 +180,18 @@ class ServoLoop:
 
     def set_gains(self, gains: ControllerGains) -> None:
         self.controller.set_gains(gains)
+
+    def stall(self, seconds: float) -> None:
+        """The controller misses ``seconds`` of servo periods (an overrun): the device runs on under
+        the amplifier's last counts until its watchdog switches the motors off.
+
+        The slave holds (it gets no command), the switches and the observers see nothing; the next
+        :meth:`tick` resumes, and the controller's ramp brings the wrench back in.
+        """
+        for _ in range(max(1, round(seconds / self.dt))):
+            self.reading = self.plant.step(None, self.dt)
+            self.time += self.dt
+        self.controller.resume()
 
     def tick(self) -> TickRecord:
         """Run one servo period; returns its record (reused object) after the observers saw it."""

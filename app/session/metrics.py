@@ -53,6 +53,8 @@ class SessionMetrics:
         self._ticks = 0
         self._fault_ticks: dict[str, int] = {}
         self._saturated_ticks = 0
+        self._ramping_ticks = 0
+        self._watchdog_trips = 0
         self._stage_ns = np.zeros((n_ticks, len(STAGES)), dtype=np.int64)
         self.task_done_at: float | None = None
         self._task = task
@@ -78,6 +80,8 @@ class SessionMetrics:
                     name = str(flag.name)
                     self._fault_ticks[name] = self._fault_ticks.get(name, 0) + 1
         self._saturated_ticks += out.saturation_scale < 1.0
+        self._ramping_ticks += out.reflecting and out.ramp < 1.0
+        self._watchdog_trips = tick.reading.watchdog_trips
         if self._ticks < len(self._stage_ns):
             self._stage_ns[self._ticks] = tick.stage_ns
 
@@ -120,6 +124,8 @@ class SessionMetrics:
             },
             "faults": self._fault_ticks,
             "saturated_ticks": self._saturated_ticks,
+            "ramping_ticks": self._ramping_ticks,
+            "watchdog_trips": self._watchdog_trips,
             "ticks": self._ticks,
             "simulated_s": self._time,
             "timing": timing,

@@ -58,7 +58,8 @@ class TimingStats:
     """How well a loop kept its period, over the last ``ticks`` ticks.
 
     Attributes:
-        ticks: Periods measured (tick start to next tick start).
+        ticks: Periods measured (tick start to next tick start), at most the rings' history.
+        counted: Ticks counted since the pacer started (not capped).
         rate_hz: Achieved ticks per second of wall time over those periods.
         period_p50_us: Median period (us).
         jitter_p99_us: 99th percentile of ``|period - dt|`` (us).
@@ -69,6 +70,7 @@ class TimingStats:
     """
 
     ticks: int
+    counted: int
     rate_hz: float
     period_p50_us: float
     jitter_p99_us: float
@@ -86,13 +88,14 @@ def timing_stats(rings: TimingRings, period_ns: int, last: int | None = None) ->
     count, slips = int(rings.counters[0]), int(rings.counters[1])
     n = min(count - 1, TIMING_HISTORY - 1, last if last is not None else TIMING_HISTORY)
     if n < 1:
-        return TimingStats(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, slips)
+        return TimingStats(0, max(count, 0), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, slips)
     idx = np.arange(count - n, count) % TIMING_HISTORY
     periods: Array = rings.periods[idx].astype(float) / 1e3
     ticks: Array = rings.tick_ns[idx].astype(float) / 1e3
     jitter = np.abs(periods - period_ns / 1e3)
     return TimingStats(
         ticks=n,
+        counted=count,
         rate_hz=float(n / (periods.sum() * 1e-6)),
         period_p50_us=float(np.median(periods)),
         jitter_p99_us=float(np.percentile(jitter, 99)),
@@ -120,12 +123,15 @@ class Pacer:
         self._deadline = self._previous = self._start = 0
         self.restart()
 
-    def restart(self) -> None:
-        """Start the schedule from now (the next :meth:`wait` returns at once)."""
+    def restart(self, slip: bool = False) -> None:
+        """Start the schedule from now (the next :meth:`wait` returns at once); ``slip`` counts it
+        as a slip (the loop fell behind and gave up catching up)."""
         self._deadline = self._previous = time.perf_counter_ns()
+        if slip:
+            self._counters[1] += 1
 
-    def wait(self) -> None:
-        """Sleep, then spin, until the next tick's deadline."""
+    def wait(self) -> int:
+        """Sleep, then spin, until the next tick's deadline; returns how late the tick starts (ns)."""
         clock = time.perf_counter_ns
         wait = self._deadline - clock()
         if wait > SPIN_NS:
@@ -133,6 +139,7 @@ class Pacer:
         while clock() < self._deadline:
             pass
         self._start = clock()
+        return self._start - self._deadline
 
     def done(self) -> None:
         """Record the tick that started at the last :meth:`wait` and schedule the next one."""

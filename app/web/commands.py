@@ -13,6 +13,7 @@ from pathlib import Path
 
 from app.controller.gains import ControllerGains
 from app.errors import FrhcError
+from app.session.spec import SessionFile
 from app.spatial import Array
 
 
@@ -61,13 +62,22 @@ class Record:
 
 @dataclass(frozen=True)
 class Play:
-    """Reset and play the session file ``session``'s operator script to its end (None stops it).
+    """Reset and play a session's operator script to its end (``script`` None stops playing).
 
-    The loop must have been built for that session (same scene, device, hand, rate). With
-    ``record`` the log of exactly the played ticks is written there.
+    The loop must have been built for that session (same scene, device, hand, rate); the sender
+    parses the file, so the loop process only starts the script. With ``record`` the log of
+    exactly the played ticks is written there.
+
+    Attributes:
+        script: The session file's contents (waypoints, events, tremor...).
+        gains: The session's resolved gains.
+        source: The session file (shown in the snapshot).
+        record: Log directory, or None.
     """
 
-    session: Path | None
+    script: SessionFile | None
+    gains: ControllerGains | None = None
+    source: Path | None = None
     record: Path | None = None
 
 

@@ -285,7 +285,8 @@ class Controls:
             f"reflection {'ON' if snap.reflection else 'off'}\n\n"
             f"servo rate **{timing.rate_hz:.1f} Hz** · tick {timing.tick_p50_us:.0f} us "
             f"(p99 {timing.tick_p99_us:.0f}) · jitter p99 {timing.jitter_p99_us:.0f} us · slips {timing.slips} · {scheduling}\n\n"
-            f"saturation scale {snap.saturation_scale:.3f} · contacts {len(snap.contact_points_w)} · "
+            f"saturation scale {snap.saturation_scale:.3f} · force ramp {snap.ramp:.2f} · "
+            f"contacts {len(snap.contact_points_w)} · amplifier watchdog trips {snap.watchdog_trips} · "
             f"faults: {fault_text}"
         )
         f_mrf = float(np.linalg.norm(snap.F_MRF[0:3]))

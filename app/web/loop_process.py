@@ -17,11 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
+from app.controller.gains import ControllerGains
 from app.session.log import TickLog
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.pacer import TIMING_HISTORY, Pacer, TimingRings
 from app.session.script import OperatorScript
-from app.session.spec import load_session
+from app.session.spec import SessionFile
 from app.web.commands import (
     Play,
     PressReference,
@@ -93,8 +94,13 @@ class LoopHost:
         self.running = True
         self._log_ends_with_play = False
 
-    def apply(self, command: object) -> None:
-        """Apply one command between ticks. Raises :class:`~app.web.commands.UnknownCommand`."""
+    def apply(self, command: object) -> bool:
+        """Apply one command between ticks; True if it restarts the loop's schedule (a reset or a
+        new play: wall time and simulated time start over together).
+
+        Raises:
+            UnknownCommand: ``command`` is not a loop command.
+        """
         loop = self.loop
         match check_command(command):
             case SetHandTarget(T_0_H):
@@ -110,12 +116,17 @@ class LoopHost:
             case Reset():
                 self._end_play()
                 loop.reset()
+                return True
             case Record(directory):
                 self._record(directory)
-            case Play(session, record):
-                self._play(session, record)
+            case Play(script, gains, source, record):
+                self._end_play()
+                if script is not None and gains is not None:
+                    self._play(script, gains, source, record)
+                    return True
             case Stop():
                 self.running = False
+        return False
 
     def tick(self) -> None:
         """One tick, with the playing script acting first."""
@@ -142,17 +153,13 @@ class LoopHost:
         self.publisher.recording = directory
         self._log_ends_with_play = False
 
-    def _play(self, path: Path | None, record: Path | None) -> None:
-        self._end_play()
-        if path is None:
-            return
-        session = load_session(path)
+    def _play(self, script: SessionFile, gains: ControllerGains, source: Path | None, record: Path | None) -> None:
         loop = self.loop
-        loop.set_gains(session.gains)
+        loop.set_gains(gains)
         loop.reset()
-        self.operator = OperatorScript.for_loop(session.data, loop)
-        self.ticks_left = session.data.n_ticks
-        self.publisher.playing = path
+        self.operator = OperatorScript.for_loop(script, loop)
+        self.ticks_left = script.n_ticks
+        self.publisher.playing = source
         if record is not None:
             self._record(record)
             self._log_ends_with_play = True
@@ -174,12 +181,22 @@ def loop_main(
     host = LoopHost(loop, snapshot, publish_every)
     timing.scheduling.value = raise_priority()
     pacer = Pacer(loop.dt, timing.rings())
+    watchdog_ns = round(loop.plant.watchdog * 1e9)
     try:
         while host.running:
-            pacer.wait()
+            late = pacer.wait()
+            if late > watchdog_ns:
+                # The device kept running on the amplifier's last counts while this process was
+                # stalled: simulate that gap (the watchdog switches the motors off) rather than
+                # catching up with ticks the real controller never ran.
+                loop.stall(late * 1e-9)
+                pacer.restart(slip=True)
             try:
+                restart = False
                 while host.running and conn.poll():
-                    host.apply(conn.recv())
+                    restart |= host.apply(conn.recv())
+                if restart:
+                    pacer.restart()
             except (EOFError, OSError):  # the parent is gone: nobody to serve
                 host.running = False
             host.tick()

@@ -182,7 +182,11 @@ class RealtimeLoop:
         if wanted.scene.path != have.scene.path or wanted.device.path != have.device.path:
             raise ConfigError(session.path, "scene", "scene or device differs from the running loop's")
         self._gains = session.gains
-        self.send(Play(session.path, record))
+        self.send(Play(session.data, session.gains, session.path, record))
+
+    def stop_playing(self) -> None:
+        """Stop a playing script (the loop goes on from where it is)."""
+        self.send(Play(None))
 
     # -- state (any thread) ---------------------------------------------------------------------
 

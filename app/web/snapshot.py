@@ -50,6 +50,8 @@ class Snapshot:
         faults: :class:`~app.controller.types.Fault` bits of the tick (0 = none).
         fault_message: Why the controller used its safe output, or ``""``.
         saturation_scale: Uniform torque saturation factor in (0, 1] (1 = not saturated).
+        ramp: Safety ramp level of the rendered wrench in [0, 1] (:mod:`app.controller.safety`).
+        watchdog_trips: Times the amplifier's watchdog switched the motors off since the reset.
         recording: The log directory being written, or None.
         playing: The session file whose script drives the loop, or None.
     """
@@ -76,6 +78,8 @@ class Snapshot:
     faults: int
     fault_message: str
     saturation_scale: float
+    ramp: float
+    watchdog_trips: int
     recording: Path | None = None
     playing: Path | None = None
 
@@ -111,6 +115,8 @@ def take_snapshot(
         faults=int(out.faults),
         fault_message=out.fault_message,
         saturation_scale=out.saturation_scale,
+        ramp=out.ramp,
+        watchdog_trips=reading.watchdog_trips,
         recording=recording,
         playing=playing,
     )

@@ -11,12 +11,16 @@ import pytest
 from app.config import from_dict
 from app.controller.frhc import FRHCController
 from app.controller.gains import ControllerGains
+from app.controller.safety import SafetyLimits
 from app.controller.types import Fault, FTReading, SlaveModel, Switches
 from app.device.spec import DeviceSpec
 from app.errors import ConfigError
 from app.spatial import body_rate_from_euler, tmat_difference, wrench_transform, zyx_to_matrix
 
 DT = 1e-3
+
+#: The paper's controller as printed (ticks jump; each checks its equations): no ramp, no brake.
+PAPER = SafetyLimits.paper_only()
 
 
 def home(spec: DeviceSpec) -> np.ndarray:
@@ -83,7 +87,7 @@ def test_inside_the_deadband_nothing_is_commanded(controller: FRHCController, kr
 
 def test_rate_rotation_tapers_to_zero_near_gimbal_lock(kraft: DeviceSpec, slave: SlaveModel) -> None:
     """Near cos(beta) = 0 the angles are ill-defined: the rotational command fades out, continuously."""
-    ctrl = FRHCController(kraft, kraft.data.gains.with_changes(deadband=(0.0,) * 6), slave)
+    ctrl = FRHCController(kraft, kraft.data.gains.with_changes(deadband=(0.0,) * 6), slave, safety=PAPER)
     T_0_G0 = ctrl.out.T_0_G0
     weights = []
     for beta_deg in np.linspace(60, 89.9, 300):
@@ -107,7 +111,7 @@ def test_pose_mode_needs_unit_rotational_gains() -> None:
 
 def test_pose_command_and_indexing_never_jump(kraft: DeviceSpec, slave: SlaveModel) -> None:
     gains = kraft.data.gains.with_changes(mode="pose", deadband=(0.0,) * 6)
-    ctrl = FRHCController(kraft, gains, slave)
+    ctrl = FRHCController(kraft, gains, slave, safety=PAPER)
     q0 = home(kraft)
     step = np.array([0.05, 0.05, -0.05, 0.1, 0.1, 0.1])
     out = ctrl.step(q0, Switches(deadman=True), FTReading(), DT)
@@ -133,7 +137,7 @@ def test_pose_command_and_indexing_never_jump(kraft: DeviceSpec, slave: SlaveMod
 def test_return_to_centre_only_in_rate_mode(kraft: DeviceSpec, slave: SlaveModel) -> None:
     q = home(kraft) + np.array([0.1, 0.1, 0.1, 0.3, 0.3, 0.3])
     for mode, expect in (("rate", True), ("pose", False)):
-        ctrl = FRHCController(kraft, kraft.data.gains.with_changes(mode=mode), slave)
+        ctrl = FRHCController(kraft, kraft.data.gains.with_changes(mode=mode), slave, safety=PAPER)
         ctrl.step(q, Switches(deadman=True, reflection=True), FTReading(), DT)
         out = ctrl.step(q, Switches(deadman=True, reflection=True), FTReading(), DT)
         assert (np.abs(out.G_F_R).max() > 0) == expect
@@ -142,7 +146,7 @@ def test_return_to_centre_only_in_rate_mode(kraft: DeviceSpec, slave: SlaveModel
 
 def test_payload_removal_leaves_the_contact_wrench(kraft: DeviceSpec, slave: SlaveModel) -> None:
     """Weight of the payload, seen by a tilted sensor, is removed; a contact wrench passes through Eq 6."""
-    ctrl = FRHCController(kraft, kraft.data.gains, slave)
+    ctrl = FRHCController(kraft, kraft.data.gains, slave, safety=PAPER)
     R_w_S = zyx_to_matrix(0.4, -0.3, 1.1)
     g_S = R_w_S.T @ slave.gravity_w
     weight = np.concatenate((slave.payload_mass * g_S, np.cross(slave.payload_com_S, slave.payload_mass * g_S)))
@@ -152,14 +156,14 @@ def test_payload_removal_leaves_the_contact_wrench(kraft: DeviceSpec, slave: Sla
     X = wrench_transform(slave.T_MRF_S[0:3, 0:3], slave.T_MRF_S[0:3, 3])
     np.testing.assert_allclose(out.F_MRF, X @ contact, atol=1e-12)
     np.testing.assert_allclose(out.G_F_T, np.array(kraft.data.gains.k_t) * (X @ contact), atol=1e-12)
-    kept = FRHCController(kraft, kraft.data.gains.with_changes(remove_payload=False), slave)
+    kept = FRHCController(kraft, kraft.data.gains.with_changes(remove_payload=False), slave, safety=PAPER)
     out = kept.step(home(kraft), Switches(True, False, True), FTReading(weight + contact, R_w_S), DT)
     np.testing.assert_allclose(out.F_S_task, weight + contact, atol=1e-12)
 
 
 def test_inertial_removal(kraft: DeviceSpec, slave: SlaveModel) -> None:
     """An accelerating, spinning payload with no contact reads back as zero task wrench."""
-    ctrl = FRHCController(kraft, kraft.data.gains.with_changes(remove_inertia=True), slave)
+    ctrl = FRHCController(kraft, kraft.data.gains.with_changes(remove_inertia=True), slave, safety=PAPER)
     R_w_S = zyx_to_matrix(0.2, 0.1, -0.4)
     a_S_w, alpha_w, omega_w = np.array([1.0, -2.0, 0.5]), np.array([3.0, 1.0, -2.0]), np.array([0.5, -1.0, 2.0])
     c, m, I = slave.payload_com_S, slave.payload_mass, slave.payload_inertia_S
@@ -174,7 +178,7 @@ def test_inertial_removal(kraft: DeviceSpec, slave: SlaveModel) -> None:
 
 def test_assist_torques_are_scaled_to_their_share_of_capacity(kraft: DeviceSpec, slave: SlaveModel) -> None:
     gains = kraft.data.gains.with_changes(rtc="hooke", k_r=(1e5,) * 6, assist_fraction=0.25)
-    ctrl = FRHCController(kraft, gains, slave)
+    ctrl = FRHCController(kraft, gains, slave, safety=PAPER)
     q = home(kraft) + 0.2
     out = ctrl.step(q, Switches(deadman=True, reflection=True), FTReading(), DT)
     limit = np.array(ctrl.joint_limit)
@@ -185,7 +189,7 @@ def test_assist_torques_are_scaled_to_their_share_of_capacity(kraft: DeviceSpec,
 
 
 def test_total_torque_saturates_uniformly_and_counts_follow_the_curve(kraft: DeviceSpec, slave: SlaveModel) -> None:
-    ctrl = FRHCController(kraft, kraft.data.gains.with_changes(k_t=(1e6,) * 6), slave)
+    ctrl = FRHCController(kraft, kraft.data.gains.with_changes(k_t=(1e6,) * 6), slave, safety=PAPER)
     out = ctrl.step(home(kraft), Switches(True, False, True), contact_reading(slave), DT)
     limit = np.array(ctrl.joint_limit)
     assert out.saturation_scale < 1e-3

@@ -12,11 +12,15 @@ import pytest
 
 from app.controller.frhc import FRHCController
 from app.controller.kinematics import DeviceKinematics
+from app.controller.safety import SafetyLimits
 from app.controller.types import FTReading, SlaveModel, Switches
 from app.device.spec import DeviceSpec, load_device
 from app.spatial import rotation_log
 
 DEVICES = ["kraft", "jpl", "freflex", "variant"]
+
+#: The paper's controller as printed (ticks jump; each checks its equations): no ramp, no brake.
+PAPER = SafetyLimits.paper_only()
 
 
 @pytest.fixture(params=DEVICES)
@@ -85,7 +89,7 @@ def test_jacobian_matches_mujoco_jac_site(device: DeviceSpec) -> None:
 def test_controller_task_torques_render_the_grip_wrench(device: DeviceSpec, slave: SlaveModel) -> None:
     """The whole G -> W -> base -> J^T chain: tau_T does the virtual work of G_F_T (in {G}) on the grip."""
     gains = device.data.gains.with_changes(k_d=(0.0,) * 6, rtc="off", remove_payload=False)
-    ctrl = FRHCController(device, gains, slave)
+    ctrl = FRHCController(device, gains, slave, safety=PAPER)
     kin = DeviceKinematics(device)
     rng = np.random.default_rng(2)
     h = 1e-6

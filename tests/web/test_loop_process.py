@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -25,7 +26,9 @@ def test_played_session_gives_the_headless_ticks_exactly(tmp_path: Path) -> None
     headless = run_session(session, out_dir=tmp_path / "headless", plots=False)
     assert headless.summary["contact_fraction"] > 0.05  # the short run still reaches the surface
 
-    rt = RealtimeLoop(LoopConfig.from_session(session))
+    # A generous amplifier watchdog: a scheduling hiccup on a busy machine then costs catch-up
+    # ticks (the same ticks) rather than a simulated stall (other ticks).
+    rt = RealtimeLoop(dataclasses.replace(LoopConfig.from_session(session), watchdog=1.0))
     rt.start()
     try:
         assert rt.wait_running()

@@ -1,0 +1,221 @@
+"""The safety envelope: force ramps, the velocity brake, sane periods and the API boundary."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from app.controller.frhc import FRHCController
+from app.controller.safety import SafetyLimits
+from app.controller.types import Fault, FTReading, SlaveModel, Switches
+from app.device.spec import DeviceSpec
+from app.errors import InputError, InvalidField
+
+DT = 1e-3
+RAMP_TIME = 0.1
+
+
+def pushed(slave: SlaveModel, fz: float = 3.0) -> FTReading:
+    """Payload weight at a level sensor plus a contact force ``fz`` (N) along +z."""
+    ft = FTReading()
+    ft.wrench_S[0:3] = slave.payload_mass * slave.gravity_w + np.array([0.0, 0.0, fz])
+    ft.wrench_S[3:6] = np.cross(slave.payload_com_S, slave.payload_mass * slave.gravity_w)
+    return ft
+
+
+@pytest.fixture
+def safe(kraft: DeviceSpec, slave: SlaveModel) -> FRHCController:
+    return FRHCController(kraft, kraft.data.gains, slave, safety=SafetyLimits(ramp_time=RAMP_TIME))
+
+
+def deadzone_counts(controller: FRHCController) -> int:
+    """The largest constant term of the torque curves (counts): a fitted curve steps by it when a
+    torque leaves zero, to cross the amplifier's deadzone."""
+    curve = controller.curve
+    return int(np.ceil(max(np.abs(curve.horner_pos[:, -1]).max(), np.abs(curve.horner_neg[:, -1]).max())))
+
+
+def full_strength(kraft: DeviceSpec, slave: SlaveModel, q: np.ndarray) -> np.ndarray:
+    """The task torques without any ramp, at ``q``."""
+    paper = FRHCController(kraft, kraft.data.gains, slave, safety=SafetyLimits.paper_only())
+    return paper.step(q, Switches(deadman=True, reflection=True), pushed(slave), DT).tau_T.copy()
+
+
+def test_wrench_ramps_in_after_the_deadman_engages(safe, kraft, slave) -> None:
+    q = np.array(kraft.data.home)
+    target = full_strength(kraft, slave, q)
+    assert np.abs(target).max() > 0.3
+    on = Switches(deadman=True, reflection=True)
+    taus, counts, levels = [], [], []
+    for _ in range(round(1.5 * RAMP_TIME / DT)):
+        out = safe.step(q, on, pushed(slave), DT)
+        taus.append(out.tau_sat.copy())
+        counts.append(out.counts.copy())
+        levels.append(out.ramp)
+        np.testing.assert_allclose(out.tau_T, out.ramp * target, atol=1e-12)
+    assert levels[0] == pytest.approx(DT / RAMP_TIME)
+    assert levels[round(RAMP_TIME / DT) - 1] == pytest.approx(1.0)  # full strength within the ramp time
+    # Per tick, the torque moves by the ramp's share of the rendered torque, and the counts by that
+    # share plus at most one deadzone step as a torque leaves zero.
+    rendered = np.abs(taus[-1] - safe.step(q, Switches(), pushed(slave), DT).tau_sat)
+    assert np.all(np.abs(np.diff(np.array(taus), axis=0)) <= rendered * DT / RAMP_TIME + 1e-9)
+    full_counts = np.abs(counts[-1]).max()
+    steps = np.abs(np.diff(np.array(counts), axis=0)).max()
+    assert steps <= full_counts * DT / RAMP_TIME * 1.5 + deadzone_counts(safe) + 1
+
+
+def test_wrench_ramps_in_again_after_a_fault_window(safe, kraft, slave) -> None:
+    q = np.array(kraft.data.home)
+    on = Switches(deadman=True, reflection=True)
+    for _ in range(round(2 * RAMP_TIME / DT)):
+        out = safe.step(q, on, pushed(slave), DT)
+    full, full_tau = out.counts.copy(), out.tau_sat.copy()
+    assert out.ramp == 1.0
+    bad = pushed(slave)
+    bad.wrench_S[2] = np.nan
+    for _ in range(100):
+        out = safe.step(q, on, bad, DT)
+        assert out.faults & Fault.NONFINITE_INPUT
+    gravity_only, gravity_tau = out.counts.copy(), out.tau_sat.copy()
+    previous, previous_tau = gravity_only, gravity_tau
+    worst, worst_tau = 0, np.zeros_like(full_tau)
+    for _ in range(round(RAMP_TIME / DT)):
+        out = safe.step(q, on, pushed(slave), DT)
+        worst = max(worst, int(np.abs(out.counts - previous).max()))
+        worst_tau = np.maximum(worst_tau, np.abs(out.tau_sat - previous_tau))
+        previous, previous_tau = out.counts.copy(), out.tau_sat.copy()
+    np.testing.assert_array_equal(out.counts, full)  # back at full strength within the ramp time
+    jump = int(np.abs(full - gravity_only).max())
+    assert jump > 100  # without the ramp this would be one step
+    assert np.all(worst_tau <= np.abs(full_tau - gravity_tau) * DT / RAMP_TIME + 1e-9)
+    assert worst <= jump * DT / RAMP_TIME * 1.5 + deadzone_counts(safe) + 1
+
+
+def test_velocity_brake_damps_until_the_device_slows(safe, kraft, slave) -> None:
+    q = np.array(kraft.data.home)
+    on = Switches(deadman=True, reflection=True)
+    limit = safe.safety.max_joint_speed
+    safe.step(q, on, pushed(slave), DT)
+    fast = q.copy()
+    fast[1] += 2 * limit * DT  # twice the limit
+    out = safe.step(fast, on, pushed(slave), DT)
+    assert out.faults == Fault.OVERSPEED
+    assert not out.command.active
+    np.testing.assert_array_equal(out.tau_T, 0.0)
+    # Damping only: gravity compensation minus brake damping on the moving joint.
+    assert out.tau[1] == pytest.approx(out.tau_G[1] - safe.safety.brake_damping * 2 * limit)
+    # Still above the release speed: still braking; below it: released, and the wrench ramps in.
+    slower = fast.copy()
+    slower[1] += 0.6 * limit * DT
+    assert safe.step(slower, on, pushed(slave), DT).faults == Fault.OVERSPEED
+    out = safe.step(slower + 0.1 * limit * DT, on, pushed(slave), DT)
+    assert out.faults == Fault.NONE
+    assert out.ramp == pytest.approx(DT / RAMP_TIME)
+
+
+@pytest.mark.parametrize("dt", [0.0, -1e-3, 1e-300, 5e-6, 0.5, np.nan, np.inf])
+def test_a_period_outside_the_sane_range_is_a_fault(safe, kraft, slave, dt: float) -> None:
+    out = safe.step(np.array(kraft.data.home), Switches(deadman=True), pushed(slave), dt)
+    assert out.faults & Fault.BAD_PERIOD
+    assert np.all(np.isfinite(out.tau))
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("ramp_time", -1.0),
+        ("ramp_time", np.inf),
+        ("max_joint_speed", 0.0),
+        ("release_fraction", 1.0),
+        ("min_period", 0.1),
+    ],
+)
+def test_safety_limits_refuse_bad_values(field: str, value: float) -> None:
+    with pytest.raises(InvalidField, match=field):
+        SafetyLimits(**{field: value})
+
+
+ARRAY_DTYPES = st.sampled_from([np.float64, np.float32, np.int64, np.int8, np.uint16, np.bool_, np.complex128])
+SHAPES = st.sampled_from([(), (1,), (3,), (5,), (6,), (7,), (2, 2), (3, 3), (4, 4), (6, 1)])
+
+
+def any_array(draw: st.DrawFn, good_shape: tuple[int, ...]) -> object:
+    shape = draw(st.one_of(st.just(good_shape), SHAPES))
+    dtype = draw(st.one_of(st.just(np.float64), ARRAY_DTYPES))
+    values = (
+        hnp.from_dtype(np.dtype(dtype), allow_nan=True, allow_infinity=True) if dtype != np.bool_ else st.booleans()
+    )
+    array = draw(hnp.arrays(dtype, shape, elements=values))
+    return array.tolist() if draw(st.booleans()) and array.ndim else array
+
+
+@st.composite
+def step_inputs(draw: st.DrawFn) -> tuple[object, FTReading, object]:
+    q = any_array(draw, (6,))
+    ft = FTReading(
+        wrench_S=any_array(draw, (6,)),  # type: ignore[arg-type]
+        R_w_S=any_array(draw, (3, 3)),  # type: ignore[arg-type]
+        acc_w=any_array(draw, (6,)),  # type: ignore[arg-type]
+        omega_w=any_array(draw, (3,)),  # type: ignore[arg-type]
+        valid=draw(st.booleans()),
+    )
+    dt = draw(
+        st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.just(DT), st.integers(-2, 2), st.text(max_size=2))
+    )
+    return q, ft, dt
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(inputs=step_inputs(), deadman=st.booleans(), reflection=st.booleans())
+def test_any_input_gives_bounded_counts_or_the_projects_error(safe, kraft, inputs, deadman, reflection) -> None:
+    """Arbitrary shapes, dtypes and values: never a non-finite or over-range count, never an
+    unflagged non-finite output, never an exception outside the project's errors."""
+    q, ft, dt = inputs
+    try:
+        out = safe.step(q, Switches(deadman=deadman, reflection=reflection), ft, dt)  # type: ignore[arg-type]
+    except InputError:
+        return  # the project's error for a malformed argument: anything else fails the test
+    counts_max = safe.curve.counts_max
+    assert out.counts.dtype == np.int64
+    assert np.all(np.abs(out.counts) <= counts_max)
+    assert np.all(np.isfinite(out.tau))
+    assert np.all(np.isfinite(out.tau_sat))
+    limit = safe.joint_limit
+    assert np.all(np.abs(out.tau_sat) <= limit * (1 + 1e-12))
+    if not (np.all(np.isfinite(out.vectors)) and np.all(np.isfinite(out.torques))):
+        assert out.faults != Fault.NONE
+
+
+def test_amplifier_watchdog_switches_the_motors_off_and_the_loop_ramps_back() -> None:
+    """A stalled controller: the amplifier holds its counts for ``watchdog`` seconds, then the
+    motors go off (the grip falls); once ticks resume, the wrench ramps in again."""
+    from app.device.spec import load_device
+    from app.session.loop import LoopConfig, ServoLoop
+    from app.world.scene import load_scene
+
+    device = load_device("kraft")
+    loop = ServoLoop(LoopConfig(device, load_scene("probe"), device.data.gains))
+    loop.set_hand_target(None)
+    for _ in range(50):
+        record = loop.tick()
+    held = loop.plant.reading.tau_joint.copy()
+    assert np.abs(held).max() > 0.1  # gravity compensation holds the device
+    watchdog = loop.plant.watchdog
+    steps = round(watchdog / loop.dt)
+    for _ in range(steps):  # within the watchdog: the last counts are held
+        loop.plant.step(None, loop.dt)
+        np.testing.assert_array_equal(loop.plant.reading.tau_joint, held)
+        assert not loop.plant.reading.motors_off
+    loop.plant.step(None, loop.dt)
+    assert loop.plant.reading.motors_off
+    np.testing.assert_array_equal(loop.plant.reading.tau_joint, 0.0)
+    assert loop.plant.reading.watchdog_trips == 1
+    loop.stall(0.05)  # still no counts: no second trip, motors stay off
+    assert loop.plant.reading.watchdog_trips == 1
+    record = loop.tick()
+    assert not record.reading.motors_off
+    assert record.reading.watchdog_trips == 1
+    assert record.out.ramp == pytest.approx(loop.dt / loop.config.safety.ramp_time)

@@ -99,7 +99,11 @@ def P(old: str | None, new: str | bytes, field: str, reason: str = "") -> Case:
     return Case("session", old, new, field, reason)
 
 
-KRAFT_ROW0 = "[75.50458392399695, 4544.929050440528, -16708.744597593166, 146973.65985559605, -509670.69581258384, 656649.7955852617]"
+KRAFT_CALIBRATION = (DEVICES_DIR / "kraft" / "calibration.toml").read_text().splitlines()
+#: The text of the first rows of the shipped Kraft curves: ``[c0, c1, ...]`` without the comma.
+KRAFT_ROW0 = KRAFT_CALIBRATION[KRAFT_CALIBRATION.index("positive = [") + 1].strip().rstrip(",")
+KRAFT_NEG0 = KRAFT_CALIBRATION[KRAFT_CALIBRATION.index("negative = [") + 1].strip().rstrip(",")
+C1 = KRAFT_ROW0.split(", ")[1]
 MANY_OBJECTS = "".join(f'[[objects]]\nname = "o{i}"\nsphere = 0.01\nstiffness = 1.0\n' for i in range(1001))
 MANY_SPHERES = "".join("[[tool.spheres]]\ncenter = [0.0, 0.0, 0.0]\nradius = 0.01\n" for _ in range(1001))
 CAPSULE = "[[tool.capsules]]\nstart = [0.0, 0.0, 0.0]\nend = [0.0, 0.0, 1.0]\nradius = 1e-5\n"
@@ -161,12 +165,12 @@ CASES: dict[str, dict[str, Case]] = {
         "rtc_a 1e308": D("rtc_a = [1.0e4,", "rtc_a = [1e308,", "gains.rtc_a"),
         "plant mass_scale 1e300": D("mass_scale = [1.0,", "mass_scale = [1e300,", "plant.mass_scale[0]"),
         "plant damping -1": D("damping = [0.04, 0.04, 0.03,", "damping = [-1.0, 0.04, 0.03,", "plant.damping[0]"),
-        "calibration coefficient inf": C(KRAFT_ROW0, KRAFT_ROW0.replace("4544.929050440528", "inf"), "positive[0][1]"),
+        "calibration coefficient inf": C(KRAFT_ROW0, KRAFT_ROW0.replace(C1, "inf"), "positive[0][1]"),
         "calibration not monotonic": C(
             KRAFT_ROW0, "[0.0, 4000.0, 0.0, 0.0, 0.0, -1e6]", "positive[0]", "not monotonic"
         ),
         "calibration reverses sign": C(KRAFT_ROW0, "[-500.0, 4000.0, 0.0, 0.0, 0.0, 0.0]", "positive[0]", "reverses"),
-        "calibration negative side": C("[-79.95581750285474,", "[79.95581750285474,", "negative[0]", "reverses"),
+        "calibration negative side": C(KRAFT_NEG0, KRAFT_NEG0.replace("[-", "[", 1), "negative[0]", "reverses"),
         "tremor inf": P("seed = 0", "seed = 0\ntremor = inf", "tremor", "finite"),
         "seed -1": P("seed = 0", "seed = -1", "seed", "[0, 4294967295]"),
         "time_scale inf": P("seed = 0", "seed = 0\ntime_scale = inf", "time_scale"),

@@ -1,21 +1,60 @@
-"""``frhc check``: load scene, device and session files without running anything."""
+"""``frhc check``: load scene, device and session files and build what ``frhc run`` would, without running.
+
+A file passes only if everything a run builds from it builds: the parsed and range-checked
+file, its meshes, MJCF and calibration, the device plant (the MJCF perturbed by ``[plant]``
+plus the operator's hand), the virtual slave's MuJoCo model (tool mass and inertia) and the
+controller. A scene is built with the default device and a device with the default scene, at
+their default gains. So ``check`` ok means ``run`` starts.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
-from app.config import load_toml
-from app.device.spec import load_device, resolve_device_path
+from app.config import deferred_warnings, load_toml
+from app.device.hand import HandParams
+from app.device.spec import DEFAULT_DEVICE, DeviceFile, load_device, resolve_device_path
 from app.errors import ConfigError
-from app.session.spec import load_session, resolve_session_path
-from app.world.scene import SCENES_DIR, load_scene
+from app.session.loop import LoopConfig, ServoLoop
+from app.session.spec import SessionFile, load_session, resolve_session_path
+from app.world.scene import DEFAULT_SCENE, SCENES_DIR, SceneFile, load_scene
+
+#: The schema of each kind of file; a file's kind is the one whose fields its keys match best.
+KINDS: dict[str, type] = {"device": DeviceFile, "scene": SceneFile, "session": SessionFile}
+
+
+def file_kind(path: Path, data: dict[str, Any]) -> str:
+    """``"device"``, ``"scene"`` or ``"session"``: the schema sharing the most top-level keys with ``data``.
+
+    Raises:
+        ConfigError: No schema matches any key, or two match equally well.
+    """
+    scores = {kind: len(set(data) & {f.name for f in dataclasses.fields(cls)}) for kind, cls in KINDS.items()}
+    best = max(scores.values())
+    winners = [kind for kind, score in scores.items() if score == best]
+    if best == 0 or len(winners) > 1:
+        raise ConfigError(path, "<file>", "cannot tell whether this is a device, scene or session file")
+    return winners[0]
+
+
+@contextmanager
+def _model_errors(path: Path) -> Iterator[None]:
+    """Turn MuJoCo's refusal of a model (e.g. a mass below mjMINVAL) while building into a ConfigError."""
+    try:
+        yield
+    except ValueError as exc:
+        raise ConfigError(path, "<model>", f"MuJoCo refuses the model: {' '.join(str(exc).split())}") from None
 
 
 def check_file(name: str) -> str:
     """Load ``name`` (a path, or a device/scene/session name) fully; return a one-line description.
 
-    The kind is told by the file's keys: ``joints`` (device), ``tool`` (scene) or ``duration``
-    (session). Raises :class:`ConfigError` naming the file and field on any problem.
+    Raises:
+        ConfigError: naming the file and field on any problem.
     """
     path = Path(name)
     if not path.suffix:
@@ -24,14 +63,24 @@ def check_file(name: str) -> str:
         if not found:
             raise ConfigError(name, "<file>", "no such file, device, scene or session")
         path = found[0]
-    data = load_toml(path)
-    if "joints" in data:
-        device = load_device(path)
-        return f"device {device.name}: {device.n_joints} joints ({path})"
-    if "tool" in data:
-        scene = load_scene(path)
-        return f"scene {scene.spec.name}: {len(scene.objects)} objects ({path})"
-    if "duration" in data:
-        session = load_session(path)
-        return f"session {path.stem}: {session.scene.spec.name} with {session.device.name}, {session.data.mode} mode ({path})"
-    raise ConfigError(path, "<file>", "not a device (joints), scene (tool) or session (duration) file")
+    kind = file_kind(path, load_toml(path))
+    with deferred_warnings():
+        if kind == "session":
+            session = load_session(path)
+            with _model_errors(path):
+                ServoLoop(LoopConfig.from_session(session))
+            return (
+                f"session {path.stem}: {session.scene.spec.name} with {session.device.name}, "
+                f"{session.data.mode} mode, {session.data.n_ticks} ticks ({path})"
+            )
+        if kind == "device":
+            device = load_device(path)
+            scene = load_scene(DEFAULT_SCENE)
+            what = f"device {device.name}: {device.n_joints} joints"
+        else:
+            scene = load_scene(path)
+            device = load_device(DEFAULT_DEVICE)
+            what = f"scene {scene.spec.name}: {len(scene.objects)} objects, {len(scene.tool.radii)} tool spheres"
+        with _model_errors(path):
+            ServoLoop(LoopConfig(device, scene, device.data.gains, HandParams()))
+        return f"{what} ({path})"

@@ -4,10 +4,25 @@ Every scene, session and device file goes through :func:`from_dict`, so all of t
 reject unknown fields, wrong types and wrong lengths the same way: one
 :class:`~app.errors.ConfigError` naming the file and the dotted field path.
 
-Hand-written rather than a schema library because the messages must name the file
-and field in our words, and the supported types are few: ``bool``, ``int``,
-``float``, ``str``, ``Literal``, ``tuple[T, ...]``, fixed ``tuple[A, B]``,
-``list[T]``, ``dict[str, T]``, ``T | None`` and nested dataclasses.
+Physical ranges are stated once, beside the field, as ``typing.Annotated`` metadata::
+
+    stiffness: Annotated[float, Range(0.0, 1e7, "N/m", lo_open=True)]
+    objects: Annotated[tuple[ObjectSpec, ...], Count(0, 1000)]
+
+A :class:`Range` on an array applies to every number in it (the error names ``field[i]``).
+Every schema dataclass derives from :class:`Checked`, whose ``__post_init__`` enforces the
+fixed tuple lengths, :class:`Count` and :class:`Range` of its fields and then calls the class's
+own :meth:`Checked.validate` for cross-field rules, so a dataclass built in code (the web
+panel's gains) is held to the same ranges as one read from a file. The file-format documents
+(``scenes/README.md``, ``devices/README.md``, ``sessions/README.md``) show ``Range.text()``
+for every field; a test checks they agree.
+
+Hand-written rather than a schema library (pydantic v2, msgspec) because the messages must
+name the file and the field in our words, on one line (``FILE: field 'a.b[2]': reason``),
+ranges must also hold for objects built in code without a separate validation pass, and the
+supported types are few: ``bool``, ``int``, ``float``, ``str``, ``Literal``, ``tuple[T, ...]``,
+fixed ``tuple[A, B]``, ``list[T]``, ``dict[str, T]``, ``T | None``, ``Annotated[T, ...]`` and
+nested dataclasses. Adapting a library's error objects to that line would be as much code.
 """
 
 from __future__ import annotations
@@ -17,26 +32,212 @@ import math
 import tomllib
 import types
 import typing
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, TypeVar, get_args, get_origin, get_type_hints
+from typing import Annotated, Any, Literal, TypeVar, get_args, get_origin, get_type_hints
 
 from app.errors import ConfigError, InvalidField
 
 T = TypeVar("T")
 
+#: Largest TOML file read (bytes): every shipped file is far smaller; this bounds parse time and memory.
+MAX_FILE_BYTES = 4 * 1024 * 1024
+
+
+def fmt_number(v: float) -> str:
+    """A number as the documents write it: ``1e7``, ``0.5``, ``-1e-6``, ``65535``."""
+    if isinstance(v, int) and not isinstance(v, bool):
+        digits = str(abs(v))
+        return str(v) if len(digits) <= 15 else f"{'-' if v < 0 else ''}~1e{len(digits) - 1}"
+    text = f"{v:g}"
+    return text.replace("e+0", "e").replace("e+", "e").replace("e-0", "e-")
+
+
+@dataclass(frozen=True)
+class Range:
+    """The physical range of a number field, or of every number in an array field.
+
+    Attributes:
+        lo, hi: Bounds, inclusive unless ``lo_open``/``hi_open``. Values must also be finite.
+        unit: Unit shown in messages and documents (empty for a pure number).
+        lo_open, hi_open: Exclude the bound.
+        inf_ok: ``+inf`` is accepted too (it means "none", e.g. no workspace wall).
+        name_array: For an array, name the whole field and give the element's index in the
+            reason (``field 'k_d': k_d[1] must be ...``) rather than naming ``k_d[1]``. Used where
+            the array is one quantity per axis or joint (gains, motors).
+    """
+
+    lo: float
+    hi: float
+    unit: str = ""
+    lo_open: bool = False
+    hi_open: bool = False
+    inf_ok: bool = False
+    name_array: bool = False
+
+    def text(self) -> str:
+        """``(0, 1e7] N/m``: the form used in messages and in the file-format documents."""
+        lo = "(" if self.lo_open else "["
+        hi = ")" if self.hi_open else "]"
+        unit = f" {self.unit}" if self.unit else ""
+        extra = " or inf" if self.inf_ok else ""
+        return f"{lo}{fmt_number(self.lo)}, {fmt_number(self.hi)}{hi}{unit}{extra}"
+
+    def check(self, name: str, value: Any) -> None:
+        """Raise :class:`InvalidField` naming ``name`` (or ``name[i]...``) for a value outside the range."""
+        if isinstance(value, tuple | list):
+            for i, v in enumerate(value):
+                try:
+                    self.check(f"{name}[{i}]", v)
+                except InvalidField as exc:
+                    if not self.name_array:
+                        raise
+                    raise InvalidField(name, f"{exc.field} {exc.reason}") from None
+            return
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise InvalidField(name, f"expected a number, got {type(value).__name__}")
+        if isinstance(value, float) and math.isnan(value):
+            raise InvalidField(name, "must not be NaN")
+        if value == math.inf and self.inf_ok:
+            return
+        above = value > self.lo if self.lo_open else value >= self.lo
+        below = value < self.hi if self.hi_open else value <= self.hi
+        if not (above and below):
+            sign = "positive, " if self.lo == 0 and self.lo_open else "non-negative, " if self.lo == 0 else ""
+            finite = "finite, " if isinstance(value, float) and math.isinf(value) else ""
+            raise InvalidField(name, f"must be {finite}{sign}in {self.text()}, got {fmt_number(value)}")
+
+
+@dataclass(frozen=True)
+class Count:
+    """Bounds on the number of entries of an array field (a resource limit or a shape rule)."""
+
+    lo: int
+    hi: int
+
+    def text(self) -> str:
+        return f"{self.lo}..{self.hi} entries"
+
+    def check(self, name: str, value: Any) -> None:
+        if value is not None and not self.lo <= len(value) <= self.hi:
+            raise InvalidField(name, f"expected {self.text()}, got {len(value)}")
+
+
+Rule = Range | Count
+
+
+class Checked:
+    """Base of every schema dataclass: shapes, counts and ranges are checked on construction.
+
+    Subclasses put cross-field rules in :meth:`validate`, which runs after the per-field checks
+    and raises :class:`InvalidField` naming the field (relative to the dataclass).
+    """
+
+    def __post_init__(self) -> None:
+        for name, length, rules in field_rules(type(self)):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            if length is not None and (not isinstance(value, tuple | list) or len(value) != length):
+                got = len(value) if isinstance(value, tuple | list) else type(value).__name__
+                raise InvalidField(name, f"expected {length} values, got {got}")
+            for rule in rules:
+                rule.check(name, value)
+        self.validate()
+
+    def validate(self) -> None:
+        """Cross-field rules (override); the per-field checks have passed when this runs."""
+
+
+#: One field's checks: its name, its fixed tuple length (or None) and its rules.
+FieldRules = tuple[str, int | None, tuple[Rule, ...]]
+_RULES: dict[type, tuple[FieldRules, ...]] = {}
+
+
+def field_rules(cls: type) -> tuple[FieldRules, ...]:
+    """The checks of every field of dataclass ``cls`` that has any (computed once per class)."""
+    cached = _RULES.get(cls)
+    if cached is None:
+        cached = _RULES[cls] = _field_rules(cls)
+    return cached
+
+
+def _field_rules(cls: type) -> tuple[FieldRules, ...]:
+    hints = get_type_hints(cls, include_extras=True)
+    out = []
+    for f in dataclasses.fields(cls):
+        tp = _strip_optional(hints[f.name])
+        rules: tuple[Rule, ...] = ()
+        if get_origin(tp) is Annotated:
+            tp, *meta = get_args(tp)
+            rules = tuple(m for m in meta if isinstance(m, Range | Count))
+            tp = _strip_optional(tp)
+        args = get_args(tp)
+        length = len(args) if get_origin(tp) is tuple and Ellipsis not in args else None
+        if rules or length is not None:
+            out.append((f.name, length, rules))
+    return tuple(out)
+
+
+def _strip_optional(tp: Any) -> Any:
+    if get_origin(tp) in (typing.Union, types.UnionType):
+        inner = [a for a in get_args(tp) if a is not type(None)]
+        if len(inner) == 1:
+            return inner[0]
+    return tp
+
+
+def field_range(cls: type, name: str) -> Rule | None:
+    """The :class:`Range` (or else :class:`Count`) of field ``name`` of ``cls``, for documents and tests."""
+    for fname, _, rules in field_rules(cls):
+        if fname == name and rules:
+            ranges = [r for r in rules if isinstance(r, Range)]
+            return ranges[0] if ranges else rules[0]
+    return None
+
 
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Read a TOML file, turning I/O and syntax errors into :class:`ConfigError`."""
+    """Read a TOML file, turning I/O, size, encoding and syntax errors into :class:`ConfigError`."""
     p = Path(path)
     try:
         with p.open("rb") as fh:
-            return tomllib.load(fh)
+            raw = fh.read(MAX_FILE_BYTES + 1)
     except FileNotFoundError:
         raise ConfigError(p, "<file>", "file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(p, "<file>", "is a directory, not a file") from None
     except OSError as exc:
         raise ConfigError(p, "<file>", f"cannot read: {exc.strerror}") from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise ConfigError(p, "<file>", f"file larger than {MAX_FILE_BYTES // 1024 // 1024} MiB")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise ConfigError(p, "<file>", f"not UTF-8 text (byte 0x{raw[exc.start]:02x} on line {line})") from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(p, "<file>", f"not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(p, "<file>", "not valid TOML: arrays or tables nested too deeply") from None
+
+
+@contextmanager
+def deferred_warnings() -> Iterator[None]:
+    """Hold back warnings raised inside the block; re-issue them only if the block succeeds.
+
+    Loading a file may warn (a mesh that is not watertight) before a later field fails; the
+    user must then see the one-line error alone, not warnings about a file that was refused.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
 
 
 def from_dict(cls: type[T], data: Any, source: str | Path, path: str = "") -> T:
@@ -49,7 +250,8 @@ def from_dict(cls: type[T], data: Any, source: str | Path, path: str = "") -> T:
         path: Dotted prefix of ``data`` inside the file, for nested calls.
 
     Raises:
-        ConfigError: Unknown field, missing required field, or a value of the wrong type.
+        ConfigError: Unknown field, missing required field, a value of the wrong type or shape,
+            or one outside its :class:`Range`.
     """
     return typing.cast(T, _convert(cls, data, source, path))
 
@@ -120,9 +322,13 @@ def _convert(tp: Any, value: Any, source: str | Path, path: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(source, where, f"expected a number, got {type(value).__name__}")
-        if math.isnan(value):
+        try:
+            number = float(value)
+        except OverflowError:
+            raise ConfigError(source, where, f"number too large for a float ({fmt_number(value)})") from None
+        if math.isnan(number):
             raise ConfigError(source, where, "must not be NaN")
-        return float(value)
+        return number
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(source, where, f"expected an integer, got {type(value).__name__}")

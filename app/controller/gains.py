@@ -2,14 +2,18 @@
 
 All six-element tuples are the diagonals of the paper's 6x6 gain matrices, ordered like
 Delta X: ``[x, y, z, gamma, beta, alpha]`` (translations first, then Z-Y-X angles).
+
+Every field has a physical :class:`~app.config.Range` (shown in ``devices/README.md``), checked
+whenever gains are built: from a device or session file, or from the web panel's text fields.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
-from typing import Any
+from dataclasses import dataclass, replace
+from typing import Annotated, Any
 
+from app.config import Checked, Range
 from app.controller.layout import Mode, RtcLaw
 from app.errors import InvalidField
 
@@ -21,7 +25,7 @@ INF6: Six = (math.inf, math.inf, math.inf, math.inf, math.inf, math.inf)
 
 
 @dataclass(frozen=True)
-class ControllerGains:
+class ControllerGains(Checked):
     """Gains of the Cartesian FRHC controller. Units are per axis: translations, then rotations.
 
     Attributes:
@@ -50,45 +54,31 @@ class ControllerGains:
     """
 
     mode: Mode = "rate"
-    k_v: Six = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
-    k_p: Six = ONE6
-    k_t: Six = ONE6
-    k_d: Six = (2.0, 2.0, 2.0, 0.02, 0.02, 0.02)
+    k_v: Annotated[Six, Range(0.0, 1e3, "1/s", name_array=True)] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+    k_p: Annotated[Six, Range(0.0, 100.0, name_array=True)] = ONE6
+    k_t: Annotated[Six, Range(0.0, 1e6, name_array=True)] = ONE6
+    k_d: Annotated[Six, Range(0.0, 1e3, "N s/m; N m s/rad", name_array=True)] = (2.0, 2.0, 2.0, 0.02, 0.02, 0.02)
     rtc: RtcLaw = "constant"
-    rtc_a: Six = (2.0e3, 2.0e3, 2.0e3, 2.0, 2.0, 2.0)
-    deadband: Six = (0.01, 0.01, 0.01, 0.05, 0.05, 0.05)
-    k_r: Six = (50.0, 50.0, 50.0, 0.5, 0.5, 0.5)
-    wall_start: Six = INF6
-    k_wall: Six = ZERO6
-    assist_fraction: float = 0.3
+    rtc_a: Annotated[Six, Range(0.0, 1e7, "N/m^2; N m/rad^2", name_array=True)] = (2.0e3, 2.0e3, 2.0e3, 2.0, 2.0, 2.0)
+    deadband: Annotated[Six, Range(0.0, 1.0, "m; rad", name_array=True)] = (0.01, 0.01, 0.01, 0.05, 0.05, 0.05)
+    k_r: Annotated[Six, Range(0.0, 1e5, "N/m; N m/rad", name_array=True)] = (50.0, 50.0, 50.0, 0.5, 0.5, 0.5)
+    wall_start: Annotated[Six, Range(0.0, 10.0, "m; rad", inf_ok=True, name_array=True)] = INF6
+    k_wall: Annotated[Six, Range(0.0, 1e6, "N/m; N m/rad", name_array=True)] = ZERO6
+    assist_fraction: Annotated[float, Range(0.0, 1.0, lo_open=True)] = 0.3
     remove_payload: bool = True
     remove_inertia: bool = False
     gravity_compensation: bool = True
-    euler_taper_deg: tuple[float, float] = (75.0, 85.0)
-    max_period: float = 0.01
+    euler_taper_deg: Annotated[tuple[float, float], Range(0.0, 90.0, "deg", lo_open=True, hi_open=True)] = (75.0, 85.0)
+    max_period: Annotated[float, Range(1e-5, 1.0, "s")] = 0.01
 
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, tuple):
-                if any(not isinstance(v, int | float) or math.isnan(v) for v in value):
-                    raise InvalidField(f.name, "values must be numbers, not NaN")
-                if f.name != "euler_taper_deg" and len(value) != 6:
-                    raise InvalidField(f.name, f"expected 6 values, got {len(value)}")
-        for name in ("k_v", "k_p", "k_t", "k_d", "rtc_a", "deadband", "k_r", "wall_start", "k_wall"):
-            if any(v < 0 for v in getattr(self, name)):
-                raise InvalidField(name, "gains must be non-negative")
+    def validate(self) -> None:
         if self.k_p[3:] != (1.0, 1.0, 1.0):
             raise InvalidField("k_p", "rotational pose gains (last three) must be 1: Z-Y-X angles cannot be scaled")
         if any(w < db for w, db in zip(self.wall_start, self.deadband, strict=True)):
             raise InvalidField("wall_start", "the wall must begin outside the deadband")
-        if not 0.0 < self.assist_fraction <= 1.0:
-            raise InvalidField("assist_fraction", "must be in (0, 1]")
         start, stop = self.euler_taper_deg
-        if not 0.0 < start < stop < 90.0:
+        if not start < stop:
             raise InvalidField("euler_taper_deg", "need 0 < start < stop < 90 degrees")
-        if not self.max_period > 0:
-            raise InvalidField("max_period", "must be positive")
 
     def with_changes(self, **changes: Any) -> ControllerGains:
         """A copy with some fields replaced (validated again)."""

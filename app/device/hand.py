@@ -22,11 +22,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
 import mujoco
 import numpy as np
 
-from app.errors import InvalidField
+from app.config import Checked, Range
 from app.spatial import Array
 
 #: MuJoCo actuator group of the hand's actuators; disabled (``opt.disableactuator``) when released.
@@ -36,8 +37,8 @@ HAND_SITE = "operator_hand_site"
 
 
 @dataclass(frozen=True)
-class HandParams:
-    """Impedance of the operator's hand/arm as felt at the grip.
+class HandParams(Checked):
+    """Impedance of the operator's hand/arm as felt at the grip (ranges: ``sessions/README.md``).
 
     Attributes:
         stiffness_trans: Translational stiffness K_t (N/m); a relaxed-to-firm human arm is ~200-800.
@@ -46,16 +47,10 @@ class HandParams:
         damping_rot: Rotational damping D_r (N m s/rad).
     """
 
-    stiffness_trans: float = 400.0
-    damping_trans: float = 10.0
-    stiffness_rot: float = 2.0
-    damping_rot: float = 0.05
-
-    def __post_init__(self) -> None:
-        for name in ("stiffness_trans", "damping_trans", "stiffness_rot", "damping_rot"):
-            v = getattr(self, name)
-            if not (v >= 0 and math.isfinite(v)):
-                raise InvalidField(name, "must be non-negative and finite")
+    stiffness_trans: Annotated[float, Range(0.0, 1e4, "N/m")] = 400.0
+    damping_trans: Annotated[float, Range(0.0, 1e3, "N s/m")] = 10.0
+    stiffness_rot: Annotated[float, Range(0.0, 100.0, "N m/rad")] = 2.0
+    damping_rot: Annotated[float, Range(0.0, 10.0, "N m s/rad")] = 0.05
 
 
 def add_hand(mjspec: mujoco.MjSpec, grip_site: str, params: HandParams) -> None:

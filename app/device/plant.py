@@ -29,123 +29,25 @@ joint clip to ``gear_ratio * torque_limit`` then cuts it off.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import mujoco
 import numpy as np
 import numpy.typing as npt
 
-from app.config import from_dict
 from app.device.hand import HandParams, OperatorHand, add_hand
-from app.device.spec import DeviceSpec, MotorSpec
-from app.errors import ConfigError, InvalidField
+from app.device.spec import DeviceSpec, MotorSpec, PlantParams
+from app.errors import ConfigError
 from app.spatial import Array
 
 #: Integer motor commands (counts), shape (n,).
 Counts = npt.NDArray[np.integer[Any]]
-
-#: Value a per-joint field takes for every joint when the table leaves it out (an ideal plant).
-_IDEAL = {
-    "mass_scale": 1.0,
-    "frictionloss": 0.0,
-    "damping": 0.0,
-    "armature": 0.0,
-    "encoder_counts_per_rev": 0,
-    "motor_gain_pos": 1.0,
-    "motor_gain_neg": 1.0,
-    "motor_softening_pos": 0.0,
-    "motor_softening_neg": 0.0,
-    "motor_deadzone": 0.0,
-}
-#: Fields of :class:`PlantParams` holding one value per joint.
-PER_JOINT_FIELDS = tuple(_IDEAL)
-
 
 #: The amplifier's servo watchdog (s): 20 servo periods at 1 kHz without new counts.
 WATCHDOG = 0.02
 
 #: Impedance (d0, d_width) of the joints' friction-loss constraints: near 1 for little creep.
 FRICTION_IMPEDANCE = (0.9999, 0.9999)
-
-
-@dataclass(frozen=True)
-class PlantParams:
-    """The ``[plant]`` table of a device file: how the simulated hardware differs from the model.
-
-    Per-joint arrays are in motor (``joints``) order and have one value per joint, or are left out
-    (empty) for the ideal value given in brackets.
-
-    Attributes:
-        substeps: Physics steps per servo period (-); the physics timestep is ``dt / substeps``.
-        mass_scale: Factor (-) on the mass and rotational inertia of the link each joint moves [1].
-        frictionloss: Coulomb joint friction added to the MJCF's (N m joint side; N for slides) [0].
-        damping: Viscous joint damping added to the MJCF's (N m s/rad; N s/m for slides) [0].
-        armature: Reflected rotor inertia added to the MJCF's (kg m^2; kg for slides) [0].
-        encoder_counts_per_rev: Encoder resolution at the joint (counts per revolution; counts per
-            metre for slides); 0 means an ideal, unquantised encoder [0].
-        motor_gain_pos: True motor torque at +full-scale counts, as a fraction of ``torque_limit`` [1].
-        motor_gain_neg: The same for -full-scale counts (-) [1].
-        motor_softening_pos: Softening k (-) of the true curve for positive counts, in (-1, 0.5] [0].
-        motor_softening_neg: The same for negative counts [0].
-        motor_deadzone: Amplifier deadzone as a fraction of ``counts_max`` (-), in [0, 0.5) [0].
-    """
-
-    substeps: int = 1
-    mass_scale: tuple[float, ...] = ()
-    frictionloss: tuple[float, ...] = ()
-    damping: tuple[float, ...] = ()
-    armature: tuple[float, ...] = ()
-    encoder_counts_per_rev: tuple[int, ...] = ()
-    motor_gain_pos: tuple[float, ...] = ()
-    motor_gain_neg: tuple[float, ...] = ()
-    motor_softening_pos: tuple[float, ...] = ()
-    motor_softening_neg: tuple[float, ...] = ()
-    motor_deadzone: tuple[float, ...] = ()
-
-    def __post_init__(self) -> None:
-        if self.substeps < 1:
-            raise InvalidField("substeps", "must be at least 1")
-        checks: dict[str, tuple[float, float, bool, str]] = {
-            # name: (low, high, low_inclusive, description of the valid range)
-            "mass_scale": (0.0, math.inf, False, "positive"),
-            "frictionloss": (0.0, math.inf, True, "non-negative"),
-            "damping": (0.0, math.inf, True, "non-negative"),
-            "armature": (0.0, math.inf, True, "non-negative"),
-            "encoder_counts_per_rev": (0.0, math.inf, True, "non-negative"),
-            "motor_gain_pos": (0.0, math.inf, False, "positive"),
-            "motor_gain_neg": (0.0, math.inf, False, "positive"),
-            "motor_softening_pos": (-1.0, 0.5, False, "in (-1, 0.5]"),
-            "motor_softening_neg": (-1.0, 0.5, False, "in (-1, 0.5]"),
-            "motor_deadzone": (0.0, 0.5, True, "in [0, 0.5)"),
-        }
-        for name, (low, high, low_incl, what) in checks.items():
-            for i, v in enumerate(getattr(self, name)):
-                above = v >= low if low_incl else v > low
-                below = v <= high if name.startswith("motor_softening") else v < high
-                if not (above and below and math.isfinite(v)):
-                    raise InvalidField(f"{name}[{i}]", f"must be finite and {what}, got {v}")
-
-    def per_joint(self, name: str, n: int) -> Array:
-        """Field ``name`` as a float array of shape (n,), with the ideal value when left out."""
-        values = getattr(self, name)
-        return np.array(values, dtype=float) if values else np.full(n, float(_IDEAL[name]))
-
-
-def load_plant_params(spec: DeviceSpec) -> PlantParams:
-    """Parse and cross-check the device file's ``[plant]`` table.
-
-    Raises:
-        ConfigError: naming the device file and ``plant.<field>`` for unknown fields, bad values
-            or a per-joint array whose length is not the number of joints.
-    """
-    params = from_dict(PlantParams, spec.data.plant, spec.path, "plant")
-    n = spec.n_joints
-    for name in PER_JOINT_FIELDS:
-        values = getattr(params, name)
-        if values and len(values) != n:
-            raise ConfigError(spec.path, f"plant.{name}", f"expected {n} values (one per joint), got {len(values)}")
-    return params
 
 
 def true_motor_torque(params: PlantParams, motors: MotorSpec, counts: Array) -> Array:
@@ -253,7 +155,8 @@ class DevicePlant:
             motors are switched off until counts arrive again (as on real amplifiers).
 
     Raises:
-        ConfigError: for a malformed ``[plant]`` table or joints without consecutive qpos/dof slots.
+        ConfigError: for joints without consecutive qpos/dof slots (the ``[plant]`` table itself,
+            :class:`~app.device.spec.PlantParams`, was checked by :func:`~app.device.spec.load_device`).
     """
 
     def __init__(self, spec: DeviceSpec, hand: HandParams | None = None, watchdog: float = WATCHDOG) -> None:
@@ -262,7 +165,7 @@ class DevicePlant:
         self.spec = spec
         self.watchdog = watchdog
         self._since_counts = 0.0
-        self.params = load_plant_params(spec)
+        self.params = spec.data.plant
         n = spec.n_joints
         self.n_joints = n
         qpos_slice = _contiguous(spec.qpos_ids)
@@ -294,8 +197,6 @@ class DevicePlant:
 
         cpr = self.params.per_joint("encoder_counts_per_rev", n)
         self._quantise = bool(np.all(cpr > 0))
-        if np.any(cpr > 0) and not self._quantise:
-            raise ConfigError(spec.path, "plant.encoder_counts_per_rev", "give every joint a resolution, or none")
         hinge = int(mujoco.mjtJoint.mjJNT_HINGE)
         is_hinge = np.array([int(self.model.jnt_type[j]) == hinge for j in spec.joint_ids])
         self._enc_scale = np.where(is_hinge, cpr / (2.0 * math.pi), cpr)

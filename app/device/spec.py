@@ -1,29 +1,45 @@
-"""Device files: ``devices/<name>/device.toml`` and the MJCF model it names.
+"""Device files: ``devices/<name>/device.toml``, its calibration file and the MJCF model it names.
 
 A device file describes one force-reflecting hand controller. The controller reads the
 kinematic/inertial model (MJCF), the motors (limits, gear ratios, counts) and the torque
 curves; the simulated plant additionally reads the ``[plant]`` table, which describes how
-the simulated hardware differs from that model (see :mod:`app.device.plant`).
+the simulated hardware differs from that model (see :mod:`app.device.plant`). All of it,
+``[plant]`` included, is parsed and cross-checked by :func:`load_device`, so ``frhc check``
+sees every error ``frhc run`` would. Every field has a physical range
+(:class:`~app.config.Range`), shown in ``devices/README.md``.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Literal
 
 import mujoco
+import numpy as np
+from numpy.polynomial import polynomial as npoly
 
-from app.config import from_dict, load_toml
+from app.config import Checked, Count, Range, deferred_warnings, from_dict, load_toml
 from app.controller.gains import ControllerGains
 from app.errors import ConfigError, InvalidField
+from app.spatial import Array
 
 DEVICES_DIR = Path(__file__).resolve().parents[2] / "devices"
+#: The device used where none is named (the web demo, ``frhc check`` of a scene).
+DEFAULT_DEVICE = "kraft"
+
+#: Most actuated joints of a device.
+MAX_JOINTS = 32
+#: Largest amplifier full scale (counts): a 16-bit DAC. The plant tabulates every count.
+MAX_COUNTS = 65535
+#: Samples per driving direction at which a calibration curve is checked (plus its turning points).
+CURVE_SAMPLES = 2001
+
+PerJoint = tuple[float, ...]
 
 
 @dataclass(frozen=True)
-class MotorSpec:
+class MotorSpec(Checked):
     """Motors and drive electronics of every joint (arrays are per joint, in joint order).
 
     Attributes:
@@ -33,39 +49,128 @@ class MotorSpec:
         counts_per_nm: The manufacturer's linear torque curve (counts per N m of motor torque).
     """
 
-    torque_limit: tuple[float, ...]
-    gear_ratio: tuple[float, ...]
-    counts_max: int
-    counts_per_nm: tuple[float, ...]
-
-    def __post_init__(self) -> None:
-        for name in ("torque_limit", "gear_ratio", "counts_per_nm"):
-            if any(not (v > 0 and math.isfinite(v)) for v in getattr(self, name)):
-                raise InvalidField(name, "values must be positive and finite")
-        if self.counts_max <= 0:
-            raise InvalidField("counts_max", "must be positive")
+    torque_limit: Annotated[PerJoint, Range(0.0, 1e3, "N m", lo_open=True, name_array=True)]
+    gear_ratio: Annotated[PerJoint, Range(0.0, 1e4, lo_open=True, name_array=True)]
+    counts_max: Annotated[int, Range(1, MAX_COUNTS, "counts")]
+    counts_per_nm: Annotated[PerJoint, Range(0.0, 1e9, "counts/(N m)", lo_open=True, name_array=True)]
 
 
 @dataclass(frozen=True)
-class CalibrationSpec:
+class CalibrationSpec(Checked):
     """Fitted torque-to-counts curves (paper Sec 4.2), per joint and driving direction.
 
     ``counts = sum_k c[k] * tau**k`` for ``k = 0..5`` with tau the motor torque (N m);
     ``positive`` applies for tau >= 0 and ``negative`` for tau < 0. Shapes (n_joints, 6).
     """
 
-    positive: tuple[tuple[float, ...], ...]
-    negative: tuple[tuple[float, ...], ...]
+    positive: Annotated[tuple[PerJoint, ...], Range(-1e15, 1e15, "counts/(N m)^k")]
+    negative: Annotated[tuple[PerJoint, ...], Range(-1e15, 1e15, "counts/(N m)^k")]
 
-    def __post_init__(self) -> None:
+    def validate(self) -> None:
         for name in ("positive", "negative"):
             for i, row in enumerate(getattr(self, name)):
                 if len(row) != 6:
                     raise InvalidField(f"{name}[{i}]", f"expected 6 coefficients (5th order), got {len(row)}")
 
+    def check_curves(self, motors: MotorSpec) -> None:
+        """Each curve, clipped to +-counts_max, must rise monotonically and keep the torque's sign.
+
+        Checked over the whole torque range the controller commands, ``0..+-torque_limit``
+        (motor side), at :data:`CURVE_SAMPLES` points plus the curve's turning points.
+
+        Raises:
+            InvalidField: naming ``positive[j]`` or ``negative[j]``.
+        """
+        cmax = float(motors.counts_max)
+        for name, sign in (("positive", 1.0), ("negative", -1.0)):
+            for j, row in enumerate(getattr(self, name)):
+                limit = motors.torque_limit[j]
+                c = np.asarray(row, dtype=float)
+                turning = npoly.polyroots(npoly.polyder(c)) if np.any(c[1:]) else np.zeros(0)
+                turning = np.abs(turning[np.abs(turning.imag) < 1e-12 * limit].real)
+                mag = np.union1d(np.linspace(0.0, limit, CURVE_SAMPLES), turning[turning < limit])
+                counts = sign * np.clip(npoly.polyval(sign * mag[1:], c), -cmax, cmax)
+                drop = np.diff(counts) < -1e-9 * cmax
+                if np.any(drop):
+                    k = int(np.argmax(drop)) + 1
+                    raise InvalidField(
+                        f"{name}[{j}]",
+                        f"not monotonic over 0..{sign * limit:+g} N m: it turns back at {sign * mag[k]:+.4g} N m",
+                    )
+                if np.any(counts < 0):
+                    k = int(np.argmax(counts < 0)) + 1
+                    raise InvalidField(
+                        f"{name}[{j}]",
+                        f"reverses the torque's sign: {sign * mag[k]:+.4g} N m gives {sign * counts[k - 1]:+.0f} counts",
+                    )
+
+
+#: Value a per-joint ``[plant]`` field takes for every joint when the table leaves it out (an ideal plant).
+_IDEAL = {
+    "mass_scale": 1.0,
+    "frictionloss": 0.0,
+    "damping": 0.0,
+    "armature": 0.0,
+    "encoder_counts_per_rev": 0,
+    "motor_gain_pos": 1.0,
+    "motor_gain_neg": 1.0,
+    "motor_softening_pos": 0.0,
+    "motor_softening_neg": 0.0,
+    "motor_deadzone": 0.0,
+}
+#: Fields of :class:`PlantParams` holding one value per joint.
+PER_JOINT_FIELDS = tuple(_IDEAL)
+_SOFTENING = Range(-1.0, 0.5, lo_open=True)
+_MOTOR_GAIN = Range(0.0, 10.0, lo_open=True)
+
 
 @dataclass(frozen=True)
-class DeviceFile:
+class PlantParams(Checked):
+    """The ``[plant]`` table of a device file: how the simulated hardware differs from the model.
+
+    Per-joint arrays are in motor (``joints``) order and have one value per joint, or are left out
+    (empty) for the ideal value given in brackets.
+
+    Attributes:
+        substeps: Physics steps per servo period (-); the physics timestep is ``dt / substeps``.
+        mass_scale: Factor (-) on the mass and rotational inertia of the link each joint moves [1].
+        frictionloss: Coulomb joint friction added to the MJCF's (N m joint side; N for slides) [0].
+        damping: Viscous joint damping added to the MJCF's (N m s/rad; N s/m for slides) [0].
+        armature: Reflected rotor inertia added to the MJCF's (kg m^2; kg for slides) [0].
+        encoder_counts_per_rev: Encoder resolution at the joint (counts per revolution; counts per
+            metre for slides); 0 means an ideal, unquantised encoder [0]. All joints or none.
+        motor_gain_pos: True motor torque at +full-scale counts, as a fraction of ``torque_limit`` [1].
+        motor_gain_neg: The same for -full-scale counts (-) [1].
+        motor_softening_pos: Softening k (-) of the true curve for positive counts, in (-1, 0.5] [0].
+        motor_softening_neg: The same for negative counts [0].
+        motor_deadzone: Amplifier deadzone as a fraction of ``counts_max`` (-), in [0, 0.5) [0].
+    """
+
+    substeps: Annotated[int, Range(1, 100)] = 1
+    mass_scale: Annotated[PerJoint, Range(0.01, 100.0)] = ()
+    frictionloss: Annotated[PerJoint, Range(0.0, 1e3, "N m")] = ()
+    damping: Annotated[PerJoint, Range(0.0, 1e3, "N m s/rad")] = ()
+    armature: Annotated[PerJoint, Range(0.0, 10.0, "kg m^2")] = ()
+    encoder_counts_per_rev: Annotated[tuple[int, ...], Range(0, 2**32, "counts/rev")] = ()
+    motor_gain_pos: Annotated[PerJoint, _MOTOR_GAIN] = ()
+    motor_gain_neg: Annotated[PerJoint, _MOTOR_GAIN] = ()
+    motor_softening_pos: Annotated[PerJoint, _SOFTENING] = ()
+    motor_softening_neg: Annotated[PerJoint, _SOFTENING] = ()
+    motor_deadzone: Annotated[PerJoint, Range(0.0, 0.5, hi_open=True)] = ()
+
+    def validate(self) -> None:
+        cpr = self.encoder_counts_per_rev
+        if any(v > 0 for v in cpr) and not all(v > 0 for v in cpr):
+            raise InvalidField("encoder_counts_per_rev", "give every joint a resolution, or none")
+
+    def per_joint(self, name: str, n: int) -> Array:
+        """Field ``name`` as a float array of shape (n,), with the ideal value when left out."""
+        values = getattr(self, name)
+        return np.array(values, dtype=float) if values else np.full(n, float(_IDEAL[name]))
+
+
+@dataclass(frozen=True)
+class DeviceFile(Checked):
     """The schema of ``device.toml``; see ``devices/kraft/device.toml`` for a commented example.
 
     Attributes:
@@ -88,13 +193,18 @@ class DeviceFile:
     mjcf: str
     grip_site: str
     wrist_site: str
-    joints: tuple[str, ...]
-    home: tuple[float, ...]
+    joints: Annotated[tuple[str, ...], Count(1, MAX_JOINTS)]
+    home: Annotated[PerJoint, Range(-10.0, 10.0, "rad (m for slides)")]
     motors: MotorSpec
     calibration: str | None = None
-    torque_curve: str = "manufacturer"
+    torque_curve: Literal["manufacturer", "calibrated"] = "manufacturer"
     gains: ControllerGains = field(default_factory=ControllerGains)
-    plant: dict[str, Any] = field(default_factory=dict)
+    plant: PlantParams = field(default_factory=PlantParams)
+
+    def validate(self) -> None:
+        for i, jname in enumerate(self.joints):
+            if jname in self.joints[:i]:
+                raise InvalidField(f"joints[{i}]", f"duplicate joint name {jname!r}")
 
 
 @dataclass(frozen=True)
@@ -152,7 +262,8 @@ def load_mjcf(path: Path, source: Path, field_name: str = "mjcf") -> mujoco.MjMo
     if not path.is_file():
         raise ConfigError(source, field_name, f"MJCF file not found: {path}")
     try:
-        return mujoco.MjModel.from_xml_path(str(path))
+        with deferred_warnings():
+            return mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
         reason = " ".join(str(exc).split())
         raise ConfigError(source, field_name, f"MuJoCo cannot load {path.name}: {reason}") from None
@@ -171,13 +282,12 @@ def load_device(name_or_path: str | Path) -> DeviceSpec:
     data = from_dict(DeviceFile, load_toml(path), path)
     model = load_mjcf(path.parent / data.mjcf, path)
     n = len(data.joints)
-    for name in ("torque_limit", "gear_ratio", "counts_per_nm"):
-        if len(getattr(data.motors, name)) != n:
-            raise ConfigError(
-                path, f"motors.{name}", f"expected {n} values (one per joint), got {len(getattr(data.motors, name))}"
-            )
-    if len(data.home) != n:
-        raise ConfigError(path, "home", f"expected {n} values (one per joint), got {len(data.home)}")
+    per_joint = [(f"motors.{k}", getattr(data.motors, k)) for k in ("torque_limit", "gear_ratio", "counts_per_nm")]
+    per_joint += [("home", data.home)]
+    per_joint += [(f"plant.{k}", getattr(data.plant, k)) for k in PER_JOINT_FIELDS if getattr(data.plant, k)]
+    for fname, values in per_joint:
+        if len(values) != n:
+            raise ConfigError(path, fname, f"expected {n} values (one per joint), got {len(values)}")
     joint_ids = []
     for i, jname in enumerate(data.joints):
         jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, jname)
@@ -185,6 +295,11 @@ def load_device(name_or_path: str | Path) -> DeviceSpec:
             raise ConfigError(path, f"joints[{i}]", f"unknown joint '{jname}' in {data.mjcf}")
         if int(model.jnt_type[jid]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
             raise ConfigError(path, f"joints[{i}]", f"joint '{jname}' must be a hinge or slide joint")
+        low, high = (float(v) for v in model.jnt_range[jid])
+        if model.jnt_limited[jid] and not low <= data.home[i] <= high:
+            raise ConfigError(
+                path, f"home[{i}]", f"{data.home[i]:g} is outside joint '{jname}''s range [{low:g}, {high:g}]"
+            )
         joint_ids.append(jid)
     for fname in ("grip_site", "wrist_site"):
         sname = getattr(data, fname)
@@ -193,14 +308,18 @@ def load_device(name_or_path: str | Path) -> DeviceSpec:
     calibration = None
     if data.calibration is not None:
         cal_path = path.parent / data.calibration
+        if not cal_path.is_file():
+            raise ConfigError(path, "calibration", f"calibration file not found: {cal_path}")
         calibration = from_dict(CalibrationSpec, load_toml(cal_path), cal_path)
         for side in ("positive", "negative"):
             if len(getattr(calibration, side)) != n:
                 raise ConfigError(
                     cal_path, side, f"expected {n} rows (one per joint), got {len(getattr(calibration, side))}"
                 )
-    if data.torque_curve not in ("manufacturer", "calibrated"):
-        raise ConfigError(path, "torque_curve", "must be 'manufacturer' or 'calibrated'")
+        try:
+            calibration.check_curves(data.motors)
+        except InvalidField as exc:
+            raise ConfigError(cal_path, exc.field, exc.reason) from None
     if data.torque_curve == "calibrated" and calibration is None:
         raise ConfigError(path, "torque_curve", "'calibrated' needs a calibration file")
     return DeviceSpec(

@@ -1,8 +1,8 @@
 """Session files: ``sessions/<name>.toml`` — scene, device, mode, gains, rate, duration, seed, script.
 
 Everything is checked before anything runs: unknown fields, unknown scene or device names,
-non-monotonic waypoint times or a negative duration raise one :class:`~app.errors.ConfigError`
-naming the file and the field.
+non-monotonic waypoint times, a value outside its range (``sessions/README.md``) or a run longer
+than :data:`MAX_TICKS` raise one :class:`~app.errors.ConfigError` naming the file and the field.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
-from app.config import from_dict, load_toml
+from app.config import Checked, Count, Range, from_dict, load_toml
 from app.controller.gains import ControllerGains
 from app.controller.layout import Mode
 from app.device.hand import HandParams
@@ -23,9 +23,19 @@ from app.world.scene import Scene, load_scene
 
 SESSIONS_DIR = Path(__file__).resolve().parents[2] / "sessions"
 
+#: Most servo ticks (``duration * servo_rate``) of one session: an hour at 1 kHz. The run keeps
+#: per-tick stage timings in memory (32 bytes a tick) and logs every tick to Parquet.
+MAX_TICKS = 3_600_000
+#: Longest time (s) anywhere in a session file: one day.
+MAX_TIME = 86_400.0
+#: Most waypoints, and most switch events, of one session.
+MAX_SCRIPT_ENTRIES = 100_000
+
+TIME = Range(0.0, MAX_TIME, "s")
+
 
 @dataclass(frozen=True)
-class Waypoint:
+class Waypoint(Checked):
     """One hand-target pose, relative to where the grip started.
 
     Attributes:
@@ -35,19 +45,19 @@ class Waypoint:
             start orientation, applied in the grip's start frame.
     """
 
-    t: float
-    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    zyx_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    t: Annotated[float, TIME]
+    position: Annotated[tuple[float, float, float], Range(-2.0, 2.0, "m")] = (0.0, 0.0, 0.0)
+    zyx_deg: Annotated[tuple[float, float, float], Range(-360.0, 360.0, "deg")] = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
-class SwitchEvent:
+class SwitchEvent(Checked):
     """Switch changes at time ``t`` (s). ``reference = true`` is a press: it releases one tick later.
 
     ``hand = false`` lets go of the grip (the hand target is ignored until ``hand = true``).
     """
 
-    t: float
+    t: Annotated[float, TIME]
     deadman: bool | None = None
     reflection: bool | None = None
     reference: bool | None = None
@@ -55,7 +65,7 @@ class SwitchEvent:
 
 
 @dataclass(frozen=True)
-class SessionFile:
+class SessionFile(Checked):
     """The schema of a session file (see ``sessions/probe_rate.toml`` for a commented example).
 
     Attributes:
@@ -76,39 +86,30 @@ class SessionFile:
 
     scene: str
     device: str
-    duration: float
+    duration: Annotated[float, Range(0.0, MAX_TIME, "s", lo_open=True)]
     mode: Mode = "rate"
-    servo_rate: float = 1000.0
-    seed: int = 0
+    servo_rate: Annotated[float, Range(100.0, 20000.0, "Hz")] = 1000.0
+    seed: Annotated[int, Range(0, 2**32 - 1)] = 0
     accommodation: bool = True
-    tremor: float = 0.0
-    time_scale: float = 1.0
+    tremor: Annotated[float, Range(0.0, 0.01, "m")] = 0.0
+    time_scale: Annotated[float, Range(1e-3, 1e3)] = 1.0
     gains: dict[str, Any] = field(default_factory=dict)
     hand: HandParams = field(default_factory=HandParams)
-    waypoints: tuple[Waypoint, ...] = ()
-    events: tuple[SwitchEvent, ...] = ()
+    waypoints: Annotated[tuple[Waypoint, ...], Count(0, MAX_SCRIPT_ENTRIES)] = ()
+    events: Annotated[tuple[SwitchEvent, ...], Count(0, MAX_SCRIPT_ENTRIES)] = ()
 
-    def __post_init__(self) -> None:
-        if not (self.duration > 0 and math.isfinite(self.duration)):
-            raise InvalidField("duration", "must be a positive number of seconds")
-        if not (100.0 <= self.servo_rate <= 20000.0):
-            raise InvalidField("servo_rate", "must be between 100 and 20000 Hz")
-        if not (self.tremor >= 0):
-            raise InvalidField("tremor", "must be >= 0")
-        if not (self.time_scale > 0):
-            raise InvalidField("time_scale", "must be positive")
+    def validate(self) -> None:
+        if self.n_ticks > MAX_TICKS:
+            raise InvalidField(
+                "duration",
+                f"{self.duration:g} s at {self.servo_rate:g} Hz is {self.n_ticks} ticks (at most {MAX_TICKS})",
+            )
         times = [w.t for w in self.waypoints]
         for i in range(1, len(times)):
             if not times[i] > times[i - 1]:
                 raise InvalidField(
                     f"waypoints[{i}].t", f"waypoint times must increase ({times[i]} after {times[i - 1]})"
                 )
-        for i, t in enumerate(times):
-            if t < 0:
-                raise InvalidField(f"waypoints[{i}].t", "must be >= 0")
-        for i, e in enumerate(self.events):
-            if e.t < 0:
-                raise InvalidField(f"events[{i}].t", "must be >= 0")
 
     @property
     def n_ticks(self) -> int:
@@ -152,6 +153,12 @@ def resolve_session(data: SessionFile, path: Path | None) -> Session:
     scene = _resolve(load_scene, data.scene, source, "scene")
     base = dataclasses.asdict(device.data.gains)
     gains = from_dict(ControllerGains, {**base, **data.gains, "mode": data.mode}, source, "gains")
+    if gains.max_period * data.servo_rate < 1.0:
+        raise ConfigError(
+            source,
+            "gains.max_period",
+            f"{gains.max_period:g} s is shorter than the servo period 1/{data.servo_rate:g} Hz: every tick would overrun",
+        )
     return Session(path, data, device, scene, gains)
 
 

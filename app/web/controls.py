@@ -82,14 +82,18 @@ def format_six(values: tuple[float, ...]) -> str:
     return ", ".join(f"{v:g}" for v in values)
 
 
-def parse_six(text: str) -> tuple[float, ...]:
-    """``"1, 2, 3, 4, 5, 6"`` as floats; raises InvalidField for anything else."""
+def parse_six(name: str, text: str) -> tuple[float, ...]:
+    """``"1, 2, 3, 4, 5, 6"`` typed into gain ``name`` as floats; raises InvalidField naming ``name``.
+
+    Only the shape is checked here: the values' ranges (finite, sign, magnitude) are
+    :class:`ControllerGains`'s, checked when the gains are built from them.
+    """
     try:
         values = tuple(float(v) for v in text.replace(";", ",").split(","))
     except ValueError:
-        raise InvalidField("value", f"'{text}' is not six comma-separated numbers") from None
+        raise InvalidField(name, f"'{text}' is not six comma-separated numbers") from None
     if len(values) != 6:
-        raise InvalidField("value", f"expected 6 values, got {len(values)}")
+        raise InvalidField(name, f"expected 6 values, got {len(values)}")
     return values
 
 
@@ -252,7 +256,7 @@ class Controls:
         """Build gains from every input; refuse (and say why) anything the gains reject."""
         current = self.actions.gains
         try:
-            changes: dict[str, object] = {name: parse_six(h.value) for name, h in self.six.items()}
+            changes: dict[str, object] = {name: parse_six(name, h.value) for name, h in self.six.items()}
             gains = current.with_changes(
                 mode=self.mode.value,
                 rtc=self.rtc.value,

@@ -1,0 +1,69 @@
+"""The web panel's gain text fields refuse non-finite, out-of-range and wrongly shaped values, naming the gain."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+from app.controller.gains import ControllerGains
+from app.web.controls import SIX_GAINS, Controls, format_six
+
+
+class Actions:
+    """The demo application, reduced to its gains."""
+
+    def __init__(self) -> None:
+        self.gains = ControllerGains()
+        self.applied: list[ControllerGains] = []
+
+    def set_gains(self, gains: ControllerGains) -> None:
+        self.applied.append(gains)
+
+
+def panel(**texts: str) -> SimpleNamespace:
+    """What :meth:`Controls._apply_gains` reads of the panel, with some gain fields typed over."""
+    gains = ControllerGains()
+    six = {name: SimpleNamespace(value=texts.get(name, format_six(getattr(gains, name)))) for name, _, _ in SIX_GAINS}
+    return SimpleNamespace(
+        actions=Actions(),
+        six=six,
+        mode=SimpleNamespace(value=gains.mode),
+        rtc=SimpleNamespace(value=gains.rtc),
+        remove_payload=SimpleNamespace(value=gains.remove_payload),
+        gravity_compensation=SimpleNamespace(value=gains.gravity_compensation),
+        gain_message=SimpleNamespace(content=""),
+    )
+
+
+def apply(p: SimpleNamespace) -> str:
+    Controls._apply_gains(p, SimpleNamespace(client=None))
+    return str(p.gain_message.content)
+
+
+@pytest.mark.parametrize("name", [name for name, _, _ in SIX_GAINS])
+@pytest.mark.parametrize(
+    ("text", "reason"),
+    [
+        ("inf, 1, 1, 1, 1, 1", "finite"),
+        ("1e400, 1, 1, 1, 1, 1", "finite"),
+        ("1e30, 1, 1, 1, 1, 1", "must be"),
+        ("nan, 1, 1, 1, 1, 1", "NaN"),
+        ("-1, 1, 1, 1, 1, 1", "non-negative"),
+        ("1, 1, 1", "expected 6 values"),
+        ("1, 2, x, 4, 5, 6", "not six comma-separated numbers"),
+    ],
+)
+def test_a_bad_gain_is_refused_naming_it(name: str, text: str, reason: str) -> None:
+    p = panel(**{name: text})
+    message = apply(p)
+    assert message.startswith(f"**Refused {name}: ")
+    assert reason in message
+    assert "kept the previous gains" in message
+    assert p.actions.applied == []
+
+
+def test_good_gains_are_applied() -> None:
+    p = panel(k_t="0.5, 0.5, 0.5, 0.2, 0.2, 0.2")
+    assert apply(p) == "gains applied"
+    assert p.actions.applied[0].k_t == (0.5, 0.5, 0.5, 0.2, 0.2, 0.2)

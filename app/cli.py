@@ -94,7 +94,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 def _cmd_web(args: argparse.Namespace) -> int:
     from app.web.server import serve
 
-    serve(args.scene, args.device, host=args.host, port=args.port, session=args.session)
+    serve(args.scene, args.device, host=args.host, port=args.port, session=args.session, insecure=args.insecure)
     return 0
 
 
@@ -159,8 +159,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scene", default="probe", help="scene name or path (default: probe)")
     p.add_argument("--device", default="kraft", help="device name or path (default: kraft)")
     p.add_argument("--session", default=None, help="start with this session's gains and mode")
-    p.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1; others print a warning)")
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="bind address (default 127.0.0.1); any other needs the access token in the printed URL",
+    )
     p.add_argument("--port", type=int, default=8080)
+    p.add_argument("--insecure", action="store_true", help="serve a non-loopback --host without an access token")
     p.set_defaults(func=_cmd_web)
     return parser
 

@@ -26,6 +26,7 @@ from app.device.spec import DeviceSpec, available_devices, load_device
 from app.session.loop import LoopConfig
 from app.session.spec import Session, load_session
 from app.spatial import Array
+from app.web.access import TOKEN_NAME, TokenGate, new_token
 from app.web.controls import Controls
 from app.web.realtime import RealtimeLoop
 from app.web.scene_view import SceneView
@@ -64,6 +65,8 @@ class DemoApp:
         self.rt.set_hand_target(self._home_T_0_G)
         self._recording = False
         self.controls = Controls(server, self, available_scenes(), available_devices(), scene.spec.name, device.name)
+        self.gate: TokenGate | None = None
+        self.url = ""
         self._stop = threading.Event()
         self._ui = threading.Thread(target=self._ui_loop, name="web-ui", daemon=True)
         self.rt.start()
@@ -160,10 +163,13 @@ class DemoApp:
             next_frame = max(next_frame, time.perf_counter() - period)
 
     def close(self) -> None:
-        """Stop the UI thread and the servo loop (closing any log); the server is left running."""
+        """Stop the UI thread, the servo loop (closing any log) and the token gate; the server is
+        left running."""
         self._stop.set()
         self._ui.join()
         self.rt.stop()
+        if self.gate is not None:
+            self.gate.close()
 
 
 def is_loopback(host: str) -> bool:
@@ -176,9 +182,18 @@ def is_loopback(host: str) -> bool:
 
 
 def start_demo(
-    scene: str, device: str, host: str = "127.0.0.1", port: int = 8080, session: str | None = None
+    scene: str,
+    device: str,
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    session: str | None = None,
+    insecure: bool = False,
 ) -> DemoApp:
     """Check the inputs, start a viser server and the demo on it; returns at once (non-blocking).
+
+    On a non-loopback ``host`` the demo is served through a :class:`~app.web.access.TokenGate`
+    (viser itself listens on loopback) unless ``insecure``; :attr:`DemoApp.url` is the address to
+    open, with the token.
 
     Raises:
         ConfigError: for an unknown or malformed scene, device or session, before any server starts.
@@ -186,10 +201,23 @@ def start_demo(
     loaded_session = load_session(session) if session is not None else None
     scene_obj = load_scene(scene)
     device_obj = load_device(device)
-    if not is_loopback(host):
-        print(f"warning: serving on {host}: anyone who can reach this address can drive the demo", file=sys.stderr)
-    server = viser.ViserServer(host=host, port=port, label="FRHC haptic demo", verbose=False)
-    return DemoApp(server, scene_obj, device_obj, loaded_session)
+    gated = not is_loopback(host) and not insecure
+    server = viser.ViserServer(
+        host="127.0.0.1" if gated else host, port=0 if gated else port, label="FRHC haptic demo", verbose=False
+    )
+    app = DemoApp(server, scene_obj, device_obj, loaded_session)
+    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    if gated:
+        app.gate = TokenGate(host, port, server.get_port(), new_token())
+        app.url = f"http://{shown}:{app.gate.port}/?{TOKEN_NAME}={app.gate.token}"
+    else:
+        if not is_loopback(host):
+            print(
+                f"warning: serving on {host} without a token (--insecure): anyone who can reach it can drive the demo",
+                file=sys.stderr,
+            )
+        app.url = f"http://{shown}:{server.get_port()}/"
+    return app
 
 
 def serve(
@@ -199,24 +227,25 @@ def serve(
     port: int = 8080,
     session: str | None = None,
     open_seconds: float | None = None,
+    insecure: bool = False,
 ) -> None:
     """Serve the browser demo until interrupted (or for ``open_seconds`` seconds), printing its URL.
 
     Args:
         scene: Scene name in ``scenes/`` or path to a scene ``.toml``.
         device: Device name in ``devices/`` or path to a ``device.toml``.
-        host: Bind address; anything but loopback prints a warning.
+        host: Bind address; anything but loopback needs the printed token (or ``insecure``).
         port: TCP port (viser moves to the next free one if it is taken; the printed URL is right).
         session: Optional session whose gains, mode, hand, accommodation and servo rate are used
             (scene and device still come from the arguments).
         open_seconds: Return after this long instead of serving forever (for tests).
+        insecure: Serve a non-loopback ``host`` without a token.
 
     Raises:
         ConfigError: for an unknown or malformed scene, device or session, before the server starts.
     """
-    app = start_demo(scene, device, host, port, session)
-    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
-    print(f"FRHC haptic demo: http://{shown}:{app.server.get_port()}/  (Ctrl+C to stop)", flush=True)
+    app = start_demo(scene, device, host, port, session, insecure)
+    print(f"FRHC haptic demo: {app.url}  (Ctrl+C to stop)", flush=True)
     try:
         if open_seconds is None:
             while True:

@@ -94,7 +94,15 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 def _cmd_web(args: argparse.Namespace) -> int:
     from app.web.server import serve
 
-    serve(args.scene, args.device, host=args.host, port=args.port, session=args.session, insecure=args.insecure)
+    serve(
+        args.scene,
+        args.device,
+        host=args.host,
+        port=args.port,
+        session=args.session,
+        insecure=args.insecure,
+        replay=args.replay,
+    )
     return 0
 
 
@@ -166,6 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--port", type=int, default=8080)
     p.add_argument("--insecure", action="store_true", help="serve a non-loopback --host without an access token")
+    p.add_argument("--replay", metavar="LOG", help="start replaying a recorded log (runs/<name> or runs/<name>/log)")
     p.set_defaults(func=_cmd_web)
     return parser
 

@@ -2,9 +2,13 @@
 
 Starts the demo on a free port, opens it in headless chromium, presses the probe tool onto the
 surface (deadman and reflection on, hand 3 cm down: contact, arrows and plots all updating), then
-measures for N seconds and prints the loop's own timing statistics.
+measures for N seconds and prints the loop's own timing statistics. With ``--play`` the page
+instead plays the peg session (its scripted operator drives the loop, as "Try the peg task"
+does) during the measurement; with ``--replay`` it also replays a log in the page at the same
+time (the replay runs in the server process and must not disturb the loop).
 
-Run from the repository root:  .venv/bin/python bench/web_realtime.py [seconds] [--no-browser]
+Run from the repository root:
+    .venv/bin/python bench/web_realtime.py [seconds] [--no-browser] [--play] [--replay]
 Goal: achieved rate within 1 % of 1 kHz and period jitter p99 <= 0.5 ms.
 """
 
@@ -12,11 +16,14 @@ from __future__ import annotations
 
 import contextlib
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from app.session.run import run_session
+from app.session.spec import load_session
 from app.web.headless import CHROMIUM, free_port, open_page
 from app.web.server import start_demo
 
@@ -24,7 +31,7 @@ from app.web.server import start_demo
 SETTLE_SECONDS = 3.0
 
 
-def main(seconds: float, browser: bool) -> int:
+def main(seconds: float, browser: bool, play: bool, replay: bool) -> int:
     app = start_demo("probe", "kraft", port=free_port())
     try:
         if not app.rt.wait_running():
@@ -34,18 +41,32 @@ def main(seconds: float, browser: bool) -> int:
         with page_context as page:
             if page is not None:
                 page.get_by_text("Deadman [D]").first.wait_for(timeout=30_000)
-            app.controls.deadman.value = True
-            app.controls.reflection.value = True
-            T_0_H = app.rt.snapshot.T_0_G.copy()
-            T_0_H[2, 3] -= 0.03
-            app.move_hand_target(T_0_H)
+            if replay:
+                with tempfile.TemporaryDirectory() as tmp:
+                    run_session(load_session("probe_rate"), out_dir=Path(tmp), plots=False)
+                    app.open_replay(tmp)
+                assert app.player is not None
+                app.player.playing = True
+            if play:
+                app.play_session("peg_ntrfc")
+            else:
+                app.controls.deadman.value = True
+                app.controls.reflection.value = True
+                T_0_H = app.rt.snapshot.T_0_G.copy()
+                T_0_H[2, 3] -= 0.03
+                app.move_hand_target(T_0_H)
             time.sleep(SETTLE_SECONDS)
             ticks_before = app.rt.stats().counted
             time.sleep(seconds)
             stats = app.rt.stats(last=round(seconds * 1000.0))
             snap = app.rt.snapshot
         nominal = 1.0 / app.rt.loop.dt
-        print(f"browser: {'headless chromium' if browser else 'none'}   scheduling: {app.rt.scheduling}")
+        doing = "playing peg_ntrfc" if play else "probe pressed by the hand"
+        print(
+            f"browser: {'headless chromium' if browser else 'none'}   scheduling: {app.rt.scheduling}   loop: {doing}"
+        )
+        if replay:
+            print("a log was replaying in the page during the measurement")
         print(f"measured {stats.ticks} periods over {seconds:g} s ({ticks_before} ticks ran before measuring)")
         print(
             f"achieved rate   {stats.rate_hz:9.2f} Hz   ({100 * (stats.rate_hz / nominal - 1):+.2f} % of {nominal:g} Hz)"
@@ -68,4 +89,4 @@ if __name__ == "__main__":
     use_browser = "--no-browser" not in sys.argv[1:]
     if use_browser and not CHROMIUM.exists():
         sys.exit(f"{CHROMIUM} is missing: install Debian's chromium (or pass --no-browser)")
-    sys.exit(main(float(args[0]) if args else 10.0, use_browser))
+    sys.exit(main(float(args[0]) if args else 10.0, use_browser, "--play" in sys.argv, "--replay" in sys.argv))

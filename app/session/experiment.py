@@ -10,6 +10,7 @@ every operator (its Table I: 1.66/2.55/1.51 blind against 0.59/0.61/0.42).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -65,8 +66,12 @@ def run_experiment(
     operators: tuple[Operator, ...] = OPERATORS,
     duration: float | None = None,
     progress: bool = False,
+    on_run: Callable[[int, int], None] | None = None,
 ) -> ExperimentReport:
-    """Run every operator x condition x repetition; write a table, a bar chart and JSON to ``out_dir``."""
+    """Run every operator x condition x repetition; write a table, a bar chart and JSON to ``out_dir``.
+
+    ``on_run(done, total)`` is called after each run (e.g. to show progress in the web page).
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
     bases = {cond: load_session(name) for cond, name in CONDITIONS.items()}
     work: dict[str, dict[str, list[float]]] = {op.name: {c: [] for c in CONDITIONS} for op in operators}
@@ -79,6 +84,8 @@ def run_experiment(
                     result = run_session(session, out_dir=None)
                     work[op.name][cond].append(result.summary["work_eq13"])
                     bar.update(1)
+                    if on_run is not None:
+                        on_run(bar.n, total)
     table = _table(work)
     chart = _chart(work, out_dir / "table1.png")
     json_path = out_dir / "table1.json"

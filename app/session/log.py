@@ -15,7 +15,7 @@ import math
 import os
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
@@ -24,6 +24,9 @@ import pyarrow.parquet as pq
 from app.controller.layout import SCALARS, TORQUE_ROWS, TWIST_AXES, VECTOR_ROWS, WRENCH_AXES
 from app.session.tick import STAGES, TickRecord
 from app.spatial import Array, matrix_to_quat
+
+if TYPE_CHECKING:
+    from app.session.loop import LoopConfig
 
 XYZ = ("x", "y", "z")
 POSE = ("x", "y", "z", "qw", "qx", "qy", "qz")
@@ -75,6 +78,8 @@ def _blocks(n_joints: int) -> dict[str, slice]:
     return at
 
 
+#: The log's description beside its parts (see :class:`TickLog`).
+META_FILE = "meta.json"
 #: Parts handed to the writer thread and not yet on disk before ``flush`` waits (bounds memory if
 #: the disk stalls; the loop never waits while the writer keeps up).
 MAX_PENDING_PARTS = 64
@@ -93,15 +98,25 @@ class TickLog:
         n_joints: Joints of the device (sets the columns).
         period: Servo period (s).
         flush_interval: Simulated seconds of ticks per part: the most a crash can lose.
+        meta: What produced the log (scene, device, session files...), written to ``meta.json``
+            beside the parts: a replay rebuilds the view from it (:func:`loop_meta`).
     """
 
-    def __init__(self, directory: Path, n_joints: int, period: float = 1e-3, flush_interval: float = 0.1) -> None:
+    def __init__(
+        self,
+        directory: Path,
+        n_joints: int,
+        period: float = 1e-3,
+        flush_interval: float = 0.1,
+        meta: dict[str, Any] | None = None,
+    ) -> None:
         if not (flush_interval > 0 and period > 0):
             raise ValueError(f"flush_interval and period must be positive, got {flush_interval}, {period}")
         self.directory = directory
         directory.mkdir(parents=True, exist_ok=True)
         for old in [*directory.glob("part-*.parquet"), *directory.glob(".part-*.tmp")]:
             old.unlink()
+        write_json(directory / META_FILE, {**(meta or {}), "servo_period": period, "columns_version": 2})
         self.columns = log_columns(n_joints)
         self._at = _blocks(n_joints)
         self._int_columns = [name in INT_COLUMNS or name.startswith("counts_") for name in self.columns]
@@ -211,3 +226,13 @@ def _finite_json(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return [_finite_json(v) for v in value]
     return value
+
+
+def loop_meta(config: LoopConfig, session: Path | None = None) -> dict[str, Any]:
+    """The ``meta.json`` of a log of a loop built from ``config`` (files as strings, or None)."""
+    return {
+        "scene": None if config.scene.path is None else str(config.scene.path),
+        "device": str(config.device.path),
+        "session": None if session is None else str(session),
+        "mode": config.gains.mode,
+    }

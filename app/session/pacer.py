@@ -123,6 +123,11 @@ class Pacer:
         self._deadline = self._previous = self._start = 0
         self.restart()
 
+    def set_period(self, period: float) -> None:
+        """Pace at another wall-clock period (s) from now on (e.g. a replay speed)."""
+        self.period_ns = round(period * 1e9)
+        self.restart()
+
     def restart(self, slip: bool = False) -> None:
         """Start the schedule from now (the next :meth:`wait` returns at once); ``slip`` counts it
         as a slip (the loop fell behind and gave up catching up)."""

@@ -16,7 +16,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from app.session.log import TickLog, write_json
+from app.session.log import TickLog, loop_meta, write_json
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.metrics import SessionMetrics
 from app.session.pacer import Pacer
@@ -90,7 +90,8 @@ def run_session(
     metrics = loop.observe(SessionMetrics(loop.record, session.scene.spec.task, n_ticks, loop.dt))
     log = None
     if out_dir is not None:
-        log = loop.observe(TickLog(out_dir / "log", session.device.n_joints, loop.dt, flush_interval))
+        meta = loop_meta(loop.config, session.path)
+        log = loop.observe(TickLog(out_dir / "log", session.device.n_joints, loop.dt, flush_interval, meta))
     pacer = Pacer(loop.dt) if realtime else None
     bar = tqdm(total=n_ticks, unit="tick", disable=not progress, mininterval=0.5)
     try:

@@ -12,9 +12,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from app.controller.gains import ControllerGains
-from app.errors import FrhcError
+from app.errors import FrhcError, InvalidField
 from app.session.spec import SessionFile
 from app.spatial import Array
+
+#: Range of :class:`SetSpeed` (simulated seconds per wall-clock second).
+MIN_SPEED, MAX_SPEED = 0.1, 4.0
 
 
 class UnknownCommand(FrhcError):
@@ -82,12 +85,55 @@ class Play:
 
 
 @dataclass(frozen=True)
+class Pause:
+    """Hold the loop (no ticks: simulated time stops) or let it run again."""
+
+    on: bool
+
+
+@dataclass(frozen=True)
+class SetSpeed:
+    """Run ``factor`` simulated seconds per wall-clock second (0.1 to 4; the servo period in
+    simulated time does not change, the pacing does)."""
+
+    factor: float
+
+    def __post_init__(self) -> None:
+        if not MIN_SPEED <= self.factor <= MAX_SPEED:
+            raise InvalidField("speed", f"must be between {MIN_SPEED} and {MAX_SPEED}, got {self.factor}")
+
+
+@dataclass(frozen=True)
 class Stop:
     """End the loop process after the current tick (closing any log)."""
 
 
-LoopCommand = SetHandTarget | SetDeadman | SetReflection | PressReference | SetGains | Reset | Record | Play | Stop
-COMMANDS = (SetHandTarget, SetDeadman, SetReflection, PressReference, SetGains, Reset, Record, Play, Stop)
+LoopCommand = (
+    SetHandTarget
+    | SetDeadman
+    | SetReflection
+    | PressReference
+    | SetGains
+    | Reset
+    | Record
+    | Play
+    | Pause
+    | SetSpeed
+    | Stop
+)
+COMMANDS = (
+    SetHandTarget,
+    SetDeadman,
+    SetReflection,
+    PressReference,
+    SetGains,
+    Reset,
+    Record,
+    Play,
+    Pause,
+    SetSpeed,
+    Stop,
+)
 
 
 def check_command(command: object) -> LoopCommand:

@@ -238,6 +238,11 @@ class Controls:
         self.actions.reset()
         self.release_switches()
 
+    def show_selection(self, scene: str, device: str) -> None:
+        """Show ``scene`` and ``device`` as selected (the demo's ``select`` ignores an unchanged pair)."""
+        _assign(self.scene, scene)
+        _assign(self.device, device)
+
     def release_switches(self) -> None:
         """Show deadman and reflection off (the loop's reset and a rebuild release them)."""
         _assign(self.deadman, False)
@@ -309,6 +314,9 @@ class Controls:
             history.popleft()
         self._frames += 1
         if self._frames % PLOT_EVERY == 0 and len(history) > 1:
-            cols = np.array(history).T
-            self.wrench_plot.data = (cols[0], cols[1], cols[2], cols[3], cols[4])
-            self.delta_plot.data = (cols[0], cols[5], cols[6], cols[7])
+            self.plot(np.array(history).T)
+
+    def plot(self, cols: np.ndarray) -> None:
+        """Show plot samples ``cols`` (8, k): rows as in :data:`PlotRow`."""
+        self.wrench_plot.data = (cols[0], cols[1], cols[2], cols[3], cols[4])
+        self.delta_plot.data = (cols[0], cols[5], cols[6], cols[7])

@@ -10,6 +10,7 @@ process the loop only shares the CPU. :func:`loop_main` is the process's entry p
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import multiprocessing as mp
 import os
 from multiprocessing.connection import Connection
@@ -18,12 +19,13 @@ from pathlib import Path
 import numpy as np
 
 from app.controller.gains import ControllerGains
-from app.session.log import TickLog
+from app.session.log import TickLog, loop_meta
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.pacer import TIMING_HISTORY, Pacer, TimingRings
 from app.session.script import OperatorScript
 from app.session.spec import SessionFile
 from app.web.commands import (
+    Pause,
     Play,
     PressReference,
     Record,
@@ -32,6 +34,7 @@ from app.web.commands import (
     SetGains,
     SetHandTarget,
     SetReflection,
+    SetSpeed,
     Stop,
     check_command,
 )
@@ -92,6 +95,8 @@ class LoopHost:
         self.operator: OperatorScript | None = None
         self.ticks_left = 0
         self.running = True
+        self.paused = False
+        self.speed = 1.0
         self._log_ends_with_play = False
 
     def apply(self, command: object) -> bool:
@@ -124,18 +129,30 @@ class LoopHost:
                 if script is not None and gains is not None:
                     self._play(script, gains, source, record)
                     return True
+            case Pause(on):
+                self.paused = on
+                self.publisher.paused = on
+                self.publisher.publish(loop.record)
+                return not on
+            case SetSpeed(factor):
+                self.speed = factor
+                self.publisher.speed = factor
+                return True
             case Stop():
                 self.running = False
         return False
 
     def tick(self) -> None:
-        """One tick, with the playing script acting first."""
+        """One tick (none while paused), with the playing script acting first."""
+        if self.paused:
+            return
         operator = self.operator
         if operator is not None:
             operator.before_tick(self.loop)
         self.loop.tick()
         if operator is not None:
             self.ticks_left -= 1
+            self.publisher.play_left = self.ticks_left * self.loop.dt
             if self.ticks_left == 0:
                 self._end_play()
 
@@ -149,7 +166,9 @@ class LoopHost:
             self.log.close()
             self.log = None
         if directory is not None:
-            self.log = self.loop.observe(TickLog(directory, self.loop.config.device.n_joints, self.loop.dt))
+            config = dataclasses.replace(self.loop.config, gains=self.loop.controller.gains)
+            meta = loop_meta(config, self.publisher.playing)
+            self.log = self.loop.observe(TickLog(directory, config.device.n_joints, self.loop.dt, meta=meta))
         self.publisher.recording = directory
         self._log_ends_with_play = False
 
@@ -169,6 +188,7 @@ class LoopHost:
             self._record(None)
         self.operator = None
         self.publisher.playing = None
+        self.publisher.play_left = 0.0
 
 
 def loop_main(
@@ -196,7 +216,7 @@ def loop_main(
                 while host.running and conn.poll():
                     restart |= host.apply(conn.recv())
                 if restart:
-                    pacer.restart()
+                    pacer.set_period(loop.dt / host.speed)
             except (EOFError, OSError):  # the parent is gone: nobody to serve
                 host.running = False
             host.tick()

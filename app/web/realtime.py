@@ -30,6 +30,7 @@ from app.session.spec import Session
 from app.spatial import Array
 from app.web.commands import (
     LoopCommand,
+    Pause,
     Play,
     PressReference,
     Record,
@@ -38,6 +39,7 @@ from app.web.commands import (
     SetGains,
     SetHandTarget,
     SetReflection,
+    SetSpeed,
     Stop,
     check_command,
 )
@@ -183,6 +185,14 @@ class RealtimeLoop:
             raise ConfigError(session.path, "scene", "scene or device differs from the running loop's")
         self._gains = session.gains
         self.send(Play(session.data, session.gains, session.path, record))
+
+    def pause(self, on: bool) -> None:
+        """Hold the loop (simulated time stops) or let it run again."""
+        self.send(Pause(bool(on)))
+
+    def set_speed(self, factor: float) -> None:
+        """Simulated seconds per wall-clock second, 0.1 to 4 (InvalidField outside)."""
+        self.send(SetSpeed(float(factor)))
 
     def stop_playing(self) -> None:
         """Stop a playing script (the loop goes on from where it is)."""

@@ -19,17 +19,21 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+import numpy as np
 import viser
 
 from app.controller.gains import ControllerGains
 from app.device.spec import DeviceSpec, available_devices, load_device
+from app.errors import ConfigError
 from app.session.loop import LoopConfig
 from app.session.spec import Session, load_session
 from app.spatial import Array
 from app.web.access import TOKEN_NAME, TokenGate, new_token
-from app.web.controls import Controls
+from app.web.controls import PLOT_SECONDS, Controls
 from app.web.realtime import RealtimeLoop
+from app.web.replay import LogReplay, ReplayPlayer
 from app.web.scene_view import SceneView
+from app.web.session_panel import ExperimentJob, SessionPanel
 from app.world.scene import ROOT_DIR, Scene, available_scenes, load_scene
 
 #: Scene and panel redraws per second.
@@ -64,7 +68,11 @@ class DemoApp:
         self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
         self.rt.set_hand_target(self._home_T_0_G)
         self._recording = False
+        self.panel = SessionPanel(server, self, RUNS_DIR)
         self.controls = Controls(server, self, available_scenes(), available_devices(), scene.spec.name, device.name)
+        self.player: ReplayPlayer | None = None
+        self._showing_selection = False
+        self.experiment: ExperimentJob | None = None
         self.gate: TokenGate | None = None
         self.url = ""
         self._stop = threading.Event()
@@ -116,6 +124,8 @@ class DemoApp:
 
     def select(self, scene_name: str, device_name: str) -> None:
         """Rebuild the loop for another scene and/or device (gains follow the device)."""
+        if self._showing_selection or (scene_name == self._scene.spec.name and device_name == self._device.name):
+            return
         try:
             scene = self._scene if scene_name == self._scene.spec.name else load_scene(scene_name)
             device = self._device if device_name == self._device.name else load_device(device_name)
@@ -123,19 +133,108 @@ class DemoApp:
             self.controls.record_status.content = f"**cannot load:** {exc}"
             return
         gains = self.rt.gains if device is self._device else self._start_gains(device)
+        self._rebuild(self._loop_config(device, scene, gains))
+
+    def _rebuild(self, config: LoopConfig) -> None:
+        """Replace the running loop (and the view, unless a replay is shown) by one of ``config``."""
         with self._lock:
             self.rt.stop()  # closes a log being written
             self._recording = False
             self.controls.record.label = "Record"
-            self.view.remove()
-            self._scene, self._device = scene, device
-            self.rt = RealtimeLoop(self._loop_config(device, scene, gains))
-            self.view = SceneView(self.server, self.rt.loop, self.rt.set_hand_target)
+            self._scene, self._device = config.scene, config.device
+            self.rt = RealtimeLoop(config)
+            if self.player is None:
+                self.view.remove()
+                self.view = SceneView(self.server, self.rt.loop, self.rt.set_hand_target)
             self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
             self.rt.set_hand_target(self._home_T_0_G)
-            self.controls.show_gains(gains)
+            self.controls.show_gains(config.gains)
             self.controls.release_switches()
             self.rt.start()
+        self._showing_selection = True  # the dropdowns' callbacks must not rebuild again
+        try:
+            self.controls.show_selection(config.scene.spec.name, config.device.name)
+        finally:
+            self._showing_selection = False
+
+    # -- SessionActions -------------------------------------------------------------------------
+
+    def play_session(self, name: str) -> None:
+        """Play session ``name`` (in ``sessions/``, or a path) live, rebuilding the loop if it needs another."""
+        try:
+            session = load_session(name)
+        except ConfigError as exc:
+            self.panel.play_status.content = f"**cannot load:** {exc}"
+            return
+        self.close_replay()
+        wanted = LoopConfig.from_session(session)
+        have = self.rt.config
+        same = (wanted.scene.path, wanted.device.path, wanted.hand, wanted.accommodation, wanted.servo_rate) == (
+            have.scene.path,
+            have.device.path,
+            have.hand,
+            have.accommodation,
+            have.servo_rate,
+        )
+        if not same:
+            self._rebuild(wanted)
+            self.rt.wait_running()
+        self.session = session
+        self.rt.play(session)
+        self.rt.set_speed(float(self.panel.speed.value))
+        self.controls.show_gains(session.gains)
+
+    def pause(self, on: bool) -> None:
+        self.rt.pause(on)
+
+    def set_speed(self, factor: float) -> None:
+        self.rt.set_speed(factor)
+
+    def open_replay(self, directory: str) -> None:
+        """Show the log in ``directory`` instead of the live loop (which keeps running)."""
+        try:
+            replay = LogReplay(Path(directory))
+        except (ConfigError, OSError, ValueError) as exc:
+            self.panel.show_replay(None, f"**cannot replay:** {exc}")
+            return
+        self.show_replay(replay)
+
+    def show_replay(self, replay: LogReplay) -> None:
+        """Show ``replay`` instead of the live loop (which keeps running)."""
+        player = ReplayPlayer(replay)
+        with self._lock:
+            self.view.remove()
+            self.view = SceneView(self.server, player.replay.loop, lambda _: None)
+            self.player = player
+        self.panel.show_replay(player.duration, f"replaying `{player.replay.directory}` ({len(player.replay)} ticks)")
+
+    def close_replay(self) -> None:
+        """Back to the live loop."""
+        with self._lock:
+            if self.player is None:
+                return
+            self.player = None
+            self.view.remove()
+            self.view = SceneView(self.server, self.rt.loop, self.rt.set_hand_target)
+        self.panel.show_replay(None, "")
+
+    def seek(self, t: float) -> None:
+        if self.player is not None:
+            self.player.seek(t)
+
+    def set_replay_playing(self, on: bool) -> None:
+        if self.player is not None:
+            self.player.playing = on
+
+    def set_replay_speed(self, factor: float) -> None:
+        if self.player is not None:
+            self.player.speed = factor
+
+    def start_experiment(self, repetitions: int) -> None:
+        """Run the Table I experiment in the background; the panel shows progress and results."""
+        if self.experiment is not None and not self.experiment.finished:
+            return
+        self.experiment = ExperimentJob(RUNS_DIR / f"web-experiment-{datetime.now():%Y%m%d-%H%M%S}", repetitions)
 
     def toggle_recording(self) -> Path | None:
         """Start a log in ``runs/web-<timestamp>/log`` and return it, or stop the current one (None)."""
@@ -155,12 +254,45 @@ class DemoApp:
         next_frame = time.perf_counter()
         while not self._stop.is_set():
             with self._lock:
-                snap = self.rt.snapshot
-                self.view.update(snap)
-                self.controls.update(snap, self.rt.stats(last=round(1.0 / self.rt.loop.dt)), self.rt.scheduling)
+                self._frame(period)
             next_frame += period
             self._stop.wait(max(0.0, next_frame - time.perf_counter()))
             next_frame = max(next_frame, time.perf_counter() - period)
+
+    def _frame(self, period: float) -> None:
+        """Redraw the view and the panel once, from the replay or the live loop."""
+        player = self.player
+        stats = self.rt.stats(last=round(1.0 / self.rt.loop.dt))
+        if player is None:
+            snap = self.rt.snapshot
+            self.view.update(snap)
+            self.controls.update(snap, stats, self.rt.scheduling)
+            left = f", {snap.play_left:.1f} s left" if snap.playing else ""
+            self.panel.play_status.content = (
+                f"playing `{snap.playing.stem}`{left}" if snap.playing else "no session playing"
+            ) + (" (paused)" if snap.paused else "")
+        else:
+            player.advance(period)
+            snap = player.snapshot()
+            self.view.update(snap)
+            self.controls.update(snap, stats, "replay")
+            self.controls.plot(player.window(PLOT_SECONDS))
+            self.panel.timeline.value = player.cursor  # type: ignore[misc]  # viser 1.1: setter exists
+            p = snap.T_w_MRF[0:3, 3]
+            self.panel.replay_status.content = (
+                f"replay t = {snap.time:.3f} s (tick {snap.ticks} of {len(player.replay)}) · tool at "
+                f"[{1000 * p[0]:+.1f}, {1000 * p[1]:+.1f}, {1000 * p[2]:+.1f}] mm · "
+                f"|F_MRF| = {float(np.linalg.norm(snap.F_MRF[0:3])):.2f} N"
+            )
+        job = self.experiment
+        if job is not None:
+            if job.error is not None:
+                self.panel.experiment_result.content = f"**experiment failed:** {job.error}"
+                self.experiment = None
+            else:
+                self.panel.show_experiment(job.done, job.total, job.report.table if job.report else None, job.chart())
+                if job.finished:
+                    self.experiment = None
 
     def close(self) -> None:
         """Stop the UI thread, the servo loop (closing any log) and the token gate; the server is
@@ -188,6 +320,7 @@ def start_demo(
     port: int = 8080,
     session: str | None = None,
     insecure: bool = False,
+    replay: str | None = None,
 ) -> DemoApp:
     """Check the inputs, start a viser server and the demo on it; returns at once (non-blocking).
 
@@ -201,11 +334,14 @@ def start_demo(
     loaded_session = load_session(session) if session is not None else None
     scene_obj = load_scene(scene)
     device_obj = load_device(device)
+    loaded_replay = LogReplay(Path(replay)) if replay is not None else None
     gated = not is_loopback(host) and not insecure
     server = viser.ViserServer(
         host="127.0.0.1" if gated else host, port=0 if gated else port, label="FRHC haptic demo", verbose=False
     )
     app = DemoApp(server, scene_obj, device_obj, loaded_session)
+    if loaded_replay is not None:
+        app.show_replay(loaded_replay)
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
     if gated:
         app.gate = TokenGate(host, port, server.get_port(), new_token())
@@ -228,6 +364,7 @@ def serve(
     session: str | None = None,
     open_seconds: float | None = None,
     insecure: bool = False,
+    replay: str | None = None,
 ) -> None:
     """Serve the browser demo until interrupted (or for ``open_seconds`` seconds), printing its URL.
 
@@ -240,11 +377,12 @@ def serve(
             (scene and device still come from the arguments).
         open_seconds: Return after this long instead of serving forever (for tests).
         insecure: Serve a non-loopback ``host`` without a token.
+        replay: A log directory to start on, in replay (the live loop runs beside it).
 
     Raises:
         ConfigError: for an unknown or malformed scene, device or session, before the server starts.
     """
-    app = start_demo(scene, device, host, port, session, insecure)
+    app = start_demo(scene, device, host, port, session, insecure, replay)
     print(f"FRHC haptic demo: {app.url}  (Ctrl+C to stop)", flush=True)
     try:
         if open_seconds is None:

@@ -54,6 +54,9 @@ class Snapshot:
         watchdog_trips: Times the amplifier's watchdog switched the motors off since the reset.
         recording: The log directory being written, or None.
         playing: The session file whose script drives the loop, or None.
+        play_left: Simulated seconds the playing script has still to run.
+        paused: The loop is held (simulated time stands still).
+        speed: Simulated seconds per wall-clock second.
     """
 
     time: float
@@ -82,6 +85,9 @@ class Snapshot:
     watchdog_trips: int
     recording: Path | None = None
     playing: Path | None = None
+    play_left: float = 0.0
+    paused: bool = False
+    speed: float = 1.0
 
 
 def take_snapshot(
@@ -166,6 +172,7 @@ class SnapshotPublisher:
 
     Attributes:
         recording, playing: Shown in the snapshot (set by the loop process's command handler).
+        play_left: Seconds of the playing script still to run. paused, speed: The loop's state.
     """
 
     def __init__(self, shared: SharedSnapshot, T_MRF_S: Array, every: int) -> None:
@@ -174,6 +181,9 @@ class SnapshotPublisher:
         self.every = every
         self.recording: Path | None = None
         self.playing: Path | None = None
+        self.play_left = 0.0
+        self.paused = False
+        self.speed = 1.0
 
     def on_tick(self, tick: TickRecord) -> None:
         if tick.index % self.every == 0:
@@ -181,4 +191,5 @@ class SnapshotPublisher:
 
     def publish(self, tick: TickRecord) -> None:
         """Write ``tick`` now, whatever its index."""
-        self.shared.write(take_snapshot(tick, self.T_MRF_S, self.recording, self.playing))
+        snap = take_snapshot(tick, self.T_MRF_S, self.recording, self.playing)
+        self.shared.write(replace(snap, play_left=self.play_left, paused=self.paused, speed=self.speed))

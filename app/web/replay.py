@@ -1,0 +1,196 @@
+"""Replay a recorded log in the browser: every tick's view rebuilt from its log row.
+
+A log (``frhc run``, or the demo's Record button) holds per tick the encoder angles, grip and tool
+poses, Delta X, every wrench the view draws and the switches, plus ``meta.json`` naming the scene
+and device (:class:`~app.session.log.TickLog`). :class:`LogReplay` turns row ``i`` into the same
+:class:`~app.web.snapshot.Snapshot` the live loop publishes; what the log does not store is
+recomputed deterministically from what it does:
+
+- device link poses: MuJoCo forward kinematics of the device model at the logged angles (the
+  encoder angles, within one count of the true ones);
+- the reference pose {G0}: from the grip pose and Delta X (Eq 2-4 inverted);
+- the hand target's orientation: the grip's (the log keeps the target's position);
+- contact points: the scene's contact at the logged tool pose, evaluated afresh (stateless: a
+  pop-through memory of the live run is not reproduced, the drawn points may then differ).
+
+The live servo loop is never touched: the replay has its own never-ticked copy of the loop for the
+geometry and kinematics.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from app.controller.layout import DELTA_X_AXES, WRENCH_AXES
+from app.device.spec import load_device
+from app.errors import ConfigError
+from app.session.log import META_FILE, read_log
+from app.session.loop import LoopConfig, ServoLoop
+from app.spatial import Array, make_pose, quat_to_matrix, zyx_to_matrix
+from app.web.snapshot import Snapshot
+from app.world import contact_wrench
+from app.world.scene import load_scene
+
+
+def _pose(row: dict[str, Array], prefix: str, i: int) -> Array:
+    """The pose logged as ``<prefix>_x..z, _qw..qz`` at row ``i``, (4, 4)."""
+    q = np.array([row[f"{prefix}_{k}"][i] for k in ("qw", "qx", "qy", "qz")])
+    p = np.array([row[f"{prefix}_{k}"][i] for k in ("x", "y", "z")])
+    return make_pose(quat_to_matrix(q / np.linalg.norm(q)), p)
+
+
+def _six(row: dict[str, Array], prefix: str, axes: tuple[str, ...], i: int) -> Array:
+    return np.array([row[f"{prefix}_{a}"][i] for a in axes])
+
+
+class LogReplay:
+    """A recorded log, ready to be shown tick by tick.
+
+    Args:
+        directory: The log directory (``.../log`` with ``part-*.parquet`` and ``meta.json``), or
+            the run directory holding it.
+
+    Attributes:
+        directory: The log directory.
+        loop: A never-ticked loop of the logged scene and device (geometry for the view).
+        t: Simulated time of each row (s), (n,).
+
+    Raises:
+        ConfigError: naming the directory or ``meta.json`` when the log cannot be replayed.
+    """
+
+    def __init__(self, directory: Path) -> None:
+        directory = directory / "log" if (directory / "log" / META_FILE).is_file() else directory
+        meta_path = directory / META_FILE
+        if not meta_path.is_file():
+            raise ConfigError(
+                directory, "<file>", f"not a replayable log (no {META_FILE}: recorded by an older version?)"
+            )
+        try:
+            meta = json.loads(meta_path.read_text())
+        except (OSError, ValueError) as exc:
+            raise ConfigError(meta_path, "<file>", f"cannot read: {exc}") from None
+        if not meta.get("scene"):
+            raise ConfigError(meta_path, "scene", "the log's scene was not loaded from a file")
+        device, scene = load_device(meta["device"]), load_scene(meta["scene"])
+        self.directory = directory
+        self.mode = str(meta.get("mode", "rate"))
+        self.loop = ServoLoop(LoopConfig(device, scene, device.data.gains))
+        table = read_log(directory)
+        if table.num_rows == 0:
+            raise ConfigError(directory, "<file>", "the log has no ticks")
+        order = np.argsort(table.column("t").to_numpy(), kind="stable")
+        self._cols: dict[str, Array] = {name: table.column(name).to_numpy()[order] for name in table.column_names}
+        self.t: Array = self._cols["t"]
+        self._n_joints = device.n_joints
+        self._T_MRF_S = self.loop.controller.slave.T_MRF_S
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def index_at(self, t: float) -> int:
+        """The last row at or before time ``t`` (s) (the first row before the log starts)."""
+        return int(np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 1))
+
+    def column(self, name: str) -> Array:
+        """One logged column over the whole log (time order)."""
+        return self._cols[name]
+
+    def snapshot(self, i: int) -> Snapshot:
+        """The view of row ``i``, as the live loop would have published it."""
+        c = self._cols
+        plant = self.loop.plant
+        data = plant.data
+        data.qpos[plant.qpos_slice] = [c[f"q_{j}"][i] for j in range(self._n_joints)]
+        mujoco.mj_kinematics(plant.model, data)
+        T_0_G = _pose(c, "grip", i)
+        dx = _six(c, "delta_x", DELTA_X_AXES, i)
+        R_0_G0 = T_0_G[0:3, 0:3] @ zyx_to_matrix(dx[3], dx[4], dx[5]).T
+        T_0_G0 = make_pose(R_0_G0, T_0_G[0:3, 3] - dx[0:3])
+        hand = np.array([c[f"hand_target_{a}"][i] for a in ("x", "y", "z")])
+        T_0_H = None if np.isnan(hand).any() else make_pose(T_0_G[0:3, 0:3], hand)
+        T_w_MRF = _pose(c, "tool", i)
+        deadman, reflection = bool(c["deadman"][i]), bool(c["reflection"][i])
+        return Snapshot(
+            time=float(c["t"][i]),
+            ticks=i + 1,
+            geom_xpos=data.geom_xpos.copy(),
+            geom_xmat=data.geom_xmat.reshape(-1, 3, 3).copy(),
+            T_0_G=T_0_G,
+            T_0_G0=T_0_G0,
+            T_0_H=T_0_H,
+            T_w_MRF=T_w_MRF,
+            T_w_S=T_w_MRF @ self._T_MRF_S,
+            contact_points_w=contact_wrench(self.loop.slave.scene, T_w_MRF).points_w.copy(),
+            F_MRF=_six(c, "F_MRF", WRENCH_AXES, i),
+            G_F_T=_six(c, "G_F_T", WRENCH_AXES, i),
+            G_F_RD=_six(c, "G_F_RD", WRENCH_AXES, i),
+            hand_wrench_0=_six(c, "hand_G", WRENCH_AXES, i),
+            delta_x=dx,
+            deadman=deadman,
+            reflection=reflection,
+            reflecting=deadman and reflection,
+            mode=self.mode,
+            faults=int(c["faults"][i]),
+            fault_message="",
+            saturation_scale=float(c["saturation_scale"][i]),
+            ramp=float(c["ramp"][i]),
+            watchdog_trips=int(c["watchdog_trips"][i]),
+        )
+
+
+#: Most samples a replay plot window shows (the log is thinned to this).
+PLOT_SAMPLES = 600
+
+
+class ReplayPlayer:
+    """A cursor over a :class:`LogReplay`: seek, play at a speed, and the plots' window.
+
+    Attributes:
+        replay: The log. cursor: Simulated time shown (s). playing: Advancing with the clock.
+        speed: Simulated seconds per wall-clock second.
+    """
+
+    def __init__(self, replay: LogReplay) -> None:
+        self.replay = replay
+        self.cursor = float(replay.t[0])
+        self.playing = False
+        self.speed = 1.0
+        c = replay.column
+        self._plot_rows = np.vstack(
+            (
+                replay.t,
+                c("F_MRF_fx"),
+                c("F_MRF_fy"),
+                c("F_MRF_fz"),
+                np.linalg.norm(np.vstack((c("G_F_T_fx"), c("G_F_T_fy"), c("G_F_T_fz"))), axis=0),
+                *(1000.0 * c(f"delta_x_{a}") for a in DELTA_X_AXES[0:3]),
+            )
+        )
+
+    @property
+    def duration(self) -> float:
+        return float(self.replay.t[-1])
+
+    def seek(self, t: float) -> None:
+        self.cursor = float(np.clip(t, self.replay.t[0], self.replay.t[-1]))
+
+    def advance(self, wall_seconds: float) -> None:
+        """Move the cursor on by ``wall_seconds`` of playing (stops at the end)."""
+        if self.playing:
+            self.seek(self.cursor + self.speed * wall_seconds)
+            self.playing = self.cursor < self.replay.t[-1]
+
+    def snapshot(self) -> Snapshot:
+        return self.replay.snapshot(self.replay.index_at(self.cursor))
+
+    def window(self, seconds: float) -> Array:
+        """Plot samples (8, k) of the ``seconds`` before the cursor (thinned to :data:`PLOT_SAMPLES`)."""
+        t = self.replay.t
+        lo, hi = np.searchsorted(t, self.cursor - seconds), self.replay.index_at(self.cursor) + 1
+        step = max(1, (hi - lo) // PLOT_SAMPLES)
+        return self._plot_rows[:, lo:hi:step]

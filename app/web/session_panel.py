@@ -1,0 +1,178 @@
+"""The panel's task side: a first-visit guide, playing a session, replaying a log, the experiment.
+
+Like :mod:`app.web.controls`, it holds no state of its own: every input calls a method of a
+:class:`SessionActions` (the demo application), and :meth:`SessionPanel.update` redraws from the
+demo's state once per UI frame.
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from typing import Protocol
+
+import matplotlib.image as mpimg
+import numpy as np
+import viser
+
+from app.session.experiment import ExperimentReport, run_experiment
+from app.session.spec import SESSIONS_DIR
+from app.web.commands import MAX_SPEED, MIN_SPEED
+
+#: Choices of the speed selectors (simulated seconds per wall-clock second).
+SPEEDS = tuple(f"{f:g}" for f in (MIN_SPEED, 0.25, 0.5, 1.0, 2.0, MAX_SPEED))
+
+GUIDE = """**Start here.** The left space is the hand controller, the right one the virtual world.
+
+1. Press **Try the peg task** to watch a scripted operator insert two pegs with force reflection
+   (the paper's Table I task), or pick any session under *Play a session*.
+2. To drive it yourself: drag the **gizmo** (the hand) a few cm down, then tick **Deadman** and
+   **Reflection** (keys D, F). In rate mode the tool moves while the grip is off centre.
+3. Arrows: red is the contact wrench on the tool, orange what the grip renders to your hand, blue
+   the assists (return-to-centre and damping), green your hand's push. Magenta dots: contacts.
+"""
+
+
+def available_sessions() -> list[str]:
+    """Names of the sessions shipped in ``sessions/``."""
+    return sorted(p.stem for p in SESSIONS_DIR.glob("*.toml"))
+
+
+def latest_log(runs: Path) -> str:
+    """The most recently written log directory under ``runs`` (or ``""``)."""
+    logs = sorted(runs.glob("*/log/meta.json"), key=lambda p: p.stat().st_mtime)
+    return str(logs[-1].parent) if logs else ""
+
+
+class SessionActions(Protocol):
+    """What the task panel asks of the demo application (from viser's callback threads)."""
+
+    def play_session(self, name: str) -> None: ...
+
+    def pause(self, on: bool) -> None: ...
+
+    def set_speed(self, factor: float) -> None: ...
+
+    def open_replay(self, directory: str) -> None: ...
+
+    def close_replay(self) -> None: ...
+
+    def seek(self, t: float) -> None: ...
+
+    def set_replay_playing(self, on: bool) -> None: ...
+
+    def set_replay_speed(self, factor: float) -> None: ...
+
+    def start_experiment(self, repetitions: int) -> None: ...
+
+
+class SessionPanel:
+    """Guide, session player, log replay and experiment folders of the demo's panel.
+
+    Args:
+        server: The viser server. actions: The demo application. runs: Where logs are looked for.
+    """
+
+    def __init__(self, server: viser.ViserServer, actions: SessionActions, runs: Path) -> None:
+        gui = server.gui
+        a = actions
+        with gui.add_folder("Start here", expand_by_default=True):
+            gui.add_markdown(GUIDE)
+            self.try_peg = gui.add_button("Try the peg task", hint="Play sessions/peg_ntrfc.toml in real time")
+            self.try_peg.on_click(lambda _: a.play_session("peg_ntrfc"))
+
+        with gui.add_folder("Play a session", expand_by_default=False):
+            sessions = available_sessions()
+            self.session = gui.add_dropdown("Session", sessions, initial_value="peg_ntrfc")
+            self.play = gui.add_button("Play", hint="Reset and run the session's scripted operator")
+            self.pause = gui.add_checkbox("Pause", False)
+            self.speed = gui.add_dropdown("Speed", SPEEDS, initial_value="1")
+            self.play_status = gui.add_markdown("")
+        self.play.on_click(lambda _: a.play_session(self.session.value))
+        self.pause.on_update(lambda _: a.pause(self.pause.value))
+        self.speed.on_update(lambda _: a.set_speed(float(self.speed.value)))
+
+        with gui.add_folder("Replay a log", expand_by_default=False):
+            self.log_path = gui.add_text("Log directory", latest_log(runs), hint="runs/<name> or runs/<name>/log")
+            self.open = gui.add_button("Open", hint="Show the log instead of the live loop (which keeps running)")
+            self.timeline = gui.add_slider("Time (s)", min=0.0, max=1.0, step=0.001, initial_value=0.0, disabled=True)
+            self.replay_playing = gui.add_checkbox("Play replay", False)
+            self.replay_speed = gui.add_dropdown("Replay speed", SPEEDS, initial_value="1")
+            self.live = gui.add_button("Back to live")
+            self.replay_status = gui.add_markdown("")
+        self.open.on_click(lambda _: a.open_replay(self.log_path.value))
+        self.live.on_click(lambda _: a.close_replay())
+        self.timeline.on_update(lambda _: a.seek(float(self.timeline.value)))
+        self.replay_playing.on_update(lambda _: a.set_replay_playing(self.replay_playing.value))
+        self.replay_speed.on_update(lambda _: a.set_replay_speed(float(self.replay_speed.value)))
+
+        with gui.add_folder("Experiment (Table I)", expand_by_default=False):
+            gui.add_markdown("Dual peg-in-the-holes, three simulated operators, FRHC/NTRFC against blind (Sec 4.3).")
+            self.repetitions = gui.add_slider("Repetitions", min=1, max=3, step=1, initial_value=1)
+            self.run_experiment = gui.add_button("Run experiment")
+            self.progress = gui.add_progress_bar(0.0, visible=False)
+            self.experiment_result = gui.add_markdown("")
+            self.server = server
+            self.chart: viser.GuiImageHandle | None = None
+        self.run_experiment.on_click(lambda _: a.start_experiment(int(self.repetitions.value)))
+
+    def show_replay(self, duration: float | None, text: str) -> None:
+        """Enable the timeline for a log of ``duration`` seconds (None: live again)."""
+        self.timeline.disabled = duration is None
+        if duration is not None:
+            self.timeline.max = max(duration, 1e-3)
+        self.replay_status.content = text
+
+    def show_experiment(self, done: int, total: int, table: str | None, chart: np.ndarray | None) -> None:
+        """Progress (``done`` of ``total`` runs), then the table and the bar chart (RGB image)."""
+        self.progress.visible = table is None
+        # viser 1.1 annotates ``value`` as read-only although its setter exists.
+        self.progress.value = 100.0 * done / max(total, 1)  # type: ignore[misc]
+        self.run_experiment.disabled = table is None and done < total
+        if table is None:
+            self.experiment_result.content = f"running: {done} of {total} sessions"
+            return
+        self.experiment_result.content = f"```\n{table}\n```"
+        if chart is not None:
+            if self.chart is None:
+                with self.server.gui.add_folder("Experiment chart", expand_by_default=True):
+                    self.chart = self.server.gui.add_image(chart, label="Work, Eq 13 (J)")
+            else:
+                self.chart.image = chart
+
+
+class ExperimentJob:
+    """The Table I experiment running in a background thread of the server process (the servo loop
+    has its own process and real-time priority, so it keeps its pace).
+
+    Attributes:
+        done, total: Runs finished and planned. report: The result once finished. error: Why it
+        failed, if it did.
+    """
+
+    def __init__(self, out_dir: Path, repetitions: int) -> None:
+        self.done, self.total = 0, 1
+        self.report: ExperimentReport | None = None
+        self.error: str | None = None
+        self._thread = threading.Thread(target=self._run, args=(out_dir, repetitions), name="experiment", daemon=True)
+        self._thread.start()
+
+    def _run(self, out_dir: Path, repetitions: int) -> None:
+        def progress(done: int, total: int) -> None:
+            self.done, self.total = done, total
+
+        try:
+            self.report = run_experiment(out_dir, repetitions=repetitions, on_run=progress)
+        except Exception as exc:  # shown in the page; the server must live on
+            self.error = f"{type(exc).__name__}: {exc}"
+
+    @property
+    def finished(self) -> bool:
+        return self.report is not None or self.error is not None
+
+    def chart(self) -> np.ndarray | None:
+        """The bar chart as an RGB image (h, w, 3) uint8, once finished."""
+        if self.report is None:
+            return None
+        rgba = mpimg.imread(self.report.chart)
+        return np.asarray(rgba[..., :3] * 255.0, dtype=np.uint8)

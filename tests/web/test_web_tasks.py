@@ -1,0 +1,155 @@
+"""The demo's task side in a real browser: play a session, replay a log, run the experiment.
+
+Drives the page through the panel's server-side handles (what a click changes) and checks what
+the browser displays. Needs Debian's chromium; skips without it.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.session.log import read_log
+from app.session.run import run_session
+from app.session.spec import load_session
+from app.web.headless import CHROMIUM, free_port, open_page
+from app.web.server import DemoApp, start_demo
+from app.world.scene import ROOT_DIR, load_scene
+
+pytestmark = pytest.mark.browser
+
+SCREENSHOT_DIR = ROOT_DIR / "runs" / "web-test"
+#: Seconds for each step: chromium renders WebGL in software on 2 cores beside the real-time loop.
+STEP_TIMEOUT = 60.0
+
+
+@pytest.fixture(scope="module")
+def demo() -> Iterator[DemoApp]:
+    if not CHROMIUM.exists():
+        pytest.skip(f"{CHROMIUM} is missing: install Debian's chromium to run the browser tests")
+    app = start_demo("probe", "kraft", port=free_port())
+    try:
+        assert app.rt.wait_running(), "the servo loop process did not publish within 60 s"
+        yield app
+    finally:
+        app.close()
+        app.server.stop()
+
+
+@pytest.fixture(scope="module")
+def page(demo: DemoApp) -> Iterator[object]:
+    with open_page(f"http://127.0.0.1:{demo.server.get_port()}/") as p:
+        p.get_by_text("Try the peg task").first.wait_for(timeout=STEP_TIMEOUT * 1000)
+        yield p
+
+
+def _body(page: object) -> str:
+    return str(page.inner_text("body"))  # type: ignore[attr-defined]
+
+
+def _click(page: object, label: str) -> None:
+    """Click the panel button ``label`` in the browser (opening its folder first if needed).
+
+    The click event is dispatched to the button itself: with WebGL rendered in software on a busy
+    2-core machine, playwright's pointer simulation (hit test, stability wait) timed out.
+    """
+    button = page.get_by_role("button", name=label).first  # type: ignore[attr-defined]
+    if not button.is_visible():
+        page.get_by_text(FOLDER_OF[label], exact=True).first.dispatch_event("click")  # type: ignore[attr-defined]
+    button.dispatch_event("click", timeout=STEP_TIMEOUT * 1000)
+
+
+#: The panel folder each button lives in (collapsed ones are opened before a click).
+FOLDER_OF = {
+    "Try the peg task": "Start here",
+    "Open": "Replay a log",
+    "Back to live": "Replay a log",
+    "Run experiment": "Experiment (Table I)",
+}
+
+
+def _wait_for(condition, what: str) -> None:  # type: ignore[no-untyped-def]
+    end = time.monotonic() + STEP_TIMEOUT
+    while not condition():
+        assert time.monotonic() < end, what
+        time.sleep(0.1)
+
+
+def test_the_guide_is_on_the_first_page(page: object) -> None:
+    text = _body(page)
+    assert "Start here" in text
+    assert "drag the" in text.lower()
+
+
+def test_try_the_peg_task_plays_it_to_the_inserted_state(demo: DemoApp, page: object, tmp_path: Path) -> None:
+    """The button rebuilds the loop for peg_in_hole and plays peg_ntrfc live: the pegs go in, and
+    the status shows the contact force on the way."""
+    _click(page, "Try the peg task")
+    _wait_for(lambda: demo.rt.snapshot.playing is not None, "the session did not start playing")
+    task = load_scene("peg_in_hole").spec.task
+    assert task is not None
+    forces: list[float] = []
+    inserted = False
+    end = time.monotonic() + 3 * STEP_TIMEOUT
+    while demo.rt.snapshot.playing is not None:
+        assert time.monotonic() < end, "the session did not finish"
+        match = re.search(r"\|F_MRF\| = ([0-9.]+) N", _body(page))
+        if match:
+            forces.append(float(match.group(1)))
+        inserted |= task.done(demo.rt.snapshot.T_w_MRF)
+        time.sleep(0.05)
+    snap = demo.rt.snapshot
+    # Inserted: the goal depth was reached (the script then pushes on to the holes' floor).
+    goal = task.goal.matrix()[0:3, 3]
+    p = snap.T_w_MRF[0:3, 3]
+    assert inserted or (np.linalg.norm(p[0:2] - goal[0:2]) < task.position_tolerance and p[2] < goal[2]), p
+    assert max(forces) > 0.5  # the page showed the contact force while the pegs met the holes
+    page.get_by_text("no session playing").first.wait_for(state="attached", timeout=STEP_TIMEOUT * 1000)  # type: ignore[attr-defined]
+    SCREENSHOT_DIR.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(tmp_path / "peg.png"))  # type: ignore[attr-defined]
+    shutil.copy(tmp_path / "peg.png", SCREENSHOT_DIR / "peg_played.png")
+
+
+def test_replay_shows_the_recorded_tick(demo: DemoApp, page: object, tmp_path: Path) -> None:
+    """Scrubbing to a tick shows that tick's recorded tool pose and task force."""
+    session = load_session("probe_rate").with_changes(duration=2.5)
+    run_session(session, out_dir=tmp_path / "run", plots=False)
+    log = read_log(tmp_path / "run" / "log")
+    live_ticks = demo.rt.stats().counted
+    demo.panel.log_path.value = str(tmp_path / "run")
+    _click(page, "Open")
+    _wait_for(lambda: demo.player is not None, "the replay did not open")
+    force = log["F_MRF_fz"].to_numpy()
+    i = int(np.argmax(force))  # the firmest contact of the run
+    t = float(log["t"][i].as_py())
+    demo.panel.timeline.value = t
+    tool = [1000 * float(log[f"tool_{a}"][i].as_py()) for a in "xyz"]
+    expected = f"[{tool[0]:+.1f}, {tool[1]:+.1f}, {tool[2]:+.1f}] mm"
+    _wait_for(lambda: f"replay t = {t:.3f} s" in _body(page), "the page does not show the scrubbed time")
+    text = _body(page)
+    assert expected in text
+    shown = float(re.search(r"replay t = [^\n]*\|F_MRF\| = ([0-9.]+) N", text).group(1))  # type: ignore[union-attr]
+    f = np.array([float(log[f"F_MRF_f{a}"][i].as_py()) for a in "xyz"])
+    assert shown == pytest.approx(float(np.linalg.norm(f)), abs=0.006)
+    assert demo.rt.stats().counted > live_ticks  # the live loop kept running beside the replay
+    _click(page, "Back to live")
+    _wait_for(lambda: demo.player is None, "did not go back to live")
+
+
+def test_experiment_button_shows_the_table(demo: DemoApp, page: object) -> None:
+    demo.panel.repetitions.value = 1
+    _click(page, "Run experiment")
+    end = time.monotonic() + 6 * STEP_TIMEOUT
+    while "blind / NTRFC" not in _body(page):
+        assert time.monotonic() < end, "the experiment table did not appear"
+        assert "experiment failed" not in _body(page)
+        time.sleep(0.5)
+    text = _body(page)
+    assert "Paper's finding" in text
+    assert demo.panel.chart is not None

@@ -79,7 +79,7 @@ def _blocks(n_joints: int) -> dict[str, slice]:
 
 
 #: The log's description beside its parts (see :class:`TickLog`).
-META_FILE = "meta.json"
+META_FILE = "_meta.json"
 #: Parts handed to the writer thread and not yet on disk before ``flush`` waits (bounds memory if
 #: the disk stalls; the loop never waits while the writer keeps up).
 MAX_PENDING_PARTS = 64
@@ -98,7 +98,7 @@ class TickLog:
         n_joints: Joints of the device (sets the columns).
         period: Servo period (s).
         flush_interval: Simulated seconds of ticks per part: the most a crash can lose.
-        meta: What produced the log (scene, device, session files...), written to ``meta.json``
+        meta: What produced the log (scene, device, session files...), written to ``_meta.json``
             beside the parts: a replay rebuilds the view from it (:func:`loop_meta`).
     """
 
@@ -229,7 +229,7 @@ def _finite_json(value: Any) -> Any:
 
 
 def loop_meta(config: LoopConfig, session: Path | None = None) -> dict[str, Any]:
-    """The ``meta.json`` of a log of a loop built from ``config`` (files as strings, or None)."""
+    """The ``_meta.json`` of a log of a loop built from ``config`` (files as strings, or None)."""
     return {
         "scene": None if config.scene.path is None else str(config.scene.path),
         "device": str(config.device.path),

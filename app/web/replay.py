@@ -1,7 +1,7 @@
 """Replay a recorded log in the browser: every tick's view rebuilt from its log row.
 
 A log (``frhc run``, or the demo's Record button) holds per tick the encoder angles, grip and tool
-poses, Delta X, every wrench the view draws and the switches, plus ``meta.json`` naming the scene
+poses, Delta X, every wrench the view draws and the switches, plus ``_meta.json`` naming the scene
 and device (:class:`~app.session.log.TickLog`). :class:`LogReplay` turns row ``i`` into the same
 :class:`~app.web.snapshot.Snapshot` the live loop publishes; what the log does not store is
 recomputed deterministically from what it does:
@@ -51,7 +51,7 @@ class LogReplay:
     """A recorded log, ready to be shown tick by tick.
 
     Args:
-        directory: The log directory (``.../log`` with ``part-*.parquet`` and ``meta.json``), or
+        directory: The log directory (``.../log`` with ``part-*.parquet`` and ``_meta.json``), or
             the run directory holding it.
 
     Attributes:
@@ -60,7 +60,7 @@ class LogReplay:
         t: Simulated time of each row (s), (n,).
 
     Raises:
-        ConfigError: naming the directory or ``meta.json`` when the log cannot be replayed.
+        ConfigError: naming the directory or ``_meta.json`` when the log cannot be replayed.
     """
 
     def __init__(self, directory: Path) -> None:

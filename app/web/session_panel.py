@@ -16,6 +16,7 @@ import numpy as np
 import viser
 
 from app.session.experiment import ExperimentReport, run_experiment
+from app.session.log import META_FILE
 from app.session.spec import SESSIONS_DIR
 from app.web.commands import MAX_SPEED, MIN_SPEED
 
@@ -40,7 +41,7 @@ def available_sessions() -> list[str]:
 
 def latest_log(runs: Path) -> str:
     """The most recently written log directory under ``runs`` (or ``""``)."""
-    logs = sorted(runs.glob("*/log/meta.json"), key=lambda p: p.stat().st_mtime)
+    logs = sorted(runs.glob(f"*/log/{META_FILE}"), key=lambda p: p.stat().st_mtime)
     return str(logs[-1].parent) if logs else ""
 
 

@@ -4,7 +4,7 @@ Crash safety: a part is written under a hidden temporary name (``.part-NNNNN.par
 renamed to ``part-NNNNN.parquet`` only once complete, and the rename is atomic, so a crash at any
 moment (``kill -9`` included) leaves only complete parts under their final names, and at most one
 flush interval of ticks (0.1 s by default) is lost. Readers ignore the temporary files (pyarrow
-skips names starting with ``.``): ``read_log(log_dir)``, ``pyarrow.parquet.read_table(log_dir)``
+skips names starting with ``.`` or ``_``, so also the log's ``_meta.json``): ``read_log(log_dir)``, ``pyarrow.parquet.read_table(log_dir)``
 or ``pandas.read_parquet(log_dir)`` open the directory as one table.
 """
 

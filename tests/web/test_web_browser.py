@@ -9,43 +9,15 @@ from __future__ import annotations
 import re
 import shutil
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT
 
-from app.web.headless import CHROMIUM, free_port, open_page
-from app.web.server import DemoApp, start_demo
-from app.world.scene import ROOT_DIR
+from app.web.server import DemoApp
 
 pytestmark = pytest.mark.browser
-
-#: Where screenshots are copied for people to look at (runs/ is not committed).
-SCREENSHOT_DIR = ROOT_DIR / "runs" / "web-test"
-#: Seconds the page and the loop get for each step: generous, because chromium renders WebGL in
-#: software on 2 cores while the real-time loop holds most of one.
-STEP_TIMEOUT = 60.0
-
-
-@pytest.fixture(scope="module")
-def demo() -> Iterator[DemoApp]:
-    if not CHROMIUM.exists():
-        pytest.skip(f"{CHROMIUM} is missing: install Debian's chromium to run the browser tests")
-    app = start_demo("probe", "kraft", port=free_port())
-    try:
-        assert app.rt.wait_running(), "the servo loop process did not publish within 60 s"
-        yield app
-    finally:
-        app.close()
-        app.server.stop()
-
-
-@pytest.fixture(scope="module")
-def page(demo: DemoApp) -> Iterator[object]:
-    with open_page(f"http://127.0.0.1:{demo.server.get_port()}/") as p:
-        p.get_by_text("Deadman [D]").first.wait_for(timeout=STEP_TIMEOUT * 1000)
-        yield p
 
 
 def _task_force_shown(page: object) -> float:

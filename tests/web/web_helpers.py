@@ -1,0 +1,11 @@
+"""Constants shared by the browser tests."""
+
+from __future__ import annotations
+
+from app.world.scene import ROOT_DIR
+
+#: Where screenshots are copied for people to look at (runs/ is not committed).
+SCREENSHOT_DIR = ROOT_DIR / "runs" / "web-test"
+#: Seconds the page and the loop get for each step: generous, because chromium renders WebGL in
+#: software on 2 cores while the real-time loop holds most of one.
+STEP_TIMEOUT = 60.0

@@ -245,7 +245,15 @@ def controller_tick(
         torques[TAU_PC, j] = 0.0
     if r.pc_on:
         out.scalars[PC_DAMPING] = passivity_control(
-            po_energy, po_tau, pc_velocity, dt, r.pc_min_speed, r.pc_max_damping, r.pc_limit[:], torques[TAU], torques[TAU_PC]
+            po_energy,
+            po_tau,
+            pc_velocity,
+            dt,
+            r.pc_min_speed,
+            r.pc_max_damping,
+            r.pc_limit[:],
+            torques[TAU],
+            torques[TAU_PC],
         )
     s = motor_commands(torques, record_motors(rec), out.counts)
     out.scalars[SATURATION_SCALE] = s

@@ -27,8 +27,7 @@ DELTA_X, DELTA_X_CMD, F_S_TASK, F_MRF, G_F_T, G_F_R, G_F_D, G_F_RD, W_F_T = (
     for name in ("delta_x", "delta_x_cmd", "F_S_task", "F_MRF", "G_F_T", "G_F_R", "G_F_D", "G_F_RD", "W_F_T")
 )
 TAU_T, TAU_RD, TAU_RDS, TAU_G, TAU_PC, TAU, TAU_SAT, TAU_MOTOR = (
-    TORQUE_ROWS.index(name)
-    for name in ("tau_T", "tau_RD", "tau_RDs", "tau_G", "tau_PC", "tau", "tau_sat", "tau_motor")
+    TORQUE_ROWS.index(name) for name in ("tau_T", "tau_RD", "tau_RDs", "tau_G", "tau_PC", "tau", "tau_sat", "tau_motor")
 )
 ASSIST_SCALE, SATURATION_SCALE, ROT_WEIGHT, RAMP, PO_ENERGY, PC_DAMPING = (
     SCALARS.index(name)

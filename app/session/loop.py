@@ -230,6 +230,7 @@ class ServoLoop:
         self.link = TeleopLink(
             self.channel, self.config.servo_rate, self.controller.slave, self.controller.out.command, self.ft
         )
+
     def stall(self, seconds: float) -> None:
         """The controller misses ``seconds`` of servo periods (an overrun): the device runs on under
         the amplifier's last counts until its watchdog switches the motors off.

@@ -58,9 +58,7 @@ def run_point(session: Session) -> dict[str, Any]:
     return run_session(session, out_dir=None, plots=False).summary
 
 
-def press_session(
-    scene: Path, mode: str = "rate", seconds: float = 2.8, **changes: Any
-) -> Session:
+def press_session(scene: Path, mode: str = "rate", seconds: float = 2.8, **changes: Any) -> Session:
     """The probe session's push (reflection on, the device's gains and the hand) on ``scene``,
     in ``mode``, for ``seconds`` of simulated time; ``changes`` are further session-file fields."""
     return load_session("probe_rate").with_changes(scene=str(scene), mode=mode, duration=seconds, **changes)

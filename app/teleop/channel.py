@@ -50,6 +50,9 @@ class ChannelSettings(Checked):
         coupling: ``"direct"`` (the F/T reading is reflected as it arrives) or ``"wave"``
             (wave variables on the translational force, pose mode: :mod:`app.teleop.wave`).
         wave_impedance: The wave impedance b (N s/m) of the wave coupling.
+        wave_filter_ms: Time constant (ms) of the low-pass on the master velocity the wave
+            encoder uses: an encoder count a tick would otherwise be a force spike of b times
+            its velocity.
     """
 
     delay_ms: Annotated[float, Range(0.0, 1000.0, "ms")] = 0.0
@@ -58,11 +61,13 @@ class ChannelSettings(Checked):
     seed: Annotated[int, Range(0, 2**32 - 1)] = 0
     coupling: Coupling = "direct"
     wave_impedance: Annotated[float, Range(1.0, 1e4, "N s/m")] = 100.0
+    wave_filter_ms: Annotated[float, Range(0.0, 100.0, "ms")] = 10.0
 
     @property
     def active(self) -> bool:
         """False for the defaults: the loop then joins controller and slave directly."""
-        return self != ChannelSettings(seed=self.seed, wave_impedance=self.wave_impedance)
+        idle = ChannelSettings(seed=self.seed, wave_impedance=self.wave_impedance, wave_filter_ms=self.wave_filter_ms)
+        return self != idle
 
     def delay_ticks(self, servo_rate: float) -> int:
         """The one-way delay in whole ticks at ``servo_rate`` (Hz)."""
@@ -141,4 +146,3 @@ class DelayLine:
                 got = True
             self._next += 1
         return got
-

@@ -29,7 +29,15 @@ from app.teleop.channel import ChannelSettings, DelayLine
 # Forward message layout.
 _ACTIVE, _POSE, _TWIST, _T, _U, _FWD = 0, 1, slice(2, 8), slice(8, 24), slice(24, 27), 27
 # Backward message layout.
-_WRENCH, _R, _ACC, _OMEGA, _VALID, _V, _BACK = slice(0, 6), slice(6, 15), slice(15, 21), slice(21, 24), 24, slice(25, 28), 28
+_WRENCH, _R, _ACC, _OMEGA, _VALID, _V, _BACK = (
+    slice(0, 6),
+    slice(6, 15),
+    slice(15, 21),
+    slice(21, 24),
+    24,
+    slice(25, 28),
+    28,
+)
 
 
 class TeleopLink:
@@ -84,8 +92,8 @@ class TeleopLink:
         p = command.T_w_MRF[0:3, 3]
         self._master_waves = waves = self._wave and command.mode == "pose"
         if waves:
-            np.subtract(p, self._p_prev, out=self._xdot_m)
-            self._xdot_m /= dt
+            a = dt / (self.settings.wave_filter_ms * 1e-3 + dt)
+            self._xdot_m += a * ((p - self._p_prev) / dt - self._xdot_m)
             wave.master(self._xdot_m, self.backward.out[_V], self._b, self._u_m, self.wave_force)
             row[_U] = self._u_m
         else:

@@ -24,7 +24,16 @@ from app.controller.calibration import TorqueCurve
 from app.controller.gains import ControllerGains
 from app.controller.kinematics import DeviceKinematics, RecordArray, topology_fields
 from app.controller.layout import GAIN_ROWS, RTC_LAWS, TORQUE_ROWS, vector_row_names
-from app.controller.record import ASSIST_SCALE, RAMP, ROT_WEIGHT, SATURATION_SCALE, record_dtype
+from app.controller.passivity import PassivitySettings
+from app.controller.record import (
+    ASSIST_SCALE,
+    PC_DAMPING,
+    PO_ENERGY,
+    RAMP,
+    ROT_WEIGHT,
+    SATURATION_SCALE,
+    record_dtype,
+)
 from app.controller.safety import SafetyLimits
 from app.controller.types import Fault, FTReading, SlaveCommand, SlaveModel, Switches
 from app.device.spec import DeviceSpec
@@ -41,8 +50,8 @@ class ControllerOutput:
 
     The controller reuses one instance and overwrites it every tick: copy what you keep.
     Wrenches are ``[f; m]`` (N, N m); torques are joint-side (N m, or N for slides) unless named
-    ``motor``. Six-vectors are rows of ``vectors`` (9, 6), torques rows of ``torques`` (7, n) and
-    the scale factors slots of ``scalars`` (3,); the named attributes are views of those rows,
+    ``motor``. Six-vectors are rows of ``vectors`` (9, 6), torques rows of ``torques`` (8, n) and
+    the scale factors slots of ``scalars`` (6,); the named attributes are views of those rows,
     named and ordered by :mod:`app.controller.layout`. All arrays are views into the controller's
     record (:func:`app.controller.record.record_dtype`), which the compiled tick writes.
 
@@ -60,7 +69,8 @@ class ControllerOutput:
         G_F_RD: Assist wrench ``G_F_R + G_F_D`` (Eq 10) in {G}.
         W_F_T: The task wrench moved to the wrist {W}, in {W} (Eq 6 form, G -> W).
         tau_T, tau_RD, tau_RDs, tau_G: Task, assist, scaled assist (Eq 11) and gravity torques.
-        tau: Total ``tau_T + tau_RDs + tau_G`` (Eq 12).
+        tau_PC: The passivity controller's damping torque (zero unless it acts).
+        tau: Total ``tau_T + tau_RDs + tau_G + tau_PC`` (Eq 12, plus the PC).
         tau_sat: ``tau`` after uniform saturation to the joint limits.
         tau_motor: Motor-side torques ``tau_sat / gear_ratio`` (N m).
         counts: Motor commands (counts), int64, shape (n,).
@@ -68,6 +78,9 @@ class ControllerOutput:
         saturation_scale: Factor applied to ``tau`` by the final saturation, in (0, 1].
         ramp: Safety ramp level in [0, 1] on ``tau_T`` and ``tau_RDs`` (0 right after a fault).
         rot_weight: 1 normally; tapers to 0 near the Z-Y-X singularity |beta| -> 90 deg.
+        po_energy: Energy the passivity observer saw the controller absorb, summed over the
+            joints (J); negative means the rendering gave energy out.
+        pc_damping: Largest joint damping the passivity controller applied this tick (N m s/rad).
         reflecting: Task wrench and assists were rendered this tick (deadman and reflection on).
         faults: Why the safe output was used this tick (``Fault.NONE`` if it was not).
         fault_message: Human-readable reason, empty when there is no fault.
@@ -86,6 +99,7 @@ class ControllerOutput:
     tau_RD: Array
     tau_RDs: Array
     tau_G: Array
+    tau_PC: Array
     tau: Array
     tau_sat: Array
     tau_motor: Array
@@ -125,6 +139,16 @@ class ControllerOutput:
         """Safety ramp level in [0, 1] applied to the task and assist torques (:mod:`app.controller.safety`)."""
         return float(self.scalars[RAMP])
 
+    @property
+    def po_energy(self) -> float:
+        """Passivity observer's energy summed over the joints (J) (:mod:`app.controller.passivity`)."""
+        return float(self.scalars[PO_ENERGY])
+
+    @property
+    def pc_damping(self) -> float:
+        """Largest joint damping the passivity controller applied this tick (N m s/rad)."""
+        return float(self.scalars[PC_DAMPING])
+
 
 class FRHCController:
     """Cartesian controller of one force-reflecting hand controller (paper Sec 3-4).
@@ -135,6 +159,7 @@ class FRHCController:
         slave: What the controller knows of the slave tool: {MRF}-{S} transform, payload, gravity.
         curve: Torque-to-counts curve; by default the one the device file selects.
         safety: Ramps, velocity brake and accepted periods (:class:`SafetyLimits`).
+        passivity: The passivity controller (:class:`PassivitySettings`); off by default.
 
     Frames: {0} device base, {G} grip, {G0} reference grip pose, {W} wrist, {w} slave world,
     {MRF} slave moving reference frame, {S} F/T sensor. The FRHC base axes are taken aligned
@@ -148,6 +173,7 @@ class FRHCController:
         slave: SlaveModel,
         curve: TorqueCurve | None = None,
         safety: SafetyLimits | None = None,
+        passivity: PassivitySettings | None = None,
     ) -> None:
         self.device = device
         self.safety = safety = safety if safety is not None else SafetyLimits()
@@ -192,6 +218,7 @@ class FRHCController:
         # The compiled tick's arguments that stay the same objects for this controller's life.
         self._fixed_args = (*kin.fk_arrays, rec)
         self.set_gains(gains)
+        self.set_passivity(passivity if passivity is not None else PassivitySettings())
         self.reset(np.array(device.data.home))
 
     # -- configuration -------------------------------------------------------------------------
@@ -214,6 +241,20 @@ class FRHCController:
         if previous is not None and previous.mode != gains.mode:
             kernel.set_reference(rec)
 
+    def set_passivity(self, settings: PassivitySettings) -> None:
+        """Switch the passivity controller on or off, or change its settings, between ticks.
+
+        The observer keeps its energy: it runs whether the controller acts or not.
+        """
+        self.passivity = settings
+        rec = self._rec
+        rec["pc_on"] = settings.enabled
+        rec["pc_limit"] = settings.max_torque_fraction * self.joint_limit
+        rec["po_cap"] = settings.energy_cap
+        rec["pc_min_speed"] = settings.min_speed
+        rec["pc_max_damping"] = settings.max_damping
+        rec["pc_filter"] = settings.velocity_filter
+
     def reset(self, q: Array, T_w_MRF_home: Array | None = None) -> None:
         """Start over at joint angles ``q``: reference {G0} = FK(q), slave reference = home."""
         self.out.command.T_w_MRF[:] = self.slave.T_w_MRF_home if T_w_MRF_home is None else T_w_MRF_home
@@ -224,6 +265,9 @@ class FRHCController:
         for flag in ("prev_reference", "prev_deadman", "prev_reflecting", "have_q_prev", "braking"):
             self._rec[flag] = False
         self.out.scalars[RAMP] = 0.0
+        for name in ("po_energy", "po_tau", "pc_velocity"):
+            self._rec[name] = 0.0
+        self.out.scalars[PO_ENERGY] = self.out.scalars[PC_DAMPING] = 0.0
 
     def resume(self) -> None:
         """After a gap in the servo ticks (an overrun): no velocity across the gap, and the wrench
@@ -340,6 +384,9 @@ class FRHCController:
             o.tau[:] -= self._brake_damping * self._rec["qdot"][0]
         o.scalars[ASSIST_SCALE] = 1.0
         o.scalars[RAMP] = 0.0  # the wrench ramps in again once the fault clears
+        o.scalars[PC_DAMPING] = 0.0
+        # The brake's damping is not credited to the observer (the conservative side).
+        self._rec["po_tau"] = 0.0
         o.scalars[SATURATION_SCALE] = kernel.motor_commands(o.torques, self._motors, o.counts)
         return o
 

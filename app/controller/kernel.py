@@ -30,6 +30,7 @@ from numba import njit
 from app.controller.assist import constant_force_rtc, damping, deadband, hooke_rtc, saturate, uniform_scale
 from app.controller.calibration import curve_counts
 from app.controller.kinematics import RecordArray, gravity_torque, wrist_jacobian
+from app.controller.passivity import filter_velocity, observe_energy, passivity_control
 from app.controller.payload import add_inertial_load, remove_weight
 from app.controller.record import (
     ASSIST_SCALE,
@@ -48,6 +49,8 @@ from app.controller.record import (
     K_T,
     K_V,
     K_WALL,
+    PC_DAMPING,
+    PO_ENERGY,
     RAMP,
     ROT_WEIGHT,
     RTC_A,
@@ -57,6 +60,7 @@ from app.controller.record import (
     TAU,
     TAU_G,
     TAU_MOTOR,
+    TAU_PC,
     TAU_RD,
     TAU_RDS,
     TAU_SAT,
@@ -181,6 +185,12 @@ def controller_tick(
         faults |= BAD_PERIOD
     if velocity_brake(q, dt if period_ok else 0.0, rec):
         faults |= OVERSPEED
+    # The observer runs on every tick, faults included: the device moved under last tick's torque.
+    po_energy, qdot = r.po_energy[:], r.qdot[:]
+    out.scalars[PO_ENERGY] = observe_energy(po_energy, r.po_tau[:], qdot, dt if period_ok else 0.0, r.po_cap)
+    out.scalars[PC_DAMPING] = 0.0
+    pc_velocity = r.pc_velocity[:]
+    filter_velocity(qdot, dt if period_ok else 0.0, r.pc_filter, pc_velocity)
     if not ft_valid:
         faults |= FT_INVALID
     elif not math.isfinite(_total(wrench_S) + _total(R_w_S)):
@@ -217,7 +227,6 @@ def controller_tick(
         R_w_S,
         payload,
         laws,
-        record_motors(rec),
         deadman,
         deadman and reflection,
         dt,
@@ -228,6 +237,29 @@ def controller_tick(
     r.restart_damping = False
     if not ok:
         return NONFINITE_OUTPUT
+    # Passivity controller (app.controller.passivity) on the rendered torque, then Sec 3.4.
+    n = torques.shape[1]
+    po_tau = r.po_tau[:]
+    for j in range(n):
+        po_tau[j] = torques[TAU, j] - torques[TAU_G, j]
+        torques[TAU_PC, j] = 0.0
+    if r.pc_on:
+        out.scalars[PC_DAMPING] = passivity_control(
+            po_energy,
+            po_tau,
+            pc_velocity,
+            dt,
+            r.pc_min_speed,
+            r.pc_max_damping,
+            r.pc_limit[:],
+            torques[TAU],
+            torques[TAU_PC],
+        )
+    s = motor_commands(torques, record_motors(rec), out.counts)
+    out.scalars[SATURATION_SCALE] = s
+    # What the motors were commanded to render (the uniform saturation scales it too).
+    for j in range(n):
+        po_tau[j] = s * (torques[TAU, j] - torques[TAU_G, j])
     if deadman and not r.rate_mode:
         pose_command(r.T_w_MRF0[:], laws.gains[K_P], out.vectors[DELTA_X_CMD], r.T_w_MRF[:])
     return 0
@@ -239,7 +271,6 @@ def cartesian_tick(
     R_w_S: Array,
     payload: Payload,
     laws: Laws,
-    motors: Motors,
     deadman: bool,
     reflecting: bool,
     dt: float,
@@ -247,11 +278,12 @@ def cartesian_tick(
     restart_damping: bool,
     out: Outputs,
 ) -> bool:
-    """Eq 2-12 from the grip pose to motor counts. Returns False if a torque came out non-finite.
+    """Eq 2-12 from the grip pose to the total torque ``torques[TAU]``. Returns False if it came out
+    non-finite. The caller adds the passivity controller and the motor commands (Sec 3.4).
 
     Args:
         grip: This tick's grip kinematics. R_w_S: sensor orientation in the slave world (3, 3).
-        payload, laws, motors: The bundles of the same names.
+        payload, laws: The bundles of the same names.
         deadman, reflecting: Switch state (reflecting = deadman and reflection switch).
         dt: Servo period (s). ``dx_prev``: Delta X of the previous tick (6,), updated here.
         restart_damping: No previous Delta X on this reference (Eq 9 starts from zero).
@@ -350,10 +382,7 @@ def cartesian_tick(
         torques[TAU_RDS, j] = ramp * a * torques[TAU_RD, j]
         torques[TAU, j] = torques[TAU_T, j] + torques[TAU_RDS, j] + torques[TAU_G, j]  # Eq 12
         total += torques[TAU, j]
-    if not math.isfinite(total):
-        return False
-    scalars[SATURATION_SCALE] = motor_commands(torques, motors, out.counts)
-    return True
+    return math.isfinite(total)
 
 
 @njit(cache=True)

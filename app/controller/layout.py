@@ -35,12 +35,15 @@ VECTOR_ROWS: tuple[tuple[str, tuple[str, ...]], ...] = (
 )
 """Rows of the ``vectors`` block (9, 6): name and axis labels (see ``ControllerOutput``)."""
 
-TORQUE_ROWS = ("tau_T", "tau_RD", "tau_RDs", "tau_G", "tau", "tau_sat", "tau_motor")
-"""Rows of the ``torques`` block (7, n): joint-side torques, then motor-side ``tau_motor``."""
+TORQUE_ROWS = ("tau_T", "tau_RD", "tau_RDs", "tau_G", "tau_PC", "tau", "tau_sat", "tau_motor")
+"""Rows of the ``torques`` block (8, n): joint-side torques (``tau_PC`` is the passivity
+controller's damping, :mod:`app.controller.passivity`), then motor-side ``tau_motor``."""
 
-SCALARS = ("assist_scale", "saturation_scale", "rot_weight", "ramp")
-"""Slots of the ``scalars`` block (4,): the Eq 11 assist scale, the Sec 3.4 saturation scale, the
-rotational fade near gimbal lock and the safety ramp level (:mod:`app.controller.safety`)."""
+SCALARS = ("assist_scale", "saturation_scale", "rot_weight", "ramp", "po_energy", "pc_damping")
+"""Slots of the ``scalars`` block (6,): the Eq 11 assist scale, the Sec 3.4 saturation scale, the
+rotational fade near gimbal lock, the safety ramp level (:mod:`app.controller.safety`), the
+passivity observer's energy summed over the joints (J) and the largest joint damping the
+passivity controller applied this tick (N m s/rad) (:mod:`app.controller.passivity`)."""
 
 Mode = Literal["rate", "pose"]
 """How the grip commands the slave: a twist (Eq 5, K_V) or a pose (Sec 3.5, K_P)."""

@@ -26,11 +26,12 @@ DELTA_X, DELTA_X_CMD, F_S_TASK, F_MRF, G_F_T, G_F_R, G_F_D, G_F_RD, W_F_T = (
     vector_row_names().index(name)
     for name in ("delta_x", "delta_x_cmd", "F_S_task", "F_MRF", "G_F_T", "G_F_R", "G_F_D", "G_F_RD", "W_F_T")
 )
-TAU_T, TAU_RD, TAU_RDS, TAU_G, TAU, TAU_SAT, TAU_MOTOR = (
-    TORQUE_ROWS.index(name) for name in ("tau_T", "tau_RD", "tau_RDs", "tau_G", "tau", "tau_sat", "tau_motor")
+TAU_T, TAU_RD, TAU_RDS, TAU_G, TAU_PC, TAU, TAU_SAT, TAU_MOTOR = (
+    TORQUE_ROWS.index(name) for name in ("tau_T", "tau_RD", "tau_RDs", "tau_G", "tau_PC", "tau", "tau_sat", "tau_motor")
 )
-ASSIST_SCALE, SATURATION_SCALE, ROT_WEIGHT, RAMP = (
-    SCALARS.index(name) for name in ("assist_scale", "saturation_scale", "rot_weight", "ramp")
+ASSIST_SCALE, SATURATION_SCALE, ROT_WEIGHT, RAMP, PO_ENERGY, PC_DAMPING = (
+    SCALARS.index(name)
+    for name in ("assist_scale", "saturation_scale", "rot_weight", "ramp", "po_energy", "pc_damping")
 )
 
 
@@ -96,7 +97,7 @@ class Motors(NamedTuple):
 
 class Outputs(NamedTuple):
     """The tick's outputs (see :class:`~app.controller.frhc.ControllerOutput`): ``vectors`` (9, 6),
-    ``torques`` (7, n), ``counts`` (n,) int64, ``twist`` (6,) and ``scalars`` (3,)."""
+    ``torques`` (8, n), ``counts`` (n,) int64, ``twist`` (6,) and ``scalars`` (6,)."""
 
     vectors: Array
     torques: Array
@@ -115,7 +116,9 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         ``RTC_LAWS``. taper: ``[start, stop]`` |beta| (rad) of the rotational fade near gimbal
         lock. gravity_compensation, remove_payload, remove_inertia: the options of the same
         names. min_period, max_period: accepted periods (s). ramp_rate (1/s), max_joint_speed and
-        release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. assist_limit, joint_limit, gear_ratio:
+        release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. pc_on, pc_limit
+        (n,) (N m or N), po_cap (J), pc_min_speed (rad/s), pc_max_damping (N m s/rad), pc_filter (s):
+        :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
         (n,) each (N m or N; -). horner_pos, horner_neg: (n, n_coeffs) torque curves, highest
         order first; counts_max: the amplifier's range. payload_mass (kg), payload_com_S (m, in
         {S}), payload_inertia_S (kg m^2, about the centre of mass, {S} axes), gravity_w (m/s^2,
@@ -127,10 +130,13 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         restart_damping: No previous Delta X on this reference (Eq 9 starts from zero).
         prev_reference, prev_deadman, prev_reflecting: Last tick's switches, for edges. J_W:
         wrist Jacobian (6, n). q_prev, have_q_prev: last finite joint angles; qdot: joint
-        velocities from their difference (n,). braking: the velocity brake is on.
+        velocities from their difference (n,). braking: the velocity brake is on. po_energy:
+        the passivity observer's energy per joint (J), (n,); po_tau: the rendered torque
+        commanded last tick (N m or N), (n,); pc_velocity: the low-passed joint velocity the
+        passivity controller uses (n,).
 
     Outputs (see :class:`~app.controller.frhc.ControllerOutput`):
-        T_0_G, T_0_G0 (4, 4); vectors (9, 6); torques (7, n); counts (n,) int64; scalars (4,);
+        T_0_G, T_0_G0 (4, 4); vectors (9, 6); torques (8, n); counts (n,) int64; scalars (6,);
         twist (6,) and T_w_MRF (4, 4): the slave command.
     """
     f8, i8, b1 = np.float64, np.int64, np.bool_
@@ -149,6 +155,12 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("ramp_rate", f8),
             ("max_joint_speed", f8),
             ("release_speed", f8),
+            ("pc_on", b1),
+            ("pc_limit", f8, (n,)),
+            ("po_cap", f8),
+            ("pc_min_speed", f8),
+            ("pc_max_damping", f8),
+            ("pc_filter", f8),
             ("assist_limit", f8, (n,)),
             ("joint_limit", f8, (n,)),
             ("gear_ratio", f8, (n,)),
@@ -172,6 +184,9 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("have_q_prev", b1),
             ("qdot", f8, (n,)),
             ("braking", b1),
+            ("po_energy", f8, (n,)),
+            ("po_tau", f8, (n,)),
+            ("pc_velocity", f8, (n,)),
             ("J_W", f8, (6, n)),
             ("T_0_G", f8, (4, 4)),
             ("T_0_G0", f8, (4, 4)),

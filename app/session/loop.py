@@ -26,6 +26,7 @@ import numpy as np
 
 from app.controller.frhc import FRHCController
 from app.controller.gains import ControllerGains
+from app.controller.passivity import PassivitySettings
 from app.controller.safety import SafetyLimits
 from app.controller.types import Switches
 from app.device.hand import HandParams
@@ -34,6 +35,8 @@ from app.device.spec import DeviceSpec, load_device
 from app.errors import ConfigError
 from app.session.tick import STAGES, TickObserver, TickRecord
 from app.spatial import Array, IntArray
+from app.teleop.channel import ChannelSettings
+from app.teleop.link import TeleopLink
 from app.world.scene import Scene, load_scene
 from app.world.slave import VirtualSlave
 
@@ -59,6 +62,9 @@ class LoopConfig:
         servo_rate: Ticks per second (Hz).
         safety: The controller's ramps, velocity brake and accepted periods.
         watchdog: The simulated amplifier's servo watchdog (s).
+        passivity: The passivity controller on the device port (:mod:`app.controller.passivity`).
+        channel: The master-slave channel: delay, jitter, loss, wave variables
+            (:mod:`app.teleop`); the default is none.
     """
 
     device: DeviceSpec
@@ -69,6 +75,8 @@ class LoopConfig:
     servo_rate: float = 1000.0
     safety: SafetyLimits = field(default_factory=SafetyLimits)
     watchdog: float = WATCHDOG
+    passivity: PassivitySettings = field(default_factory=PassivitySettings)
+    channel: ChannelSettings = field(default_factory=ChannelSettings)
 
     @staticmethod
     def from_session(
@@ -77,7 +85,8 @@ class LoopConfig:
         device: DeviceSpec | None = None,
         gains: ControllerGains | None = None,
     ) -> LoopConfig:
-        """The loop a session runs: its scene, device, gains, hand, accommodation and rate.
+        """The loop a session runs: its scene, device, gains, hand, accommodation, rate, passivity
+        controller and channel.
 
         ``scene``, ``device`` and ``gains`` replace the session's own when given.
         """
@@ -89,12 +98,23 @@ class LoopConfig:
             d.hand,
             d.accommodation,
             d.servo_rate,
+            passivity=d.passivity,
+            channel=d.channel,
         )
 
     def __reduce__(self) -> tuple[Any, ...]:
         if self.scene.path is None:
             raise ConfigError("<scene>", "path", "a loop run in another process needs a scene loaded from a file")
-        values = (self.gains, self.hand, self.accommodation, self.servo_rate, self.safety, self.watchdog)
+        values = (
+            self.gains,
+            self.hand,
+            self.accommodation,
+            self.servo_rate,
+            self.safety,
+            self.watchdog,
+            self.passivity,
+            self.channel,
+        )
         return (_rebuild_config, (self.scene.path, self.device.path, *values))
 
 
@@ -113,6 +133,8 @@ class ServoLoop:
         observers: Called with :attr:`record` after every tick, in order.
         time: Simulated time (s).
         ticks: Ticks run since the last reset.
+        link: The master-slave channel (:mod:`app.teleop`), or None when controller and slave
+            are joined directly (no delay: the default).
     """
 
     def __init__(self, config: LoopConfig) -> None:
@@ -120,7 +142,11 @@ class ServoLoop:
         self.dt = 1.0 / config.servo_rate
         self.plant = DevicePlant(config.device, config.hand, config.watchdog)
         self.slave = VirtualSlave(config.scene, accommodation=config.accommodation, period=self.dt)
-        self.controller = FRHCController(config.device, config.gains, self.slave.slave_model(), safety=config.safety)
+        self.controller = FRHCController(
+            config.device, config.gains, self.slave.slave_model(), safety=config.safety, passivity=config.passivity
+        )
+        self.channel = config.channel
+        self.link: TeleopLink | None = None
         self.switches = Switches()
         self.observers: list[TickObserver] = []
         self._hand = np.eye(4)
@@ -159,6 +185,7 @@ class ServoLoop:
         self.switches.deadman = self.switches.reference = self.switches.reflection = False
         self.time = 0.0
         self.ticks = 0
+        self._connect()
         rec = self.record
         rec.index, rec.time, rec.ft, rec.contact = 0, 0.0, self.ft, self.slave.contact
         rec.deadman = rec.reference = rec.reflection = False
@@ -181,6 +208,29 @@ class ServoLoop:
     def set_gains(self, gains: ControllerGains) -> None:
         self.controller.set_gains(gains)
 
+    def set_passivity(self, settings: PassivitySettings) -> None:
+        """Switch the passivity controller (or change its settings) between ticks; the observer's
+        energy carries on."""
+        self.controller.set_passivity(settings)
+
+    def set_channel(self, settings: ChannelSettings) -> None:
+        """Put a new master-slave channel between controller and slave, between ticks.
+
+        Messages in flight on the old channel are lost; the slave holds the controller's last
+        command and the controller the slave's last reading until the new channel delivers.
+        """
+        self.channel = settings
+        self._connect()
+
+    def _connect(self) -> None:
+        """The link for :attr:`channel` (None when it is no channel), starting from the present state."""
+        if not self.channel.active:
+            self.link = None
+            return
+        self.link = TeleopLink(
+            self.channel, self.config.servo_rate, self.controller.slave, self.controller.out.command, self.ft
+        )
+
     def stall(self, seconds: float) -> None:
         """The controller misses ``seconds`` of servo periods (an overrun): the device runs on under
         the amplifier's last counts until its watchdog switches the motors off.
@@ -201,7 +251,12 @@ class ServoLoop:
         t1 = time.perf_counter_ns()
         out = self.controller.step(self.reading.q, sw, self.ft, self.dt)
         t2 = time.perf_counter_ns()
-        self.ft = self.slave.step(out.command, self.dt)
+        link = self.link
+        if link is None:
+            ft = self.ft = self.slave.step(out.command, self.dt)
+        else:
+            ft = self.slave.step(link.to_slave(out.command, self.dt), self.dt)
+            self.ft = link.to_master(ft)
         t3 = time.perf_counter_ns()
         self.counts[:] = out.counts
         self.time += self.dt
@@ -214,7 +269,7 @@ class ServoLoop:
         ns[3] = t3 - t0
         rec.index = self.ticks
         rec.time = self.time
-        rec.ft = self.ft
+        rec.ft = ft
         rec.contact = self.slave.contact
         rec.deadman, rec.reference, rec.reflection = sw.deadman, sw.reference, sw.reflection
         sw.reference = False

@@ -12,6 +12,11 @@ from app.session.tick import STAGES, TickRecord
 from app.spatial import Array, rotation_log
 from app.world.scene import TaskSpec
 
+#: Seconds at the end of a session over which the contact force's settling is judged (s).
+SETTLE_WINDOW = 0.6
+#: Settled: the contact force's peak-to-peak over the window below this fraction of its mean (-).
+SETTLE_RIPPLE = 0.05
+
 
 def work_increment(T_prev: Array, T: Array, F_prev: Array, F: Array) -> Array:
     """One trapezoid step of Eq 13 per axis: ``(F_prev + F)/2 * d xi`` (J), shape (6,).
@@ -37,6 +42,12 @@ class SessionMetrics:
     wrench at {MRF} in {MRF} axes times the {MRF} displacement in its own axes (translation,
     and the rotation increment as a rotation vector), integrated with the trapezoid rule per
     axis; absolute values are taken per axis at the end.
+
+    Settling (the oscillation criterion of ``frhc zwidth``): over the last :data:`SETTLE_WINDOW`
+    seconds the contact force magnitude at {MRF} is settled when its peak-to-peak (ripple) is
+    below :data:`SETTLE_RIPPLE` of its mean (and finite). The felt stiffness is the rendered
+    force at the grip (``|G_F_T|``, mean over the window) over the grip's displacement since the
+    tool first touched (``|Delta X|`` translation, mean over the window, minus its value then).
     """
 
     def __init__(self, start: TickRecord, task: TaskSpec | None, n_ticks: int, dt: float) -> None:
@@ -56,6 +67,12 @@ class SessionMetrics:
         self._ramping_ticks = 0
         self._watchdog_trips = 0
         self._stage_ns = np.zeros((n_ticks, len(STAGES)), dtype=np.int64)
+        # The last SETTLE_WINDOW of ticks (a ring): contact force, rendered grip force, grip displacement (3).
+        self._tail = np.full((max(1, round(SETTLE_WINDOW / dt)), 5), np.nan)
+        self._dx_touch: Array | None = None
+        self._min_energy = 0.0
+        self._max_pc = 0.0
+        self._pc_ticks = 0
         self.task_done_at: float | None = None
         self._task = task
 
@@ -84,6 +101,16 @@ class SessionMetrics:
         self._watchdog_trips = tick.reading.watchdog_trips
         if self._ticks < len(self._stage_ns):
             self._stage_ns[self._ticks] = tick.stage_ns
+        row = self._tail[self._ticks % len(self._tail)]
+        row[0] = f
+        row[1] = math.sqrt(float(out.G_F_T[0:3] @ out.G_F_T[0:3]))
+        row[2:5] = out.delta_x[0:3]
+        self._min_energy = min(self._min_energy, out.po_energy)
+        pc = out.pc_damping
+        self._max_pc = max(self._max_pc, pc)
+        self._pc_ticks += pc > 0.0
+        if self._dx_touch is None and tick.contact.count > 0:
+            self._dx_touch = out.delta_x[0:3].copy()
 
         self._ticks += 1
         if self._task is not None and self.task_done_at is None and self._task.done(T):
@@ -93,6 +120,26 @@ class SessionMetrics:
     def work_per_axis(self) -> Array:
         """``|integral F_MRF,i d xi_i|`` per axis (J for forces, J = N m rad for moments), (6,)."""
         return np.abs(self._work)
+
+    def settling(self) -> dict[str, Any]:
+        """Contact force and felt stiffness over the last :data:`SETTLE_WINDOW` s, and the passivity trace."""
+        tail = self._tail[: min(self._ticks, len(self._tail))]
+        mean = float(np.mean(tail[:, 0])) if len(tail) else math.nan
+        ripple = float(np.ptp(tail[:, 0])) if len(tail) else math.nan
+        felt = math.nan
+        if self._dx_touch is not None and len(tail):
+            travel = float(np.linalg.norm(np.mean(tail[:, 2:5], axis=0) - self._dx_touch))
+            felt = float(np.mean(tail[:, 1])) / travel if travel > 0.0 else math.nan
+        return {
+            "window_s": SETTLE_WINDOW,
+            "mean_force_N": mean,
+            "ripple_N": ripple,
+            "settled": bool(math.isfinite(ripple) and ripple < SETTLE_RIPPLE * max(abs(mean), 1e-9)),
+            "felt_stiffness_N_per_m": felt,
+            "min_energy_J": self._min_energy,
+            "max_pc_damping": self._max_pc,
+            "pc_active_ticks": self._pc_ticks,
+        }
 
     def summary(self) -> dict[str, Any]:
         """The session summary as plain JSON-able values."""
@@ -126,6 +173,7 @@ class SessionMetrics:
             "saturated_ticks": self._saturated_ticks,
             "ramping_ticks": self._ramping_ticks,
             "watchdog_trips": self._watchdog_trips,
+            "settling": self.settling(),
             "ticks": self._ticks,
             "simulated_s": self._time,
             "timing": timing,

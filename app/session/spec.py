@@ -16,9 +16,11 @@ from typing import Annotated, Any
 from app.config import Checked, Count, Range, from_dict, load_toml
 from app.controller.gains import ControllerGains
 from app.controller.layout import Mode
+from app.controller.passivity import PassivitySettings
 from app.device.hand import HandParams
 from app.device.spec import DeviceSpec, load_device
 from app.errors import ConfigError, InvalidField
+from app.teleop.channel import ChannelSettings
 from app.world.scene import Scene, load_scene
 
 SESSIONS_DIR = Path(__file__).resolve().parents[2] / "sessions"
@@ -80,6 +82,8 @@ class SessionFile(Checked):
         time_scale: Stretches every waypoint and event time (a slower or faster operator).
         gains: Overrides of the device's default :class:`ControllerGains` fields.
         hand: The operator's hand impedance.
+        passivity: The passivity observer/controller on the device port.
+        channel: The master-slave channel (delay, jitter, loss, wave variables).
         waypoints: Hand-target poses, interpolated smoothly between their times.
         events: Switch events.
     """
@@ -95,6 +99,8 @@ class SessionFile(Checked):
     time_scale: Annotated[float, Range(1e-3, 1e3)] = 1.0
     gains: dict[str, Any] = field(default_factory=dict)
     hand: HandParams = field(default_factory=HandParams)
+    passivity: PassivitySettings = field(default_factory=PassivitySettings)
+    channel: ChannelSettings = field(default_factory=ChannelSettings)
     waypoints: Annotated[tuple[Waypoint, ...], Count(0, MAX_SCRIPT_ENTRIES)] = ()
     events: Annotated[tuple[SwitchEvent, ...], Count(0, MAX_SCRIPT_ENTRIES)] = ()
 

@@ -10,9 +10,11 @@ import pytest
 
 from app.config import MAX_FILE_BYTES, field_range
 from app.controller.gains import ControllerGains
+from app.controller.passivity import PassivitySettings
 from app.device.hand import HandParams
 from app.device.spec import CalibrationSpec, DeviceFile, MotorSpec, PlantParams
 from app.session.spec import MAX_TICKS, SessionFile, SwitchEvent, Waypoint
+from app.teleop.channel import ChannelSettings
 from app.world.scene_file import (
     MAX_OBJECTS,
     MAX_TOOL_SPHERES,
@@ -49,6 +51,8 @@ SECTIONS = [
     ("sessions/README.md", "## `[[waypoints]]`", Waypoint),
     ("sessions/README.md", "## `[[events]]`", SwitchEvent),
     ("sessions/README.md", "## `[hand]`", HandParams),
+    ("sessions/README.md", "## `[passivity]`", PassivitySettings),
+    ("sessions/README.md", "## `[channel]`", ChannelSettings),
 ]
 
 

@@ -189,6 +189,15 @@ CASES: dict[str, dict[str, Case]] = {
         "hand damping 1e300": P(
             "accommodation = true", "accommodation = true\n[hand]\ndamping_trans = 1e300", "hand.damping_trans"
         ),
+        "passivity damping inf": P(
+            "accommodation = true", "accommodation = true\n[passivity]\nmax_damping = inf", "passivity.max_damping"
+        ),
+        "channel delay -5": P(
+            "accommodation = true", "accommodation = true\n[channel]\ndelay_ms = -5.0", "channel.delay_ms"
+        ),
+        "channel coupling": P(
+            "accommodation = true", 'accommodation = true\n[channel]\ncoupling = "scattering"', "channel.coupling"
+        ),
         "max_period 1e-9": P(
             "accommodation = true", "accommodation = true\n[gains]\nmax_period = 1e-9", "gains.max_period"
         ),

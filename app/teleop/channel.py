@@ -22,7 +22,7 @@ tick, in ticks, deterministically; a ring buffer of preallocated rows is all it 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args
 
 import numpy as np
 
@@ -30,6 +30,7 @@ from app.config import Checked, Range
 from app.spatial import Array
 
 Coupling = Literal["direct", "wave"]
+COUPLINGS: tuple[str, ...] = get_args(Coupling)
 """How force reflection crosses the channel: the F/T reading as it is, or wave variables
 (:mod:`app.teleop.wave`)."""
 

@@ -12,9 +12,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from app.controller.gains import ControllerGains
+from app.controller.passivity import PassivitySettings
 from app.errors import FrhcError, InvalidField
 from app.session.spec import SessionFile
 from app.spatial import Array
+from app.teleop.channel import ChannelSettings
 
 #: Range of :class:`SetSpeed` (simulated seconds per wall-clock second).
 MIN_SPEED, MAX_SPEED = 0.1, 4.0
@@ -104,6 +106,20 @@ class SetSpeed:
 
 
 @dataclass(frozen=True)
+class SetPassivity:
+    """Passivity controller settings (the observer always runs)."""
+
+    settings: PassivitySettings
+
+
+@dataclass(frozen=True)
+class SetChannel:
+    """A new master-slave channel (delay, jitter, loss, coupling) between controller and slave."""
+
+    settings: ChannelSettings
+
+
+@dataclass(frozen=True)
 class Stop:
     """End the loop process after the current tick (closing any log)."""
 
@@ -119,6 +135,8 @@ LoopCommand = (
     | Play
     | Pause
     | SetSpeed
+    | SetPassivity
+    | SetChannel
     | Stop
 )
 COMMANDS = (
@@ -132,6 +150,8 @@ COMMANDS = (
     Play,
     Pause,
     SetSpeed,
+    SetPassivity,
+    SetChannel,
     Stop,
 )
 

@@ -24,6 +24,7 @@ from app.controller.layout import MODES, RTC_LAWS
 from app.controller.types import Fault
 from app.errors import ConfigError, InvalidField
 from app.session.pacer import TimingStats
+from app.teleop.channel import COUPLINGS
 from app.web.scene_view import DEVICE_ORIGIN_V, FORCE_SCALE, MOMENT_SCALE, WORLD_ORIGIN_V, WRENCH_ARROWS
 from app.web.snapshot import Snapshot
 
@@ -68,6 +69,10 @@ class DemoActions(Protocol):
     def select(self, scene: str, device: str) -> None: ...
 
     def toggle_recording(self) -> Path | None: ...
+
+    def set_passivity(self, on: bool) -> None: ...
+
+    def set_channel(self, delay_ms: float, coupling: str) -> None: ...
 
 
 def _assign(handle: viser.GuiInputHandle[T], value: T) -> None:
@@ -187,6 +192,13 @@ class Controls:
             self.gravity_compensation = gui.add_checkbox("Gravity compensation", gains.gravity_compensation)
             self.gain_message = gui.add_markdown("")
 
+        with gui.add_folder("Passivity and delay", expand_by_default=False):
+            self.pc = gui.add_checkbox(
+                "PO/PC", False, hint="Passivity controller: per-joint damping of observed excess energy"
+            )
+            self.delay = gui.add_number("Delay one way (ms)", 0.0, min=0.0, max=1000.0, step=1.0)
+            self.coupling = gui.add_dropdown("Coupling", COUPLINGS, initial_value=COUPLINGS[0])
+
         with gui.add_folder("Scene and device", expand_by_default=False):
             self.scene = gui.add_dropdown("Scene", scenes, initial_value=scene)
             self.device = gui.add_dropdown("Device", devices, initial_value=device)
@@ -223,6 +235,10 @@ class Controls:
             checkbox.on_update(self._apply_gains)
         for text in self.six.values():
             text.on_update(self._apply_gains)
+
+        self.pc.on_update(lambda _: a.set_passivity(self.pc.value))
+        for channel_input in (self.delay, self.coupling):
+            channel_input.on_update(lambda _: a.set_channel(float(self.delay.value), self.coupling.value))
 
         self.scene.on_update(lambda _: a.select(self.scene.value, self.device.value))
         self.device.on_update(lambda _: a.select(self.scene.value, self.device.value))
@@ -296,6 +312,7 @@ class Controls:
             f"(p99 {timing.tick_p99_us:.0f}) · jitter p99 {timing.jitter_p99_us:.0f} us · slips {timing.slips} · {scheduling}\n\n"
             f"saturation scale {snap.saturation_scale:.3f} · force ramp {snap.ramp:.2f} · "
             f"contacts {len(snap.contact_points_w)} · amplifier watchdog trips {snap.watchdog_trips} · "
+            f"PO energy {snap.po_energy:+.3f} J · PC damping {snap.pc_damping:.3g} N m s/rad · "
             f"faults: {fault_text}"
         )
         f_mrf = float(np.linalg.norm(snap.F_MRF[0:3]))

@@ -30,9 +30,11 @@ from app.web.commands import (
     PressReference,
     Record,
     Reset,
+    SetChannel,
     SetDeadman,
     SetGains,
     SetHandTarget,
+    SetPassivity,
     SetReflection,
     SetSpeed,
     Stop,
@@ -134,6 +136,10 @@ class LoopHost:
                 self.publisher.paused = on
                 self.publisher.publish(loop.record)
                 return not on
+            case SetPassivity(settings):
+                loop.set_passivity(settings)
+            case SetChannel(settings):
+                loop.set_channel(settings)
             case SetSpeed(factor):
                 self.speed = factor
                 self.publisher.speed = factor

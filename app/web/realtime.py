@@ -23,11 +23,13 @@ from pathlib import Path
 from typing import Any
 
 from app.controller.gains import ControllerGains
+from app.controller.passivity import PassivitySettings
 from app.errors import ConfigError
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.pacer import TimingStats, timing_stats
 from app.session.spec import Session
 from app.spatial import Array
+from app.teleop.channel import ChannelSettings
 from app.web.commands import (
     LoopCommand,
     Pause,
@@ -35,9 +37,11 @@ from app.web.commands import (
     PressReference,
     Record,
     Reset,
+    SetChannel,
     SetDeadman,
     SetGains,
     SetHandTarget,
+    SetPassivity,
     SetReflection,
     SetSpeed,
     Stop,
@@ -193,6 +197,12 @@ class RealtimeLoop:
     def set_speed(self, factor: float) -> None:
         """Simulated seconds per wall-clock second, 0.1 to 4 (InvalidField outside)."""
         self.send(SetSpeed(float(factor)))
+
+    def set_passivity(self, settings: PassivitySettings) -> None:
+        self.send(SetPassivity(settings))
+
+    def set_channel(self, settings: ChannelSettings) -> None:
+        self.send(SetChannel(settings))
 
     def stop_playing(self) -> None:
         """Stop a playing script (the loop goes on from where it is)."""

@@ -23,11 +23,13 @@ import numpy as np
 import viser
 
 from app.controller.gains import ControllerGains
+from app.controller.passivity import PassivitySettings
 from app.device.spec import DeviceSpec, available_devices, load_device
-from app.errors import ConfigError
+from app.errors import ConfigError, InvalidField
 from app.session.loop import LoopConfig
 from app.session.spec import Session, load_session
 from app.spatial import Array
+from app.teleop.channel import ChannelSettings
 from app.web.access import TOKEN_NAME, TokenGate, new_token
 from app.web.controls import PLOT_SECONDS, Controls
 from app.web.realtime import RealtimeLoop
@@ -235,6 +237,19 @@ class DemoApp:
         if self.experiment is not None and not self.experiment.finished:
             return
         self.experiment = ExperimentJob(RUNS_DIR / f"web-experiment-{datetime.now():%Y%m%d-%H%M%S}", repetitions)
+
+    def set_passivity(self, on: bool) -> None:
+        """Switch the passivity controller (its settings otherwise as the defaults)."""
+        self.rt.set_passivity(PassivitySettings(enabled=on))
+
+    def set_channel(self, delay_ms: float, coupling: str) -> None:
+        """A master-slave channel of ``delay_ms`` each way with ``coupling``; refused values are shown."""
+        try:
+            settings = ChannelSettings(delay_ms=delay_ms, coupling=coupling)  # type: ignore[arg-type]
+        except (ConfigError, InvalidField) as exc:
+            self.controls.gain_message.content = f"**Refused channel:** {exc}"
+            return
+        self.rt.set_channel(settings)
 
     def toggle_recording(self) -> Path | None:
         """Start a log in ``runs/web-<timestamp>/log`` and return it, or stop the current one (None)."""

@@ -51,6 +51,8 @@ class Snapshot:
         fault_message: Why the controller used its safe output, or ``""``.
         saturation_scale: Uniform torque saturation factor in (0, 1] (1 = not saturated).
         ramp: Safety ramp level of the rendered wrench in [0, 1] (:mod:`app.controller.safety`).
+        po_energy: Energy the passivity observer saw enter the device port, summed over joints (J).
+        pc_damping: The passivity controller's largest joint damping this tick (N m s/rad).
         watchdog_trips: Times the amplifier's watchdog switched the motors off since the reset.
         recording: The log directory being written, or None.
         playing: The session file whose script drives the loop, or None.
@@ -82,6 +84,8 @@ class Snapshot:
     fault_message: str
     saturation_scale: float
     ramp: float
+    po_energy: float
+    pc_damping: float
     watchdog_trips: int
     recording: Path | None = None
     playing: Path | None = None
@@ -122,6 +126,8 @@ def take_snapshot(
         fault_message=out.fault_message,
         saturation_scale=out.saturation_scale,
         ramp=out.ramp,
+        po_energy=out.po_energy,
+        pc_damping=out.pc_damping,
         watchdog_trips=reading.watchdog_trips,
         recording=recording,
         playing=playing,

@@ -4,17 +4,32 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import typing
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from app.controller.passivity import PassivitySettings
+from app.errors import InvalidField
 from app.session.log import read_log
-from app.session.loop import LoopConfig
+from app.session.loop import LoopConfig, ServoLoop
 from app.session.run import run_session
 from app.session.spec import SESSIONS_DIR, load_session
-from app.web.commands import UnknownCommand, check_command
+from app.teleop.channel import ChannelSettings
+from app.web.commands import (
+    COMMANDS,
+    LoopCommand,
+    Pause,
+    SetChannel,
+    SetPassivity,
+    SetSpeed,
+    UnknownCommand,
+    check_command,
+)
+from app.web.loop_process import LoopHost
 from app.web.realtime import RealtimeLoop
+from app.web.snapshot import SharedSnapshot
 
 
 def test_played_session_gives_the_headless_ticks_exactly(tmp_path: Path) -> None:
@@ -59,3 +74,30 @@ def test_played_session_gives_the_headless_ticks_exactly(tmp_path: Path) -> None
 def test_unknown_commands_are_refused_loudly() -> None:
     with pytest.raises(UnknownCommand, match="not a loop command"):
         check_command(("deadman", True))
+
+
+def test_every_command_type_is_known_to_both_ends() -> None:
+    """The typed union and the runtime list of commands name the same classes."""
+    assert set(typing.get_args(LoopCommand)) == set(COMMANDS)
+
+
+def test_loop_host_applies_passivity_delay_pause_and_speed() -> None:
+    """The loop process's command handler, without the process: each command reaches the loop."""
+    session = load_session("probe_rate")
+    loop = ServoLoop(LoopConfig.from_session(session))
+    host = LoopHost(loop, SharedSnapshot(), publish_every=20)
+    host.apply(SetPassivity(PassivitySettings(enabled=True)))
+    assert loop.controller.passivity.enabled
+    host.apply(SetChannel(ChannelSettings(delay_ms=20.0)))
+    assert loop.link is not None
+    assert host.apply(SetSpeed(2.0))  # restarts the pacing
+    assert host.speed == 2.0
+    assert not host.apply(Pause(True))
+    before = loop.ticks
+    host.tick()
+    assert loop.ticks == before  # paused: no tick
+    assert host.apply(Pause(False))
+    host.tick()
+    assert loop.ticks == before + 1
+    with pytest.raises(InvalidField, match="speed"):
+        SetSpeed(10.0)

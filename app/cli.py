@@ -106,6 +106,58 @@ def _cmd_web(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_zwidth(args: argparse.Namespace) -> int:
+    from app.session.zwidth import zwidth
+
+    out = Path(args.out)
+    edges = zwidth(
+        out,
+        renderers=tuple(args.renderers),
+        dampings=tuple(args.dampings),
+        device=args.device,
+        servo_rate=args.rate,
+        delay_ms=args.delay_ms,
+        iterations=args.iterations,
+        progress=True,
+    )
+    print(
+        f"{'renderer':<9} {'K_D (N s/m)':>12} {'largest stable K_T':>19} {'felt (N/m)':>12} {'oscillates at K_T':>18}"
+    )
+    for e in edges:
+        print(
+            f"{e.renderer:<9} {e.damping:>12g} {e.k_t_stable:>19.3g} {e.felt_stiffness:>12,.0f} {e.k_t_unstable:>18.3g}"
+        )
+    print(f"table: {out / 'zwidth.parquet'}\nplot:  {out / 'zwidth.png'}")
+    return 0
+
+
+def _list_of(kind: Callable[[str], object]) -> Callable[[str], list[object]]:
+    """An argparse type: comma-separated values of ``kind``."""
+
+    def parse(text: str) -> list[object]:
+        try:
+            return [kind(v) for v in text.split(",") if v.strip()]
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return parse
+
+
+def _renderer(text: str) -> str:
+    from app.session.zwidth import RENDERERS
+
+    if text not in RENDERERS:
+        raise ValueError(f"unknown renderer {text!r} (known: {', '.join(RENDERERS)})")
+    return text
+
+
+def _damping(text: str) -> float:
+    value = float(text)
+    if not 0.0 <= value <= 1e3:
+        raise ValueError(f"damping must be in [0, 1000] N s/m, got {text}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="frhc",
@@ -176,6 +228,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--insecure", action="store_true", help="serve a non-loopback --host without an access token")
     p.add_argument("--replay", metavar="LOG", help="start replaying a recorded log (runs/<name> or runs/<name>/log)")
     p.set_defaults(func=_cmd_web)
+
+    p = sub.add_parser(
+        "zwidth",
+        help="the stable region of a design (largest stable felt stiffness per damping)",
+        description="Z-width by bisection on the task-wrench gain, pose-mode probe presses (see app/session/zwidth.py).",
+    )
+    p.add_argument("--device", default="kraft")
+    p.add_argument("--rate", type=float, default=1000.0, help="servo rate (Hz)")
+    p.add_argument("--delay-ms", type=float, default=0.0, help="one-way master-slave delay (ms)")
+    p.add_argument("--renderers", type=_list_of(_renderer), default=["plain", "pc"], help="e.g. plain,pc,wave")
+    p.add_argument("--dampings", type=_list_of(_damping), default=[0.0, 4.0, 16.0], help="K_D values (N s/m)")
+    p.add_argument("--iterations", type=int, default=5, choices=range(1, 13), metavar="1..12", help="bisection steps")
+    p.add_argument("--out", default="runs/zwidth", help="output directory")
+    p.set_defaults(func=_cmd_zwidth)
     return parser
 
 

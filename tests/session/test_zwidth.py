@@ -1,0 +1,38 @@
+"""frhc zwidth: the stability edge by bisection, its table and plot, and its command line."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pyarrow.parquet as pq
+
+from app.session.zwidth import zwidth
+
+
+def test_edge_brackets_the_onset_and_is_written(tmp_path: Path) -> None:
+    """Plain rendering at K_D = 4 N s/m: stable at the low end, oscillating at the high end, and
+    the bisected bracket between them; the table and the plot are written."""
+    (edge,) = zwidth(tmp_path, renderers=("plain",), dampings=(4.0,), iterations=2)
+    assert 0.25 <= edge.k_t_stable < edge.k_t_unstable <= 64.0
+    assert edge.k_t_unstable / edge.k_t_stable < 64.0 / 0.25  # the bisection narrowed it
+    assert edge.felt_stiffness > 0
+    assert edge.points == 2 + 2
+    table = pq.read_table(tmp_path / "zwidth.parquet")
+    assert table.num_rows == 1
+    assert table["renderer"][0].as_py() == "plain"
+    assert (tmp_path / "zwidth.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bad_arguments_are_refused_in_one_line(tmp_path: Path) -> None:
+    for args in (["--renderers", "plain,magic"], ["--dampings", "4,-1"], ["--iterations", "0"]):
+        done = subprocess.run(
+            [sys.executable, "-m", "app.cli", "zwidth", *args, "--out", str(tmp_path)],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert done.returncode == 2, args
+        assert "Traceback" not in done.stderr
+        assert "zwidth: error: argument" in done.stderr.strip().splitlines()[-1]

@@ -22,6 +22,7 @@ import numpy as np
 from app.controller import kernel
 from app.controller.calibration import TorqueCurve
 from app.controller.gains import ControllerGains
+from app.controller.inputs import SHAPE_3, SHAPE_6, SHAPE_33, checked_arrays, checked_float
 from app.controller.kinematics import DeviceKinematics, RecordArray, topology_fields
 from app.controller.layout import GAIN_ROWS, RTC_LAWS, TORQUE_ROWS, vector_row_names
 from app.controller.passivity import PassivitySettings
@@ -37,12 +38,10 @@ from app.controller.record import (
 from app.controller.safety import SafetyLimits
 from app.controller.types import Fault, FTReading, SlaveCommand, SlaveModel, Switches
 from app.device.spec import DeviceSpec
-from app.errors import InputError
 from app.spatial import Array, IntArray, wrench_transform
 
 _ND = np.ndarray
 _F8 = np.dtype(np.float64)
-_SHAPE_3, _SHAPE_6, _SHAPE_33 = (3,), (6,), (3, 3)
 
 
 class ControllerOutput:
@@ -307,14 +306,18 @@ class FRHCController:
             and acc.dtype is _F8
             and omega.dtype is _F8
             and q.shape == self._shape_q
-            and w.shape == _SHAPE_6
-            and R.shape == _SHAPE_33
-            and acc.shape == _SHAPE_6
-            and omega.shape == _SHAPE_3
+            and w.shape == SHAPE_6
+            and R.shape == SHAPE_33
+            and acc.shape == SHAPE_6
+            and omega.shape == SHAPE_3
         ):
-            q, w, R, acc, omega = self._checked_arrays(q, w, R, acc, omega)
+            q, w, R, acc, omega = checked_arrays(
+                (q, w, R, acc, omega),
+                (self._shape_q, SHAPE_6, SHAPE_33, SHAPE_6, SHAPE_3),
+                ("q", "ft.wrench_S", "ft.R_w_S", "ft.acc_w", "ft.omega_w"),
+            )
         if type(dt) is not float:
-            dt = _checked_float(dt, "dt")
+            dt = checked_float(dt, "dt")
         # FK runs even on unusable angles (MuJoCo just computes NaN poses): the kernel checks q
         # before it reads them, for a fraction of what a numpy check here would cost.
         self.kin.update(q)
@@ -339,23 +342,6 @@ class FRHCController:
         o.faults = Fault.NONE
         o.fault_message = ""
         return o
-
-    def _checked_arrays(self, *arrays: object) -> tuple[Array, ...]:
-        """The step's arrays as C-contiguous float64 of their shapes, or :class:`InputError`."""
-        shapes = (self._shape_q, _SHAPE_6, _SHAPE_33, _SHAPE_6, _SHAPE_3)
-        names = ("q", "ft.wrench_S", "ft.R_w_S", "ft.acc_w", "ft.omega_w")
-        checked = []
-        for a, shape, name in zip(arrays, shapes, names, strict=True):
-            try:
-                x = np.asarray(a)
-            except (TypeError, ValueError) as exc:
-                raise InputError(f"{name}: not an array of numbers ({exc})") from None
-            if x.dtype.kind not in "iuf":
-                raise InputError(f"{name}: expected real numbers, got dtype {x.dtype}")
-            if x.shape != shape:
-                raise InputError(f"{name}: expected shape {shape}, got {x.shape}")
-            checked.append(np.ascontiguousarray(x, dtype=np.float64))
-        return tuple(checked)
 
     def _fault(self, code: int) -> ControllerOutput:
         """The safe output for a non-zero :func:`kernel.controller_tick` result."""
@@ -389,13 +375,6 @@ class FRHCController:
         self._rec["po_tau"] = 0.0
         o.scalars[SATURATION_SCALE] = kernel.motor_commands(o.torques, self._motors, o.counts)
         return o
-
-
-def _checked_float(value: object, name: str) -> float:
-    """``value`` as a float, or :class:`InputError` (a NaN stays NaN: the tick then faults)."""
-    if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
-        raise InputError(f"{name}: expected a number, got {type(value).__name__}")
-    return float(value)
 
 
 def _fault_text(faults: Fault) -> str:

@@ -73,6 +73,7 @@ from app.controller.record import (
     Outputs,
     Payload,
 )
+from app.controller.safety import velocity_brake
 from app.controller.types import Fault
 from app.spatial import Array, IntArray, body_rate_from_euler, move_wrench, tmat_difference, zyx_to_matrix
 
@@ -383,28 +384,6 @@ def cartesian_tick(
         torques[TAU, j] = torques[TAU_T, j] + torques[TAU_RDS, j] + torques[TAU_G, j]  # Eq 12
         total += torques[TAU, j]
     return math.isfinite(total)
-
-
-@njit(cache=True)
-def velocity_brake(q: Array, dt: float, rec: RecordArray) -> bool:
-    """Joint velocities from encoder differences and the brake's state (:mod:`app.controller.safety`).
-
-    ``dt`` is the period (s), or 0 when it is unusable (no velocity this tick). Writes ``qdot``
-    and ``q_prev``; returns whether the brake holds.
-    """
-    r = rec[0]
-    q_prev, qdot = r.q_prev[:], r.qdot[:]
-    fastest = 0.0
-    for j in range(q.shape[0]):
-        qdot[j] = (q[j] - q_prev[j]) / dt if r.have_q_prev and dt > 0.0 else 0.0
-        fastest = max(fastest, abs(qdot[j]))
-        q_prev[j] = q[j]
-    r.have_q_prev = True
-    if r.braking:
-        r.braking = fastest >= r.release_speed
-    else:
-        r.braking = fastest > r.max_joint_speed
-    return r.braking
 
 
 @njit(cache=True)

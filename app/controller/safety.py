@@ -19,7 +19,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
+from numba import njit
+
+from app.controller.kinematics import RecordArray
 from app.errors import InvalidField
+from app.spatial import Array
 
 
 @dataclass(frozen=True)
@@ -68,3 +72,25 @@ class SafetyLimits:
     def ramp_rate(self) -> float:
         """Ramp level gained per second (1/s); infinite without a ramp."""
         return math.inf if self.ramp_time == 0.0 else 1.0 / self.ramp_time
+
+
+@njit(cache=True)
+def velocity_brake(q: Array, dt: float, rec: RecordArray) -> bool:
+    """Joint velocities from encoder differences and the brake's state (:mod:`app.controller.safety`).
+
+    ``dt`` is the period (s), or 0 when it is unusable (no velocity this tick). Writes ``qdot``
+    and ``q_prev``; returns whether the brake holds.
+    """
+    r = rec[0]
+    q_prev, qdot = r.q_prev[:], r.qdot[:]
+    fastest = 0.0
+    for j in range(q.shape[0]):
+        qdot[j] = (q[j] - q_prev[j]) / dt if r.have_q_prev and dt > 0.0 else 0.0
+        fastest = max(fastest, abs(qdot[j]))
+        q_prev[j] = q[j]
+    r.have_q_prev = True
+    if r.braking:
+        r.braking = fastest >= r.release_speed
+    else:
+        r.braking = fastest > r.max_joint_speed
+    return r.braking

@@ -12,7 +12,6 @@ Three kinds of thread run the demo:
 
 from __future__ import annotations
 
-import ipaddress
 import sys
 import threading
 import time
@@ -30,7 +29,7 @@ from app.session.loop import LoopConfig
 from app.session.spec import Session, load_session
 from app.spatial import Array
 from app.teleop.channel import ChannelSettings
-from app.web.access import TOKEN_NAME, TokenGate, new_token
+from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token
 from app.web.controls import PLOT_SECONDS, Controls
 from app.web.realtime import RealtimeLoop
 from app.web.replay import LogReplay, ReplayPlayer
@@ -317,15 +316,6 @@ class DemoApp:
         self.rt.stop()
         if self.gate is not None:
             self.gate.close()
-
-
-def is_loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 def start_demo(

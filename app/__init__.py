@@ -20,7 +20,7 @@ def _numba_cache_dir() -> str:
     """
     here = Path(__file__).resolve().parent
     digest = hashlib.sha1()
-    for src in sorted([here / "spatial.py", *(here / "world").glob("*.py"), *(here / "controller").glob("*.py")]):
+    for src in sorted([here / "spatial.py", *(here / "world").rglob("*.py"), *(here / "controller").glob("*.py")]):
         digest.update(src.read_bytes())
     base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "frhc" / "numba"
     return str(base / digest.hexdigest()[:16])

@@ -13,7 +13,6 @@ Objects are static, so their pose is baked into their vertices at load time: eve
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -25,6 +24,7 @@ from app.config import from_dict, load_toml
 from app.errors import ConfigError, InvalidField
 from app.spatial import Array, invert_pose, make_pose, quat_to_matrix, zyx_to_matrix
 from app.world.collision import CollisionMesh, PackedMeshes, pack_meshes
+from app.world.mesh_check import checked_mesh
 
 ROOT_DIR = Path(__file__).resolve().parents[2]
 SCENES_DIR = ROOT_DIR / "scenes"
@@ -447,7 +447,7 @@ def _load_mesh(path: Path, source: str | Path, field_name: str) -> trimesh.Trime
     if not path.is_file():
         raise ConfigError(source, field_name, f"mesh file not found: {path}")
     try:
-        loaded = trimesh.load(path, force="mesh", process=True)
+        loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for a bad file
         raise ConfigError(source, field_name, f"cannot read mesh {path.name}: {exc}") from None
     if not isinstance(loaded, trimesh.Trimesh):
@@ -459,9 +459,8 @@ def build_object(spec: ObjectSpec, source: str | Path, field_path: str) -> World
     """Make the {w} mesh of one object, checking it is usable for contact.
 
     Raises:
-        ConfigError: The mesh is missing, unreadable or degenerate (no faces, non-finite
-            vertices, zero area or volume). A mesh that is not watertight only warns: contact
-            stays correct near its surface, but inside/outside far from it is not defined.
+        ConfigError: The mesh is missing, unreadable, or fails :func:`~app.world.mesh_check.checked_mesh`
+            (non-finite vertices, degenerate, open or inconsistently wound).
     """
     if spec.mesh is not None:
         mesh_field = f"{field_path}.mesh"
@@ -470,19 +469,7 @@ def build_object(spec: ObjectSpec, source: str | Path, field_path: str) -> World
     else:
         mesh_field = field_path
         mesh = _primitive_mesh(spec)
-    mesh.remove_unreferenced_vertices()
-    if len(mesh.faces) == 0 or not np.isfinite(mesh.vertices).all():
-        raise ConfigError(source, mesh_field, "degenerate mesh: no faces or non-finite vertices")
-    mesh.update_faces(mesh.nondegenerate_faces())
-    if len(mesh.faces) == 0 or float(mesh.area) <= 1e-12 or float(np.ptp(mesh.vertices, axis=0).min()) <= 1e-9:
-        raise ConfigError(source, mesh_field, "degenerate mesh: zero area or flat (no inside)")
-    if not mesh.is_watertight:
-        warnings.warn(
-            f"{source}: field '{mesh_field}': mesh is not watertight; contact uses the nearest triangle's side",
-            stacklevel=3,
-        )
-    elif mesh.volume < 0:
-        mesh.invert()  # inward-facing triangles would swap inside and outside
+    mesh = checked_mesh(mesh, source, mesh_field)
     mesh.apply_transform(spec.pose.matrix())
     return WorldObject(spec.name, mesh, spec.stiffness, spec.damping, spec.friction, CollisionMesh(mesh))
 

@@ -1,0 +1,99 @@
+"""Triangle geometry of the contact kernels: nearest point on a triangle and the pseudonormal of
+the feature it lies on (Baerentzen & Aanaes 2005). Arrays are the records of
+:mod:`app.world.contact.layout`; points in {w} (m).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, FEAT_VERTEX, Records
+
+
+@njit(cache=True)
+def closest_on_triangle(
+    verts: Records, tris: Records, t: int, cx: float, cy: float, cz: float
+) -> tuple[float, float, float, float, int]:
+    """Squared distance from c to triangle t, its nearest point q, and the feature q lies on.
+
+    The feature is ``FEAT_FACE`` (q inside the face, ``c - q`` along the normal),
+    ``FEAT_VERTEX + k`` or ``FEAT_EDGE + k`` (edge k joins vertex k and k + 1), from the Voronoi
+    regions of Ericson, *Real-Time Collision Detection*, 5.1.5.
+    """
+    tv = tris[t].v
+    a, b, c = verts[tv[0]].p, verts[tv[1]].p, verts[tv[2]].p
+    ax, ay, az = a[0], a[1], a[2]
+    abx, aby, abz = b[0] - ax, b[1] - ay, b[2] - az
+    acx, acy, acz = c[0] - ax, c[1] - ay, c[2] - az
+    apx, apy, apz = cx - ax, cy - ay, cz - az
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    if d1 <= 0.0 and d2 <= 0.0:
+        u, v, feat = 0.0, 0.0, FEAT_VERTEX
+    else:
+        bpx, bpy, bpz = apx - abx, apy - aby, apz - abz
+        d3 = abx * bpx + aby * bpy + abz * bpz
+        d4 = acx * bpx + acy * bpy + acz * bpz
+        if d3 >= 0.0 and d4 <= d3:
+            u, v, feat = 1.0, 0.0, FEAT_VERTEX + 1
+        else:
+            vc = d1 * d4 - d3 * d2
+            if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+                u, v, feat = d1 / (d1 - d3), 0.0, FEAT_EDGE
+            else:
+                cpx, cpy, cpz = apx - acx, apy - acy, apz - acz
+                d5 = abx * cpx + aby * cpy + abz * cpz
+                d6 = acx * cpx + acy * cpy + acz * cpz
+                if d6 >= 0.0 and d5 <= d6:
+                    u, v, feat = 0.0, 1.0, FEAT_VERTEX + 2
+                else:
+                    vb = d5 * d2 - d1 * d6
+                    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+                        u, v, feat = 0.0, d2 / (d2 - d6), FEAT_EDGE + 2
+                    else:
+                        va = d3 * d6 - d5 * d4
+                        if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+                            w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+                            u, v, feat = 1.0 - w, w, FEAT_EDGE + 1
+                        else:
+                            den = 1.0 / (va + vb + vc)
+                            u, v, feat = vb * den, vc * den, FEAT_FACE
+    qx = ax + u * abx + v * acx
+    qy = ay + u * aby + v * acy
+    qz = az + u * abz + v * acz
+    return (cx - qx) ** 2 + (cy - qy) ** 2 + (cz - qz) ** 2, qx, qy, qz, feat
+
+
+@njit(cache=True)
+def feature_normal(verts: Records, tris: Records, edges: Records, t: int, feat: int) -> tuple[float, float, float]:
+    """Outward pseudonormal of feature ``feat`` of triangle t (face normal, edge or vertex pseudonormal)."""
+    if feat == FEAT_FACE:
+        n = tris[t].n
+    elif feat < FEAT_EDGE:
+        n = verts[tris[t].v[feat - FEAT_VERTEX]].pn
+    else:
+        n = edges[tris[t].e[feat - FEAT_EDGE]].pn
+    return n[0], n[1], n[2]
+
+
+@njit(cache=True)
+def segment_distance(verts: Records, i0: int, i1: int, qx: float, qy: float, qz: float) -> float:
+    """Distance (m) from point q to the segment joining vertices i0 and i1."""
+    a, b = verts[i0].p, verts[i1].p
+    ex, ey, ez = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    px, py, pz = qx - a[0], qy - a[1], qz - a[2]
+    ee = ex * ex + ey * ey + ez * ez
+    s = min(max((px * ex + py * ey + pz * ez) / ee, 0.0), 1.0) if ee > 0.0 else 0.0
+    return math.sqrt((px - s * ex) ** 2 + (py - s * ey) ** 2 + (pz - s * ez) ** 2)
+
+
+@njit(cache=True)
+def box_distance2(box: np.ndarray, cx: float, cy: float, cz: float) -> float:
+    """Squared distance from c to an axis-aligned box (minimum (3), maximum (3)): a lower bound for its triangle."""
+    dx = max(box[0] - cx, 0.0, cx - box[3])
+    dy = max(box[1] - cy, 0.0, cy - box[4])
+    dz = max(box[2] - cz, 0.0, cz - box[5])
+    return dx * dx + dy * dy + dz * dz

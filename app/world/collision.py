@@ -70,6 +70,7 @@ class CollisionMesh:
         concave = ~np.asarray(mesh.face_adjacency_convex, dtype=bool)
         angles = np.asarray(mesh.face_adjacency_angles, dtype=float)
         keep = ~(concave & (angles > math.radians(CUT_ANGLE_DEG)))
+        cut_pairs = np.sort(adj[~keep], axis=1)
         rows, cols = [], []
         for side in range(2):
             v = adj_edges[keep, side]
@@ -86,17 +87,19 @@ class CollisionMesh:
         vertices = np.zeros((len(labels), 3))
         vertices[inverse] = np.asarray(mesh.vertices, dtype=float)[corner_vertex]
         self.vertices = vertices
-        self._edges()
+        self._edges(cut_pairs)
         self._pseudonormals()
         self._cones()
         self.lo = self.vertices.min(axis=0)
         self.hi = self.vertices.max(axis=0)
 
-    def _edges(self) -> None:
+    def _edges(self, cut_pairs: IntArray) -> None:
+        """Edges, their faces, and the gentle creases; a cut edge becomes one boundary edge per side
+        (its end vertices are split only where the cut separates their faces into two fans)."""
         nf = self.n_faces
         pairs = np.stack([self.faces, np.roll(self.faces, -1, axis=1)], axis=2).reshape(-1, 2)
         unique, inverse = np.unique(np.sort(pairs, axis=1), axis=0, return_inverse=True)
-        self.face_edges = inverse.reshape(nf, 3).astype(np.int64)
+        inverse = inverse.ravel()
         edge_faces = np.full((len(unique), 2), -1, dtype=np.int64)
         owner = np.repeat(np.arange(nf), 3)
         order = np.argsort(inverse, kind="stable")
@@ -104,6 +107,19 @@ class CollisionMesh:
         first = np.r_[True, e_sorted[1:] != e_sorted[:-1]]
         edge_faces[e_sorted[first], 0] = owner[order][first]
         edge_faces[e_sorted[~first], 1] = owner[order][~first]
+        both = np.flatnonzero(edge_faces[:, 1] >= 0)
+        key = np.sort(edge_faces[both], axis=1) @ np.array([nf, 1])
+        cut = both[np.isin(key, cut_pairs @ np.array([nf, 1]))]
+        # The second face of a cut edge gets a new edge of its own.
+        new_ids = len(unique) + np.arange(len(cut))
+        second = edge_faces[cut, 1]
+        slot = np.argmax(inverse.reshape(nf, 3)[second] == cut[:, None], axis=1)
+        face_edges = inverse.reshape(nf, 3).astype(np.int64)
+        face_edges[second, slot] = new_ids
+        edge_faces[cut, 1] = -1
+        edge_faces = np.vstack([edge_faces, np.column_stack([second, np.full(len(cut), -1)])])
+        unique = np.vstack([unique, unique[cut]])
+        self.face_edges = face_edges
         self.edge_faces = edge_faces
         # Gentle concave creases: both faces present, the second face bends towards the first's normal.
         tan = np.zeros(len(unique))

@@ -43,8 +43,8 @@ def checked_mesh(mesh: trimesh.Trimesh, source: str | Path, field: str) -> trime
     mesh = trimesh.Trimesh(vertices, np.asarray(mesh.faces), process=True)
     mesh.remove_unreferenced_vertices()
     mesh.update_faces(mesh.nondegenerate_faces())
-    if len(mesh.faces) == 0 or float(mesh.area) <= 1e-12 or float(np.ptp(mesh.vertices, axis=0).min()) <= 1e-9:
-        raise ConfigError(source, field, "degenerate mesh: no faces, zero area or flat (no inside)")
+    if len(mesh.faces) == 0 or float(mesh.area) <= 1e-12:
+        raise ConfigError(source, field, "degenerate mesh: no faces or zero area")
     if not mesh.is_watertight:
         # Edges used by one face only (or by more than two) leave the inside undefined.
         edges = np.sort(mesh.edges, axis=1)
@@ -58,8 +58,8 @@ def checked_mesh(mesh: trimesh.Trimesh, source: str | Path, field: str) -> trime
         )
     if not mesh.is_winding_consistent:
         raise ConfigError(source, field, "mesh triangles are not consistently wound (inside undefined)")
-    if abs(float(mesh.volume)) <= 1e-18:
-        raise ConfigError(source, field, "degenerate mesh: zero volume (no inside)")
+    if abs(float(mesh.volume)) <= 1e-18 or float(np.ptp(mesh.vertices, axis=0).min()) <= 1e-9:
+        raise ConfigError(source, field, "degenerate mesh: flat, zero volume (no inside)")
     if mesh.volume < 0:
         mesh.invert()  # wound inside out: outward normals are what contact signs with
     return mesh

@@ -29,8 +29,6 @@ CUT_ANGLE_DEG = 30.0
 # Grid cells per object: at most this many along the longest side, and no smaller than the median
 # triangle (size sqrt(2 area)), so a cell holds a few triangles.
 _GRID_CELLS = 128
-# Cone angles at or above this count as unbounded (tan_cone = inf): no in-plane pruning.
-_CONE_MAX_DEG = 89.0
 
 
 def _unit(v: Array) -> Array:
@@ -52,8 +50,6 @@ class CollisionMesh:
         edge_faces: The faces of each edge, -1 where the mesh was cut, (E, 2).
         edge_pn, vertex_pn: Edge and angle-weighted vertex pseudonormals (E, 3), (V, 3).
         edge_tan: tan of the angle between the normals of a gentle concave edge, else 0, (E,).
-        tan_cone: Per face, tan of the largest angle between its normal and the normal of a face
-            sharing one of its vertices (inf if 89 deg or more, or on a cut), (F,).
         vertex_faces, vertex_face_start: Faces around vertex v are
             ``vertex_faces[vertex_face_start[v]:vertex_face_start[v + 1]]`` (sorted).
         n_faces, lo, hi: Face count and bounding box (m).
@@ -89,7 +85,6 @@ class CollisionMesh:
         self.vertices = vertices
         self._edges(cut_pairs)
         self._pseudonormals()
-        self._cones()
         self.lo = self.vertices.min(axis=0)
         self.hi = self.vertices.max(axis=0)
 
@@ -150,24 +145,6 @@ class CollisionMesh:
         self.vertex_faces = (order // 3).astype(np.int64)
         self.vertex_face_start = np.searchsorted(corner_v[order], np.arange(len(self.vertices) + 1)).astype(np.int64)
 
-    def _cones(self) -> None:
-        # Per vertex, the largest angle between two of its faces' normals, bounded by twice the
-        # largest angle from their mean; a vertex on a cut has an unbounded cone.
-        corner_v = self.faces.ravel()
-        normals = np.repeat(self.face_normals, 3, axis=0)
-        mean = np.zeros_like(self.vertices)
-        np.add.at(mean, corner_v, normals)
-        mean = _unit(mean)
-        cos = np.clip(np.einsum("ij,ij->i", normals, mean[corner_v]), -1.0, 1.0)
-        spread = np.zeros(len(self.vertices))
-        np.maximum.at(spread, corner_v, np.arccos(cos))
-        cut = self.edge_faces[:, 1] < 0
-        on_cut = np.zeros(len(self.vertices), dtype=bool)
-        edge_vertices = np.stack([self.faces, np.roll(self.faces, -1, axis=1)], axis=2).reshape(-1, 2)
-        on_cut[edge_vertices[cut[self.face_edges.ravel()]].ravel()] = True
-        cone = np.where(on_cut, math.pi, 2.0 * spread)[self.faces].max(axis=1)
-        self.tan_cone = np.where(cone < math.radians(_CONE_MAX_DEG), np.tan(np.minimum(cone, 1.5)), np.inf)
-
 
 @dataclass(frozen=True)
 class PackedMeshes:
@@ -210,7 +187,6 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
         tris["n"][fs] = c.face_normals
         corners = c.vertices[c.faces]
         tris["box"][fs] = np.column_stack([corners.min(axis=1), corners.max(axis=1)])
-        tris["tan_cone"][fs] = c.tan_cone
         vs = slice(v0[j], v0[j + 1])
         verts["p"][vs] = c.vertices
         verts["pn"][vs] = c.vertex_pn
@@ -230,6 +206,7 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
         dims = np.floor(extent / h).astype(np.int64) + 1
         o = objs[j]
         o["box"] = np.concatenate([c.lo, c.hi])
+        o["prune"] = 1
         o["grid_origin"], o["grid_h"], o["grid_dims"], o["grid_base"] = c.lo, h, dims, base
         base += int(np.prod(dims))
     keys, grid_tris = grid_entries(verts, tris, face0, objs)

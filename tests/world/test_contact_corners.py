@@ -264,12 +264,12 @@ def test_a_mirrored_or_scaled_pose_is_refused() -> None:
 
 
 def _exhaustive(scene: Scene) -> Scene:
-    """The same scene with the candidate cone test off: every triangle within reach is scanned."""
+    """The same scene with candidate pruning off: every triangle within reach is scanned."""
     packed = scene.packed
-    tris = packed.tris.copy()
-    tris["tan_cone"] = np.inf
+    objs = packed.objs.copy()
+    objs["prune"] = 0
     exhaustive = dataclasses.replace(scene)
-    exhaustive.__dict__["packed"] = dataclasses.replace(packed, tris=tris)
+    exhaustive.__dict__["packed"] = dataclasses.replace(packed, objs=objs)
     return exhaustive
 
 

@@ -43,8 +43,8 @@ it); a wrong shape or a pose that is not a rigid transform raises
 Speed: every per-tick step runs in one compiled call (:mod:`.step`). Culling is exact (the
 distance is 1-Lipschitz in the centre); each pair caches the triangles that may hold a local
 minimum while its centre stays within ``R = 0.1 r`` of where they were gathered (every triangle
-within ``r + 2 R`` that passes a normal-cone test, found through a per-object grid,
-:mod:`.grid`), so a tick in steady contact scans a handful of triangles per sphere, even on a
+within ``r + 2 R`` whose face, edge or vertex Voronoi region comes within R, found through a
+per-object grid, :mod:`.grid`), so a tick in steady contact scans a handful of triangles per sphere, even on a
 million-triangle mesh.
 
 Limits: a sharp-cornered part hidden behind less than r of material still pushes (as a second

@@ -97,3 +97,80 @@ def box_distance2(box: np.ndarray, cx: float, cy: float, cz: float) -> float:
     dy = max(box[1] - cy, 0.0, cy - box[4])
     dz = max(box[2] - cz, 0.0, cz - box[5])
     return dx * dx + dy * dy + dz * dz
+
+
+@njit(cache=True)
+def _inward(verts: Records, n: np.ndarray, i0: int, i1: int) -> tuple[float, float, float]:
+    """Unit vector in the plane of a face (normal n) perpendicular to its edge i0 -> i1 (counter-
+    clockwise about n), pointing into the face."""
+    a, b = verts[i0].p, verts[i1].p
+    ex, ey, ez = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    mx, my, mz = n[1] * ez - n[2] * ey, n[2] * ex - n[0] * ez, n[0] * ey - n[1] * ex
+    s = math.sqrt(mx * mx + my * my + mz * mz)
+    return mx / s, my / s, mz / s
+
+
+@njit(cache=True)
+def may_hold_minimum(
+    verts: Records,
+    tris: Records,
+    edges: Records,
+    vertex_faces: np.ndarray,
+    t: int,
+    cx: float,
+    cy: float,
+    cz: float,
+    R: float,
+) -> bool:
+    """Whether triangle t can hold a local minimum of the distance for some centre within R of c.
+
+    The local minima of :mod:`app.world.contact.minima` lie where c is in a feature's Voronoi
+    region: inside the face's prism, in an edge's wedge (c does not project into either face
+    across it, and projects onto the segment), or in a vertex's cone (c makes no acute angle with
+    any edge from it). Each test is a set of signed distances to planes, 1-Lipschitz in c, so
+    relaxing every one by R covers every centre within R; the test does not depend on which side
+    of the surface c is.
+    """
+    tri = tris[t]
+    n = tri.n
+    inside_prism = True
+    for k in range(3):
+        i0, i1 = tri.v[k], tri.v[(k + 1) % 3]
+        a = verts[i0].p
+        mx, my, mz = _inward(verts, n, i0, i1)
+        s = (cx - a[0]) * mx + (cy - a[1]) * my + (cz - a[2]) * mz
+        if s < -R:
+            inside_prism = False
+        if s <= R:
+            # c may be beyond edge k: in its wedge if it does not project into the face across
+            # it either (none on a cut), and projects onto the segment.
+            fs = edges[tri.e[k]].faces
+            other = fs[1] if fs[0] == t else fs[0]
+            wedge = True
+            if other >= 0:
+                ox, oy, oz = _inward(verts, tris[other].n, i1, i0)
+                wedge = (cx - a[0]) * ox + (cy - a[1]) * oy + (cz - a[2]) * oz <= R
+            if wedge:
+                b = verts[i1].p
+                ex, ey, ez = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+                le = math.sqrt(ex * ex + ey * ey + ez * ez)
+                u = ((cx - a[0]) * ex + (cy - a[1]) * ey + (cz - a[2]) * ez) / le
+                if -R <= u <= le + R:
+                    return True
+    if inside_prism:
+        return True
+    for k in range(3):
+        v = verts[tri.v[k]]
+        p = v.p
+        cone = True
+        for s in range(v.f0, v.f1):
+            fv = tris[vertex_faces[s]].v
+            for x in range(3):
+                w = verts[fv[x]].p
+                ex, ey, ez = w[0] - p[0], w[1] - p[1], w[2] - p[2]
+                le = math.sqrt(ex * ex + ey * ey + ez * ez)
+                if le > 0.0 and ((cx - p[0]) * ex + (cy - p[1]) * ey + (cz - p[2]) * ez) / le > R:
+                    cone = False
+        if cone:
+            return True
+    return False

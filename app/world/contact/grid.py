@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from app.world.contact.geometry import box_distance2, closest_on_triangle
+from app.world.contact.geometry import box_distance2, closest_on_triangle, may_hold_minimum
 from app.world.contact.layout import Record, Records
 
 # A gather covering more grid cells than this fails (the sphere is far larger than the cells).
@@ -67,25 +67,22 @@ def gather(
     cy: float,
     cz: float,
     reach: float,
-    r: float,
     R: float,
     verts: Records,
     tris: Records,
+    edges: Records,
+    vertex_faces: np.ndarray,
     cells: Records,
     grid_tris: np.ndarray,
     stamp: np.ndarray,
     serial: int,
-    out: Records,
+    out: np.ndarray,
 ) -> int:
-    """Write into ``out`` the triangles of object ``obj`` (a record) that may host a local minimum
-    of the distance at most ``r`` for some centre within ``R`` of c; return their count.
-
-    Kept: every triangle within ``reach`` (>= r + R) of c whose *cone test* passes: a local minimum
-    at distance d <= r on triangle t lies where c projects onto t's plane no farther than
-    ``d tan(cone)`` from t (its direction lies within the normal cone of the feature, whose
-    half-angle from t's normal is at most ``tris[t].tan_cone``'s angle), so c's projection is
-    within ``R + r tan_cone`` of t. On a finely tessellated smooth surface that leaves a few
-    triangles instead of every one under the sphere.
+    """Write into ``out`` the triangles of object ``obj`` (a record) within ``reach`` of c that
+    may hold a local minimum of the distance for a centre within R of c
+    (:func:`~app.world.contact.geometry.may_hold_minimum`, unless ``obj.prune`` is 0); return
+    their count. On a finely tessellated surface that leaves a few triangles of the many under
+    the sphere.
 
     Returns -1 if they do not fit in ``out`` or the search box covers more than ``MAX_CELLS`` cells.
     ``stamp`` (F,) marks triangles seen by this gather (number ``serial``): a triangle spans several cells.
@@ -116,19 +113,12 @@ def gather(
                     if stamp[t] == serial:
                         continue
                     stamp[t] = serial
-                    tri = tris[t]
-                    if box_distance2(tri.box, cx, cy, cz) > reach2:
+                    if box_distance2(tris[t].box, cx, cy, cz) > reach2:
                         continue
                     if closest_on_triangle(verts, tris, t, cx, cy, cz)[0] > reach2:
                         continue
-                    if tri.tan_cone < math.inf:
-                        # Cone test: c projected onto the plane, then its in-plane distance to t.
-                        p0 = verts[tri.v[0]].p
-                        sd = (cx - p0[0]) * tri.n[0] + (cy - p0[1]) * tri.n[1] + (cz - p0[2]) * tri.n[2]
-                        px, py, pz = cx - sd * tri.n[0], cy - sd * tri.n[1], cz - sd * tri.n[2]
-                        lim = R + r * tri.tan_cone
-                        if closest_on_triangle(verts, tris, t, px, py, pz)[0] > lim * lim:
-                            continue
+                    if obj.prune and not may_hold_minimum(verts, tris, edges, vertex_faces, t, cx, cy, cz, R):
+                        continue
                     if n == out.shape[0]:
                         return -1
                     out[n] = t

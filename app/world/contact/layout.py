@@ -65,6 +65,7 @@ OBJECT = np.dtype(
         ("grid_h", "f8"),
         ("grid_dims", "i8", (3,)),
         ("grid_base", "i8"),  # key of its first cell in the shared sorted key list
+        ("prune", "i8"),  # 1: cache only triangles that may hold a local minimum; 0: every one in reach
         ("near", "i8"),  # 1 while the tool's bounding sphere may reach the bounding box
         ("base_c0", "f8", (3,)),  # tool bounding-sphere centre at the last per-sphere check
         ("base_R", "f8", (3, 3)),  # tool rotation R_w_T there
@@ -105,7 +106,6 @@ TRIANGLE = np.dtype(
         ("e", "i8", (3,)),  # edges: e[k] joins v[k] and v[(k + 1) % 3]
         ("n", "f8", (3,)),  # outward unit normal
         ("box", "f8", (6,)),  # bounding box: minimum (3), maximum (3)
-        ("tan_cone", "f8"),  # tan of the widest angle between n and a face sharing a vertex (inf: >= 89 deg)
     ],
     align=True,
 )

@@ -1,8 +1,9 @@
 """Per (sphere, object) pair: the candidate cache and the local minima of the distance within reach.
 
 A pair's cache (a row of ``pool``) holds every triangle within ``r + 2 R`` of the centre it was
-gathered at that passes the cone test of :func:`~app.world.contact.grid.gather`; while the centre
-stays within R of there, every local minimum of the distance within r lies on a cached triangle.
+gathered at that may hold a local minimum for a centre within R of there
+(:func:`~app.world.contact.geometry.may_hold_minimum`); while the centre stays within R, every
+local minimum of the distance within ``r + R`` lies on a cached triangle.
 :func:`local_minima` scans the cache and keeps, per triangle, its nearest point q if q is a local
 minimum of the distance over the (cut) surface:
 
@@ -132,6 +133,8 @@ def ensure_cache(
     r: float,
     verts: Records,
     tris: Records,
+    edges: Records,
+    vertex_faces: np.ndarray,
     cells: Records,
     grid_tris: np.ndarray,
     stamp: np.ndarray,
@@ -140,8 +143,7 @@ def ensure_cache(
 ) -> int:
     """Refill pair k's cache at its current centre unless that is within the cache's radius.
 
-    Returns 1 if it gathered, 0 if the cache was valid, -1 if the candidates overflowed. The cone test
-    uses distances up to r + R, so :func:`local_minima` also bounds the distance up to there.
+    Returns 1 if it gathered, 0 if the cache was valid, -1 if the candidates overflowed.
     """
     c = pair.c
     R = CACHE_FRAC * r
@@ -150,7 +152,23 @@ def ensure_cache(
         if ex * ex + ey * ey + ez * ez <= R * R:
             return 0
     tool.serial += 1
-    n = gather(obj, c[0], c[1], c[2], r + 2.0 * R, r + R, R, verts, tris, cells, grid_tris, stamp, tool.serial, pool[k])
+    n = gather(
+        obj,
+        c[0],
+        c[1],
+        c[2],
+        r + 2.0 * R,
+        R,
+        verts,
+        tris,
+        edges,
+        vertex_faces,
+        cells,
+        grid_tris,
+        stamp,
+        tool.serial,
+        pool[k],
+    )
     pair.cache_n = n
     pair.cache_c[:] = c
     return 1 if n >= 0 else -1
@@ -171,8 +189,8 @@ def local_minima(
     cx, cy, cz = pair.c[0], pair.c[1], pair.c[2]
     r2 = r * r
     n_min = 0
-    # A nearest point within r + R is a local minimum on a cached triangle (the cache covers
-    # r + 2 R around its centre, cone-tested for distances up to r + R): otherwise it is farther.
+    # The nearest point is a local minimum: within r + R, it is on a cached triangle (the cache
+    # covers r + 2 R around its centre); otherwise it is farther than that.
     nearest2 = (r * (1.0 + CACHE_FRAC)) ** 2
     for s in range(pair.cache_n):
         t = pool_k[s]

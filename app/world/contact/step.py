@@ -279,7 +279,7 @@ def contact_step(
                 continue
             r = spheres[i].r
             queries += 1
-            g = ensure_cache(pair, k, o, r, verts, tris, cells, grid_tris, stamp, tool, pool)
+            g = ensure_cache(pair, k, o, r, verts, tris, edges, vertex_faces, cells, grid_tris, stamp, tool, pool)
             if g < 0:
                 return ERR_OVERFLOW
             gathers += g

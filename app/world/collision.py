@@ -50,6 +50,8 @@ class CollisionMesh:
         edge_faces: The faces of each edge, -1 where the mesh was cut, (E, 2).
         edge_pn, vertex_pn: Edge and angle-weighted vertex pseudonormals (E, 3), (V, 3).
         edge_tan: tan of the angle between the normals of a gentle concave edge, else 0, (E,).
+        edge_inward: ``[f, k]`` is the unit vector in face f normal to its edge k, pointing inside, (F, 3, 3).
+        edge_inward_across: The same for the face across edge k (0 on a cut), (F, 3, 3).
         vertex_faces, vertex_face_start: Faces around vertex v are
             ``vertex_faces[vertex_face_start[v]:vertex_face_start[v + 1]]`` (sorted).
         n_faces, lo, hi: Face count and bounding box (m).
@@ -116,6 +118,20 @@ class CollisionMesh:
         unique = np.vstack([unique, unique[cut]])
         self.face_edges = face_edges
         self.edge_faces = edge_faces
+        # Inward edge normals of each face, and those of the face across each edge.
+        corners = self.vertices[self.faces]
+        along = np.roll(corners, -1, axis=1) - corners  # edge k: corner k -> corner k + 1
+        self.edge_inward = _unit(np.cross(np.repeat(self.face_normals, 3, axis=0), along.reshape(-1, 3))).reshape(
+            nf, 3, 3
+        )
+        across = np.zeros((nf, 3, 3))
+        for k in range(3):
+            e = face_edges[:, k]
+            other = np.where(edge_faces[e, 0] == np.arange(nf), edge_faces[e, 1], edge_faces[e, 0])
+            has = other >= 0
+            slot = np.argmax(face_edges[other[has]] == e[has, None], axis=1)
+            across[has, k] = self.edge_inward[other[has], slot]
+        self.edge_inward_across = across
         # Gentle concave creases: both faces present, the second face bends towards the first's normal.
         tan = np.zeros(len(unique))
         both = np.flatnonzero(edge_faces[:, 1] >= 0)
@@ -152,21 +168,21 @@ class PackedMeshes:
 
     Attributes:
         tris, verts, edges: Per triangle, vertex and edge records (TRIANGLE, VERTEX, EDGE).
-        vertex_faces: Faces around each vertex, indexed by ``verts.f0:f1``.
         face0: Object j owns triangles ``face0[j]:face0[j + 1]``, (m + 1,).
         objs: Per-object records (OBJECT) with the contact law unset and the grid filled in:
             a template each contact model copies.
-        cells, grid_tris: The occupied grid cells (CELL, with a sentinel row) and their triangles.
+        cells: The occupied grid cells (CELL, with a sentinel row).
+        lists: Triangle lists: the faces around each vertex (``verts.f0:f1``), then each grid
+            cell's triangles (``cells.start``), (L,).
     """
 
     tris: np.ndarray
     verts: np.ndarray
     edges: np.ndarray
-    vertex_faces: IntArray
     face0: IntArray
     objs: np.ndarray
     cells: np.ndarray
-    grid_tris: IntArray
+    lists: IntArray
 
 
 def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
@@ -187,6 +203,8 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
         tris["n"][fs] = c.face_normals
         corners = c.vertices[c.faces]
         tris["box"][fs] = np.column_stack([corners.min(axis=1), corners.max(axis=1)])
+        tris["m"][fs] = c.edge_inward
+        tris["m_adj"][fs] = c.edge_inward_across
         vs = slice(v0[j], v0[j + 1])
         verts["p"][vs] = c.vertices
         verts["pn"][vs] = c.vertex_pn
@@ -213,19 +231,17 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
     order = np.argsort(keys, kind="stable")
     keys, grid_tris = keys[order], grid_tris[order]
     unique, first = np.unique(keys, return_index=True)
+    around = np.concatenate(vertex_faces) if vertex_faces else np.zeros(0, dtype=np.int64)
     cells = np.zeros(len(unique) + 1, dtype=CELL)
     cells["key"][:-1] = unique
     cells["key"][-1] = np.iinfo(np.int64).max
-    cells["start"] = np.append(first, len(keys))
+    cells["start"] = np.append(first, len(keys)) + len(around)
     return PackedMeshes(
         tris=tris,
         verts=verts,
         edges=edges,
-        vertex_faces=np.ascontiguousarray(
-            np.concatenate(vertex_faces) if vertex_faces else np.zeros(0), dtype=np.int64
-        ),
         face0=face0,
         objs=objs,
         cells=cells,
-        grid_tris=np.ascontiguousarray(grid_tris, dtype=np.int64),
+        lists=np.ascontiguousarray(np.concatenate([around, grid_tris]), dtype=np.int64),
     )

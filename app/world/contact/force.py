@@ -60,18 +60,17 @@ def contact_force(
 @njit(cache=True)
 def write_wrench(tool: Record, T_w_MRF: np.ndarray, F: np.ndarray, M: np.ndarray) -> None:
     """Store the total force F and moment M about the {MRF} origin (both {w}, (3,)) as the tool's
-    outputs: ``force_w``, ``wrench_MRF`` (in {MRF}) and ``wrench_S`` (Eq 6 backwards, in {S})."""
-    wm = tool.wrench_MRF
+    outputs ``tool.out``: wrench at {S} in {S} (Eq 6 backwards), at {MRF} in {MRF}, force in {w}."""
+    out = tool.out
     for a in range(3):
-        wm[a] = T_w_MRF[0, a] * F[0] + T_w_MRF[1, a] * F[1] + T_w_MRF[2, a] * F[2]
-        wm[3 + a] = T_w_MRF[0, a] * M[0] + T_w_MRF[1, a] * M[1] + T_w_MRF[2, a] * M[2]
-        tool.force_w[a] = F[a]
+        out[6 + a] = T_w_MRF[0, a] * F[0] + T_w_MRF[1, a] * F[1] + T_w_MRF[2, a] * F[2]
+        out[9 + a] = T_w_MRF[0, a] * M[0] + T_w_MRF[1, a] * M[1] + T_w_MRF[2, a] * M[2]
+        out[12 + a] = F[a]
     s = tool.p_MRF_S
-    ox = wm[3] - (s[1] * wm[2] - s[2] * wm[1])
-    oy = wm[4] - (s[2] * wm[0] - s[0] * wm[2])
-    oz = wm[5] - (s[0] * wm[1] - s[1] * wm[0])
+    ox = out[9] - (s[1] * out[8] - s[2] * out[7])
+    oy = out[10] - (s[2] * out[6] - s[0] * out[8])
+    oz = out[11] - (s[0] * out[7] - s[1] * out[6])
     Rs = tool.R_MRF_S
-    ws = tool.wrench_S
     for a in range(3):
-        ws[a] = Rs[0, a] * wm[0] + Rs[1, a] * wm[1] + Rs[2, a] * wm[2]
-        ws[3 + a] = Rs[0, a] * ox + Rs[1, a] * oy + Rs[2, a] * oz
+        out[a] = Rs[0, a] * out[6] + Rs[1, a] * out[7] + Rs[2, a] * out[8]
+        out[3 + a] = Rs[0, a] * ox + Rs[1, a] * oy + Rs[2, a] * oz

@@ -100,21 +100,9 @@ def box_distance2(box: np.ndarray, cx: float, cy: float, cz: float) -> float:
 
 
 @njit(cache=True)
-def _inward(verts: Records, n: np.ndarray, i0: int, i1: int) -> tuple[float, float, float]:
-    """Unit vector in the plane of a face (normal n) perpendicular to its edge i0 -> i1 (counter-
-    clockwise about n), pointing into the face."""
-    a, b = verts[i0].p, verts[i1].p
-    ex, ey, ez = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    mx, my, mz = n[1] * ez - n[2] * ey, n[2] * ex - n[0] * ez, n[0] * ey - n[1] * ex
-    s = math.sqrt(mx * mx + my * my + mz * mz)
-    return mx / s, my / s, mz / s
-
-
-@njit(cache=True)
 def may_hold_minimum(
     verts: Records,
     tris: Records,
-    edges: Records,
     vertex_faces: np.ndarray,
     t: int,
     cx: float,
@@ -132,29 +120,23 @@ def may_hold_minimum(
     of the surface c is.
     """
     tri = tris[t]
-    n = tri.n
     inside_prism = True
     for k in range(3):
-        i0, i1 = tri.v[k], tri.v[(k + 1) % 3]
-        a = verts[i0].p
-        mx, my, mz = _inward(verts, n, i0, i1)
-        s = (cx - a[0]) * mx + (cy - a[1]) * my + (cz - a[2]) * mz
+        a = verts[tri.v[k]].p
+        ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
+        m = tri.m[k]
+        s = ex * m[0] + ey * m[1] + ez * m[2]
         if s < -R:
             inside_prism = False
         if s <= R:
             # c may be beyond edge k: in its wedge if it does not project into the face across
-            # it either (none on a cut), and projects onto the segment.
-            fs = edges[tri.e[k]].faces
-            other = fs[1] if fs[0] == t else fs[0]
-            wedge = True
-            if other >= 0:
-                ox, oy, oz = _inward(verts, tris[other].n, i1, i0)
-                wedge = (cx - a[0]) * ox + (cy - a[1]) * oy + (cz - a[2]) * oz <= R
-            if wedge:
-                b = verts[i1].p
-                ex, ey, ez = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-                le = math.sqrt(ex * ex + ey * ey + ez * ez)
-                u = ((cx - a[0]) * ex + (cy - a[1]) * ey + (cz - a[2]) * ez) / le
+            # it either (none on a cut: m_adj is 0), and projects onto the segment.
+            ma = tri.m_adj[k]
+            if ex * ma[0] + ey * ma[1] + ez * ma[2] <= R:
+                b = verts[tri.v[(k + 1) % 3]].p
+                bx, by, bz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+                le = math.sqrt(bx * bx + by * by + bz * bz)
+                u = (ex * bx + ey * by + ez * bz) / le
                 if -R <= u <= le + R:
                     return True
     if inside_prism:
@@ -163,7 +145,7 @@ def may_hold_minimum(
         v = verts[tri.v[k]]
         p = v.p
         cone = True
-        for s in range(v.f0, v.f1):
+        for s in range(v.f0, v.f1):  # every edge from the vertex, through its faces
             fv = tris[vertex_faces[s]].v
             for x in range(3):
                 w = verts[fv[x]].p

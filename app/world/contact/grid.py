@@ -3,7 +3,7 @@ candidate cache from it.
 
 Object j's grid has origin ``objs[j].grid_origin``, cell size ``grid_h`` (m) and ``grid_dims``
 cells per axis; cell (x, y, z) has key ``grid_base + (x ny + y) nz + z``. ``cells`` lists the
-occupied keys in increasing order, each with the start of its triangles in ``grid_tris``.
+occupied keys in increasing order, each with the start of its triangles in ``lists``.
 """
 
 from __future__ import annotations
@@ -70,12 +70,8 @@ def gather(
     R: float,
     verts: Records,
     tris: Records,
-    edges: Records,
-    vertex_faces: np.ndarray,
     cells: Records,
-    grid_tris: np.ndarray,
-    stamp: np.ndarray,
-    serial: int,
+    lists: np.ndarray,
     out: np.ndarray,
 ) -> int:
     """Write into ``out`` the triangles of object ``obj`` (a record) within ``reach`` of c that
@@ -84,8 +80,8 @@ def gather(
     their count. On a finely tessellated surface that leaves a few triangles of the many under
     the sphere.
 
+    ``lists`` holds the grid's triangles (``cells.start``) and the faces around each vertex.
     Returns -1 if they do not fit in ``out`` or the search box covers more than ``MAX_CELLS`` cells.
-    ``stamp`` (F,) marks triangles seen by this gather (number ``serial``): a triangle spans several cells.
     """
     h = obj.grid_h
     lo = np.empty(3, dtype=np.int64)
@@ -108,16 +104,22 @@ def gather(
             last = first + hi[2] - lo[2]
             s = np.searchsorted(cells.key[:n_keys], first)
             while s < n_keys and cells[s].key <= last:
+                z = cells[s].key - first + lo[2]
                 for e in range(cells[s].start, cells[s + 1].start):
-                    t = grid_tris[e]
-                    if stamp[t] == serial:
+                    t = lists[e]
+                    # A triangle spans several cells: take it in the first one of the search box.
+                    box = tris[t].box
+                    if (
+                        max(cell_index(box[0], obj.grid_origin[0], h, obj.grid_dims[0]), lo[0]) != x
+                        or max(cell_index(box[1], obj.grid_origin[1], h, obj.grid_dims[1]), lo[1]) != y
+                        or max(cell_index(box[2], obj.grid_origin[2], h, obj.grid_dims[2]), lo[2]) != z
+                    ):
                         continue
-                    stamp[t] = serial
                     if box_distance2(tris[t].box, cx, cy, cz) > reach2:
                         continue
                     if closest_on_triangle(verts, tris, t, cx, cy, cz)[0] > reach2:
                         continue
-                    if obj.prune and not may_hold_minimum(verts, tris, edges, vertex_faces, t, cx, cy, cz, R):
+                    if obj.prune and not may_hold_minimum(verts, tris, lists, t, cx, cy, cz, R):
                         continue
                     if n == out.shape[0]:
                         return -1

@@ -41,18 +41,14 @@ TOOL = np.dtype(
         ("R_MRF_S", "f8", (3, 3)),  # axes of {S} in {MRF}
         ("near_c0", "f8", (3,)),  # bounding-sphere centre at the last near-object test, {w}
         ("near_slack", "f8"),  # how far it may move before the next test; -1: test now
-        ("serial", "i8"),  # stamp of the last candidate gather (marks triangles seen once)
-        ("wrench_S", "f8", (6,)),  # output: contact wrench on the tool at {S} in {S}
-        ("wrench_MRF", "f8", (6,)),  # output: the same at {MRF} in {MRF}
-        ("force_w", "f8", (3,)),  # output: total contact force in {w}
-        ("queries", "i8"),  # output: pair evaluations of the last call
-        ("gathers", "i8"),  # output: candidate caches refilled by the last call
+        # Outputs: the contact wrench on the tool at {S} in {S} (0:6), the same at {MRF} in {MRF}
+        # (6:12), the total contact force in {w} (12:15); pair evaluations of the last call and
+        # how many of them refilled their candidate cache.
+        ("out", "f8", (15,)),
+        ("counts", "i8", (2,)),
     ],
     align=True,
 )
-
-# One tool sphere: centre in {T} and radius.
-SPHERE = np.dtype([("c", "f8", (3,)), ("r", "f8")], align=True)
 
 # One object: contact law, bounding box, grid, and its culling state.
 OBJECT = np.dtype(
@@ -78,6 +74,8 @@ OBJECT = np.dtype(
 # memory, and the local minima found by the current evaluation.
 PAIR = np.dtype(
     [
+        ("c_T", "f8", (3,)),  # the sphere: centre in {T}
+        ("r", "f8"),  # and radius
         ("c", "f8", (3,)),  # sphere centre at the current evaluation
         ("last", "f8", (3,)),  # centre at the pair's last evaluation
         ("slack", "f8"),  # distance the centre may move from ``last`` before it can touch; -1: every tick
@@ -106,19 +104,21 @@ TRIANGLE = np.dtype(
         ("e", "i8", (3,)),  # edges: e[k] joins v[k] and v[(k + 1) % 3]
         ("n", "f8", (3,)),  # outward unit normal
         ("box", "f8", (6,)),  # bounding box: minimum (3), maximum (3)
+        ("m", "f8", (3, 3)),  # m[k]: unit vector in the face, normal to edge k, pointing inside
+        ("m_adj", "f8", (3, 3)),  # m_adj[k]: the same for the face across edge k (0 on a cut)
     ],
     align=True,
 )
 
-# One vertex: position, angle-weighted pseudonormal, and its faces ``vf[f0:f1]``.
+# One vertex: position, angle-weighted pseudonormal, and its faces ``lists[f0:f1]``.
 VERTEX = np.dtype([("p", "f8", (3,)), ("pn", "f8", (3,)), ("f0", "i8"), ("f1", "i8")], align=True)
 
 # One edge: pseudonormal, its faces (-1: none, a boundary where the mesh was cut), and
 # ``tan`` > 0 for a gentle concave crease (tan of the angle between its faces' normals).
 EDGE = np.dtype([("pn", "f8", (3,)), ("faces", "i8", (2,)), ("tan", "f8")], align=True)
 
-# One occupied grid cell: key and where its triangles start in ``grid_tris`` (a last sentinel
-# row closes the list).
+# One occupied grid cell: key and where its triangles start in ``lists`` (a last sentinel row
+# closes the list).
 CELL = np.dtype([("key", "i8"), ("start", "i8")], align=True)
 
 # One output contact.
@@ -127,8 +127,10 @@ CONTACT = np.dtype(
         ("p", "f8", (3,)),  # point on the object surface
         ("n", "f8", (3,)),  # outward object normal (direction of the normal force on the tool)
         ("depth", "f8"),  # effective penetration depth (m): the elastic force is k * depth
-        ("sphere", "i8"),
-        ("obj", "i8"),
+        # Tool sphere and object indices, as floats: a contact is one row of 9 floats, copied
+        # out with the others in one block.
+        ("sphere", "f8"),
+        ("obj", "f8"),
     ],
     align=True,
 )

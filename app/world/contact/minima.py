@@ -45,7 +45,7 @@ _SAME_POINT = 1e-10
 _PARTNER_COS = 0.8660254037844387
 # A pair's cache stays valid while its centre moves less than CACHE_FRAC * r from where it was
 # gathered: larger means fewer gathers on the move but more triangles to scan each tick.
-CACHE_FRAC = 0.1
+CACHE_FRAC = 0.05
 
 
 @njit(cache=True)
@@ -133,12 +133,8 @@ def ensure_cache(
     r: float,
     verts: Records,
     tris: Records,
-    edges: Records,
-    vertex_faces: np.ndarray,
     cells: Records,
-    grid_tris: np.ndarray,
-    stamp: np.ndarray,
-    tool: Record,
+    lists: np.ndarray,
     pool: np.ndarray,
 ) -> int:
     """Refill pair k's cache at its current centre unless that is within the cache's radius.
@@ -151,24 +147,7 @@ def ensure_cache(
         ex, ey, ez = c[0] - pair.cache_c[0], c[1] - pair.cache_c[1], c[2] - pair.cache_c[2]
         if ex * ex + ey * ey + ez * ez <= R * R:
             return 0
-    tool.serial += 1
-    n = gather(
-        obj,
-        c[0],
-        c[1],
-        c[2],
-        r + 2.0 * R,
-        R,
-        verts,
-        tris,
-        edges,
-        vertex_faces,
-        cells,
-        grid_tris,
-        stamp,
-        tool.serial,
-        pool[k],
-    )
+    n = gather(obj, c[0], c[1], c[2], r + 2.0 * R, R, verts, tris, cells, lists, pool[k])
     pair.cache_n = n
     pair.cache_c[:] = c
     return 1 if n >= 0 else -1
@@ -182,7 +161,7 @@ def local_minima(
     verts: Records,
     tris: Records,
     edges: Records,
-    vertex_faces: np.ndarray,
+    lists: np.ndarray,
 ) -> float:
     """Fill ``pair.min_*`` with the local minima of the distance within r of ``pair.c`` (the
     nearest :data:`MAX_PER_PAIR`); return a lower bound (m) of the distance to the mesh."""
@@ -197,9 +176,35 @@ def local_minima(
         box2 = box_distance2(tris[t].box, cx, cy, cz)
         if box2 >= r2 and box2 >= nearest2:
             continue
-        d2, qx, qy, qz, feat = closest_on_triangle(verts, tris, t, cx, cy, cz)
+        # Where c projects, from the inward edge normals: inside the face, the nearest point is
+        # the projection. Beyond exactly one edge and abreast of it, the nearest point is on that
+        # edge, and if c also projects into the face across it that face is nearer right there:
+        # no minimum on t. Either way no full nearest-point search.
+        tri = tris[t]
+        outside = 0
+        reject = False
+        for k in range(3):
+            a = verts[tri.v[k]].p
+            ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
+            m = tri.m[k]
+            if ex * m[0] + ey * m[1] + ez * m[2] < 0.0:
+                outside += 1
+                ma = tri.m_adj[k]
+                if ex * ma[0] + ey * ma[1] + ez * ma[2] > 0.0:
+                    b = verts[tri.v[(k + 1) % 3]].p
+                    bx, by, bz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+                    u = ex * bx + ey * by + ez * bz
+                    reject = 0.0 < u < bx * bx + by * by + bz * bz
+        if outside == 1 and reject:
+            continue
+        if outside == 0:
+            a = verts[tri.v[0]].p
+            sd = (cx - a[0]) * tri.n[0] + (cy - a[1]) * tri.n[1] + (cz - a[2]) * tri.n[2]
+            d2, qx, qy, qz, feat = sd * sd, cx - sd * tri.n[0], cy - sd * tri.n[1], cz - sd * tri.n[2], FEAT_FACE
+        else:
+            d2, qx, qy, qz, feat = closest_on_triangle(verts, tris, t, cx, cy, cz)
         nearest2 = min(nearest2, d2)
-        if d2 >= r2 or not _is_local_min(verts, tris, edges, vertex_faces, t, feat, qx, qy, qz, cx, cy, cz):
+        if d2 >= r2 or not _is_local_min(verts, tris, edges, lists, t, feat, qx, qy, qz, cx, cy, cz):
             continue
         d = math.sqrt(d2)
         w = 1.0

@@ -38,17 +38,16 @@ def _frozen(a: ArrayT) -> ArrayT:
 
 # The empty per-contact arrays of a result without contacts, shared (read-only): building them
 # anew was a good part of the cost of a free-space evaluation.
-_NO_POINTS = _frozen(np.zeros((0, 3)))
-_NO_DEPTHS = _frozen(np.zeros(0))
-_NO_IDS = _frozen(np.zeros(0, dtype=np.int64))
+_NO_CONTACTS = _frozen(np.zeros((0, 9)))
 
 
 @dataclass(slots=True)
 class ContactResult:
     """The contact state of the tool at one pose (treat as read-only).
 
-    Not frozen: it is built every servo substep, and a frozen dataclass's ``__init__`` cost
-    several microseconds.
+    Not frozen, and the per-contact arrays are made on access from one block copied once
+    (``contacts``): it is built every servo substep, where a frozen dataclass's ``__init__`` or
+    five array copies cost microseconds.
 
     Attributes:
         valid: False when the pose, twist or result was non-finite (or the mesh too fine for the
@@ -56,12 +55,11 @@ class ContactResult:
         wrench_S: Contact wrench ``[f; m]`` (N, N m) on the tool at the {S} origin in {S}, (6,).
         wrench_MRF: The same wrench at the {MRF} origin in {MRF} (Eq 6), (6,).
         force_w: Total contact force on the tool in {w} (N), (3,).
-        points_w: Contact points on the object surfaces in {w} (m), (k, 3).
-        normals_w: Outward object normals at those points in {w} (unit), (k, 3): the direction
-            of the normal force on the tool.
-        depths: Effective penetration depths (m), (k,): the elastic force is stiffness * depth.
-        sphere_ids: Index of the tool sphere of each contact, (k,).
-        object_ids: Index (into ``scene.objects``) of the object of each contact, (k,).
+        contacts: Per contact: point on the object surface (m, {w}), outward object normal
+            (unit, {w}: the direction of the normal force on the tool), effective depth (m: the
+            elastic force is stiffness * depth), tool sphere and object (index into
+            ``scene.objects``), (k, 9); read them as the properties ``points_w``,
+            ``normals_w``, ``depths``, ``sphere_ids``, ``object_ids``.
         queries: Number of (sphere, object) pair evaluations (culling diagnostics).
         gathers: How many of them refilled the pair's candidate cache from the grid.
         error: Why the result is invalid, or ``None``.
@@ -71,11 +69,7 @@ class ContactResult:
     wrench_S: Array
     wrench_MRF: Array
     force_w: Array
-    points_w: Array = field(default_factory=lambda: _NO_POINTS)
-    normals_w: Array = field(default_factory=lambda: _NO_POINTS)
-    depths: Array = field(default_factory=lambda: _NO_DEPTHS)
-    sphere_ids: IntArray = field(default_factory=lambda: _NO_IDS)
-    object_ids: IntArray = field(default_factory=lambda: _NO_IDS)
+    contacts: Array = field(default_factory=lambda: _NO_CONTACTS)
     queries: int = 0
     gathers: int = 0
     error: str | None = None
@@ -83,7 +77,32 @@ class ContactResult:
     @property
     def count(self) -> int:
         """Number of contacts (a sphere may touch an object at several places)."""
-        return len(self.depths)
+        return len(self.contacts)
+
+    @property
+    def points_w(self) -> Array:
+        """Contact points on the object surfaces in {w} (m), (k, 3)."""
+        return self.contacts[:, 0:3]
+
+    @property
+    def normals_w(self) -> Array:
+        """Outward object normals at the contact points in {w} (unit), (k, 3)."""
+        return self.contacts[:, 3:6]
+
+    @property
+    def depths(self) -> Array:
+        """Effective penetration depths (m), (k,): the elastic force is stiffness * depth."""
+        return self.contacts[:, 6]
+
+    @property
+    def sphere_ids(self) -> IntArray:
+        """Index of the tool sphere of each contact, (k,)."""
+        return self.contacts[:, 7].astype(np.int64)
+
+    @property
+    def object_ids(self) -> IntArray:
+        """Index (into ``scene.objects``) of the object of each contact, (k,)."""
+        return self.contacts[:, 8].astype(np.int64)
 
 
 class ContactModel:
@@ -113,31 +132,35 @@ class ContactModel:
         t["c0"], t["rho"], t["reach"], t["margin"] = c0_T, spread.max(), np.max(spread + tool.radii) + margin, margin
         t["T_MRF_T"] = invert_pose(tool.T_T_MRF)
         t["p_MRF_S"], t["R_MRF_S"] = T_MRF_S[0:3, 3], T_MRF_S[0:3, 0:3]
-        spheres = np.zeros(n, dtype=layout.SPHERE)
-        spheres["c"], spheres["r"] = tool.centers_T, tool.radii
         self._objs = objs = geo.objs.copy()
         for j, o in enumerate(scene.objects):
             objs[j]["k"], objs[j]["b"], objs[j]["mu"] = o.stiffness, o.damping, o.friction
         self._pairs = np.zeros(m * n, dtype=layout.PAIR)
+        self._pairs["c_T"] = np.tile(tool.centers_T, (m, 1))  # pair k = object k // n, sphere k % n
+        self._pairs["r"] = np.tile(tool.radii, m)
         # Untouched rows of np.empty cost no memory: only pairs that gather ever touch theirs.
         self._pool = np.empty((m * n, CACHE_MAX), dtype=np.int64)
-        self._out = np.zeros(max(1, m * n * layout.MAX_PER_PAIR), dtype=layout.CONTACT)
+        self._out = out = np.zeros(max(1, m * n * layout.MAX_PER_PAIR), dtype=layout.CONTACT)
+        # Views of the outputs, made once: reading fields of record arrays costs microseconds.
+        self._out_w = t["out"][0]
+        self._counts = t["counts"][0]
+        # The contact records as rows of 9 floats (p, n, depth, sphere, object): one contiguous
+        # copy per result instead of one strided copy per field.
+        assert layout.CONTACT.itemsize == 72
+        self._out_f = out.view(np.float64).reshape(len(out), 9)
         self._no_twist = np.zeros(6)
         # The kernel's arguments after the pose and twist, bound once.
         self._args = (
             self._tool,
-            spheres,
             objs,
             self._pairs,
             self._pool,
+            out,
             geo.verts,
             geo.tris,
             geo.edges,
-            geo.vertex_faces,
             geo.cells,
-            geo.grid_tris,
-            np.zeros(len(geo.tris), dtype=np.int64),
-            self._out,
+            geo.lists,
         )
         self.reset()
 
@@ -196,40 +219,12 @@ class ContactModel:
                     "or last row not [0, 0, 0, 1])"
                 )
             return ContactResult(False, np.zeros(6), np.zeros(6), np.zeros(3), error=_INVALID[code])
-        t = self._tool[0]
-        w = np.concatenate((t["wrench_S"], t["wrench_MRF"], t["force_w"]))
-        queries, gathers = int(t["queries"]), int(t["gathers"])
+        w = self._out_w.copy()
+        queries, gathers = self._counts.tolist()
         if code == 0:
             # Every field positional: the default factories cost microseconds on this path.
-            return ContactResult(
-                True,
-                w[0:6],
-                w[6:12],
-                w[12:15],
-                _NO_POINTS,
-                _NO_POINTS,
-                _NO_DEPTHS,
-                _NO_IDS,
-                _NO_IDS,
-                queries,
-                gathers,
-                None,
-            )
-        c = self._out[:code]
-        return ContactResult(
-            True,
-            w[0:6],
-            w[6:12],
-            w[12:15],
-            c["p"].copy(),
-            c["n"].copy(),
-            c["depth"].copy(),
-            c["sphere"].copy(),
-            c["obj"].copy(),
-            queries,
-            gathers,
-            None,
-        )
+            return ContactResult(True, w[0:6], w[6:12], w[12:15], _NO_CONTACTS, queries, gathers, None)
+        return ContactResult(True, w[0:6], w[6:12], w[12:15], self._out_f[:code].copy(), queries, gathers, None)
 
 
 def _as_array(x: object, name: str) -> Array:

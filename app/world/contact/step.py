@@ -188,24 +188,21 @@ def contact_step(
     V: np.ndarray,
     has_twist: bool,
     tool_a: Records,
-    spheres: Records,
     objs: Records,
     pairs: Records,
     pool: np.ndarray,
+    out: Records,
     verts: Records,
     tris: Records,
     edges: Records,
-    vertex_faces: np.ndarray,
     cells: Records,
-    grid_tris: np.ndarray,
-    stamp: np.ndarray,
-    out: Records,
+    lists: np.ndarray,
 ) -> int:
     """One contact evaluation with {MRF} at ``T`` = T_w_MRF (4, 4) and twist ``V`` (6,) if ``has_twist``.
 
-    The record arrays are those of :mod:`app.world.contact.layout`: ``tool_a`` (1,), ``spheres``
-    (n,), ``objs`` (m,), ``pairs`` (m n,), ``pool`` (m n, cache size) of candidate triangles,
-    the packed geometry, ``stamp`` (F,) gather scratch, and ``out`` (m n MAX_PER_PAIR,) contacts.
+    The record arrays are those of :mod:`app.world.contact.layout`: ``tool_a`` (1,), ``objs``
+    (m,), ``pairs`` (m n,), ``pool`` (m n, cache size) of candidate triangles, ``out``
+    (m n MAX_PER_PAIR,) contacts, and the packed geometry (:class:`~app.world.collision.PackedMeshes`).
 
     Returns the number of contacts written to ``out`` (the wrench is in the tool record), or an
     ``ERR_*`` code (< 0).
@@ -218,8 +215,8 @@ def contact_step(
         for a in range(6):
             if not math.isfinite(V[a]):
                 return ERR_TWIST
-    n = spheres.shape[0]
     m = objs.shape[0]
+    n = pairs.shape[0] // m if m else 0
     # R_w_T, p_w_T = T_w_MRF T_MRF_T
     Tm = tool.T_MRF_T
     R = np.empty((3, 3))
@@ -268,7 +265,7 @@ def contact_step(
         for i in range(n):
             k = j * n + i
             pair = pairs[k]
-            s = spheres[i].c
+            s = pair.c_T
             for a in range(3):
                 pair.c[a] = R[a, 0] * s[0] + R[a, 1] * s[1] + R[a, 2] * s[2] + p[a]
             if full:
@@ -277,13 +274,13 @@ def contact_step(
                     continue
             elif not pair.hot:
                 continue
-            r = spheres[i].r
+            r = pair.r
             queries += 1
-            g = ensure_cache(pair, k, o, r, verts, tris, edges, vertex_faces, cells, grid_tris, stamp, tool, pool)
+            g = ensure_cache(pair, k, o, r, verts, tris, cells, lists, pool)
             if g < 0:
                 return ERR_OVERFLOW
             gathers += g
-            bound = local_minima(pair, pool[k], r, verts, tris, edges, vertex_faces)
+            bound = local_minima(pair, pool[k], r, verts, tris, edges, lists)
             bound = max(bound, math.sqrt(box_distance2(o.box, pair.c[0], pair.c[1], pair.c[2])))
             pair.last[:] = pair.c
             before = n_c
@@ -303,8 +300,8 @@ def contact_step(
             o.slack = remaining
             o.base_c0[:] = c0
             o.base_R[:, :] = R
-    tool.queries = queries
-    tool.gathers = gathers
+    tool.counts[0] = queries
+    tool.counts[1] = gathers
     if not math.isfinite(FM[0] + FM[1] + FM[2] + FM[3] + FM[4] + FM[5]):
         return ERR_WRENCH
     write_wrench(tool, T, FM[0:3], FM[3:6])

@@ -2,7 +2,7 @@
 
 Rooms, in the order data flows through one servo tick: :mod:`app.device` (the simulated FRHC and
 the operator's hand), :mod:`app.controller` (the paper's Fig. 3), :mod:`app.world` (the virtual
-slave and its FCL contact), :mod:`app.session` (the loop, scripts, logs, metrics) and
+slave and its contact), :mod:`app.session` (the loop, scripts, logs, metrics) and
 :mod:`app.web` (the browser UI).
 """
 

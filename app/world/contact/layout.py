@@ -39,6 +39,10 @@ TOOL = np.dtype(
         ("T_MRF_T", "f8", (4, 4)),  # pose of {T} in {MRF}
         ("p_MRF_S", "f8", (3,)),  # origin of {S} in {MRF}
         ("R_MRF_S", "f8", (3, 3)),  # axes of {S} in {MRF}
+        ("R_w_T", "f8", (3, 3)),  # scratch of an evaluation: the tool pose,
+        ("p_w_T", "f8", (3,)),
+        ("c0_w", "f8", (3,)),  # its bounding-sphere centre in {w},
+        ("FM", "f8", (6,)),  # and the total force and moment about {MRF} in {w}
         ("near_c0", "f8", (3,)),  # bounding-sphere centre at the last near-object test, {w}
         ("near_slack", "f8"),  # how far it may move before the next test; -1: test now
         # Outputs: the contact wrench on the tool at {S} in {S} (0:6), the same at {MRF} in {MRF}

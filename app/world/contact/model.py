@@ -45,16 +45,14 @@ _NO_CONTACTS = _frozen(np.zeros((0, 9)))
 class ContactResult:
     """The contact state of the tool at one pose (treat as read-only).
 
-    Not frozen, and the per-contact arrays are made on access from one block copied once
-    (``contacts``): it is built every servo substep, where a frozen dataclass's ``__init__`` or
-    five array copies cost microseconds.
+    Not frozen, and the arrays are views made on access of two blocks copied once (``w``,
+    ``contacts``): it is built every servo substep, where a frozen dataclass's ``__init__`` or
+    a copy per array cost microseconds.
 
     Attributes:
         valid: False when the pose, twist or result was non-finite (or the mesh too fine for the
             cache); the wrenches are then 0.
-        wrench_S: Contact wrench ``[f; m]`` (N, N m) on the tool at the {S} origin in {S}, (6,).
-        wrench_MRF: The same wrench at the {MRF} origin in {MRF} (Eq 6), (6,).
-        force_w: Total contact force on the tool in {w} (N), (3,).
+        w: ``wrench_S``, ``wrench_MRF`` and ``force_w`` (see those properties), (15,).
         contacts: Per contact: point on the object surface (m, {w}), outward object normal
             (unit, {w}: the direction of the normal force on the tool), effective depth (m: the
             elastic force is stiffness * depth), tool sphere and object (index into
@@ -66,13 +64,26 @@ class ContactResult:
     """
 
     valid: bool
-    wrench_S: Array
-    wrench_MRF: Array
-    force_w: Array
+    w: Array
     contacts: Array = field(default_factory=lambda: _NO_CONTACTS)
     queries: int = 0
     gathers: int = 0
     error: str | None = None
+
+    @property
+    def wrench_S(self) -> Array:
+        """Contact wrench ``[f; m]`` (N, N m) on the tool at the {S} origin in {S}, (6,)."""
+        return self.w[0:6]
+
+    @property
+    def wrench_MRF(self) -> Array:
+        """The same wrench at the {MRF} origin in {MRF} (Eq 6), (6,)."""
+        return self.w[6:12]
+
+    @property
+    def force_w(self) -> Array:
+        """Total contact force on the tool in {w} (N), (3,)."""
+        return self.w[12:15]
 
     @property
     def count(self) -> int:
@@ -218,13 +229,13 @@ class ContactModel:
                     "T_w_MRF is not a rigid transform (rotation not orthonormal within 1e-6, a reflection, "
                     "or last row not [0, 0, 0, 1])"
                 )
-            return ContactResult(False, np.zeros(6), np.zeros(6), np.zeros(3), error=_INVALID[code])
+            return ContactResult(False, np.zeros(15), error=_INVALID[code])
         w = self._out_w.copy()
         queries, gathers = self._counts.tolist()
         if code == 0:
             # Every field positional: the default factories cost microseconds on this path.
-            return ContactResult(True, w[0:6], w[6:12], w[12:15], _NO_CONTACTS, queries, gathers, None)
-        return ContactResult(True, w[0:6], w[6:12], w[12:15], self._out_f[:code].copy(), queries, gathers, None)
+            return ContactResult(True, w, _NO_CONTACTS, queries, gathers, None)
+        return ContactResult(True, w, self._out_f[:code].copy(), queries, gathers, None)
 
 
 def _as_array(x: object, name: str) -> Array:

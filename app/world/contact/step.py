@@ -219,13 +219,11 @@ def contact_step(
     n = pairs.shape[0] // m if m else 0
     # R_w_T, p_w_T = T_w_MRF T_MRF_T
     Tm = tool.T_MRF_T
-    R = np.empty((3, 3))
-    p = np.empty(3)
+    R, p, c0 = tool.R_w_T, tool.p_w_T, tool.c0_w  # scratch in the record: no allocation per call
     for a in range(3):
         for b in range(3):
             R[a, b] = T[a, 0] * Tm[0, b] + T[a, 1] * Tm[1, b] + T[a, 2] * Tm[2, b]
         p[a] = T[a, 0] * Tm[0, 3] + T[a, 1] * Tm[1, 3] + T[a, 2] * Tm[2, 3] + T[a, 3]
-    c0 = np.empty(3)
     for a in range(3):
         c0[a] = R[a, 0] * tool.c0[0] + R[a, 1] * tool.c0[1] + R[a, 2] * tool.c0[2] + p[a]
 
@@ -245,7 +243,8 @@ def contact_step(
         tool.near_c0[:] = c0
         tool.near_slack = near_slack
 
-    FM = np.zeros(6)  # force on the tool and moment about the {MRF} origin, {w}
+    FM = tool.FM  # force on the tool and moment about the {MRF} origin, {w}
+    FM[:] = 0.0
     n_c = 0
     queries = gathers = 0
     rho = tool.rho

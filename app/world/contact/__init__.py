@@ -48,8 +48,11 @@ per-object grid, :mod:`.grid`), so a tick in steady contact scans a handful of t
 million-triangle mesh.
 
 Limits: a sharp-cornered part hidden behind less than r of material still pushes (as a second
-object would); the four-contact cap per pair; more than 4096 cached triangles within a sphere's
-reach is an invalid reading.
+object would); with the centre inside the solid, a secondary contact can switch on or off where
+the plane of a cut face extends into the material (the force is continuous outside the solid,
+away from the medial axis); edge or vertex minima on neighbouring triangles less than 30 degrees
+apart count as one (the nearer); at most four contacts per pair; more than 4096 cached
+triangles within a sphere's reach is an invalid reading.
 """
 
 from app.world.contact.model import ContactModel, ContactResult, contact_wrench

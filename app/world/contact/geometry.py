@@ -100,6 +100,23 @@ def box_distance2(box: np.ndarray, cx: float, cy: float, cz: float) -> float:
 
 
 @njit(cache=True)
+def _in_vertex_cone(
+    verts: Records, tris: Records, vertex_faces: np.ndarray, v: int, cx: float, cy: float, cz: float, R: float
+) -> bool:
+    """Whether c makes no angle below 90 degrees (relaxed by R) with any edge from vertex v."""
+    p = verts[v].p
+    for s in range(verts[v].f0, verts[v].f1):  # every edge from the vertex, through its faces
+        fv = tris[vertex_faces[s]].v
+        for x in range(3):
+            w = verts[fv[x]].p
+            ex, ey, ez = w[0] - p[0], w[1] - p[1], w[2] - p[2]
+            le = math.sqrt(ex * ex + ey * ey + ez * ez)
+            if le > 0.0 and (cx - p[0]) * ex + (cy - p[1]) * ey + (cz - p[2]) * ez > R * le:
+                return False
+    return True
+
+
+@njit(cache=True)
 def may_hold_minimum(
     verts: Records,
     tris: Records,
@@ -139,20 +156,9 @@ def may_hold_minimum(
                 u = (ex * bx + ey * by + ez * bz) / le
                 if -R <= u <= le + R:
                     return True
-    if inside_prism:
-        return True
-    for k in range(3):
-        v = verts[tri.v[k]]
-        p = v.p
-        cone = True
-        for s in range(v.f0, v.f1):  # every edge from the vertex, through its faces
-            fv = tris[vertex_faces[s]].v
-            for x in range(3):
-                w = verts[fv[x]].p
-                ex, ey, ez = w[0] - p[0], w[1] - p[1], w[2] - p[2]
-                le = math.sqrt(ex * ex + ey * ey + ez * ez)
-                if le > 0.0 and ((cx - p[0]) * ex + (cy - p[1]) * ey + (cz - p[2]) * ez) / le > R:
-                    cone = False
-        if cone:
-            return True
-    return False
+    return (
+        inside_prism
+        or _in_vertex_cone(verts, tris, vertex_faces, tri.v[0], cx, cy, cz, R)
+        or _in_vertex_cone(verts, tris, vertex_faces, tri.v[1], cx, cy, cz, R)
+        or _in_vertex_cone(verts, tris, vertex_faces, tri.v[2], cx, cy, cz, R)
+    )

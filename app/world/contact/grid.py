@@ -117,9 +117,9 @@ def gather(
                         continue
                     if box_distance2(tris[t].box, cx, cy, cz) > reach2:
                         continue
-                    if closest_on_triangle(verts, tris, t, cx, cy, cz)[0] > reach2:
-                        continue
                     if obj.prune and not may_hold_minimum(verts, tris, lists, t, cx, cy, cz, R):
+                        continue
+                    if closest_on_triangle(verts, tris, t, cx, cy, cz)[0] > reach2:
                         continue
                     if n == out.shape[0]:
                         return -1

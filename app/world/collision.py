@@ -2,10 +2,11 @@
 read-only, by every :class:`~app.world.contact.ContactModel` of the scene.
 
 Each closed mesh is *cut along its sharp concave edges* (concave, normals more than
-:data:`CUT_ANGLE_DEG` apart): the vertices on such an edge are duplicated per side, so the edge
-becomes a boundary of each side and each side keeps its own pseudonormals there. The contact
-model then treats the two sides of a sharp inside corner like two objects touching (see
-:mod:`app.world.contact`). Gentler concave edges stay joined and carry the tangent of their angle.
+:data:`CUT_ANGLE_DEG` apart): such an edge becomes one boundary edge per side, and a vertex whose
+faces the cuts separate into several fans is duplicated per fan, so each side keeps its own
+pseudonormals there. The contact model then treats the two sides of a sharp inside corner like
+two objects touching (see :mod:`app.world.contact`). Gentler concave edges stay joined and carry
+the tangent of their angle.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ class CollisionMesh:
             (see :func:`app.world.mesh_check.checked_mesh`).
 
     Attributes:
-        vertices: Vertices (m), (V, 3); a vertex on a cut edge appears once per side.
+        vertices: Vertices (m), (V, 3); a vertex whose faces cuts separate appears once per fan.
         faces: Vertex indices (F, 3), in the input's face order.
         face_normals: Outward unit normals (F, 3).
         face_edges: Edge k of face f joins ``faces[f, k]`` and ``faces[f, (k + 1) % 3]``, (F, 3).

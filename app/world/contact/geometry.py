@@ -156,9 +156,19 @@ def may_hold_minimum(
                 u = (ex * bx + ey * by + ez * bz) / le
                 if -R <= u <= le + R:
                     return True
-    return (
-        inside_prism
-        or _in_vertex_cone(verts, tris, vertex_faces, tri.v[0], cx, cy, cz, R)
-        or _in_vertex_cone(verts, tris, vertex_faces, tri.v[1], cx, cy, cz, R)
-        or _in_vertex_cone(verts, tris, vertex_faces, tri.v[2], cx, cy, cz, R)
-    )
+    if inside_prism:
+        return True
+    for k in range(3):
+        # A vertex's cone lies within t's own corner region there: test that first (two edges).
+        v = tri.v[k]
+        p = verts[v].p
+        ex, ey, ez = cx - p[0], cy - p[1], cz - p[2]
+        corner = True
+        for w in (tri.v[(k + 1) % 3], tri.v[(k + 2) % 3]):
+            q = verts[w].p
+            fx, fy, fz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
+            if ex * fx + ey * fy + ez * fz > R * math.sqrt(fx * fx + fy * fy + fz * fz):
+                corner = False
+        if corner and _in_vertex_cone(verts, tris, vertex_faces, v, cx, cy, cz, R):
+            return True
+    return False

@@ -72,6 +72,8 @@ def gather(
     tris: Records,
     cells: Records,
     lists: np.ndarray,
+    stamp: np.ndarray,
+    serial: int,
     out: np.ndarray,
 ) -> int:
     """Write into ``out`` the triangles of object ``obj`` (a record) within ``reach`` of c that
@@ -81,6 +83,8 @@ def gather(
     the sphere.
 
     ``lists`` holds the grid's triangles (``cells.start``) and the faces around each vertex.
+    ``stamp`` (F,) marks the triangles this gather (number ``serial``) has seen: a long triangle
+    spans many cells, and one load per visit is far cheaper than deciding which cell owns it.
     Returns -1 if they do not fit in ``out`` or the search box covers more than ``MAX_CELLS`` cells.
     """
     h = obj.grid_h
@@ -104,17 +108,11 @@ def gather(
             last = first + hi[2] - lo[2]
             s = np.searchsorted(cells.key[:n_keys], first)
             while s < n_keys and cells[s].key <= last:
-                z = cells[s].key - first + lo[2]
                 for e in range(cells[s].start, cells[s + 1].start):
                     t = lists[e]
-                    # A triangle spans several cells: take it in the first one of the search box.
-                    box = tris[t].box
-                    if (
-                        max(cell_index(box[0], obj.grid_origin[0], h, obj.grid_dims[0]), lo[0]) != x
-                        or max(cell_index(box[1], obj.grid_origin[1], h, obj.grid_dims[1]), lo[1]) != y
-                        or max(cell_index(box[2], obj.grid_origin[2], h, obj.grid_dims[2]), lo[2]) != z
-                    ):
+                    if stamp[t] == serial:
                         continue
+                    stamp[t] = serial
                     if box_distance2(tris[t].box, cx, cy, cz) > reach2:
                         continue
                     if obj.prune and not may_hold_minimum(verts, tris, lists, t, cx, cy, cz, R):

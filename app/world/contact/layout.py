@@ -45,6 +45,7 @@ TOOL = np.dtype(
         ("FM", "f8", (6,)),  # and the total force and moment about {MRF} in {w}
         ("near_c0", "f8", (3,)),  # bounding-sphere centre at the last near-object test, {w}
         ("near_slack", "f8"),  # how far it may move before the next test; -1: test now
+        ("serial", "i8"),  # number of the last candidate gather (see ``stamp`` in the step)
         # Outputs: the contact wrench on the tool at {S} in {S} (0:6), the same at {MRF} in {MRF}
         # (6:12), the total contact force in {w} (12:15); pair evaluations of the last call and
         # how many of them refilled their candidate cache.

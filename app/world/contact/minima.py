@@ -135,6 +135,8 @@ def ensure_cache(
     tris: Records,
     cells: Records,
     lists: np.ndarray,
+    stamp: np.ndarray,
+    tool: Record,
     pool: np.ndarray,
 ) -> int:
     """Refill pair k's cache at its current centre unless that is within the cache's radius.
@@ -147,7 +149,8 @@ def ensure_cache(
         ex, ey, ez = c[0] - pair.cache_c[0], c[1] - pair.cache_c[1], c[2] - pair.cache_c[2]
         if ex * ex + ey * ey + ez * ez <= R * R:
             return 0
-    n = gather(obj, c[0], c[1], c[2], r + 2.0 * R, R, verts, tris, cells, lists, pool[k])
+    tool.serial += 1
+    n = gather(obj, c[0], c[1], c[2], r + 2.0 * R, R, verts, tris, cells, lists, stamp, tool.serial, pool[k])
     pair.cache_n = n
     pair.cache_c[:] = c
     return 1 if n >= 0 else -1

@@ -161,6 +161,8 @@ class ContactModel:
         self._out_f = out.view(np.float64).reshape(len(out), 9)
         self._no_twist = np.zeros(6)
         # The kernel's arguments after the pose and twist, bound once.
+        # Gather scratch: which triangles the current gather has seen (F,).
+        stamp = np.zeros(len(geo.tris), dtype=np.int64)
         self._args = (
             self._tool,
             objs,
@@ -172,6 +174,7 @@ class ContactModel:
             geo.edges,
             geo.cells,
             geo.lists,
+            stamp,
         )
         self.reset()
 

@@ -197,12 +197,14 @@ def contact_step(
     edges: Records,
     cells: Records,
     lists: np.ndarray,
+    stamp: np.ndarray,
 ) -> int:
     """One contact evaluation with {MRF} at ``T`` = T_w_MRF (4, 4) and twist ``V`` (6,) if ``has_twist``.
 
     The record arrays are those of :mod:`app.world.contact.layout`: ``tool_a`` (1,), ``objs``
     (m,), ``pairs`` (m n,), ``pool`` (m n, cache size) of candidate triangles, ``out``
-    (m n MAX_PER_PAIR,) contacts, and the packed geometry (:class:`~app.world.collision.PackedMeshes`).
+    (m n MAX_PER_PAIR,) contacts, the packed geometry (:class:`~app.world.collision.PackedMeshes`),
+    and ``stamp`` (F,), the scratch of candidate gathers.
 
     Returns the number of contacts written to ``out`` (the wrench is in the tool record), or an
     ``ERR_*`` code (< 0).
@@ -275,7 +277,7 @@ def contact_step(
                 continue
             r = pair.r
             queries += 1
-            g = ensure_cache(pair, k, o, r, verts, tris, cells, lists, pool)
+            g = ensure_cache(pair, k, o, r, verts, tris, cells, lists, stamp, tool, pool)
             if g < 0:
                 return ERR_OVERFLOW
             gathers += g

@@ -68,16 +68,34 @@ def _contact_row(label: str, scene: Scene, T: Array, n: int, mujoco: bool = Fals
     static = _time(lambda _k: model.wrench(T), n)
     poses = _walk(T, n + 50)
     model.reset()
-    moving = _time(lambda k: model.wrench(poses[k]), n)
     tris = sum(len(o.mesh.faces) for o in scene.objects)
-    row = [label, f"{tris}", f"{len(scene.tool.radii)}", f"{res.count}", *(f"{v:.1f}" for v in (*static, *moving))]
-    if mujoco:
-        step, contacts = _mujoco_collision(scene, poses)
-        step(0)
-        row += [f"{contacts}", *(f"{v:.1f}" for v in _time(step, n))]
-    else:
-        row += [""] * 3
-    return row
+    row = [label, f"{tris}", f"{len(scene.tool.radii)}", f"{res.count}", *(f"{v:.1f}" for v in static)]
+    if not mujoco:
+        return [*row, *(f"{v:.1f}" for v in _time(lambda k: model.wrench(poses[k]), n)), "", "", ""]
+    step, contacts = _mujoco_collision(scene, poses)
+    # Alternate the two on the same path, call by call: a burst of load on the machine then
+    # slows both alike instead of one of them.
+    ours, theirs = _time_pair(lambda k: model.wrench(poses[k]), step, n)
+    return [*row, *(f"{v:.1f}" for v in ours), f"{contacts}", *(f"{v:.1f}" for v in theirs)]
+
+
+def _time_pair(
+    fa: Callable[[int], object], fb: Callable[[int], object], n: int
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Median and p99 (us) of ``fa(k)`` and of ``fb(k)``, called alternately, after a warm-up."""
+    for k in range(min(50, n)):
+        fa(k)
+        fb(k)
+    t = np.empty((2, n))
+    clock = time.perf_counter_ns
+    for k in range(n):
+        t0 = clock()
+        fa(k)
+        t1 = clock()
+        fb(k)
+        t[0, k], t[1, k] = t1 - t0, clock() - t1
+    med, p99 = np.median(t, axis=1) / 1e3, np.percentile(t, 99, axis=1) / 1e3
+    return (float(med[0]), float(p99[0])), (float(med[1]), float(p99[1]))
 
 
 def _mujoco_collision(scene: Scene, poses: list[Array]) -> tuple[Callable[[int], object], int]:

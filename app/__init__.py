@@ -2,7 +2,7 @@
 
 Rooms, in the order data flows through one servo tick: :mod:`app.device` (the simulated FRHC and
 the operator's hand), :mod:`app.controller` (the paper's Fig. 3), :mod:`app.world` (the virtual
-slave and its FCL contact), :mod:`app.session` (the loop, scripts, logs, metrics) and
+slave and its contact), :mod:`app.session` (the loop, scripts, logs, metrics) and
 :mod:`app.web` (the browser UI).
 """
 
@@ -20,7 +20,7 @@ def _numba_cache_dir() -> str:
     """
     here = Path(__file__).resolve().parent
     digest = hashlib.sha1()
-    for src in sorted([here / "spatial.py", *(here / "world").glob("*.py"), *(here / "controller").glob("*.py")]):
+    for src in sorted([here / "spatial.py", *(here / "world").rglob("*.py"), *(here / "controller").glob("*.py")]):
         digest.update(src.read_bytes())
     base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "frhc" / "numba"
     return str(base / digest.hexdigest()[:16])

@@ -49,3 +49,8 @@ class InputError(FrhcError, ValueError):
 
 class ContactQueryError(FrhcError):
     """A collision query failed or returned a non-finite result."""
+
+
+class ContactInputError(ContactQueryError):
+    """The contact API was called with an unusable pose or twist (wrong shape or type, or a pose
+    that is not a rigid transform): a programming error, raised rather than returned."""

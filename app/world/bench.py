@@ -4,6 +4,11 @@ Cases: the default tool of each shipped scene held in contact (``static``: the s
 call; ``moving``: a random walk of 20 um / 0.01 deg steps, as a hand moves at 1 kHz); the probe
 tool pressed into icospheres of about 1k, 10k, 100k and 1M triangles; the probe scene with 1, 10
 and 100 objects (all but the surface far away); and one :meth:`VirtualSlave.step` in contact.
+
+For each shipped scene MuJoCo's own collision runs beside ours on the same moving path: the
+tool's spheres as sphere geoms on a free body, the objects as mesh geoms (MuJoCo collides with
+their convex hulls, so its answer is wrong inside holes and bowls), timed over
+``mj_kinematics`` + ``mj_collision``.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ import numpy as np
 import trimesh
 
 from app.controller.types import SlaveCommand
-from app.spatial import Array, make_pose, zyx_to_matrix
+from app.spatial import Array, invert_pose, make_pose, zyx_to_matrix
 from app.world.contact import ContactModel
 from app.world.scene import ObjectSpec, Pose, Scene, build_scene, load_scene
 from app.world.slave import VirtualSlave
@@ -55,7 +60,7 @@ def _walk(T0: Array, n: int, seed: int = 0) -> list[Array]:
     return poses
 
 
-def _contact_row(label: str, scene: Scene, T: Array, n: int) -> list[str]:
+def _contact_row(label: str, scene: Scene, T: Array, n: int, mujoco: bool = False) -> list[str]:
     model = ContactModel(scene)
     res = model.wrench(T)
     if not res.valid or res.count == 0:
@@ -63,9 +68,76 @@ def _contact_row(label: str, scene: Scene, T: Array, n: int) -> list[str]:
     static = _time(lambda _k: model.wrench(T), n)
     poses = _walk(T, n + 50)
     model.reset()
-    moving = _time(lambda k: model.wrench(poses[k]), n)
     tris = sum(len(o.mesh.faces) for o in scene.objects)
-    return [label, f"{tris}", f"{len(scene.tool.radii)}", f"{res.count}", *(f"{v:.1f}" for v in (*static, *moving))]
+    row = [label, f"{tris}", f"{len(scene.tool.radii)}", f"{res.count}", *(f"{v:.1f}" for v in static)]
+    if not mujoco:
+        return [*row, *(f"{v:.1f}" for v in _time(lambda k: model.wrench(poses[k]), n)), "", "", ""]
+    step, contacts = _mujoco_collision(scene, poses)
+    # Alternate the two on the same path, call by call: a burst of load on the machine then
+    # slows both alike instead of one of them.
+    ours, theirs = _time_pair(lambda k: model.wrench(poses[k]), step, n)
+    return [*row, *(f"{v:.1f}" for v in ours), f"{contacts}", *(f"{v:.1f}" for v in theirs)]
+
+
+def _time_pair(
+    fa: Callable[[int], object], fb: Callable[[int], object], n: int
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Median and p99 (us) of ``fa(k)`` and of ``fb(k)``, called alternately, after a warm-up."""
+    for k in range(min(50, n)):
+        fa(k)
+        fb(k)
+    t = np.empty((2, n))
+    clock = time.perf_counter_ns
+    for k in range(n):
+        t0 = clock()
+        fa(k)
+        t1 = clock()
+        fb(k)
+        t[0, k], t[1, k] = t1 - t0, clock() - t1
+    med, p99 = np.median(t, axis=1) / 1e3, np.percentile(t, 99, axis=1) / 1e3
+    return (float(med[0]), float(p99[0])), (float(med[1]), float(p99[1]))
+
+
+def _mujoco_collision(scene: Scene, poses: list[Array]) -> tuple[Callable[[int], object], int]:
+    """MuJoCo's collision of the scene's tool spheres (a free body) with its meshes (their convex
+    hulls): a function running ``mj_kinematics`` + ``mj_collision`` at ``poses[k]``, and the
+    number of contacts MuJoCo finds at the first pose."""
+    import tempfile
+
+    import mujoco
+
+    tool = scene.tool
+    T_MRF_T = invert_pose(tool.T_T_MRF)
+    with tempfile.TemporaryDirectory() as tmp:
+        assets, geoms = [], []
+        for j, o in enumerate(scene.objects):
+            path = f"{tmp}/m{j}.stl"
+            o.mesh.export(path)
+            assets.append(f'<mesh name="m{j}" file="{path}"/>')
+            geoms.append(f'<geom type="mesh" mesh="m{j}"/>')
+        spheres = "".join(
+            f'<geom type="sphere" size="{float(r)!r}" pos="{" ".join(repr(float(x)) for x in c)}"/>'
+            for c, r in zip(tool.centers_T, tool.radii, strict=True)
+        )
+        xml = (
+            f"<mujoco><asset>{''.join(assets)}</asset><worldbody>{''.join(geoms)}"
+            f'<body name="tool"><freejoint/>{spheres}</body></worldbody></mujoco>'
+        )
+        mj_model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(mj_model)
+    qpos = np.zeros((len(poses), 7))
+    for k, T in enumerate(poses):
+        T_w_T = T @ T_MRF_T
+        qpos[k, 0:3] = T_w_T[0:3, 3]
+        mujoco.mju_mat2Quat(qpos[k, 3:7], T_w_T[0:3, 0:3].ravel())
+
+    def step(k: int) -> None:
+        data.qpos[:] = qpos[k]
+        mujoco.mj_kinematics(mj_model, data)
+        mujoco.mj_collision(mj_model, data)
+
+    step(0)
+    return step, int(data.ncon)
 
 
 def _probe_scene(objects: list[ObjectSpec]) -> Scene:
@@ -87,9 +159,11 @@ def run(quick: bool = False) -> str:
 
     n = 500 if quick else 3000
     header = ["case", "triangles", "spheres", "contacts", "static med", "static p99", "moving med", "moving p99"]
+    header += ["mujoco contacts", "mujoco moving med", "mujoco moving p99"]
     rows: list[list[str]] = []
     for name, (p, a) in CONTACT_POSES.items():
-        rows.append(_contact_row(f"scene {name}", load_scene(name), make_pose(zyx_to_matrix(*a), np.array(p)), n))
+        T = make_pose(zyx_to_matrix(*a), np.array(p))
+        rows.append(_contact_row(f"scene {name}", load_scene(name), T, n, mujoco=True))
     T_probe = make_pose(np.eye(3), np.array(CONTACT_POSES["probe"][0]))
     with tempfile.TemporaryDirectory() as tmp:
         for sub in (3, 5, 6) if quick else (3, 5, 6, 8):
@@ -118,8 +192,7 @@ def run(quick: bool = False) -> str:
             f"{slave.contact.count}",
             f"{med:.1f}",
             f"{p99:.1f}",
-            "",
-            "",
+            *[""] * 5,
         ]
     )
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]

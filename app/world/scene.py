@@ -16,7 +16,6 @@ Objects are static, so their pose is baked into their vertices at load time: eve
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -28,6 +27,7 @@ from app.config import deferred_warnings, from_dict, load_toml
 from app.errors import ConfigError
 from app.spatial import Array, invert_pose
 from app.world.collision import CollisionMesh, PackedMeshes, pack_meshes
+from app.world.mesh_check import checked_mesh
 from app.world.scene_file import (
     MAX_MESH_BYTES,
     MAX_MESH_FACES,
@@ -217,7 +217,7 @@ def _load_mesh(path: Path, source: str | Path, field_name: str) -> trimesh.Trime
     if path.stat().st_size > MAX_MESH_BYTES:
         raise ConfigError(source, field_name, f"{path.name} is larger than {MAX_MESH_BYTES // 2**20} MiB")
     try:
-        loaded = trimesh.load(path, force="mesh", process=True)
+        loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for a bad file
         reason = " ".join(str(exc).split())[:200]
         raise ConfigError(source, field_name, f"cannot read mesh {path.name}: {reason}") from None
@@ -234,9 +234,9 @@ def build_object(spec: ObjectSpec, source: str | Path, field_path: str) -> World
     """Make the {w} mesh of one object, checking it is usable for contact.
 
     Raises:
-        ConfigError: The mesh is missing, unreadable, too large or degenerate (no faces,
-            non-finite vertices, zero area or volume), naming ``<field_path>.<shape>``. A mesh that is not watertight only warns: contact
-            stays correct near its surface, but inside/outside far from it is not defined.
+        ConfigError: naming ``<field_path>.<shape>``: the mesh is missing, unreadable or too large,
+            or fails :func:`~app.world.mesh_check.checked_mesh` (non-finite vertices, degenerate,
+            open or inconsistently wound).
     """
     mesh_field = f"{field_path}.{spec.shape}"
     if spec.mesh is not None:
@@ -244,19 +244,7 @@ def build_object(spec: ObjectSpec, source: str | Path, field_path: str) -> World
         mesh = _load_mesh(p if p.is_absolute() else ASSETS_DIR / p, source, mesh_field)
     else:
         mesh = _primitive_mesh(spec)
-    mesh.remove_unreferenced_vertices()
-    if len(mesh.faces) == 0 or not np.isfinite(mesh.vertices).all():
-        raise ConfigError(source, mesh_field, "degenerate mesh: no faces or non-finite vertices")
-    mesh.update_faces(mesh.nondegenerate_faces())
-    if len(mesh.faces) == 0 or float(mesh.area) <= 1e-12 or float(np.ptp(mesh.vertices, axis=0).min()) <= 1e-9:
-        raise ConfigError(source, mesh_field, "degenerate mesh: zero area or flat (no inside)")
-    if not mesh.is_watertight:
-        warnings.warn(
-            f"{source}: field '{mesh_field}': mesh is not watertight; contact uses the nearest triangle's side",
-            stacklevel=3,
-        )
-    elif mesh.volume < 0:
-        mesh.invert()  # inward-facing triangles would swap inside and outside
+    mesh = checked_mesh(mesh, source, mesh_field)
     mesh.apply_transform(spec.pose.matrix())
     return WorldObject(spec.name, mesh, spec.stiffness, spec.damping, spec.friction, CollisionMesh(mesh))
 

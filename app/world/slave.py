@@ -267,7 +267,7 @@ class VirtualSlave:
 
     def _invalid(self, error: str) -> ContactResult:
         """Make the current reading invalid (zero wrench, the held state's orientation) for ``error``."""
-        contact = ContactResult(False, np.zeros(6), np.zeros(6), np.zeros(3), error=error)
+        contact = ContactResult(False, np.zeros(15), error=error)
         self._state()
         self._reading = self._sensor(contact, _ZERO6)
         return contact

@@ -1,0 +1,60 @@
+"""Penalty contact between the tool's sphere set and the scene's closed meshes.
+
+Public API: :class:`ContactModel` (stateful, one per simulated tool), :func:`contact_wrench`
+(stateless), :class:`ContactResult`.
+
+The model, per (sphere of radius r, object) pair, with c the sphere centre:
+
+1. **Contacts are the local minima of the distance from c over the mesh surface within r**
+   (:mod:`.minima`): a face whose plane projection of c falls inside it, or an edge or vertex
+   that no adjacent face beats, each reported once however many triangles share it. One sphere
+   can thus touch an object at several places (the floor and the wall of a pocket), each with
+   its own point, outward normal and depth ``r - phi``; phi is the signed distance, signed by
+   the feature's angle-weighted pseudonormal (Baerentzen & Aanaes 2005).
+2. **Sharp inside corners act like two objects.** At load (:mod:`app.world.collision`) a mesh
+   is cut along its concave edges sharper than 30 degrees; each side keeps its own normals
+   there, so a sphere in an inside corner feels each face's ``normal * depth`` as if the faces
+   belonged to two objects, continuously as it moves (at an L-shaped block's corner 3 mm from
+   both faces of a 5 mm sphere: ``k (-2 mm, 0, 2 mm)``, not one face or the other).
+3. **Gentle concave creases blend.** Where a tessellated concave surface (a bowl, a hole's
+   wall) bends by theta, two faces both hold a minimum in a band ``d tan theta`` wide; their
+   weights go linearly across it and they add up to one contact, so the force neither doubles
+   nor jumps from facet to facet.
+4. **Which minima push.** The nearest is the primary: it pushes from in front (phi >= 0) or from
+   behind (phi < 0: the centre is inside the solid, depth ``r - phi > r``). Any other minimum
+   pushes only from in front: a face seen from behind while the centre is outside is the far
+   side of material (the underside of a plate being pressed from above). At most four contacts
+   per pair, the nearest.
+5. **Pop-through memory** (per pair): the last primary contact plane (point, normal, triangle).
+   If the primary's normal turns against it while the centre is behind that plane, the centre
+   crossed the middle of a thin part and the remembered plane keeps pushing back (a 1 mm plate
+   pushed 10 mm never flips the force). It lasts only while its triangle is within r (plus 1 nm
+   of rounding) of the centre and while it pushes: **a non-zero force on a sphere always implies
+   mesh geometry within its radius.**
+6. **Degenerate positions** (a centre exactly on a face, an edge, a vertex, the corner of a
+   pocket) push along the pseudonormal of each feature touched with depth r.
+7. **Force law** (:mod:`.force`): ``k depth - b u_n`` clamped at 0, and regularised Coulomb
+   friction, with u the velocity of the tool's material point at the contact point.
+
+Inputs: a non-finite pose or twist gives an invalid, zero reading (a servo loop must survive
+it); a wrong shape or a pose that is not a rigid transform raises
+:class:`~app.errors.ContactInputError`.
+
+Speed: every per-tick step runs in one compiled call (:mod:`.step`). Culling is exact (the
+distance is 1-Lipschitz in the centre); each pair caches the triangles that may hold a local
+minimum while its centre stays within ``R = 0.1 r`` of where they were gathered (every triangle
+within ``r + 2 R`` whose face, edge or vertex Voronoi region comes within R, found through a
+per-object grid, :mod:`.grid`), so a tick in steady contact scans a handful of triangles per sphere, even on a
+million-triangle mesh.
+
+Limits: a sharp-cornered part hidden behind less than r of material still pushes (as a second
+object would); with the centre inside the solid, a secondary contact can switch on or off where
+the plane of a cut face extends into the material (the force is continuous outside the solid,
+away from the medial axis); edge or vertex minima on neighbouring triangles less than 30 degrees
+apart count as one (the nearer); at most four contacts per pair; more than 4096 cached
+triangles within a sphere's reach is an invalid reading.
+"""
+
+from app.world.contact.model import ContactModel, ContactResult, contact_wrench
+
+__all__ = ["ContactModel", "ContactResult", "contact_wrench"]

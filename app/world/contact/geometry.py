@@ -1,0 +1,174 @@
+"""Triangle geometry of the contact kernels: nearest point on a triangle and the pseudonormal of
+the feature it lies on (Baerentzen & Aanaes 2005). Arrays are the records of
+:mod:`app.world.contact.layout`; points in {w} (m).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, FEAT_VERTEX, Records
+
+
+@njit(cache=True)
+def closest_on_triangle(
+    verts: Records, tris: Records, t: int, cx: float, cy: float, cz: float
+) -> tuple[float, float, float, float, int]:
+    """Squared distance from c to triangle t, its nearest point q, and the feature q lies on.
+
+    The feature is ``FEAT_FACE`` (q inside the face, ``c - q`` along the normal),
+    ``FEAT_VERTEX + k`` or ``FEAT_EDGE + k`` (edge k joins vertex k and k + 1), from the Voronoi
+    regions of Ericson, *Real-Time Collision Detection*, 5.1.5.
+    """
+    tv = tris[t].v
+    a, b, c = verts[tv[0]].p, verts[tv[1]].p, verts[tv[2]].p
+    ax, ay, az = a[0], a[1], a[2]
+    abx, aby, abz = b[0] - ax, b[1] - ay, b[2] - az
+    acx, acy, acz = c[0] - ax, c[1] - ay, c[2] - az
+    apx, apy, apz = cx - ax, cy - ay, cz - az
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    if d1 <= 0.0 and d2 <= 0.0:
+        u, v, feat = 0.0, 0.0, FEAT_VERTEX
+    else:
+        bpx, bpy, bpz = apx - abx, apy - aby, apz - abz
+        d3 = abx * bpx + aby * bpy + abz * bpz
+        d4 = acx * bpx + acy * bpy + acz * bpz
+        if d3 >= 0.0 and d4 <= d3:
+            u, v, feat = 1.0, 0.0, FEAT_VERTEX + 1
+        else:
+            vc = d1 * d4 - d3 * d2
+            if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+                u, v, feat = d1 / (d1 - d3), 0.0, FEAT_EDGE
+            else:
+                cpx, cpy, cpz = apx - acx, apy - acy, apz - acz
+                d5 = abx * cpx + aby * cpy + abz * cpz
+                d6 = acx * cpx + acy * cpy + acz * cpz
+                if d6 >= 0.0 and d5 <= d6:
+                    u, v, feat = 0.0, 1.0, FEAT_VERTEX + 2
+                else:
+                    vb = d5 * d2 - d1 * d6
+                    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+                        u, v, feat = 0.0, d2 / (d2 - d6), FEAT_EDGE + 2
+                    else:
+                        va = d3 * d6 - d5 * d4
+                        if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+                            w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+                            u, v, feat = 1.0 - w, w, FEAT_EDGE + 1
+                        else:
+                            den = 1.0 / (va + vb + vc)
+                            u, v, feat = vb * den, vc * den, FEAT_FACE
+    qx = ax + u * abx + v * acx
+    qy = ay + u * aby + v * acy
+    qz = az + u * abz + v * acz
+    return (cx - qx) ** 2 + (cy - qy) ** 2 + (cz - qz) ** 2, qx, qy, qz, feat
+
+
+@njit(cache=True)
+def feature_normal(verts: Records, tris: Records, edges: Records, t: int, feat: int) -> tuple[float, float, float]:
+    """Outward pseudonormal of feature ``feat`` of triangle t (face normal, edge or vertex pseudonormal)."""
+    if feat == FEAT_FACE:
+        n = tris[t].n
+    elif feat < FEAT_EDGE:
+        n = verts[tris[t].v[feat - FEAT_VERTEX]].pn
+    else:
+        n = edges[tris[t].e[feat - FEAT_EDGE]].pn
+    return n[0], n[1], n[2]
+
+
+@njit(cache=True)
+def segment_distance(verts: Records, i0: int, i1: int, qx: float, qy: float, qz: float) -> float:
+    """Distance (m) from point q to the segment joining vertices i0 and i1."""
+    a, b = verts[i0].p, verts[i1].p
+    ex, ey, ez = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    px, py, pz = qx - a[0], qy - a[1], qz - a[2]
+    ee = ex * ex + ey * ey + ez * ez
+    s = min(max((px * ex + py * ey + pz * ez) / ee, 0.0), 1.0) if ee > 0.0 else 0.0
+    return math.sqrt((px - s * ex) ** 2 + (py - s * ey) ** 2 + (pz - s * ez) ** 2)
+
+
+@njit(cache=True)
+def box_distance2(box: np.ndarray, cx: float, cy: float, cz: float) -> float:
+    """Squared distance from c to an axis-aligned box (minimum (3), maximum (3)): a lower bound for its triangle."""
+    dx = max(box[0] - cx, 0.0, cx - box[3])
+    dy = max(box[1] - cy, 0.0, cy - box[4])
+    dz = max(box[2] - cz, 0.0, cz - box[5])
+    return dx * dx + dy * dy + dz * dz
+
+
+@njit(cache=True)
+def _in_vertex_cone(
+    verts: Records, tris: Records, vertex_faces: np.ndarray, v: int, cx: float, cy: float, cz: float, R: float
+) -> bool:
+    """Whether c makes no angle below 90 degrees (relaxed by R) with any edge from vertex v."""
+    p = verts[v].p
+    for s in range(verts[v].f0, verts[v].f1):  # every edge from the vertex, through its faces
+        fv = tris[vertex_faces[s]].v
+        for x in range(3):
+            w = verts[fv[x]].p
+            ex, ey, ez = w[0] - p[0], w[1] - p[1], w[2] - p[2]
+            le = math.sqrt(ex * ex + ey * ey + ez * ez)
+            if le > 0.0 and (cx - p[0]) * ex + (cy - p[1]) * ey + (cz - p[2]) * ez > R * le:
+                return False
+    return True
+
+
+@njit(cache=True)
+def may_hold_minimum(
+    verts: Records,
+    tris: Records,
+    vertex_faces: np.ndarray,
+    t: int,
+    cx: float,
+    cy: float,
+    cz: float,
+    R: float,
+) -> bool:
+    """Whether triangle t can hold a local minimum of the distance for some centre within R of c.
+
+    The local minima of :mod:`app.world.contact.minima` lie where c is in a feature's Voronoi
+    region: inside the face's prism, in an edge's wedge (c does not project into either face
+    across it, and projects onto the segment), or in a vertex's cone (c makes no acute angle with
+    any edge from it). Each test is a set of signed distances to planes, 1-Lipschitz in c, so
+    relaxing every one by R covers every centre within R; the test does not depend on which side
+    of the surface c is.
+    """
+    tri = tris[t]
+    inside_prism = True
+    for k in range(3):
+        a = verts[tri.v[k]].p
+        ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
+        m = tri.m[k]
+        s = ex * m[0] + ey * m[1] + ez * m[2]
+        if s < -R:
+            inside_prism = False
+        if s <= R:
+            # c may be beyond edge k: in its wedge if it does not project into the face across
+            # it either (none on a cut: m_adj is 0), and projects onto the segment.
+            ma = tri.m_adj[k]
+            if ex * ma[0] + ey * ma[1] + ez * ma[2] <= R:
+                b = verts[tri.v[(k + 1) % 3]].p
+                bx, by, bz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+                le = math.sqrt(bx * bx + by * by + bz * bz)
+                u = (ex * bx + ey * by + ez * bz) / le
+                if -R <= u <= le + R:
+                    return True
+    if inside_prism:
+        return True
+    for k in range(3):
+        # A vertex's cone lies within t's own corner region there: test that first (two edges).
+        v = tri.v[k]
+        p = verts[v].p
+        ex, ey, ez = cx - p[0], cy - p[1], cz - p[2]
+        corner = True
+        for w in (tri.v[(k + 1) % 3], tri.v[(k + 2) % 3]):
+            q = verts[w].p
+            fx, fy, fz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
+            if ex * fx + ey * fy + ez * fz > R * math.sqrt(fx * fx + fy * fy + fz * fz):
+                corner = False
+        if corner and _in_vertex_cone(verts, tris, vertex_faces, v, cx, cy, cz, R):
+            return True
+    return False

@@ -1,0 +1,127 @@
+"""Uniform grid of triangle bounding boxes per object, and the range query that fills a pair's
+candidate cache from it.
+
+Object j's grid has origin ``objs[j].grid_origin``, cell size ``grid_h`` (m) and ``grid_dims``
+cells per axis; cell (x, y, z) has key ``grid_base + (x ny + y) nz + z``. ``cells`` lists the
+occupied keys in increasing order, each with the start of its triangles in ``lists``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from app.world.contact.geometry import box_distance2, closest_on_triangle, may_hold_minimum
+from app.world.contact.layout import Record, Records
+
+# A gather covering more grid cells than this fails (the sphere is far larger than the cells).
+MAX_CELLS = 1 << 16
+
+
+@njit(cache=True)
+def cell_index(x: float, origin: float, h: float, n: int) -> int:
+    """Grid cell index of coordinate x, clamped to [0, n - 1] (monotone in x)."""
+    # Clamp before the integer conversion: a far coordinate must not overflow it.
+    return math.floor(min(max((x - origin) / h, 0.0), n - 1.0))
+
+
+@njit(cache=True)
+def grid_entries(verts: Records, tris: Records, face0: np.ndarray, objs: Records) -> tuple:
+    """(cell key, triangle) for every grid cell each triangle's bounding box overlaps, as two int arrays."""
+    m = face0.shape[0] - 1
+    nf = tris.shape[0]
+    counts = np.zeros(nf, dtype=np.int64)
+    lo_c = np.empty((nf, 3), dtype=np.int64)
+    hi_c = np.empty((nf, 3), dtype=np.int64)
+    for j in range(m):
+        o = objs[j]
+        for t in range(face0[j], face0[j + 1]):
+            n = 1
+            for a in range(3):
+                lo_c[t, a] = cell_index(tris[t].box[a], o.grid_origin[a], o.grid_h, o.grid_dims[a])
+                hi_c[t, a] = cell_index(tris[t].box[3 + a], o.grid_origin[a], o.grid_h, o.grid_dims[a])
+                n *= hi_c[t, a] - lo_c[t, a] + 1
+            counts[t] = n
+    keys = np.empty(counts.sum(), dtype=np.int64)
+    out = np.empty(keys.shape[0], dtype=np.int64)
+    e = 0
+    for j in range(m):
+        o = objs[j]
+        ny, nz, base = o.grid_dims[1], o.grid_dims[2], o.grid_base
+        for t in range(face0[j], face0[j + 1]):
+            for x in range(lo_c[t, 0], hi_c[t, 0] + 1):
+                for y in range(lo_c[t, 1], hi_c[t, 1] + 1):
+                    for z in range(lo_c[t, 2], hi_c[t, 2] + 1):
+                        keys[e] = base + (x * ny + y) * nz + z
+                        out[e] = t
+                        e += 1
+    return keys, out
+
+
+@njit(cache=True)
+def gather(
+    obj: Record,
+    cx: float,
+    cy: float,
+    cz: float,
+    reach: float,
+    R: float,
+    verts: Records,
+    tris: Records,
+    cells: Records,
+    lists: np.ndarray,
+    stamp: np.ndarray,
+    serial: int,
+    out: np.ndarray,
+) -> int:
+    """Write into ``out`` the triangles of object ``obj`` (a record) within ``reach`` of c that
+    may hold a local minimum of the distance for a centre within R of c
+    (:func:`~app.world.contact.geometry.may_hold_minimum`, unless ``obj.prune`` is 0); return
+    their count. On a finely tessellated surface that leaves a few triangles of the many under
+    the sphere.
+
+    ``lists`` holds the grid's triangles (``cells.start``) and the faces around each vertex.
+    ``stamp`` (F,) marks the triangles this gather (number ``serial``) has seen: a long triangle
+    spans many cells, and one load per visit is far cheaper than deciding which cell owns it.
+    Returns -1 if they do not fit in ``out`` or the search box covers more than ``MAX_CELLS`` cells.
+    """
+    h = obj.grid_h
+    lo = np.empty(3, dtype=np.int64)
+    hi = np.empty(3, dtype=np.int64)
+    n_cells = 1
+    for a, x in enumerate((cx, cy, cz)):
+        lo[a] = cell_index(x - reach, obj.grid_origin[a], h, obj.grid_dims[a])
+        hi[a] = cell_index(x + reach, obj.grid_origin[a], h, obj.grid_dims[a])
+        n_cells *= hi[a] - lo[a] + 1
+    if n_cells > MAX_CELLS:
+        return -1
+    ny, nz, base = obj.grid_dims[1], obj.grid_dims[2], obj.grid_base
+    n = 0
+    n_keys = cells.shape[0] - 1  # the last row is a sentinel
+    reach2 = reach * reach
+    for x in range(lo[0], hi[0] + 1):
+        for y in range(lo[1], hi[1] + 1):
+            # The column's cells have consecutive keys: one search finds its first occupied cell.
+            first = base + (x * ny + y) * nz + lo[2]
+            last = first + hi[2] - lo[2]
+            s = np.searchsorted(cells.key[:n_keys], first)
+            while s < n_keys and cells[s].key <= last:
+                for e in range(cells[s].start, cells[s + 1].start):
+                    t = lists[e]
+                    if stamp[t] == serial:
+                        continue
+                    stamp[t] = serial
+                    if box_distance2(tris[t].box, cx, cy, cz) > reach2:
+                        continue
+                    if obj.prune and not may_hold_minimum(verts, tris, lists, t, cx, cy, cz, R):
+                        continue
+                    if closest_on_triangle(verts, tris, t, cx, cy, cz)[0] > reach2:
+                        continue
+                    if n == out.shape[0]:
+                        return -1
+                    out[n] = t
+                    n += 1
+                s += 1
+    return n

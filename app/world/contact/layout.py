@@ -1,0 +1,148 @@
+"""The named bundles the compiled contact kernels read and write: numpy record layouts.
+
+Every array a kernel takes is a record array whose fields carry the names below (numba reads
+record fields by name at the speed of plain arrays). Unboxing costs about 0.1 us per array at
+every kernel call, so related data shares one record array instead of being passed as a long
+list of columns; a NamedTuple of arrays would cost more than the arrays themselves.
+
+Units: m, N, s; points and directions in {w} unless a field says otherwise.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+# mypy cannot see the field names of a record dtype: a record (one row, fields as attributes in
+# numba) and a record array are typed with these aliases; the dtypes below document the fields.
+Record = Any
+Records = Any
+
+# Contacts kept per (sphere, object) pair at most (the nearest ones): a sphere in the corner of
+# a box pocket touches three faces.
+MAX_PER_PAIR = 4
+
+# Feature codes of a triangle's nearest point: its face, a vertex (slot 0..2) or an edge (slot
+# 0..2: edge k joins vertex k and vertex k + 1 mod 3).
+FEAT_FACE = 0
+FEAT_VERTEX = 1  # + slot
+FEAT_EDGE = 4  # + slot
+
+# The tool: constants, the global culling state and the outputs of the last evaluation.
+TOOL = np.dtype(
+    [
+        ("c0", "f8", (3,)),  # centre of the tool's bounding sphere, in {T}
+        ("rho", "f8"),  # largest distance of a sphere centre from c0
+        ("reach", "f8"),  # bounding radius of the spheres themselves plus the margin
+        ("margin", "f8"),  # extra culling distance (0 is exact)
+        ("T_MRF_T", "f8", (4, 4)),  # pose of {T} in {MRF}
+        ("p_MRF_S", "f8", (3,)),  # origin of {S} in {MRF}
+        ("R_MRF_S", "f8", (3, 3)),  # axes of {S} in {MRF}
+        ("R_w_T", "f8", (3, 3)),  # scratch of an evaluation: the tool pose,
+        ("p_w_T", "f8", (3,)),
+        ("c0_w", "f8", (3,)),  # its bounding-sphere centre in {w},
+        ("FM", "f8", (6,)),  # and the total force and moment about {MRF} in {w}
+        ("near_c0", "f8", (3,)),  # bounding-sphere centre at the last near-object test, {w}
+        ("near_slack", "f8"),  # how far it may move before the next test; -1: test now
+        ("serial", "i8"),  # number of the last candidate gather (see ``stamp`` in the step)
+        # Outputs: the contact wrench on the tool at {S} in {S} (0:6), the same at {MRF} in {MRF}
+        # (6:12), the total contact force in {w} (12:15); pair evaluations of the last call and
+        # how many of them refilled their candidate cache.
+        ("out", "f8", (15,)),
+        ("counts", "i8", (2,)),
+    ],
+    align=True,
+)
+
+# One object: contact law, bounding box, grid, and its culling state.
+OBJECT = np.dtype(
+    [
+        ("k", "f8"),  # stiffness (N/m)
+        ("b", "f8"),  # damping (N s/m)
+        ("mu", "f8"),  # Coulomb friction coefficient
+        ("box", "f8", (6,)),  # bounding box: minimum (3), maximum (3)
+        ("grid_origin", "f8", (3,)),  # the object's uniform grid: origin, cell size, cells per axis,
+        ("grid_h", "f8"),
+        ("grid_dims", "i8", (3,)),
+        ("grid_base", "i8"),  # key of its first cell in the shared sorted key list
+        ("prune", "i8"),  # 1: cache only triangles that may hold a local minimum; 0: every one in reach
+        ("near", "i8"),  # 1 while the tool's bounding sphere may reach the bounding box
+        ("base_c0", "f8", (3,)),  # tool bounding-sphere centre at the last per-sphere check
+        ("base_R", "f8", (3, 3)),  # tool rotation R_w_T there
+        ("slack", "f8"),  # how far any sphere centre may move from there before a full check
+    ],
+    align=True,
+)
+
+# One (sphere, object) pair, k = object * spheres + sphere: culling, candidate cache, pop-through
+# memory, and the local minima found by the current evaluation.
+PAIR = np.dtype(
+    [
+        ("c_T", "f8", (3,)),  # the sphere: centre in {T}
+        ("r", "f8"),  # and radius
+        ("c", "f8", (3,)),  # sphere centre at the current evaluation
+        ("last", "f8", (3,)),  # centre at the pair's last evaluation
+        ("slack", "f8"),  # distance the centre may move from ``last`` before it can touch; -1: every tick
+        ("hot", "i8"),  # 1: evaluated every tick while its object's slack holds
+        ("cache_c", "f8", (3,)),  # centre the candidate cache was gathered at
+        ("cache_n", "i8"),  # candidates in the pool row; -1: no cache
+        ("mem", "i8"),  # 1 while a pop-through plane is remembered
+        ("mem_q", "f8", (3,)),  # its point and outward normal
+        ("mem_n", "f8", (3,)),
+        ("mem_t", "i8"),  # its triangle: the memory lasts while it is within the sphere's reach
+        ("n_min", "i8"),  # local minima of the distance within reach, this evaluation
+        ("min_q", "f8", (MAX_PER_PAIR, 3)),  # their points,
+        ("min_n", "f8", (MAX_PER_PAIR, 3)),  # outward normals,
+        ("min_phi", "f8", (MAX_PER_PAIR,)),  # signed distances of the centre (> 0 outside),
+        ("min_w", "f8", (MAX_PER_PAIR,)),  # weights (< 1 only in the band of a gentle concave crease)
+        ("min_t", "i8", (MAX_PER_PAIR,)),  # triangles,
+        ("min_f", "i8", (MAX_PER_PAIR,)),  # and features (FEAT_*)
+    ],
+    align=True,
+)
+
+# One triangle of the packed meshes (global indices).
+TRIANGLE = np.dtype(
+    [
+        ("v", "i8", (3,)),  # vertices
+        ("e", "i8", (3,)),  # edges: e[k] joins v[k] and v[(k + 1) % 3]
+        ("n", "f8", (3,)),  # outward unit normal
+        ("box", "f8", (6,)),  # bounding box: minimum (3), maximum (3)
+        ("m", "f8", (3, 3)),  # m[k]: unit vector in the face, normal to edge k, pointing inside
+        ("m_adj", "f8", (3, 3)),  # m_adj[k]: the same for the face across edge k (0 on a cut)
+    ],
+    align=True,
+)
+
+# One vertex: position, angle-weighted pseudonormal, and its faces ``lists[f0:f1]``.
+VERTEX = np.dtype([("p", "f8", (3,)), ("pn", "f8", (3,)), ("f0", "i8"), ("f1", "i8")], align=True)
+
+# One edge: pseudonormal, its faces (-1: none, a boundary where the mesh was cut), and
+# ``tan`` > 0 for a gentle concave crease (tan of the angle between its faces' normals).
+EDGE = np.dtype([("pn", "f8", (3,)), ("faces", "i8", (2,)), ("tan", "f8")], align=True)
+
+# One occupied grid cell: key and where its triangles start in ``lists`` (a last sentinel row
+# closes the list).
+CELL = np.dtype([("key", "i8"), ("start", "i8")], align=True)
+
+# One output contact.
+CONTACT = np.dtype(
+    [
+        ("p", "f8", (3,)),  # point on the object surface
+        ("n", "f8", (3,)),  # outward object normal (direction of the normal force on the tool)
+        ("depth", "f8"),  # effective penetration depth (m): the elastic force is k * depth
+        # Tool sphere and object indices, as floats: a contact is one row of 9 floats, copied
+        # out with the others in one block.
+        ("sphere", "f8"),
+        ("obj", "f8"),
+    ],
+    align=True,
+)
+
+# Return codes of the step (>= 0: the number of contacts).
+ERR_POSE = -1  # non-finite pose: an invalid reading
+ERR_TWIST = -2  # non-finite twist: an invalid reading
+ERR_WRENCH = -3  # non-finite wrench: an invalid reading
+ERR_ROTATION = -4  # not a rigid pose (rotation not orthonormal, reflection, bad last row): misuse
+ERR_OVERFLOW = -5  # too many triangles within a sphere's reach for the candidate cache

@@ -1,0 +1,278 @@
+"""Per (sphere, object) pair: the candidate cache and the local minima of the distance within reach.
+
+A pair's cache (a row of ``pool``) holds every triangle within ``r + 2 R`` of the centre it was
+gathered at that may hold a local minimum for a centre within R of there
+(:func:`~app.world.contact.geometry.may_hold_minimum`); while the centre stays within R, every
+local minimum of the distance within ``r + R`` lies on a cached triangle.
+:func:`local_minima` scans the cache and keeps, per triangle, its nearest point q if q is a local
+minimum of the distance over the (cut) surface:
+
+- q inside the face: always;
+- q on an edge: if the face across it (none on a cut) is not strictly nearer; reported by the
+  lower-numbered face only;
+- q at a vertex: if no face around it is strictly nearer; reported by its first face only.
+
+Each minimum is signed by its feature's pseudonormal (phi > 0 outside) and weighted: a minimum
+inside a face near a gentle concave crease gets ``min(1, dist(q, crease) / (d tan theta))``. At
+such a crease two faces both hold a minimum in a band ``d tan theta`` wide; across the band the
+two weights go linearly from (1, 0) to (0, 1), so the pair of them is one continuous contact
+instead of a doubled one.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from app.world.contact.geometry import (
+    box_distance2,
+    closest_on_triangle,
+    feature_normal,
+    segment_distance,
+)
+from app.world.contact.grid import gather
+from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, MAX_PER_PAIR, Record, Records
+
+# Below this distance (m) the direction c - q is meaningless: the centre is on the surface and
+# the feature's pseudonormal gives the direction.
+TOUCH = 1e-9
+# Distance (m) under which two nearest points are one (the same point computed from two faces).
+_SAME_POINT = 1e-10
+# Edge or vertex minima on neighbouring triangles with normals closer than the cut angle are one
+# contact (cos of 30 degrees, app.world.collision.CUT_ANGLE_DEG).
+_PARTNER_COS = 0.8660254037844387
+# A pair's cache stays valid while its centre moves less than CACHE_FRAC * r from where it was
+# gathered: larger means fewer gathers on the move but more triangles to scan each tick.
+CACHE_FRAC = 0.05
+
+
+@njit(cache=True)
+def _holds(
+    verts: Records, tris: Records, f: int, qx: float, qy: float, qz: float, cx: float, cy: float, cz: float
+) -> bool:
+    """True if face f's nearest point to c is q too (so f is not nearer): c does not project
+    into f, and f's nearest feature passes through q (within rounding)."""
+    _, fx, fy, fz, feat = closest_on_triangle(verts, tris, f, cx, cy, cz)
+    return feat != FEAT_FACE and (fx - qx) ** 2 + (fy - qy) ** 2 + (fz - qz) ** 2 <= _SAME_POINT * _SAME_POINT
+
+
+@njit(cache=True)
+def _is_local_min(
+    verts: Records,
+    tris: Records,
+    edges: Records,
+    vertex_faces: np.ndarray,
+    t: int,
+    feat: int,
+    qx: float,
+    qy: float,
+    qz: float,
+    cx: float,
+    cy: float,
+    cz: float,
+) -> bool:
+    """Whether triangle t's nearest point q (on feature ``feat``) is a local minimum of the
+    distance over the surface that t reports (the owner of a shared feature).
+
+    The tests compare features, not distances: off a shared edge by delta, the distances differ
+    by only delta^2 / 2 d, which no tolerance on them could resolve.
+    """
+    if feat == FEAT_FACE:
+        return True
+    if feat >= FEAT_EDGE:
+        fs = edges[tris[t].e[feat - FEAT_EDGE]].faces
+        other = fs[1] if fs[0] == t else fs[0]
+        if other < 0:
+            return True
+        return other > t and _holds(verts, tris, other, qx, qy, qz, cx, cy, cz)
+    v = verts[tris[t].v[feat - 1]]
+    if vertex_faces[v.f0] != t:
+        return False
+    for s in range(v.f0 + 1, v.f1):  # noqa: SIM110 (no generators in numba)
+        if not _holds(verts, tris, vertex_faces[s], qx, qy, qz, cx, cy, cz):
+            return False
+    return True
+
+
+@njit(cache=True)
+def _crease_weight(
+    verts: Records, tris: Records, edges: Records, t: int, d: float, qx: float, qy: float, qz: float
+) -> float:
+    """Weight of a minimum inside face t at distance d: how far q is across the band of each of
+    t's gentle concave creases (1 outside every band)."""
+    w = 1.0
+    tri = tris[t]
+    for k in range(3):
+        tan = edges[tri.e[k]].tan
+        if tan > 0.0:
+            band = d * tan
+            dist = segment_distance(verts, tri.v[k], tri.v[(k + 1) % 3], qx, qy, qz)
+            if dist < band:
+                w = min(w, dist / band)
+    return w
+
+
+@njit(cache=True)
+def _share_vertex(tris: Records, a: int, b: int) -> bool:
+    """Whether triangles a and b share a vertex (never across a cut: each side has its own copies)."""
+    va, vb = tris[a].v, tris[b].v
+    for x in range(3):
+        for y in range(3):
+            if va[x] == vb[y]:
+                return True
+    return False
+
+
+@njit(cache=True)
+def ensure_cache(
+    pair: Record,
+    k: int,
+    obj: Record,
+    r: float,
+    verts: Records,
+    tris: Records,
+    cells: Records,
+    lists: np.ndarray,
+    stamp: np.ndarray,
+    tool: Record,
+    pool: np.ndarray,
+) -> int:
+    """Refill pair k's cache at its current centre unless that is within the cache's radius.
+
+    Returns 1 if it gathered, 0 if the cache was valid, -1 if the candidates overflowed.
+    """
+    c = pair.c
+    R = CACHE_FRAC * r
+    if pair.cache_n >= 0:
+        ex, ey, ez = c[0] - pair.cache_c[0], c[1] - pair.cache_c[1], c[2] - pair.cache_c[2]
+        if ex * ex + ey * ey + ez * ez <= R * R:
+            return 0
+    tool.serial += 1
+    n = gather(obj, c[0], c[1], c[2], r + 2.0 * R, R, verts, tris, cells, lists, stamp, tool.serial, pool[k])
+    pair.cache_n = n
+    pair.cache_c[:] = c
+    return 1 if n >= 0 else -1
+
+
+@njit(cache=True)
+def local_minima(
+    pair: Record,
+    pool_k: np.ndarray,
+    r: float,
+    verts: Records,
+    tris: Records,
+    edges: Records,
+    lists: np.ndarray,
+) -> float:
+    """Fill ``pair.min_*`` with the local minima of the distance within r of ``pair.c`` (the
+    nearest :data:`MAX_PER_PAIR`); return a lower bound (m) of the distance to the mesh."""
+    cx, cy, cz = pair.c[0], pair.c[1], pair.c[2]
+    r2 = r * r
+    n_min = 0
+    # The nearest point is a local minimum: within r + R, it is on a cached triangle (the cache
+    # covers r + 2 R around its centre); otherwise it is farther than that.
+    nearest2 = (r * (1.0 + CACHE_FRAC)) ** 2
+    for s in range(pair.cache_n):
+        t = pool_k[s]
+        box2 = box_distance2(tris[t].box, cx, cy, cz)
+        if box2 >= r2 and box2 >= nearest2:
+            continue
+        # Where c projects, from the inward edge normals: inside the face, the nearest point is
+        # the projection. Beyond exactly one edge and abreast of it, the nearest point is on that
+        # edge, and if c also projects into the face across it that face is nearer right there:
+        # no minimum on t. Either way no full nearest-point search.
+        tri = tris[t]
+        outside = 0
+        reject = False
+        for k in range(3):
+            a = verts[tri.v[k]].p
+            ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
+            m = tri.m[k]
+            if ex * m[0] + ey * m[1] + ez * m[2] < 0.0:
+                outside += 1
+                ma = tri.m_adj[k]
+                if ex * ma[0] + ey * ma[1] + ez * ma[2] > 0.0:
+                    b = verts[tri.v[(k + 1) % 3]].p
+                    bx, by, bz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+                    u = ex * bx + ey * by + ez * bz
+                    reject = 0.0 < u < bx * bx + by * by + bz * bz
+        if outside == 1 and reject:
+            continue
+        if outside == 0:
+            a = verts[tri.v[0]].p
+            sd = (cx - a[0]) * tri.n[0] + (cy - a[1]) * tri.n[1] + (cz - a[2]) * tri.n[2]
+            d2, qx, qy, qz, feat = sd * sd, cx - sd * tri.n[0], cy - sd * tri.n[1], cz - sd * tri.n[2], FEAT_FACE
+        else:
+            d2, qx, qy, qz, feat = closest_on_triangle(verts, tris, t, cx, cy, cz)
+        nearest2 = min(nearest2, d2)
+        if d2 >= r2 or not _is_local_min(verts, tris, edges, lists, t, feat, qx, qy, qz, cx, cy, cz):
+            continue
+        d = math.sqrt(d2)
+        w = 1.0
+        if d < TOUCH:
+            phi = 0.0
+            nx, ny, nz = feature_normal(verts, tris, edges, t, feat)
+        else:
+            ux, uy, uz = (cx - qx) / d, (cy - qy) / d, (cz - qz) / d
+            if feat == FEAT_FACE:
+                w = _crease_weight(verts, tris, edges, t, d, qx, qy, qz)
+            # Inside a face c - q is along the face normal; elsewhere only the pseudonormal tells the side.
+            px, py, pz = feature_normal(verts, tris, edges, t, feat)
+            if ux * px + uy * py + uz * pz >= 0.0:
+                phi, nx, ny, nz = d, ux, uy, uz
+            else:
+                phi, nx, ny, nz = -d, -ux, -uy, -uz
+        # The same minimum reported twice (rounding at a shared edge) counts once; two edge or
+        # vertex minima on triangles sharing a vertex, with normals within the cut angle, are
+        # the two sides of a gentle crease (a polygonal rim seen from inside): the nearer counts.
+        skip = False
+        for e in range(n_min):
+            mq, mn = pair.min_q[e], pair.min_n[e]
+            aligned = nx * mn[0] + ny * mn[1] + nz * mn[2]
+            if (qx - mq[0]) ** 2 + (qy - mq[1]) ** 2 + (qz - mq[2]) ** 2 <= _SAME_POINT**2 and aligned > 0.999:
+                skip = True
+            elif (
+                feat != FEAT_FACE
+                and pair.min_f[e] != FEAT_FACE
+                and aligned > _PARTNER_COS
+                and _share_vertex(tris, t, pair.min_t[e])
+            ):
+                if abs(pair.min_phi[e]) <= d:
+                    skip = True
+                else:
+                    pair.min_phi[e] = math.inf  # dropped below
+        if skip:
+            continue
+        n_kept = 0
+        for e in range(n_min):
+            if pair.min_phi[e] < math.inf:
+                if e != n_kept:
+                    pair.min_q[n_kept] = pair.min_q[e]
+                    pair.min_n[n_kept] = pair.min_n[e]
+                    pair.min_phi[n_kept] = pair.min_phi[e]
+                    pair.min_w[n_kept] = pair.min_w[e]
+                    pair.min_t[n_kept] = pair.min_t[e]
+                    pair.min_f[n_kept] = pair.min_f[e]
+                n_kept += 1
+        n_min = n_kept
+        slot = n_min
+        if n_min == MAX_PER_PAIR:
+            # Full: replace the farthest if this one is nearer.
+            slot = 0
+            for e in range(1, MAX_PER_PAIR):
+                if abs(pair.min_phi[e]) > abs(pair.min_phi[slot]):
+                    slot = e
+            if abs(pair.min_phi[slot]) <= d:
+                continue
+        else:
+            n_min += 1
+        pair.min_q[slot, 0], pair.min_q[slot, 1], pair.min_q[slot, 2] = qx, qy, qz
+        pair.min_n[slot, 0], pair.min_n[slot, 1], pair.min_n[slot, 2] = nx, ny, nz
+        pair.min_phi[slot] = phi
+        pair.min_w[slot] = w
+        pair.min_t[slot] = t
+        pair.min_f[slot] = feat
+    pair.n_min = n_min
+    return math.sqrt(max(nearest2, 0.0))

@@ -1,0 +1,309 @@
+"""One contact evaluation (:func:`contact_step`), compiled with numba: culling, the local minima
+of each remaining (sphere, object) pair, which of them push, pop-through memory, and the wrench.
+
+Culling, exact (no margin needed): the distance to a mesh is 1-Lipschitz in the centre, so a pair
+whose distance is at least d > r cannot touch until its centre has moved ``d - r``. Per object,
+the pose at the last per-sphere check is kept with the smallest remaining slack; while every
+sphere centre provably moved less than that (tool translation + rotation times the tool's
+radius), only the spheres in contact ("hot") are evaluated. Objects whose bounding box is out of
+reach of the tool's bounding sphere are skipped, and that test is itself redone only when the
+tool has moved by the distance to the nearest far box.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from app.world.contact.force import contact_force, write_wrench
+from app.world.contact.geometry import box_distance2, closest_on_triangle
+from app.world.contact.layout import ERR_OVERFLOW, ERR_POSE, ERR_ROTATION, ERR_TWIST, ERR_WRENCH, Record, Records
+from app.world.contact.minima import ensure_cache, local_minima
+
+# Largest deviation of R^T R from the identity (and of the last row from [0 0 0 1]) accepted as a
+# rigid pose: double-precision rotations from quaternions or products stay far below it.
+ROTATION_TOL = 1e-6
+# The pop-through memory lasts while its triangle is within r + MEMORY_ALLOWANCE (m) of the centre:
+# only rounding, so a force always implies mesh geometry within the sphere's radius.
+MEMORY_ALLOWANCE = 1e-9
+
+
+@njit(cache=True)
+def _rigid(T: np.ndarray) -> int:
+    """0 for a finite rigid pose (4, 4), ERR_POSE if non-finite, ERR_ROTATION if not rigid."""
+    for a in range(4):
+        for b in range(4):
+            if not math.isfinite(T[a, b]):
+                return ERR_POSE
+    if abs(T[3, 0]) + abs(T[3, 1]) + abs(T[3, 2]) + abs(T[3, 3] - 1.0) > ROTATION_TOL:
+        return ERR_ROTATION
+    for a in range(3):
+        for b in range(a, 3):
+            dot = T[0, a] * T[0, b] + T[1, a] * T[1, b] + T[2, a] * T[2, b]
+            if abs(dot - (1.0 if a == b else 0.0)) > ROTATION_TOL:
+                return ERR_ROTATION
+    det = (
+        T[0, 0] * (T[1, 1] * T[2, 2] - T[1, 2] * T[2, 1])
+        - T[0, 1] * (T[1, 0] * T[2, 2] - T[1, 2] * T[2, 0])
+        + T[0, 2] * (T[1, 0] * T[2, 1] - T[1, 1] * T[2, 0])
+    )
+    return 0 if det > 0.0 else ERR_ROTATION
+
+
+@njit(cache=True)
+def _emit(
+    out: Records,
+    n_c: int,
+    i: int,
+    j: int,
+    obj: Record,
+    depth: float,
+    px: float,
+    py: float,
+    pz: float,
+    nx: float,
+    ny: float,
+    nz: float,
+    T: np.ndarray,
+    has_twist: bool,
+    V: np.ndarray,
+    FM: np.ndarray,
+) -> int:
+    """Write one contact to ``out[n_c]`` and add its force and moment about {MRF} to ``FM`` (6,)."""
+    rx, ry, rz = px - T[0, 3], py - T[1, 3], pz - T[2, 3]
+    fx, fy, fz = contact_force(obj.k, obj.b, obj.mu, depth, nx, ny, nz, rx, ry, rz, has_twist, V)
+    FM[0] += fx
+    FM[1] += fy
+    FM[2] += fz
+    FM[3] += ry * fz - rz * fy
+    FM[4] += rz * fx - rx * fz
+    FM[5] += rx * fy - ry * fx
+    o = out[n_c]
+    o.p[0], o.p[1], o.p[2] = px, py, pz
+    o.n[0], o.n[1], o.n[2] = nx, ny, nz
+    o.depth = depth
+    o.sphere = i
+    o.obj = j
+    return n_c + 1
+
+
+@njit(cache=True)
+def _pair_contacts(
+    pair: Record,
+    i: int,
+    j: int,
+    r: float,
+    obj: Record,
+    verts: Records,
+    tris: Records,
+    out: Records,
+    n_c: int,
+    T: np.ndarray,
+    has_twist: bool,
+    V: np.ndarray,
+    FM: np.ndarray,
+) -> int:
+    """The contacts of a pair from its local minima; updates its memory; returns the new count.
+
+    The nearest minimum is the *primary*: if its centre is behind it (phi < 0, inside the solid)
+    it pushes with depth ``r - phi``; every other minimum pushes only from in front (phi >= 0): a
+    face seen from behind with the centre outside is the far side of material. Pop-through: if
+    the primary's normal opposes the remembered plane's while the centre is behind that plane
+    and its triangle is within reach, the remembered plane replaces the primary. Weighted minima
+    (crease bands) are merged into one contact.
+    """
+    n_min = pair.n_min
+    if n_min == 0:
+        pair.mem = 0
+        return n_c
+    c = pair.c
+    prim = 0
+    for e in range(1, n_min):
+        if abs(pair.min_phi[e]) < abs(pair.min_phi[prim]):
+            prim = e
+    phi = pair.min_phi[prim]
+    nx, ny, nz = pair.min_n[prim, 0], pair.min_n[prim, 1], pair.min_n[prim, 2]
+    from_mem = False
+    if pair.mem == 1:
+        m = pair.mem_n
+        s0 = (c[0] - pair.mem_q[0]) * m[0] + (c[1] - pair.mem_q[1]) * m[1] + (c[2] - pair.mem_q[2]) * m[2]
+        if nx * m[0] + ny * m[1] + nz * m[2] < 0.0 and s0 < 0.0:
+            reach = r + MEMORY_ALLOWANCE
+            if closest_on_triangle(verts, tris, pair.mem_t, c[0], c[1], c[2])[0] <= reach * reach:
+                # The centre crossed the middle of a thin part: keep pushing back out of the plane.
+                phi, nx, ny, nz = s0, m[0], m[1], m[2]
+                from_mem = True
+    if r - phi <= 0.0:
+        pair.mem = 0
+    elif not from_mem:
+        pair.mem = 1
+        pair.mem_q[:] = pair.min_q[prim]
+        pair.mem_n[0], pair.mem_n[1], pair.mem_n[2] = nx, ny, nz
+        pair.mem_t = pair.min_t[prim]
+    # Weighted minima (crease bands) are one contact: their weighted mean of depth * normal and
+    # of point, the weights normalised (near a vertex of a tessellated curved surface several
+    # faces hold a minimum at once, and their raw weights add up to more than one).
+    sx = sy = sz = spx = spy = spz = sw = 0.0
+    for e in range(n_min):
+        w = pair.min_w[e]
+        if e == prim:
+            depth = r - phi
+            if phi < 0.0 or from_mem:
+                w = 1.0
+            mx, my, mz = nx, ny, nz
+        else:
+            if pair.min_phi[e] < 0.0:
+                continue
+            depth = r - pair.min_phi[e]
+            mx, my, mz = pair.min_n[e, 0], pair.min_n[e, 1], pair.min_n[e, 2]
+        if depth <= 0.0:
+            continue
+        back = r - depth  # the contact point: the centre moved back along n to the surface
+        px, py, pz = c[0] - back * mx, c[1] - back * my, c[2] - back * mz
+        if w >= 1.0:
+            n_c = _emit(out, n_c, i, j, obj, depth, px, py, pz, mx, my, mz, T, has_twist, V, FM)
+        elif w > 0.0:
+            sx += w * depth * mx
+            sy += w * depth * my
+            sz += w * depth * mz
+            spx += w * px
+            spy += w * py
+            spz += w * pz
+            sw += w
+    if sw > 0.0:
+        depth = math.sqrt(sx * sx + sy * sy + sz * sz)
+        if depth > 0.0:
+            n_c = _emit(
+                out, n_c, i, j, obj, depth / sw, spx / sw, spy / sw, spz / sw, sx / depth, sy / depth, sz / depth,
+                T, has_twist, V, FM,
+            )  # fmt: skip
+    return n_c
+
+
+@njit(cache=True)
+def contact_step(
+    T: np.ndarray,
+    V: np.ndarray,
+    has_twist: bool,
+    tool_a: Records,
+    objs: Records,
+    pairs: Records,
+    pool: np.ndarray,
+    out: Records,
+    verts: Records,
+    tris: Records,
+    edges: Records,
+    cells: Records,
+    lists: np.ndarray,
+    stamp: np.ndarray,
+) -> int:
+    """One contact evaluation with {MRF} at ``T`` = T_w_MRF (4, 4) and twist ``V`` (6,) if ``has_twist``.
+
+    The record arrays are those of :mod:`app.world.contact.layout`: ``tool_a`` (1,), ``objs``
+    (m,), ``pairs`` (m n,), ``pool`` (m n, cache size) of candidate triangles, ``out``
+    (m n MAX_PER_PAIR,) contacts, the packed geometry (:class:`~app.world.collision.PackedMeshes`),
+    and ``stamp`` (F,), the scratch of candidate gathers.
+
+    Returns the number of contacts written to ``out`` (the wrench is in the tool record), or an
+    ``ERR_*`` code (< 0).
+    """
+    tool = tool_a[0]
+    code = _rigid(T)
+    if code < 0:
+        return code
+    if has_twist:
+        for a in range(6):
+            if not math.isfinite(V[a]):
+                return ERR_TWIST
+    m = objs.shape[0]
+    n = pairs.shape[0] // m if m else 0
+    # R_w_T, p_w_T = T_w_MRF T_MRF_T
+    Tm = tool.T_MRF_T
+    R, p, c0 = tool.R_w_T, tool.p_w_T, tool.c0_w  # scratch in the record: no allocation per call
+    for a in range(3):
+        for b in range(3):
+            R[a, b] = T[a, 0] * Tm[0, b] + T[a, 1] * Tm[1, b] + T[a, 2] * Tm[2, b]
+        p[a] = T[a, 0] * Tm[0, 3] + T[a, 1] * Tm[1, 3] + T[a, 2] * Tm[2, 3] + T[a, 3]
+    for a in range(3):
+        c0[a] = R[a, 0] * tool.c0[0] + R[a, 1] * tool.c0[1] + R[a, 2] * tool.c0[2] + p[a]
+
+    # Objects within reach of the tool's bounding sphere (or holding a pop-through memory).
+    dx, dy, dz = c0[0] - tool.near_c0[0], c0[1] - tool.near_c0[1], c0[2] - tool.near_c0[2]
+    if not (tool.near_slack > 0.0 and dx * dx + dy * dy + dz * dz < tool.near_slack**2):
+        near_slack = math.inf
+        for j in range(m):
+            o = objs[j]
+            dist = math.sqrt(box_distance2(o.box, c0[0], c0[1], c0[2])) - tool.reach
+            o.near = 1 if dist <= 0.0 else 0
+            if dist > 0.0:
+                near_slack = min(near_slack, dist)
+            for i in range(n):
+                if pairs[j * n + i].mem:
+                    o.near = 1
+        tool.near_c0[:] = c0
+        tool.near_slack = near_slack
+
+    FM = tool.FM  # force on the tool and moment about the {MRF} origin, {w}
+    FM[:] = 0.0
+    n_c = 0
+    queries = gathers = 0
+    rho = tool.rho
+    for j in range(m):
+        o = objs[j]
+        if not o.near:
+            continue
+        cos_sum = 0.0  # trace(R_now R_base^T) = 1 + 2 cos(theta)
+        for a in range(3):
+            for b in range(3):
+                cos_sum += R[a, b] * o.base_R[a, b]
+        dx, dy, dz = c0[0] - o.base_c0[0], c0[1] - o.base_c0[1], c0[2] - o.base_c0[2]
+        # Largest displacement of any sphere centre since the base pose: the translation of c0
+        # plus the rotation about it (|(R - R0) y| = 2 sin(theta/2) |y|).
+        moved = math.sqrt(dx * dx + dy * dy + dz * dz) + rho * math.sqrt(max(0.0, 3.0 - cos_sum))
+        full = moved >= o.slack
+        for i in range(n):
+            k = j * n + i
+            pair = pairs[k]
+            s = pair.c_T
+            for a in range(3):
+                pair.c[a] = R[a, 0] * s[0] + R[a, 1] * s[1] + R[a, 2] * s[2] + p[a]
+            if full:
+                ex, ey, ez = pair.c[0] - pair.last[0], pair.c[1] - pair.last[1], pair.c[2] - pair.last[2]
+                if math.sqrt(ex * ex + ey * ey + ez * ez) < pair.slack:
+                    continue
+            elif not pair.hot:
+                continue
+            r = pair.r
+            queries += 1
+            g = ensure_cache(pair, k, o, r, verts, tris, cells, lists, stamp, tool, pool)
+            if g < 0:
+                return ERR_OVERFLOW
+            gathers += g
+            bound = local_minima(pair, pool[k], r, verts, tris, edges, lists)
+            bound = max(bound, math.sqrt(box_distance2(o.box, pair.c[0], pair.c[1], pair.c[2])))
+            pair.last[:] = pair.c
+            before = n_c
+            n_c = _pair_contacts(pair, i, j, r, o, verts, tris, out, n_c, T, has_twist, V, FM)
+            gap = bound - r - tool.margin
+            pair.slack = gap if (n_c == before and pair.mem == 0 and gap > 0.0) else -1.0
+        if full:
+            # Rebase: the spheres in contact (slack < 0) become hot; the others may move their
+            # remaining slack from here before the next full check.
+            remaining = math.inf
+            for i in range(n):
+                pair = pairs[j * n + i]
+                pair.hot = 1 if pair.slack < 0.0 else 0
+                if not pair.hot:
+                    ex, ey, ez = pair.c[0] - pair.last[0], pair.c[1] - pair.last[1], pair.c[2] - pair.last[2]
+                    remaining = min(remaining, pair.slack - math.sqrt(ex * ex + ey * ey + ez * ez))
+            o.slack = remaining
+            o.base_c0[:] = c0
+            o.base_R[:, :] = R
+    tool.counts[0] = queries
+    tool.counts[1] = gathers
+    if not math.isfinite(FM[0] + FM[1] + FM[2] + FM[3] + FM[4] + FM[5]):
+        return ERR_WRENCH
+    write_wrench(tool, T, FM[0:3], FM[3:6])
+    return n_c

@@ -1,0 +1,65 @@
+"""The checks a scene object's mesh must pass before contact can trust it.
+
+Contact (:mod:`app.world.contact`) needs an inside: it signs distances with pseudonormals, which
+is only meaningful on a closed, consistently wound, outward-facing surface. So, with one rule for
+every mesh whatever its orientation in space:
+
+- non-finite vertices are refused (before any processing: trimesh would silently drop them and
+  leave a hole);
+- an open surface (a boundary edge: a single triangle, a box without its top, a terrain without
+  sides) is refused with the count of boundary edges, as is a surface whose triangles are not
+  consistently wound or that has no volume;
+- a closed surface wound inside out (negative volume) is re-oriented.
+
+A thin sheet must be modelled as a solid with a thickness (the ``plane`` primitive is a thin box).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from app.errors import ConfigError
+
+
+def checked_mesh(mesh: trimesh.Trimesh, source: str | Path, field: str) -> trimesh.Trimesh:
+    """Validate and normalise an object's mesh as read (unprocessed); return the mesh to use.
+
+    Args:
+        mesh: The mesh as loaded, vertices in its object frame (m), not yet processed.
+        source: The scene file, for the error.
+        field: Dotted field of the mesh, for the error (``objects[2].mesh``).
+
+    Raises:
+        ConfigError: Non-finite vertices, no faces, zero area or volume, an open or
+            inconsistently wound surface, naming ``source`` and ``field``.
+    """
+    vertices = np.asarray(mesh.vertices, dtype=float)
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        raise ConfigError(source, field, f"{int(bad.sum())} non-finite vertices (first at index {int(np.argmax(bad))})")
+    mesh = trimesh.Trimesh(vertices, np.asarray(mesh.faces), process=True)
+    mesh.remove_unreferenced_vertices()
+    mesh.update_faces(mesh.nondegenerate_faces())
+    if len(mesh.faces) == 0 or float(mesh.area) <= 1e-12:
+        raise ConfigError(source, field, "degenerate mesh: no faces or zero area")
+    if not mesh.is_watertight:
+        # Edges used by one face only (or by more than two) leave the inside undefined.
+        edges = np.sort(mesh.edges, axis=1)
+        _, counts = np.unique(edges, axis=0, return_counts=True)
+        open_edges = int(np.sum(counts != 2))
+        raise ConfigError(
+            source,
+            field,
+            f"mesh is not closed ({open_edges} edges without exactly two faces): contact needs a closed "
+            "surface; give a thin sheet a thickness (e.g. the plane primitive)",
+        )
+    if not mesh.is_winding_consistent:
+        raise ConfigError(source, field, "mesh triangles are not consistently wound (inside undefined)")
+    if abs(float(mesh.volume)) <= 1e-18 or float(np.ptp(mesh.vertices, axis=0).min()) <= 1e-9:
+        raise ConfigError(source, field, "degenerate mesh: flat, zero volume (no inside)")
+    if mesh.volume < 0:
+        mesh.invert()  # wound inside out: outward normals are what contact signs with
+    return mesh

@@ -64,9 +64,41 @@ def _tool_xml(scene: Scene, timestep: float) -> str:
 </mujoco>"""
 
 
-def _finite(a: Array) -> bool:
+def finite(a: Array) -> bool:
     """True if every entry of ``a`` is finite (a sum is NaN or inf otherwise, and cheaper than isfinite)."""
     return math.isfinite(float(a.sum()))
+
+
+def command_error(command: SlaveCommand, dt: float) -> str | None:
+    """Why ``command`` and ``dt`` cannot be applied this tick, or None (for every kind of slave)."""
+    if not (math.isfinite(dt) and dt > 0.0):
+        return f"non-finite or non-positive period {dt!r}"
+    if not command.active:
+        return None
+    if command.mode == "rate":
+        return None if finite(command.twist) else "non-finite twist command"
+    if command.mode == "pose":
+        return None if finite(command.T_w_MRF) else "non-finite pose command"
+    raise ValueError(f"unknown slave command mode {command.mode!r}")
+
+
+def invalid_contact(error: str) -> ContactResult:
+    """A contact result that says the world could not produce a trustworthy reading, for ``error``."""
+    return ContactResult(False, np.zeros(6), np.zeros(6), np.zeros(3), error=error)
+
+
+def tool_slave_model(scene: Scene) -> SlaveModel:
+    """What the controller may know about the scene's tool (for payload weight/inertia removal)."""
+    tool = scene.tool
+    R_T_S = tool.T_T_S[0:3, 0:3]
+    return SlaveModel(
+        T_MRF_S=tool.T_MRF_S,
+        payload_mass=tool.mass,
+        payload_com_S=R_T_S.T @ (tool.com_T - tool.T_T_S[0:3, 3]),
+        payload_inertia_S=R_T_S.T @ tool.inertia_T @ R_T_S,
+        gravity_w=scene.gravity_w.copy(),
+        T_w_MRF_home=tool.T_w_MRF_home.copy(),
+    )
 
 
 class VirtualSlave:
@@ -116,6 +148,7 @@ class VirtualSlave:
         self._fault: str | None = None
         self._contact: ContactResult
         self._reading: FTReading
+        self.status = 0  # the ideal tool always follows (its limits are the PD's saturation)
         self.reset()
 
     # --- state -----------------------------------------------------------------------------
@@ -127,7 +160,7 @@ class VirtualSlave:
         reset to a finite pose.
         """
         T = self.scene.tool.T_w_MRF_home if T_w_MRF is None else np.asarray(T_w_MRF, dtype=float)
-        if not _finite(T):
+        if not finite(T):
             self._fault = "reset to a non-finite pose"
             self._contact = self._invalid(self._fault)
             return
@@ -190,30 +223,9 @@ class VirtualSlave:
 
     def slave_model(self) -> SlaveModel:
         """What the controller may know about this tool (for payload weight/inertia removal)."""
-        tool = self.scene.tool
-        R_T_S = tool.T_T_S[0:3, 0:3]
-        return SlaveModel(
-            T_MRF_S=tool.T_MRF_S,
-            payload_mass=tool.mass,
-            payload_com_S=R_T_S.T @ (tool.com_T - tool.T_T_S[0:3, 3]),
-            payload_inertia_S=R_T_S.T @ tool.inertia_T @ R_T_S,
-            gravity_w=self.scene.gravity_w.copy(),
-            T_w_MRF_home=tool.T_w_MRF_home.copy(),
-        )
+        return tool_slave_model(self.scene)
 
     # --- servo tick --------------------------------------------------------------------------
-    def _command_error(self, command: SlaveCommand, dt: float) -> str | None:
-        """Why ``command`` and ``dt`` cannot be applied this tick, or None."""
-        if not (math.isfinite(dt) and dt > 0.0):
-            return f"non-finite or non-positive period {dt!r}"
-        if not command.active:
-            return None
-        if command.mode == "rate":
-            return None if _finite(command.twist) else "non-finite twist command"
-        if command.mode == "pose":
-            return None if _finite(command.T_w_MRF) else "non-finite pose command"
-        raise ValueError(f"unknown slave command mode {command.mode!r}")
-
     def _update_reference(self, command: SlaveCommand, dt: float) -> None:
         if not command.active:
             self._V_ref_w.fill(0.0)
@@ -232,7 +244,7 @@ class VirtualSlave:
         A faulted slave (see :meth:`reset`), or a non-finite command or period, returns an
         invalid reading and leaves the state as it was.
         """
-        error = self._fault or self._command_error(command, dt)
+        error = self._fault or command_error(command, dt)
         if error is not None:
             self._invalid(error)
             return self._reading
@@ -267,7 +279,7 @@ class VirtualSlave:
 
     def _invalid(self, error: str) -> ContactResult:
         """Make the current reading invalid (zero wrench, the held state's orientation) for ``error``."""
-        contact = ContactResult(False, np.zeros(6), np.zeros(6), np.zeros(3), error=error)
+        contact = invalid_contact(error)
         self._state()
         self._reading = self._sensor(contact, _ZERO6)
         return contact

@@ -34,7 +34,7 @@ from app.device.spec import DeviceSpec, load_device
 from app.errors import ConfigError
 from app.session.tick import STAGES, TickObserver, TickRecord
 from app.spatial import Array, IntArray
-from app.world.scene import Scene, load_scene
+from app.world.scene import Scene, load_scene, with_slave
 from app.world.slave_api import make_slave
 
 if TYPE_CHECKING:
@@ -95,11 +95,11 @@ class LoopConfig:
         if self.scene.path is None:
             raise ConfigError("<scene>", "path", "a loop run in another process needs a scene loaded from a file")
         values = (self.gains, self.hand, self.accommodation, self.servo_rate, self.safety, self.watchdog)
-        return (_rebuild_config, (self.scene.path, self.device.path, *values))
+        return (_rebuild_config, (self.scene.path, self.scene.spec.slave.kind, self.device.path, *values))
 
 
-def _rebuild_config(scene: Path, device: Path, *values: Any) -> LoopConfig:
-    return LoopConfig(load_device(device), load_scene(scene), *values)
+def _rebuild_config(scene: Path, slave: str, device: Path, *values: Any) -> LoopConfig:
+    return LoopConfig(load_device(device), with_slave(load_scene(scene), slave), *values)
 
 
 class ServoLoop:

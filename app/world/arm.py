@@ -59,8 +59,10 @@ from app.world.slave import DEFAULT_PERIOD, command_error, finite, invalid_conta
 
 _ZERO6 = np.zeros(6)
 _ZERO6.flags.writeable = False
-#: The tool's {T} on the flange: {T}'s -z leaves the wrist along the flange's z.
-_MOUNT_QUAT = np.array([0.0, 1.0, 0.0, 0.0])
+#: The tool's {T} on the flange: turned 180 deg about the flange's y, so {T}'s -z leaves the wrist
+#: along the flange's z and, at the arms' home keyframes (flange z down, x toward the base), {T}
+#: has the world's axes like every shipped scene's home.
+_MOUNT_QUAT = np.array([0.0, 0.0, 1.0, 0.0])
 
 
 class ArmStatus(IntFlag):
@@ -150,6 +152,8 @@ class ArmSlave:
         params: IK and servo tuning.
 
     Attributes:
+        q_home: Joint angles (rad) the reset's inverse kinematics starts from (the arm file's
+            home keyframe); a redundant arm's reset picks the solution nearest it.
         status: :class:`ArmStatus` of the last step.
         link_contacts: The last contact result of each arm link (same order as :attr:`links`).
     """
@@ -235,7 +239,7 @@ class ArmSlave:
         m = self.model
         links: list[int] = []
         models: list[ContactModel] = []
-        owner: list[Array] = []
+        owner: list[IntArray] = []
         all_c: list[Array] = []
         all_r: list[Array] = []
         for b in range(1, m.nbody):
@@ -261,7 +265,7 @@ class ArmSlave:
                 scene.tool, centers_T=np.ascontiguousarray(C), radii=rad, T_T_MRF=np.eye(4), T_T_S=np.eye(4)
             )
             link_scene = dataclasses.replace(scene, tool=geo)
-            # Share the scene's packed meshes (a cached property) instead of packing them again.
+            # The objects are the scene's: share their packed meshes (a cached property).
             link_scene.__dict__["packed"] = scene.packed
             owner.append(np.full(len(rad), len(links), dtype=np.int64))
             all_c.append(C)

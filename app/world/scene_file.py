@@ -32,6 +32,12 @@ def available_arms() -> list[str]:
     return sorted(p.parent.name for p in SLAVES_DIR.glob("*/arm.xml"))
 
 
+def check_slave_kind(kind: str, field_name: str) -> None:
+    """Raise :class:`InvalidField` on ``field_name`` unless ``kind`` is ``"tool"`` or a shipped arm."""
+    if kind != "tool" and kind not in available_arms():
+        raise InvalidField(field_name, f"unknown slave {kind!r} (choices: tool, {', '.join(available_arms())})")
+
+
 #: Most spheres the tool's point shell may have (spheres, capsule chains and box grids together).
 MAX_TOOL_SPHERES = 10_000
 #: Most static objects in a scene, and most tool spheres/capsules/boxes given explicitly.
@@ -285,8 +291,7 @@ class SlaveGains(Checked):
     kind: str = "tool"
 
     def validate(self) -> None:
-        if self.kind != "tool" and self.kind not in available_arms():
-            raise InvalidField("kind", f"unknown slave {self.kind!r} (choices: tool, {', '.join(available_arms())})")
+        check_slave_kind(self.kind, "kind")
 
 
 @dataclass(frozen=True)

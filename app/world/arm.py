@@ -423,8 +423,15 @@ class ArmSlave:
         xfrc.fill(0.0)
         contact = self.contact_model.wrench(self._T, self._V)
         if contact.valid:
-            m_w = self._T[0:3, 0:3] @ contact.wrench_MRF[3:6]
-            ak.body_wrench(contact.force_w, m_w, self._T[0:3, 3], self._xipos[self._tool], xfrc[self._tool])
+            T = self._T
+            ak.body_wrench(
+                contact.force_w,
+                contact.wrench_MRF[3:6],
+                T[0:3, 0:3],
+                T[0:3, 3],
+                self._xipos[self._tool],
+                xfrc[self._tool],
+            )
         near = ak.links_near(
             self._xpos, self._xmat, self._link_ids, *self._link_spheres, self._scene_lo, self._scene_hi
         )
@@ -443,7 +450,7 @@ class ArmSlave:
             r = self._link_models[i].wrench(T, V)
             self.link_contacts.append(r)
             if r.valid:
-                ak.body_wrench(r.force_w, T[0:3, 0:3] @ r.wrench_MRF[3:6], T[0:3, 3], self._xipos[b], xfrc[b])
+                ak.body_wrench(r.force_w, r.wrench_MRF[3:6], T[0:3, 0:3], T[0:3, 3], self._xipos[b], xfrc[b])
         return contact
 
     def step(self, command: SlaveCommand, dt: float = DEFAULT_PERIOD) -> FTReading:
@@ -505,30 +512,32 @@ class ArmSlave:
         return self._reading
 
     def _make_reading(self, contact: ContactResult, at_rest: bool = False) -> FTReading:
-        """The F/T reading at {S} for the state the last step's forces were computed at.
-
-        MuJoCo's force and torque sensors give the force and moment (about the {S} origin, in
-        {S}) that the parent body exerts on everything outboard; the external wrench a sensor
-        reports is its opposite. ``at_rest`` evaluates them with zero accelerations (a held arm).
-        Accelerations and angular velocity are those of the {S} site (:class:`FTReading`).
-        """
+        """The F/T reading at {S} for the state the last step's forces were computed at
+        (:func:`~app.world.arm_kernel.ft_reading`). ``at_rest`` evaluates MuJoCo's sensors with
+        zero accelerations (a held arm) and adds the contact at that pose."""
         m, d, s = self.model, self.data, self._site_ft
-        R_w_S = self._site_xmat[s].reshape(3, 3).copy()
-        omega_w = self._V[3:6].copy()  # the tool's angular velocity: {S} and {MRF} are on one body
-        if not contact.valid:
-            return FTReading(np.zeros(6), R_w_S, np.zeros(6), omega_w, False)
-        if at_rest:
+        if at_rest or not contact.valid:
             d.qacc[:] = 0.0
             mujoco.mj_rnePostConstraint(m, d)
             mujoco.mj_sensorAcc(m, d)
             self._W_limit.fill(0.0)
-        wrench_S = ak.sensor_wrench(
-            self._sdata[self._sens : self._sens + 6], self._W_limit, self._T[0:3, 3], R_w_S, self._site_xpos[s]
+            self._res.fill(0.0)
+            self._res[3:6] = -self.scene.gravity_w
+        else:
+            mujoco.mj_objectAcceleration(m, d, mujoco.mjtObj.mjOBJ_SITE, s, self._res, 0)
+        wrench_S, R_w_S, acc_w, omega_w = ak.ft_reading(
+            self._sdata,
+            self._sens,
+            self._W_limit,
+            self._T,
+            self._V,
+            self._site_xmat[s],
+            self._site_xpos[s],
+            self._res,
+            self.scene.gravity_w,
         )
+        if not contact.valid:
+            return FTReading(np.zeros(6), R_w_S, np.zeros(6), omega_w, False)
         if at_rest:
             wrench_S += contact.wrench_S
-            return FTReading(wrench_S, R_w_S, np.zeros(6), omega_w, True)
-        mujoco.mj_objectAcceleration(m, d, mujoco.mjtObj.mjOBJ_SITE, s, self._res, 0)
-        # MuJoCo's accelerations include the -gravity of its base frame (an accelerometer's view).
-        acc_w = np.concatenate((self._res[3:6] + self.scene.gravity_w, self._res[0:3]))
         return FTReading(wrench_S, R_w_S, acc_w, omega_w, True)

@@ -294,14 +294,43 @@ def ik_step(
 
 
 @njit(cache=True)
-def sensor_wrench(sdata: Array, W_limit: Array, p_MRF: Array, R_w_S: Array, p_S: Array) -> Array:
-    """The F/T reading ``[f; m]`` at {S} in {S} (6,): minus MuJoCo's force and torque sensors
-    ``sdata`` (6,) (what the parent exerts on the outboard bodies), plus the limit wrench
-    ``W_limit`` (6,, {w}) acting at ``p_MRF``."""
-    out = wrench_at(W_limit, p_MRF, R_w_S, p_S)
-    for i in range(6):
-        out[i] -= sdata[i]
-    return out
+def ft_reading(
+    sdata: Array,
+    adr: int,
+    W_limit: Array,
+    T_w_MRF: Array,
+    V_w_MRF: Array,
+    xmat_S: Array,
+    p_S: Array,
+    acc: Array,
+    gravity_w: Array,
+) -> tuple[Array, Array, Array, Array]:
+    """The F/T reading at {S}: ``(wrench_S (6,), R_w_S (3, 3), acc_w (6,), omega_w (3,))`` as
+    :class:`~app.controller.types.FTReading` defines them; new arrays.
+
+    Args:
+        sdata, adr: MuJoCo's sensor data and the address of the force sensor (the torque sensor
+            follows): the force and moment (about the {S} origin, in {S}) the parent exerts on
+            everything outboard; the external wrench a sensor reports is their opposite.
+        W_limit: The limit wrench (6,) in {w}, acting at the {MRF} origin, added.
+        T_w_MRF, V_w_MRF: {MRF} pose (4, 4) and twist (6,); {S} is on the same body.
+        xmat_S, p_S: Orientation (9,) and origin (3,) of {S} in {w}.
+        acc: MuJoCo's ``[angular; linear]`` acceleration of {S} in {w} (6,), which includes the
+            -gravity of its base frame (an accelerometer's view).
+        gravity_w: Gravity (m/s^2), (3,).
+    """
+    R_w_S = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            R_w_S[i, j] = xmat_S[3 * i + j]
+    wrench_S = wrench_at(W_limit, T_w_MRF[0:3, 3], R_w_S, p_S)
+    acc_w = np.empty(6)
+    for i in range(3):
+        wrench_S[i] -= sdata[adr + i]
+        wrench_S[3 + i] -= sdata[adr + 3 + i]
+        acc_w[i] = acc[3 + i] + gravity_w[i]
+        acc_w[3 + i] = acc[i]
+    return wrench_S, R_w_S, acc_w, V_w_MRF[3:6].copy()
 
 
 @njit(cache=True)
@@ -324,10 +353,15 @@ def joint_servo(
 
 
 @njit(cache=True)
-def body_wrench(f_w: Array, m_at_p_w: Array, p_w: Array, com_w: Array, xfrc: Array) -> None:
-    """Add the force ``f_w`` (N) and moment ``m_at_p_w`` (N m) about ``p_w``, all {w}, to a body's
-    ``xfrc_applied`` row (force; torque about the centre of mass ``com_w``), (6,)."""
-    t = m_at_p_w + cross3(p_w - com_w, f_w)
+def body_wrench(f_w: Array, m_local: Array, R_w_local: Array, p_w: Array, com_w: Array, xfrc: Array) -> None:
+    """Add a contact wrench to a body's ``xfrc_applied`` row ``xfrc`` (6,) (force; torque about
+    the centre of mass ``com_w``, {w}).
+
+    Args:
+        f_w: Force (N) in {w}. ``m_local``: moment (N m) about ``p_w`` in the frame whose
+            orientation is ``R_w_local`` (3, 3) (the contact model's {MRF}).
+    """
+    t = _matvec(R_w_local, m_local) + cross3(p_w - com_w, f_w)
     for i in range(3):
         xfrc[i] += f_w[i]
         xfrc[3 + i] += t[i]

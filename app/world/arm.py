@@ -47,15 +47,14 @@ from enum import IntFlag
 import mujoco
 import numpy as np
 
-from app.controller.types import FTReading, SlaveCommand, SlaveModel
+from app.controller.types import FTReading, SlaveCommand
 from app.errors import ConfigError
 from app.spatial import Array, IntArray, matrix_to_quat
 from app.world import arm_kernel as ak
 from app.world.contact import ContactModel, ContactResult
-from app.world.kernel import rate_reference
 from app.world.scene import CapsuleSpec, Scene, capsule_spheres
 from app.world.scene_file import SLAVES_DIR
-from app.world.slave import DEFAULT_PERIOD, command_error, finite, invalid_contact, tool_slave_model
+from app.world.slave import DEFAULT_PERIOD, SlaveBase, command_error, finite, invalid_contact
 
 _ZERO6 = np.zeros(6)
 _ZERO6.flags.writeable = False
@@ -142,7 +141,7 @@ def _spec(scene: Scene, name: str, timestep: float) -> mujoco.MjSpec:
     return spec
 
 
-class ArmSlave:
+class ArmSlave(SlaveBase):
     """A simulated slave arm carrying the scene's tool and F/T sensor (module docstring).
 
     Args:
@@ -155,16 +154,16 @@ class ArmSlave:
         q_home: Joint angles (rad) the reset's inverse kinematics starts from (the arm file's
             home keyframe); a redundant arm's reset picks the solution nearest it.
         status: :class:`ArmStatus` of the last step.
-        link_contacts: The last contact result of each arm link (same order as :attr:`links`).
+        link_contacts: The last contact results of the links near the world (empty when none is):
+            they load the arm, not the sensor; :attr:`contact` is the tool's.
     """
 
     def __init__(
         self, scene: Scene, accommodation: bool = True, period: float = DEFAULT_PERIOD, params: ArmParams = ArmParams()
     ) -> None:
-        self.scene = scene
-        self.accommodation = accommodation
+        super().__init__(scene, accommodation)
         self.params = params
-        self.gains = g = scene.spec.slave
+        g = self.gains
         self.name = g.kind
         self._substeps = g.substeps
         self._h = period / g.substeps
@@ -216,18 +215,8 @@ class ArmSlave:
         self._sv = np.full(7, 1.0)  # [sigma_min, warm start of its singular vector]
         self._W_limit = np.zeros(6)
         self._feel = np.array((params.dead_lin, params.dead_rot, g.kp_lin, g.kp_rot, g.force_limit, g.torque_limit))
-        self._weight_w = scene.tool.mass * scene.gravity_w
-        self._k_acc = np.array(g.accommodation)
-        self._max_lead_lin = g.force_limit / g.kp_lin
-        self._max_lead_rot = g.torque_limit / g.kp_rot
-        self._V_ref_w = np.zeros(6)
-        self._T_ref = np.eye(4)
-        self._T = np.eye(4)
-        self._V = np.zeros(6)
         self.status = ArmStatus.NONE
         self._fault: str | None = None
-        self._contact: ContactResult
-        self._reading: FTReading
         self.link_contacts: list[ContactResult] = []
         self.reset()
 
@@ -372,25 +361,6 @@ class ArmSlave:
         """Current twist ``[v; w]`` of {MRF} in {w}, (6,) (a new array)."""
         return self._V.copy()
 
-    @property
-    def contact(self) -> ContactResult:
-        """The tool's last contact evaluation (the links' are :attr:`link_contacts`)."""
-        return self._contact
-
-    @property
-    def wrench_MRF_contact(self) -> Array:
-        """The tool's contact wrench at the {MRF} origin in {MRF} (N, N m), (6,)."""
-        return self._contact.wrench_MRF
-
-    def reading(self) -> FTReading:
-        """The F/T sensor's current reading, without stepping (new arrays)."""
-        r = self._reading
-        return FTReading(r.wrench_S.copy(), r.R_w_S.copy(), r.acc_w.copy(), r.omega_w.copy(), r.valid)
-
-    def slave_model(self) -> SlaveModel:
-        """What the controller may know about the tool (the same as for the ideal tool)."""
-        return tool_slave_model(self.scene)
-
     def geoms(self) -> list[ArmGeom]:
         """Every arm geom (links and base) with its current pose in {w}, for display."""
         m, d = self.model, self.data
@@ -405,18 +375,6 @@ class ArmSlave:
         return out
 
     # --- servo tick ------------------------------------------------------------------------------
-    def _update_reference(self, command: SlaveCommand, dt: float) -> None:
-        if not command.active:
-            self._V_ref_w.fill(0.0)
-        elif command.mode == "pose":
-            self._T_ref[:] = command.T_w_MRF
-            self._V_ref_w.fill(0.0)
-        else:
-            F_acc = self._k_acc * self._contact.wrench_MRF if self.accommodation and self._contact.valid else _ZERO6
-            rate_reference(
-                command.twist, F_acc, self._T, dt, self._max_lead_lin, self._max_lead_rot, self._T_ref, self._V_ref_w
-            )
-
     def _apply_contacts(self) -> ContactResult:
         """Tool and link contact wrenches into ``xfrc_applied`` for the current state."""
         xfrc = self._xfrc

@@ -68,11 +68,7 @@ def _matvec(A: Array, x: Array) -> Array:
 @njit(cache=True)
 def _matTvec(A: Array, x: Array) -> Array:
     """``A.T @ x`` by loops."""
-    out = np.zeros(A.shape[1])
-    for i in range(A.shape[0]):
-        for j in range(A.shape[1]):
-            out[j] += A[i, j] * x[i]
-    return out
+    return _matvec(A.T, x)
 
 
 @njit(cache=True)

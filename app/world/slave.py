@@ -87,21 +87,84 @@ def invalid_contact(error: str) -> ContactResult:
     return ContactResult(False, np.zeros(6), np.zeros(6), np.zeros(3), error=error)
 
 
-def tool_slave_model(scene: Scene) -> SlaveModel:
-    """What the controller may know about the scene's tool (for payload weight/inertia removal)."""
-    tool = scene.tool
-    R_T_S = tool.T_T_S[0:3, 0:3]
-    return SlaveModel(
-        T_MRF_S=tool.T_MRF_S,
-        payload_mass=tool.mass,
-        payload_com_S=R_T_S.T @ (tool.com_T - tool.T_T_S[0:3, 3]),
-        payload_inertia_S=R_T_S.T @ tool.inertia_T @ R_T_S,
-        gravity_w=scene.gravity_w.copy(),
-        T_w_MRF_home=tool.T_w_MRF_home.copy(),
-    )
+class SlaveBase:
+    """What every slave does the same way: the Cartesian reference (step 1 of the module
+    docstring) and the tool's contact, F/T reading and model.
+
+    Subclasses keep the {MRF} pose ``_T`` (4, 4) and twist ``_V`` (6,) of their state up to date,
+    and set ``_contact`` (the tool's last :class:`ContactResult`) and ``_reading`` (the last
+    :class:`FTReading`).
+
+    Args:
+        scene: The scene (tool, objects, slave gains).
+        accommodation: NTRFC force accommodation on (True) or "blind" rate control (False).
+    """
+
+    _contact: ContactResult
+    _reading: FTReading
+
+    def __init__(self, scene: Scene, accommodation: bool) -> None:
+        self.scene = scene
+        self.accommodation = accommodation
+        self.gains = g = scene.spec.slave
+        self._k_acc = np.array(g.accommodation)
+        # Following-error limits (m, rad): never lead the tool by more than the PD can push against.
+        self._max_lead_lin = g.force_limit / g.kp_lin
+        self._max_lead_rot = g.torque_limit / g.kp_rot
+        self._V_ref_w = np.zeros(6)
+        self._T_ref = np.eye(4)
+        self._T = np.eye(4)
+        self._V = np.zeros(6)
+
+    def _update_reference(self, command: SlaveCommand, dt: float) -> None:
+        """Step 1: the reference for this tick of ``dt`` (s) under ``command``."""
+        if not command.active:
+            self._V_ref_w.fill(0.0)
+        elif command.mode == "pose":
+            self._T_ref[:] = command.T_w_MRF
+            self._V_ref_w.fill(0.0)
+        else:
+            F_acc = self._k_acc * self._contact.wrench_MRF if self.accommodation and self._contact.valid else _ZERO6
+            rate_reference(
+                command.twist, F_acc, self._T, dt, self._max_lead_lin, self._max_lead_rot, self._T_ref, self._V_ref_w
+            )
+
+    @property
+    def contact(self) -> ContactResult:
+        """The last contact evaluation (points, normals, depths for display)."""
+        return self._contact
+
+    @property
+    def wrench_MRF_contact(self) -> Array:
+        """Contact wrench at the {MRF} origin in {MRF} (N, N m), (6,): for the work metric (Eq 13)."""
+        return self._contact.wrench_MRF
+
+    def reading(self) -> FTReading:
+        """The F/T sensor's current reading, without stepping (new arrays).
+
+        After :meth:`reset` the tool is held at rest: the payload weight in {S} plus any contact
+        at that pose. After :meth:`step` it is the reading that step returned. Read it after a
+        reset so the controller's first tick does not see a zero wrench (which its payload
+        removal would turn into a false ``+m g``).
+        """
+        r = self._reading
+        return FTReading(r.wrench_S.copy(), r.R_w_S.copy(), r.acc_w.copy(), r.omega_w.copy(), r.valid)
+
+    def slave_model(self) -> SlaveModel:
+        """What the controller may know about the tool (for payload weight/inertia removal)."""
+        tool = self.scene.tool
+        R_T_S = tool.T_T_S[0:3, 0:3]
+        return SlaveModel(
+            T_MRF_S=tool.T_MRF_S,
+            payload_mass=tool.mass,
+            payload_com_S=R_T_S.T @ (tool.com_T - tool.T_T_S[0:3, 3]),
+            payload_inertia_S=R_T_S.T @ tool.inertia_T @ R_T_S,
+            gravity_w=self.scene.gravity_w.copy(),
+            T_w_MRF_home=tool.T_w_MRF_home.copy(),
+        )
 
 
-class VirtualSlave:
+class VirtualSlave(SlaveBase):
     """A simulated slave robot tool with a virtual F/T sensor.
 
     Args:
@@ -111,9 +174,8 @@ class VirtualSlave:
     """
 
     def __init__(self, scene: Scene, accommodation: bool = True, period: float = DEFAULT_PERIOD) -> None:
-        self.scene = scene
-        self.accommodation = accommodation
-        self.gains = g = scene.spec.slave
+        super().__init__(scene, accommodation)
+        g = self.gains
         self.contact_model = ContactModel(scene)
         tool = scene.tool
         self._substeps = g.substeps
@@ -136,18 +198,9 @@ class VirtualSlave:
         self._T_C_S = T_C_T @ tool.T_T_S
         self._weight_w = tool.mass * np.asarray(scene.gravity_w, dtype=float)
         self._pd = np.array((g.kp_lin, g.kd_lin, g.kp_rot, g.kd_rot, g.force_limit, g.torque_limit))
-        self._k_acc = np.array(g.accommodation)
-        self._max_lead_lin = g.force_limit / g.kp_lin
-        self._max_lead_rot = g.torque_limit / g.kp_rot
-        self._V_ref_w = np.zeros(6)
-        self._T_ref = np.eye(4)
-        # {MRF} pose and twist of the current MuJoCo state, valid while ``_fresh``.
-        self._T = np.eye(4)
-        self._V = np.zeros(6)
+        # {MRF} pose and twist (in the base's buffers) of the current MuJoCo state, valid while ``_fresh``.
         self._fresh = False
         self._fault: str | None = None
-        self._contact: ContactResult
-        self._reading: FTReading
         self.status = 0  # the ideal tool always follows (its limits are the PD's saturation)
         self.reset()
 
@@ -200,44 +253,7 @@ class VirtualSlave:
         """Current twist ``[v; w]`` of {MRF} (origin velocity, angular velocity) in {w}, (6,) (a new array)."""
         return self._state()[1].copy()
 
-    @property
-    def contact(self) -> ContactResult:
-        """The last contact evaluation (points, normals, depths for display)."""
-        return self._contact
-
-    @property
-    def wrench_MRF_contact(self) -> Array:
-        """Contact wrench at the {MRF} origin in {MRF} (N, N m), (6,): for the work metric (Eq 13)."""
-        return self._contact.wrench_MRF
-
-    def reading(self) -> FTReading:
-        """The F/T sensor's current reading, without stepping (new arrays).
-
-        After :meth:`reset` the tool is held at rest: the payload weight in {S} plus any contact
-        at that pose. After :meth:`step` it is the reading that step returned. Read it after a
-        reset so the controller's first tick does not see a zero wrench (which its payload
-        removal would turn into a false ``+m g``).
-        """
-        r = self._reading
-        return FTReading(r.wrench_S.copy(), r.R_w_S.copy(), r.acc_w.copy(), r.omega_w.copy(), r.valid)
-
-    def slave_model(self) -> SlaveModel:
-        """What the controller may know about this tool (for payload weight/inertia removal)."""
-        return tool_slave_model(self.scene)
-
     # --- servo tick --------------------------------------------------------------------------
-    def _update_reference(self, command: SlaveCommand, dt: float) -> None:
-        if not command.active:
-            self._V_ref_w.fill(0.0)
-        elif command.mode == "pose":
-            self._T_ref[:] = command.T_w_MRF
-            self._V_ref_w.fill(0.0)
-        else:
-            F_acc = self._k_acc * self._contact.wrench_MRF if self.accommodation and self._contact.valid else _ZERO6
-            rate_reference(
-                command.twist, F_acc, self._T, dt, self._max_lead_lin, self._max_lead_rot, self._T_ref, self._V_ref_w
-            )
-
     def step(self, command: SlaveCommand, dt: float = DEFAULT_PERIOD) -> FTReading:
         """Advance one servo period ``dt`` (s) under ``command``; return the F/T sensor reading.
 

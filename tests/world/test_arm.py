@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from world_helpers import sphere_tool
 
 from app.controller.payload import remove_weight
 from app.controller.types import FTReading, SlaveCommand
@@ -24,7 +25,6 @@ from app.world.arm import ArmSlave, ArmStatus
 from app.world.scene import ObjectSpec, Pose, Scene, SceneFile, SlaveGains, build_scene, load_scene, with_slave
 from app.world.scene_file import SLAVES_DIR
 from app.world.slave import VirtualSlave
-from world_helpers import sphere_tool
 
 ARMS = ("puma560", "redundant7")
 
@@ -171,7 +171,8 @@ def test_random_scripts_never_exceed_the_joint_limits(kind: str, seed: int) -> N
         for _ in range(150):
             arm.step(rate(tuple(v)))
             q = arm.q
-            assert np.all(q >= lo) and np.all(q <= hi), (q, lo, hi)
+            assert np.all(q >= lo), (q, lo)
+            assert np.all(q <= hi), (q, hi)
 
 
 @pytest.mark.parametrize("kind", ARMS)
@@ -180,7 +181,8 @@ def test_in_steady_contact_the_sensor_reads_contact_plus_payload(kind: str) -> N
     for _ in range(3000):
         reading = arm.step(rate((0.0, 0.0, -0.03, 0.0, 0.0, 0.0)))
     contact = arm.contact.wrench_S
-    assert arm.contact.count >= 1 and contact[2] > 5.0  # v / K_acc = 7.5 N, pressed
+    assert arm.contact.count >= 1
+    assert contact[2] > 5.0  # v / K_acc = 7.5 N, pressed
     scene = arm_scene(kind)
     weight_S = reading.R_w_S.T @ (scene.tool.mass * scene.gravity_w)
     r_com = scene.tool.com_T  # {S} = {T} in the probe scene
@@ -196,7 +198,7 @@ def test_null_space_motion_of_the_redundant_arm_leaves_the_tool_still() -> None:
     """Reset with the elbow swivelled (joint 3 at 0.8 rad): the secondary goal swings it back
     toward the middle of the ranges while the tool holds its pose."""
     arm = ArmSlave(arm_scene("redundant7"))
-    arm.q_home = arm.q_home + (0.0, 0.0, 0.8, 0.0, 0.0, 0.0, 0.0)
+    arm.q_home = arm.q_home + np.array([0.0, 0.0, 0.8, 0.0, 0.0, 0.0, 0.0])
     arm.reset()
     T0 = arm.T_w_MRF
     np.testing.assert_allclose(T0, arm_scene("redundant7").tool.T_w_MRF_home, atol=1e-8)
@@ -217,13 +219,19 @@ def test_a_link_pressed_by_the_world_loads_the_arm_not_the_sensor() -> None:
     probe = ArmSlave(free)
     upper = next(g for g in probe.geoms() if g.name == "link2_a")
     top = upper.T_w_geom[0:3, 3] + (0.0, 0.0, upper.size[0] - 0.002)  # 2 mm into the capsule
-    slab = ObjectSpec(name="slab", box=(0.1, 0.1, 0.02), stiffness=3000.0, damping=30.0, pose=Pose(tuple(top + (0, 0, 0.01))))
+    slab = ObjectSpec(
+        name="slab",
+        box=(0.1, 0.1, 0.02),
+        stiffness=3000.0,
+        damping=30.0,
+        pose=Pose(tuple(top + np.array([0.0, 0.0, 0.01]))),
+    )
     scene = build_scene(SceneFile(name="slab", tool=tool, slave=SlaveGains(kind="puma560"), objects=(slab,)))
     arm = ArmSlave(scene)
     reading = FTReading()
     for _ in range(500):
         reading = arm.step(SlaveCommand())
-    assert arm.link_contacts and sum(c.count for c in arm.link_contacts) > 0
+    assert sum(c.count for c in arm.link_contacts) > 0
     link_force = sum(float(np.linalg.norm(c.force_w)) for c in arm.link_contacts)
     assert link_force > 5.0
     assert arm.contact.count == 0
@@ -245,13 +253,15 @@ def test_out_of_reach_the_command_is_limited_flagged_and_felt() -> None:
     f_w = reading.R_w_S @ F[0:3]
     assert f_w[2] < -5.0  # a wall above: the operator feels the arm's limit
     lo, hi = arm.joint_limits.T
-    assert np.all(arm.q >= lo) and np.all(arm.q <= hi)
+    assert np.all(arm.q >= lo)
+    assert np.all(arm.q <= hi)
 
 
 def test_table1_experiment_and_the_log_run_with_an_arm(tmp_path: Path) -> None:
     report = run_experiment(tmp_path / "exp", repetitions=1, operators=OPERATORS[:1], duration=1.5, slave="puma560")
     for works in report.work[OPERATORS[0].name].values():
-        assert len(works) == 1 and math.isfinite(works[0])
+        assert len(works) == 1
+        assert math.isfinite(works[0])
     session = load_session("probe_rate").with_changes(slave="redundant7", duration=1.0)
     result = run_session(session, out_dir=tmp_path / "run")
     assert result.log_dir is not None

@@ -20,6 +20,9 @@ problem per pass cost about 2 us). Each tick, for a Jacobian ``J`` (6, n) at the
    on only where the smallest singular value of ``J`` drops below ``eps`` (Nakamura and Hanafusa
    1986; Maciejewski and Klein 1988), so joint rates stay bounded through a wrist flip.
 
+The module is a little over 400 lines because the tick's small dense linear algebra (Cholesky of
+a 6 x 6 Gram matrix, loops instead of numba's BLAS calls) is written out beside its only user.
+
 Then the joint servo: ``tau = kp (q_c - q) + kd (qd_c - qd) + bias`` with ``bias`` MuJoCo's
 gravity and Coriolis forces, saturated at each motor's torque limit.
 """

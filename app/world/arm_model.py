@@ -64,9 +64,9 @@ def link_contact_models(
     model: mujoco.MjModel, tool_body: int, scene: Scene
 ) -> tuple[list[int], list[ContactModel], tuple[IntArray, Array, Array]]:
     """Per arm link of ``model`` with capsules (not the tool body ``tool_body``): its body id and a
-    ContactModel of its sphere chains (the
-    link frame as {MRF}); and all the links' spheres as ``(owner (s,), centres (s, 3) in the
-    link frame, radii (s,))`` for :func:`~app.world.arm_kernel.links_near`."""
+    ContactModel of its sphere chains (the link frame as {MRF}); and all the links' spheres as
+    ``(owner (s,), centres (s, 3) in the link frame, radii (s,))`` for
+    :func:`~app.world.arm_kernel.links_near`."""
     m = model
     links: list[int] = []
     models: list[ContactModel] = []

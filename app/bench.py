@@ -60,6 +60,38 @@ def bench_tick(quick: bool = False) -> str:
     return "\n".join(lines)
 
 
+def bench_arm(quick: bool = False) -> str:
+    """Arm slaves (issue 15 bars): slave step alone, then the whole tick on ``probe`` with each arm."""
+    from app.controller.types import SlaveCommand
+    from app.session.run import run_session
+    from app.session.spec import load_session
+    from app.world.scene import load_scene, with_slave
+    from app.world.slave_api import make_slave
+
+    lines = ["slave step (probe, rate command down onto the surface, NTRFC on; first 500 steps not timed):"]
+    n = 3000 if quick else 20000
+    command = SlaveCommand(active=True, mode="rate", twist=np.array([0.01, 0.0, -0.02, 0.0, 0.0, 0.1]))
+    for kind in ("tool", "puma560", "redundant7"):
+        slave = make_slave(with_slave(load_scene("probe"), kind))
+        ns = np.empty(n, dtype=np.int64)
+        for i in range(n + 500):
+            t0 = time.perf_counter_ns()
+            slave.step(command)
+            if i >= 500:
+                ns[i - 500] = time.perf_counter_ns() - t0
+        lines.append(f"  {kind:<11} {_stats(ns)}")
+    lines.append("servo tick with an arm (probe_rate session, headless, no logging):")
+    for kind in ("puma560", "redundant7"):
+        session = load_session("probe_rate").with_changes(slave=kind, duration=1.5 if quick else 5.0)
+        s = run_session(session, out_dir=None).summary
+        t = s["timing"]
+        lines.append(
+            f"  {kind:<11} slave median {t['slave']['median_us']:6.1f} us, tick median {t['tick']['median_us']:6.1f} us "
+            f"(p99 {t['tick']['p99_us']:7.1f} us), real-time factor {s['real_time_factor']:.1f}"
+        )
+    return "\n".join(lines)
+
+
 def bench_stability(quick: bool = False) -> str:
     """Whole-loop contact stability: surface stiffness sweep (rate mode) and felt stiffness (pose mode).
 
@@ -118,6 +150,7 @@ BENCHES: dict[str, Callable[[bool], str]] = {
     "plant": _plant,
     "contact": _contact,
     "tick": bench_tick,
+    "arm": bench_arm,
     "stability": bench_stability,
 }
 

@@ -11,7 +11,7 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from app.errors import ConfigError, FrhcError
+from app.errors import ConfigError, FrhcError, InvalidField
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -61,9 +61,17 @@ def _positive_seconds(text: str) -> float:
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
     from app.session.experiment import run_experiment
+    from app.world.scene_file import check_slave_kind
 
+    if args.slave is not None:
+        try:
+            check_slave_kind(args.slave, "--slave")
+        except InvalidField as exc:
+            raise ConfigError("frhc experiment", exc.field, exc.reason) from None
     out_dir = Path(args.out)
-    report = run_experiment(out_dir, repetitions=args.repetitions, duration=args.duration, progress=True)
+    report = run_experiment(
+        out_dir, repetitions=args.repetitions, duration=args.duration, progress=True, slave=args.slave
+    )
     print(report.table)
     print(f"\nchart: {report.chart}\nresults: {report.json_path}")
     return 0
@@ -187,6 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs/experiment", help="output directory")
     p.add_argument("--repetitions", type=int, default=3, help="runs per operator and condition")
     p.add_argument("--duration", type=float, default=None, help="override the session duration (s)")
+    p.add_argument("--slave", default=None, help="tool or an arm in slaves/ (default: the scene's)")
     p.set_defaults(func=_cmd_experiment)
 
     p = sub.add_parser("bench", help="benchmarks (median and p99)", description="Print timing benchmarks.")
@@ -194,7 +203,7 @@ def build_parser() -> argparse.ArgumentParser:
         "what",
         nargs="?",
         default="all",
-        choices=["all", "controller", "plant", "contact", "tick", "stability"],
+        choices=["all", "controller", "plant", "contact", "tick", "arm", "stability"],
         help="what to time",
     )
     p.add_argument("--quick", action="store_true", help="fewer iterations")

@@ -67,13 +67,16 @@ def run_experiment(
     duration: float | None = None,
     progress: bool = False,
     on_run: Callable[[int, int], None] | None = None,
+    slave: str | None = None,
 ) -> ExperimentReport:
     """Run every operator x condition x repetition; write a table, a bar chart and JSON to ``out_dir``.
 
     ``on_run(done, total)`` is called after each run (e.g. to show progress in the web page).
+    ``slave`` replaces the scene's slave (``"tool"`` or an arm in ``slaves/``): the paper ran the
+    same task with a PUMA 560 and a redundant arm.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
-    bases = {cond: load_session(name) for cond, name in CONDITIONS.items()}
+    bases = {cond: load_session(name).with_changes(slave=slave) for cond, name in CONDITIONS.items()}
     work: dict[str, dict[str, list[float]]] = {op.name: {c: [] for c in CONDITIONS} for op in operators}
     total = len(operators) * len(CONDITIONS) * repetitions
     with tqdm(total=total, unit="run", disable=not progress) as bar:

@@ -30,7 +30,7 @@ if TYPE_CHECKING:
 
 XYZ = ("x", "y", "z")
 POSE = ("x", "y", "z", "qw", "qx", "qy", "qz")
-INT_COLUMNS = ("deadman", "reference", "reflection", "contacts", "faults", "watchdog_trips")
+INT_COLUMNS = ("deadman", "reference", "reflection", "contacts", "faults", "watchdog_trips", "slave_status")
 
 
 def _group(prefix: str, names: tuple[str, ...] | list[str]) -> list[str]:
@@ -153,6 +153,7 @@ class TickLog:
             tick.contact.count,
             int(out.faults),
             reading.watchdog_trips,
+            tick.slave_status,
         )
         row[c["stages"]] = tick.stage_ns
         row[c["stages"]] *= 1e-3

@@ -37,8 +37,8 @@ from app.session.tick import STAGES, TickObserver, TickRecord
 from app.spatial import Array, IntArray
 from app.teleop.channel import ChannelSettings
 from app.teleop.link import TeleopLink
-from app.world.scene import Scene, load_scene
-from app.world.slave import VirtualSlave
+from app.world.scene import Scene, load_scene, with_slave
+from app.world.slave_api import make_slave
 
 if TYPE_CHECKING:
     from app.session.spec import Session
@@ -115,18 +115,19 @@ class LoopConfig:
             self.passivity,
             self.channel,
         )
-        return (_rebuild_config, (self.scene.path, self.device.path, *values))
+        return (_rebuild_config, (self.scene.path, self.scene.spec.slave.kind, self.device.path, *values))
 
 
-def _rebuild_config(scene: Path, device: Path, *values: Any) -> LoopConfig:
-    return LoopConfig(load_device(device), load_scene(scene), *values)
+def _rebuild_config(scene: Path, slave: str, device: Path, *values: Any) -> LoopConfig:
+    return LoopConfig(load_device(device), with_slave(load_scene(scene), slave), *values)
 
 
 class ServoLoop:
     """Plant, controller and slave joined into one servo tick.
 
     Attributes:
-        plant, controller, slave: The three rooms.
+        plant, controller, slave: The three rooms (the slave is the ideal tool or an arm, as the
+            scene's ``[slave] kind`` says: :func:`~app.world.slave_api.make_slave`).
         switches: The switch state the next tick uses (set by a script or the UI). The
             reference switch is momentary: the loop releases it after the tick that used it.
         record: The :class:`TickRecord` of the last tick (or of the reset state).
@@ -141,7 +142,7 @@ class ServoLoop:
         self.config = config
         self.dt = 1.0 / config.servo_rate
         self.plant = DevicePlant(config.device, config.hand, config.watchdog)
-        self.slave = VirtualSlave(config.scene, accommodation=config.accommodation, period=self.dt)
+        self.slave = make_slave(config.scene, accommodation=config.accommodation, period=self.dt)
         self.controller = FRHCController(
             config.device, config.gains, self.slave.slave_model(), safety=config.safety, passivity=config.passivity
         )
@@ -188,6 +189,7 @@ class ServoLoop:
         self._connect()
         rec = self.record
         rec.index, rec.time, rec.ft, rec.contact = 0, 0.0, self.ft, self.slave.contact
+        rec.slave_status = 0
         rec.deadman = rec.reference = rec.reflection = False
         rec.stage_ns[:] = 0
 
@@ -271,6 +273,7 @@ class ServoLoop:
         rec.time = self.time
         rec.ft = ft
         rec.contact = self.slave.contact
+        rec.slave_status = self.slave.status
         rec.deadman, rec.reference, rec.reflection = sw.deadman, sw.reference, sw.reflection
         sw.reference = False
         for observer in self.observers:

@@ -10,6 +10,7 @@ import numpy as np
 from app.controller.types import Fault
 from app.session.tick import STAGES, TickRecord
 from app.spatial import Array, rotation_log
+from app.world.arm import ArmStatus
 from app.world.scene import TaskSpec
 
 #: Seconds at the end of a session over which the contact force's settling is judged (s).
@@ -28,6 +29,14 @@ def work_increment(T_prev: Array, T: Array, F_prev: Array, F: Array) -> Array:
     R_prev = T_prev[0:3, 0:3]
     dxi = np.concatenate((R_prev.T @ (T[0:3, 3] - T_prev[0:3, 3]), rotation_log(R_prev.T @ T[0:3, 0:3])))
     return 0.5 * (F + F_prev) * dxi
+
+
+def _count_bits(flags: type[Fault] | type[ArmStatus], value: int, counts: dict[str, int]) -> None:
+    """Add one tick to ``counts[name]`` for every flag of ``flags`` set in ``value``."""
+    for flag in flags:
+        if flag and value & flag:
+            name = str(flag.name)
+            counts[name] = counts.get(name, 0) + 1
 
 
 class SessionMetrics:
@@ -66,6 +75,7 @@ class SessionMetrics:
         self._saturated_ticks = 0
         self._ramping_ticks = 0
         self._watchdog_trips = 0
+        self._slave_ticks: dict[str, int] = {}
         self._stage_ns = np.zeros((n_ticks, len(STAGES)), dtype=np.int64)
         # The last SETTLE_WINDOW of ticks (a ring): contact force, rendered grip force, grip displacement (3).
         self._tail = np.full((max(1, round(SETTLE_WINDOW / dt)), 5), np.nan)
@@ -92,13 +102,12 @@ class SessionMetrics:
         self._sum_m2 += m * m
         self._contact_ticks += tick.contact.count > 0
         if out.faults:
-            for flag in Fault:
-                if flag and out.faults & flag:
-                    name = str(flag.name)
-                    self._fault_ticks[name] = self._fault_ticks.get(name, 0) + 1
+            _count_bits(Fault, int(out.faults), self._fault_ticks)
         self._saturated_ticks += out.saturation_scale < 1.0
         self._ramping_ticks += out.reflecting and out.ramp < 1.0
         self._watchdog_trips = tick.reading.watchdog_trips
+        if tick.slave_status:
+            _count_bits(ArmStatus, tick.slave_status, self._slave_ticks)
         if self._ticks < len(self._stage_ns):
             self._stage_ns[self._ticks] = tick.stage_ns
         row = self._tail[self._ticks % len(self._tail)]
@@ -174,6 +183,7 @@ class SessionMetrics:
             "ramping_ticks": self._ramping_ticks,
             "watchdog_trips": self._watchdog_trips,
             "settling": self.settling(),
+            "slave_status_ticks": self._slave_ticks,
             "ticks": self._ticks,
             "simulated_s": self._time,
             "timing": timing,

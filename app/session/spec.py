@@ -21,7 +21,8 @@ from app.device.hand import HandParams
 from app.device.spec import DeviceSpec, load_device
 from app.errors import ConfigError, InvalidField
 from app.teleop.channel import ChannelSettings
-from app.world.scene import Scene, load_scene
+from app.world.scene import Scene, load_scene, with_slave
+from app.world.scene_file import check_slave_kind
 
 SESSIONS_DIR = Path(__file__).resolve().parents[2] / "sessions"
 
@@ -78,6 +79,8 @@ class SessionFile(Checked):
         servo_rate: Servo rate (Hz) of plant, controller and slave.
         seed: Seed of the operator's tremor (and anything else random).
         accommodation: NTRFC rate-to-force accommodation on the slave (Sec 4.3).
+        slave: Replaces the scene's ``[slave] kind``: ``"tool"`` (the ideal Cartesian tool) or an
+            arm in ``slaves/`` (``"puma560"``, ``"redundant7"``) carrying the tool.
         tremor: Standard deviation (m) of a smoothed random hand tremor added to the targets.
         time_scale: Stretches every waypoint and event time (a slower or faster operator).
         gains: Overrides of the device's default :class:`ControllerGains` fields.
@@ -95,6 +98,7 @@ class SessionFile(Checked):
     servo_rate: Annotated[float, Range(100.0, 20000.0, "Hz")] = 1000.0
     seed: Annotated[int, Range(0, 2**32 - 1)] = 0
     accommodation: bool = True
+    slave: str | None = None
     tremor: Annotated[float, Range(0.0, 0.01, "m")] = 0.0
     time_scale: Annotated[float, Range(1e-3, 1e3)] = 1.0
     gains: dict[str, Any] = field(default_factory=dict)
@@ -105,6 +109,8 @@ class SessionFile(Checked):
     events: Annotated[tuple[SwitchEvent, ...], Count(0, MAX_SCRIPT_ENTRIES)] = ()
 
     def validate(self) -> None:
+        if self.slave is not None:
+            check_slave_kind(self.slave, "slave")
         if self.n_ticks > MAX_TICKS:
             raise InvalidField(
                 "duration",
@@ -157,6 +163,8 @@ def resolve_session(data: SessionFile, path: Path | None) -> Session:
     source: str | Path = path if path is not None else "<session>"
     device = _resolve(load_device, data.device, source, "device")
     scene = _resolve(load_scene, data.scene, source, "scene")
+    if data.slave is not None:
+        scene = with_slave(scene, data.slave)
     base = dataclasses.asdict(device.data.gains)
     gains = from_dict(ControllerGains, {**base, **data.gains, "mode": data.mode}, source, "gains")
     if gains.max_period * data.servo_rate < 1.0:

@@ -17,7 +17,7 @@ from app.controller.types import FTReading, SlaveCommand
 from app.device.plant import PlantReading
 from app.spatial import Array, IntArray
 from app.world.contact import ContactResult
-from app.world.slave import VirtualSlave
+from app.world.slave_api import Slave
 
 STAGES = ("plant", "controller", "slave", "tick")
 """Stages of one tick timed in :attr:`TickRecord.stage_ns`, in order (``tick`` is their sum)."""
@@ -42,6 +42,8 @@ class TickRecord:
         command: The slave command of this tick (``out.command``).
         ft: The F/T reading the slave produced this tick (the controller reflects it next tick).
         contact: The tool's contact with the world at the end of the tick.
+        slave_status: Why the slave did not follow the command exactly this tick: bits of
+            :class:`~app.world.arm.ArmStatus` (joint limit, singularity, ...); 0 for the ideal tool.
         stage_ns: Durations (ns) of the stages in :data:`STAGES`, (4,) int64.
     """
 
@@ -58,12 +60,13 @@ class TickRecord:
         "reading",
         "reference",
         "reflection",
+        "slave_status",
         "stage_ns",
         "time",
     )
 
     def __init__(
-        self, reading: PlantReading, out: ControllerOutput, slave: VirtualSlave, hand: Array, stage_ns: IntArray
+        self, reading: PlantReading, out: ControllerOutput, slave: Slave, hand: Array, stage_ns: IntArray
     ) -> None:
         self.index = 0
         self.time = 0.0
@@ -76,6 +79,7 @@ class TickRecord:
         self.deadman = self.reference = self.reflection = False
         self.ft: FTReading = slave.reading()
         self.contact: ContactResult = slave.contact
+        self.slave_status = 0
         self.stage_ns = stage_ns
 
     @property

@@ -16,6 +16,7 @@ Objects are static, so their pose is baked into their vertices at load time: eve
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -67,6 +68,7 @@ __all__ = [
     "capsule_spheres",
     "load_scene",
     "resolve_scene_path",
+    "with_slave",
 ]
 
 ROOT_DIR = Path(__file__).resolve().parents[2]
@@ -257,6 +259,21 @@ def build_scene(spec: SceneFile, source: str | Path = "<scene>", path: Path | No
     with deferred_warnings():
         objects = tuple(build_object(o, source, f"objects[{i}]") for i, o in enumerate(spec.objects))
         return Scene(path, spec, objects, _tool_geometry(spec.tool), np.array(spec.gravity, dtype=float))
+
+
+def with_slave(scene: Scene, kind: str) -> Scene:
+    """``scene`` with another slave (``"tool"`` or an arm name, see ``SlaveGains.kind``).
+
+    Raises:
+        InvalidField: ``kind`` is neither ``"tool"`` nor a shipped arm.
+    """
+    if kind == scene.spec.slave.kind:
+        return scene
+    spec = dataclasses.replace(scene.spec, slave=dataclasses.replace(scene.spec.slave, kind=kind))
+    out = dataclasses.replace(scene, spec=spec)
+    # The objects are the same: share their packed meshes (a cached property) rather than repack.
+    out.__dict__["packed"] = scene.packed
+    return out
 
 
 def resolve_scene_path(name_or_path: str | Path) -> Path:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Annotated
 
 import numpy as np
@@ -21,6 +22,21 @@ import numpy as np
 from app.config import Checked, Count, Range
 from app.errors import InvalidField
 from app.spatial import Array, make_pose, quat_to_matrix, zyx_to_matrix
+
+#: Where the slave arm models live: ``slaves/<name>/arm.xml`` (MJCF) with a NOTES.md each.
+SLAVES_DIR = Path(__file__).resolve().parents[2] / "slaves"
+
+
+def available_arms() -> list[str]:
+    """Names of the slave arms shipped in ``slaves/``."""
+    return sorted(p.parent.name for p in SLAVES_DIR.glob("*/arm.xml"))
+
+
+def check_slave_kind(kind: str, field_name: str) -> None:
+    """Raise :class:`InvalidField` on ``field_name`` unless ``kind`` is ``"tool"`` or a shipped arm."""
+    if kind != "tool" and kind not in available_arms():
+        raise InvalidField(field_name, f"unknown slave {kind!r} (choices: tool, {', '.join(available_arms())})")
+
 
 #: Most spheres the tool's point shell may have (spheres, capsule chains and box grids together).
 MAX_TOOL_SPHERES = 10_000
@@ -247,6 +263,10 @@ class SlaveGains(Checked):
     """The virtual slave robot's Cartesian controller (see :mod:`app.world.slave`).
 
     Attributes:
+        kind: ``"tool"``: the ideal Cartesian tool (:mod:`app.world.slave`); or the name of an arm
+            in ``slaves/`` carrying the tool on its flange (:mod:`app.world.arm`). The gains below
+            are the tool's Cartesian PD; an arm uses ``kp_*``, the limits and ``accommodation`` for
+            its reference and the wrench felt at its limits, and its own joint servos.
         kp_lin: Translational tracking stiffness (N/m) of {MRF} toward its reference.
         kd_lin: Translational damping (N s/m) on the velocity error.
         kp_rot: Rotational tracking stiffness (N m/rad).
@@ -268,6 +288,10 @@ class SlaveGains(Checked):
         tuple[float, float, float, float, float, float], Range(0.0, 10.0, "m/(N s); rad/(N m s)")
     ] = (0.004, 0.004, 0.004, 0.2, 0.2, 0.2)
     substeps: Annotated[int, Range(1, 100)] = 1
+    kind: str = "tool"
+
+    def validate(self) -> None:
+        check_slave_kind(self.kind, "kind")
 
 
 @dataclass(frozen=True)

@@ -64,12 +64,107 @@ def _tool_xml(scene: Scene, timestep: float) -> str:
 </mujoco>"""
 
 
-def _finite(a: Array) -> bool:
+def finite(a: Array) -> bool:
     """True if every entry of ``a`` is finite (a sum is NaN or inf otherwise, and cheaper than isfinite)."""
     return math.isfinite(float(a.sum()))
 
 
-class VirtualSlave:
+def command_error(command: SlaveCommand, dt: float) -> str | None:
+    """Why ``command`` and ``dt`` cannot be applied this tick, or None (for every kind of slave)."""
+    if not (math.isfinite(dt) and dt > 0.0):
+        return f"non-finite or non-positive period {dt!r}"
+    if not command.active:
+        return None
+    if command.mode == "rate":
+        return None if finite(command.twist) else "non-finite twist command"
+    if command.mode == "pose":
+        return None if finite(command.T_w_MRF) else "non-finite pose command"
+    raise ValueError(f"unknown slave command mode {command.mode!r}")
+
+
+def invalid_contact(error: str) -> ContactResult:
+    """A contact result that says the world could not produce a trustworthy reading, for ``error``."""
+    return ContactResult(False, np.zeros(15), error=error)
+
+
+class SlaveBase:
+    """What every slave does the same way: the Cartesian reference (step 1 of the module
+    docstring) and the tool's contact, F/T reading and model.
+
+    Subclasses keep the {MRF} pose ``_T`` (4, 4) and twist ``_V`` (6,) of their state up to date,
+    and set ``_contact`` (the tool's last :class:`ContactResult`) and ``_reading`` (the last
+    :class:`FTReading`).
+
+    Args:
+        scene: The scene (tool, objects, slave gains).
+        accommodation: NTRFC force accommodation on (True) or "blind" rate control (False).
+    """
+
+    _contact: ContactResult
+    _reading: FTReading
+
+    def __init__(self, scene: Scene, accommodation: bool) -> None:
+        self.scene = scene
+        self.accommodation = accommodation
+        self.gains = g = scene.spec.slave
+        self._k_acc = np.array(g.accommodation)
+        # Following-error limits (m, rad): never lead the tool by more than the PD can push against.
+        self._max_lead_lin = g.force_limit / g.kp_lin
+        self._max_lead_rot = g.torque_limit / g.kp_rot
+        self._V_ref_w = np.zeros(6)
+        self._T_ref = np.eye(4)
+        self._T = np.eye(4)
+        self._V = np.zeros(6)
+
+    def _update_reference(self, command: SlaveCommand, dt: float) -> None:
+        """Step 1: the reference for this tick of ``dt`` (s) under ``command``."""
+        if not command.active:
+            self._V_ref_w.fill(0.0)
+        elif command.mode == "pose":
+            self._T_ref[:] = command.T_w_MRF
+            self._V_ref_w.fill(0.0)
+        else:
+            F_acc = self._k_acc * self._contact.wrench_MRF if self.accommodation and self._contact.valid else _ZERO6
+            rate_reference(
+                command.twist, F_acc, self._T, dt, self._max_lead_lin, self._max_lead_rot, self._T_ref, self._V_ref_w
+            )
+
+    @property
+    def contact(self) -> ContactResult:
+        """The last contact evaluation (points, normals, depths for display)."""
+        return self._contact
+
+    @property
+    def wrench_MRF_contact(self) -> Array:
+        """Contact wrench at the {MRF} origin in {MRF} (N, N m), (6,): for the work metric (Eq 13)."""
+        return self._contact.wrench_MRF
+
+    def reading(self) -> FTReading:
+        """The F/T sensor's current reading, without stepping (new arrays).
+
+        After :meth:`reset` the tool is held at rest: the payload weight in {S} plus any contact
+        at that pose. After :meth:`step` it is the reading that step returned. Read it after a
+        reset so the controller's first tick does not see a zero wrench (which its payload
+        removal would turn into a false ``+m g``).
+        """
+        r = self._reading
+        return FTReading(r.wrench_S.copy(), r.R_w_S.copy(), r.acc_w.copy(), r.omega_w.copy(), r.valid)
+
+    def slave_model(self) -> SlaveModel:
+        """What the controller may know about the tool (for payload weight/inertia removal)."""
+        tool = self.scene.tool
+        R_T_S = tool.T_T_S[0:3, 0:3]
+        return SlaveModel(
+            T_MRF_S=tool.T_MRF_S,
+            payload_mass=tool.mass,
+            payload_com_S=R_T_S.T @ (tool.com_T - tool.T_T_S[0:3, 3]),
+            payload_inertia_S=R_T_S.T @ tool.inertia_T @ R_T_S,
+            gravity_w=self.scene.gravity_w.copy(),
+            T_w_MRF_home=tool.T_w_MRF_home.copy(),
+        )
+
+
+class VirtualSlave(SlaveBase):
     """A simulated slave robot tool with a virtual F/T sensor.
 
     Args:
@@ -79,9 +174,8 @@ class VirtualSlave:
     """
 
     def __init__(self, scene: Scene, accommodation: bool = True, period: float = DEFAULT_PERIOD) -> None:
-        self.scene = scene
-        self.accommodation = accommodation
-        self.gains = g = scene.spec.slave
+        super().__init__(scene, accommodation)
+        g = self.gains
         self.contact_model = ContactModel(scene)
         tool = scene.tool
         self._substeps = g.substeps
@@ -104,18 +198,10 @@ class VirtualSlave:
         self._T_C_S = T_C_T @ tool.T_T_S
         self._weight_w = tool.mass * np.asarray(scene.gravity_w, dtype=float)
         self._pd = np.array((g.kp_lin, g.kd_lin, g.kp_rot, g.kd_rot, g.force_limit, g.torque_limit))
-        self._k_acc = np.array(g.accommodation)
-        self._max_lead_lin = g.force_limit / g.kp_lin
-        self._max_lead_rot = g.torque_limit / g.kp_rot
-        self._V_ref_w = np.zeros(6)
-        self._T_ref = np.eye(4)
-        # {MRF} pose and twist of the current MuJoCo state, valid while ``_fresh``.
-        self._T = np.eye(4)
-        self._V = np.zeros(6)
+        # {MRF} pose and twist (in the base's buffers) of the current MuJoCo state, valid while ``_fresh``.
         self._fresh = False
         self._fault: str | None = None
-        self._contact: ContactResult
-        self._reading: FTReading
+        self.status = 0  # the ideal tool always follows (its limits are the PD's saturation)
         self.reset()
 
     # --- state -----------------------------------------------------------------------------
@@ -127,7 +213,7 @@ class VirtualSlave:
         reset to a finite pose.
         """
         T = self.scene.tool.T_w_MRF_home if T_w_MRF is None else np.asarray(T_w_MRF, dtype=float)
-        if not _finite(T):
+        if not finite(T):
             self._fault = "reset to a non-finite pose"
             self._contact = self._invalid(self._fault)
             return
@@ -167,72 +253,14 @@ class VirtualSlave:
         """Current twist ``[v; w]`` of {MRF} (origin velocity, angular velocity) in {w}, (6,) (a new array)."""
         return self._state()[1].copy()
 
-    @property
-    def contact(self) -> ContactResult:
-        """The last contact evaluation (points, normals, depths for display)."""
-        return self._contact
-
-    @property
-    def wrench_MRF_contact(self) -> Array:
-        """Contact wrench at the {MRF} origin in {MRF} (N, N m), (6,): for the work metric (Eq 13)."""
-        return self._contact.wrench_MRF
-
-    def reading(self) -> FTReading:
-        """The F/T sensor's current reading, without stepping (new arrays).
-
-        After :meth:`reset` the tool is held at rest: the payload weight in {S} plus any contact
-        at that pose. After :meth:`step` it is the reading that step returned. Read it after a
-        reset so the controller's first tick does not see a zero wrench (which its payload
-        removal would turn into a false ``+m g``).
-        """
-        r = self._reading
-        return FTReading(r.wrench_S.copy(), r.R_w_S.copy(), r.acc_w.copy(), r.omega_w.copy(), r.valid)
-
-    def slave_model(self) -> SlaveModel:
-        """What the controller may know about this tool (for payload weight/inertia removal)."""
-        tool = self.scene.tool
-        R_T_S = tool.T_T_S[0:3, 0:3]
-        return SlaveModel(
-            T_MRF_S=tool.T_MRF_S,
-            payload_mass=tool.mass,
-            payload_com_S=R_T_S.T @ (tool.com_T - tool.T_T_S[0:3, 3]),
-            payload_inertia_S=R_T_S.T @ tool.inertia_T @ R_T_S,
-            gravity_w=self.scene.gravity_w.copy(),
-            T_w_MRF_home=tool.T_w_MRF_home.copy(),
-        )
-
     # --- servo tick --------------------------------------------------------------------------
-    def _command_error(self, command: SlaveCommand, dt: float) -> str | None:
-        """Why ``command`` and ``dt`` cannot be applied this tick, or None."""
-        if not (math.isfinite(dt) and dt > 0.0):
-            return f"non-finite or non-positive period {dt!r}"
-        if not command.active:
-            return None
-        if command.mode == "rate":
-            return None if _finite(command.twist) else "non-finite twist command"
-        if command.mode == "pose":
-            return None if _finite(command.T_w_MRF) else "non-finite pose command"
-        raise ValueError(f"unknown slave command mode {command.mode!r}")
-
-    def _update_reference(self, command: SlaveCommand, dt: float) -> None:
-        if not command.active:
-            self._V_ref_w.fill(0.0)
-        elif command.mode == "pose":
-            self._T_ref[:] = command.T_w_MRF
-            self._V_ref_w.fill(0.0)
-        else:
-            F_acc = self._k_acc * self._contact.wrench_MRF if self.accommodation and self._contact.valid else _ZERO6
-            rate_reference(
-                command.twist, F_acc, self._T, dt, self._max_lead_lin, self._max_lead_rot, self._T_ref, self._V_ref_w
-            )
-
     def step(self, command: SlaveCommand, dt: float = DEFAULT_PERIOD) -> FTReading:
         """Advance one servo period ``dt`` (s) under ``command``; return the F/T sensor reading.
 
         A faulted slave (see :meth:`reset`), or a non-finite command or period, returns an
         invalid reading and leaves the state as it was.
         """
-        error = self._fault or self._command_error(command, dt)
+        error = self._fault or command_error(command, dt)
         if error is not None:
             self._invalid(error)
             return self._reading
@@ -267,7 +295,7 @@ class VirtualSlave:
 
     def _invalid(self, error: str) -> ContactResult:
         """Make the current reading invalid (zero wrench, the held state's orientation) for ``error``."""
-        contact = ContactResult(False, np.zeros(15), error=error)
+        contact = invalid_contact(error)
         self._state()
         self._reading = self._sensor(contact, _ZERO6)
         return contact

@@ -153,6 +153,8 @@ CASES: dict[str, dict[str, Case]] = {
         "home position 1e308": S("[0.0, 0.0, 0.1]", "[0.0, 0.0, 1e308]", "tool.home.position[2]"),
         "zero quaternion": S("[1.0, 0.0, 0.0, 0.0]", "[1e-300, 0.0, 0.0, 0.0]", "tool.home.quat_wxyz", "non-zero"),
         "slave kp_lin 1e300": S("kp_lin = 3000.0", "kp_lin = 1e300", "slave.kp_lin"),
+        "slave kind unknown": S("kp_lin = 3000.0", 'kp_lin = 3000.0\nkind = "puma"', "slave.kind", "unknown slave"),
+        "slave kind path": S("kp_lin = 3000.0", 'kp_lin = 3000.0\nkind = "../devices"', "slave.kind", "unknown slave"),
         "task tolerance 0": S("position_tolerance = 0.002", "position_tolerance = 0.0", "task.position_tolerance"),
         "device home inf": D("home = [0.0,", "home = [inf,", "home[0]", "finite"),
         "device home 1e9 rad": D("home = [0.0,", "home = [1e9,", "home[0]"),
@@ -268,6 +270,7 @@ CASES: dict[str, dict[str, Case]] = {
         "plant substeps 0": D("substeps = 1", "substeps = 0", "plant.substeps", "[1, 100]"),
         "plant mass_scale negative": D("mass_scale = [1.0,", "mass_scale = [-1.0,", "plant.mass_scale[0]"),
         "session root": P("seed = 0", "seed = 0\nspeed = 3", "speed", "unknown field"),
+        "session slave unknown": P("seed = 0", 'seed = 0\nslave = "kuka"', "slave", "unknown slave"),
         "device gains": D("assist_fraction = 0.3", "assist_fraction = 0.3\nk_vv = 1.0", "gains.k_vv", "unknown field"),
         "session gains": P(
             "accommodation = true", "accommodation = true\n[gains]\nk_vv = 1.0", "gains.k_vv", "unknown field"

@@ -1,0 +1,65 @@
+"""The slave interface the servo loop uses, and the one place a slave is chosen.
+
+Two implementations: the ideal Cartesian tool (:class:`~app.world.slave.VirtualSlave`) and a
+robot arm carrying it (:class:`~app.world.arm.ArmSlave`); the scene file's ``[slave] kind``
+chooses (``"tool"`` or an arm in ``slaves/``).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+from app.controller.types import FTReading, SlaveCommand, SlaveModel
+from app.spatial import Array
+from app.world.arm import ArmSlave
+from app.world.contact import ContactResult
+from app.world.scene import Scene
+from app.world.slave import DEFAULT_PERIOD, VirtualSlave
+
+
+class Slave(Protocol):
+    """A simulated slave robot with an F/T sensor at {S}, commanded in Cartesian space.
+
+    Attributes:
+        scene: The world it moves in (objects, tool, gains).
+    """
+
+    scene: Scene
+
+    def reset(self, T_w_MRF: Array | None = None) -> None:
+        """At rest with {MRF} at ``T_w_MRF`` (4, 4, {w}; default the scene's home)."""
+
+    def step(self, command: SlaveCommand, dt: float = DEFAULT_PERIOD) -> FTReading:
+        """Advance one servo period ``dt`` (s) under ``command``; the F/T reading."""
+
+    def reading(self) -> FTReading:
+        """The current F/T reading without stepping (new arrays)."""
+
+    def slave_model(self) -> SlaveModel:
+        """What the controller may know about the tool."""
+
+    def pose_view(self) -> Array:
+        """Pose of {MRF} in {w} (4, 4): the slave's own buffer, overwritten by the next step."""
+
+    @property
+    def T_w_MRF(self) -> Array:
+        """Pose of {MRF} in {w} (4, 4), a new array."""
+
+    @property
+    def V_w_MRF(self) -> Array:
+        """Twist ``[v; w]`` of {MRF} in {w} (6,), a new array."""
+
+    @property
+    def contact(self) -> ContactResult:
+        """The tool's last contact evaluation."""
+
+    @property
+    def status(self) -> int:
+        """Why the slave did not follow the command exactly (bits of :class:`~app.world.arm.ArmStatus`; 0 for the tool)."""
+
+
+def make_slave(scene: Scene, accommodation: bool = True, period: float = DEFAULT_PERIOD) -> Slave:
+    """The slave the scene asks for (``scene.spec.slave.kind``)."""
+    if scene.spec.slave.kind == "tool":
+        return VirtualSlave(scene, accommodation, period)
+    return ArmSlave(scene, accommodation, period)

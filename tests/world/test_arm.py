@@ -1,0 +1,270 @@
+"""Slave arms (issue 15): kinematics against the published tables, tracking against the ideal
+tool, limits and singularities, the wrist F/T sensor, link contact and the Table I run."""
+
+from __future__ import annotations
+
+import functools
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from world_helpers import sphere_tool
+
+from app.controller.payload import remove_weight
+from app.controller.types import FTReading, SlaveCommand
+from app.session.experiment import OPERATORS, run_experiment
+from app.session.log import read_log
+from app.session.run import run_session
+from app.session.spec import load_session
+from app.spatial import rotation_log, zyx_to_matrix
+from app.world.arm import ArmSlave, ArmStatus
+from app.world.scene import ObjectSpec, Pose, Scene, SceneFile, SlaveGains, build_scene, load_scene, with_slave
+from app.world.scene_file import SLAVES_DIR
+from app.world.slave import VirtualSlave
+
+ARMS = ("puma560", "redundant7")
+
+#: Standard DH ``(d, a, alpha)`` per joint: PUMA 560 from Corke and Armstrong-Helouvry (1994),
+#: the 7-dof arm from the KUKA LBR iiwa 14 R820's link lengths (slaves/*/NOTES.md).
+DH = {
+    "puma560": [
+        (0.0, 0.0, math.pi / 2),
+        (0.0, 0.4318, 0.0),
+        (0.15005, 0.0203, -math.pi / 2),
+        (0.4318, 0.0, math.pi / 2),
+        (0.0, 0.0, -math.pi / 2),
+        (0.0, 0.0, 0.0),
+    ],
+    "redundant7": [
+        (0.36, 0.0, -math.pi / 2),
+        (0.0, 0.0, math.pi / 2),
+        (0.42, 0.0, math.pi / 2),
+        (0.0, 0.0, -math.pi / 2),
+        (0.40, 0.0, -math.pi / 2),
+        (0.0, 0.0, math.pi / 2),
+        (0.126, 0.0, 0.0),
+    ],
+}
+
+
+@functools.cache
+def arm_scene(kind: str, base: str = "probe") -> Scene:
+    return with_slave(load_scene(base), kind)
+
+
+def rate(v: tuple[float, ...]) -> SlaveCommand:
+    return SlaveCommand(active=True, mode="rate", twist=np.array(v, dtype=float))
+
+
+def dh_transform(d: float, a: float, alpha: float, q: float) -> np.ndarray:
+    """``Rz(q) Tz(d) Tx(a) Rx(alpha)``, standard DH."""
+    cq, sq, ca, sa = math.cos(q), math.sin(q), math.cos(alpha), math.sin(alpha)
+    return np.array([[cq, -sq * ca, sq * sa, a * cq], [sq, cq * ca, -cq * sa, a * sq], [0, sa, ca, d], [0, 0, 0, 1]])
+
+
+def angle_between(R1: np.ndarray, R2: np.ndarray) -> float:
+    return float(np.linalg.norm(rotation_log(R1 @ R2.T)))
+
+
+@pytest.mark.parametrize("kind", ARMS)
+def test_arm_file_reproduces_its_dh_table(kind: str) -> None:
+    model = mujoco.MjModel.from_xml_path(str(SLAVES_DIR / kind / "arm.xml"))
+    data = mujoco.MjData(model)
+    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "flange")
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        q = rng.uniform(-math.pi, math.pi, model.nq)
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        T = np.eye(4)
+        for (d, a, alpha), qi in zip(DH[kind], q, strict=True):
+            T = T @ dh_transform(d, a, alpha, qi)
+        np.testing.assert_allclose(data.site_xpos[site], T[0:3, 3], atol=1e-9)
+        np.testing.assert_allclose(data.site_xmat[site].reshape(3, 3), T[0:3, 0:3], atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", ARMS)
+def test_at_rest_the_wrist_sensor_reads_the_payload_like_the_ideal_tool(kind: str) -> None:
+    arm = ArmSlave(arm_scene(kind))
+    tool = VirtualSlave(load_scene("probe"))
+    np.testing.assert_allclose(arm.T_w_MRF, tool.T_w_MRF, atol=1e-8)
+    np.testing.assert_allclose(arm.reading().wrench_S, tool.reading().wrench_S, atol=1e-9)
+    for _ in range(300):
+        reading = arm.step(SlaveCommand())
+    np.testing.assert_allclose(reading.wrench_S, tool.reading().wrench_S, atol=2e-3)
+    assert arm.status == ArmStatus.NONE
+
+
+def rate_script(t: float) -> tuple[float, ...]:
+    """Up, sideways, a twist and back, staying in free space above the probe surface (m/s, rad/s)."""
+    if t < 0.4:
+        return (0.0, 0.0, 0.08, 0.0, 0.0, 0.0)
+    if t < 1.0:
+        return (0.06, -0.05, 0.0, 0.0, 0.0, 0.5)
+    return (-0.04, 0.03, 0.02, 0.3, -0.2, -0.3)
+
+
+def pose_script(t: float, T0: np.ndarray) -> np.ndarray:
+    """A smooth pose trajectory from ``T0`` over 2 s: a 3 cm circle in x-y rising 4 cm, tilting
+    up to 17 deg (peak speed 0.15 m/s)."""
+    s = 0.5 - 0.5 * math.cos(math.pi * min(t / 2.0, 1.0))
+    T = T0.copy()
+    T[0:3, 3] += (0.03 * math.sin(2 * math.pi * s), 0.03 * (1 - math.cos(2 * math.pi * s)), 0.04 * s)
+    T[0:3, 0:3] = zyx_to_matrix(0.26 * s, -0.2 * s, 0.3 * s) @ T0[0:3, 0:3]
+    return T
+
+
+@pytest.mark.parametrize("kind", ARMS)
+@pytest.mark.parametrize("mode", ["rate", "pose"])
+def test_away_from_limits_the_arm_and_the_ideal_tool_follow_the_same_path(kind: str, mode: str) -> None:
+    """Same command script, 2 s at 1 kHz: the tool paths agree within 2 mm and 1.5 deg in rate
+    mode; in pose mode within 4 mm, as the ideal tool's PD has no velocity feedforward there and
+    lags ``kd_lin / kp_lin * v`` = 3 mm at the script's peak speed."""
+    arm = ArmSlave(arm_scene(kind))
+    tool = VirtualSlave(load_scene("probe"))
+    T0 = tool.T_w_MRF
+    worst_p = worst_r = 0.0
+    for i in range(2000):
+        t = i * 1e-3
+        if mode == "rate":
+            command = rate(rate_script(t))
+        else:
+            command = SlaveCommand(active=True, mode="pose", T_w_MRF=pose_script(t, T0))
+        arm.step(command)
+        tool.step(command)
+        worst_p = max(worst_p, float(np.linalg.norm(arm.T_w_MRF[0:3, 3] - tool.T_w_MRF[0:3, 3])))
+        worst_r = max(worst_r, angle_between(arm.T_w_MRF[0:3, 0:3], tool.T_w_MRF[0:3, 0:3]))
+        assert not arm.status & (ArmStatus.JOINT_LIMIT | ArmStatus.SINGULAR | ArmStatus.TRACKING), (t, arm.status)
+    assert float(np.linalg.norm(tool.T_w_MRF[0:3, 3] - T0[0:3, 3])) > 0.03  # it went somewhere
+    assert worst_p < (2e-3 if mode == "rate" else 4e-3)
+    assert worst_r < math.radians(1.5)
+
+
+def test_through_the_wrist_flip_joint_rates_stay_bounded_and_the_flag_is_set() -> None:
+    """PUMA home has q5 = -45 deg; pitching the tool 80 deg about y drives q5 through 0 (wrist singular)."""
+    arm = ArmSlave(arm_scene("puma560"))
+    qd_max = arm.model.numeric("velocity_limit").data
+    q5 = []
+    flags = ArmStatus.NONE
+    for _ in range(2000):
+        arm.step(rate((0.0, 0.0, 0.0, 0.0, -0.7, 0.0)))
+        q5.append(arm.q[4])
+        flags |= arm.status
+        assert np.all(np.abs(arm.data.qvel) <= 1.05 * qd_max)
+    assert min(q5) < 0.0 < max(q5) or min(np.abs(q5)) < math.radians(2)
+    assert flags & ArmStatus.SINGULAR
+
+
+@pytest.mark.parametrize("kind", ARMS)
+@settings(max_examples=4)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_random_scripts_never_exceed_the_joint_limits(kind: str, seed: int) -> None:
+    arm = ArmSlave(arm_scene(kind))
+    rng = np.random.default_rng(seed)
+    lo, hi = arm.joint_limits.T
+    for _ in range(6):
+        v = np.concatenate((rng.uniform(-0.6, 0.6, 3), rng.uniform(-3.0, 3.0, 3)))
+        for _ in range(150):
+            arm.step(rate(tuple(v)))
+            q = arm.q
+            assert np.all(q >= lo), (q, lo)
+            assert np.all(q <= hi), (q, hi)
+
+
+@pytest.mark.parametrize("kind", ARMS)
+def test_in_steady_contact_the_sensor_reads_contact_plus_payload(kind: str) -> None:
+    arm = ArmSlave(arm_scene(kind))
+    for _ in range(3000):
+        reading = arm.step(rate((0.0, 0.0, -0.03, 0.0, 0.0, 0.0)))
+    contact = arm.contact.wrench_S
+    assert arm.contact.count >= 1
+    assert contact[2] > 5.0  # v / K_acc = 7.5 N, pressed
+    scene = arm_scene(kind)
+    weight_S = reading.R_w_S.T @ (scene.tool.mass * scene.gravity_w)
+    r_com = scene.tool.com_T  # {S} = {T} in the probe scene
+    expected = contact + np.concatenate((weight_S, np.cross(r_com, weight_S)))
+    np.testing.assert_allclose(reading.wrench_S, expected, atol=0.02)
+    model = arm.slave_model()
+    F = reading.wrench_S.copy()
+    remove_weight(reading.R_w_S, model.gravity_w, model.payload_mass, model.payload_com_S, F)
+    np.testing.assert_allclose(F, contact, atol=0.02)
+
+
+def test_null_space_motion_of_the_redundant_arm_leaves_the_tool_still() -> None:
+    """Reset with the elbow swivelled (joint 3 at 0.8 rad): the secondary goal swings it back
+    toward the middle of the ranges while the tool holds its pose."""
+    arm = ArmSlave(arm_scene("redundant7"))
+    arm.q_home = arm.q_home + np.array([0.0, 0.0, 0.8, 0.0, 0.0, 0.0, 0.0])
+    arm.reset()
+    T0 = arm.T_w_MRF
+    np.testing.assert_allclose(T0, arm_scene("redundant7").tool.T_w_MRF_home, atol=1e-8)
+    q0 = arm.q
+    for _ in range(1500):
+        arm.step(SlaveCommand())
+    moved = float(np.linalg.norm(arm.q - q0))
+    assert moved > 0.05  # the elbow swung toward the middle of the ranges
+    assert float(np.linalg.norm(arm.q - arm._mid)) < float(np.linalg.norm(q0 - arm._mid))
+    assert float(np.linalg.norm(arm.T_w_MRF[0:3, 3] - T0[0:3, 3])) < 3e-4
+    assert angle_between(arm.T_w_MRF[0:3, 0:3], T0[0:3, 0:3]) < 3e-3
+
+
+def test_a_link_pressed_by_the_world_loads_the_arm_not_the_sensor() -> None:
+    """A slab laid on the PUMA's upper arm: the link feels it, the wrist sensor does not."""
+    tool = sphere_tool()
+    free = build_scene(SceneFile(name="free", tool=tool, slave=SlaveGains(kind="puma560")))
+    probe = ArmSlave(free)
+    upper = next(g for g in probe.geoms() if g.name == "link2_a")
+    top = upper.T_w_geom[0:3, 3] + (0.0, 0.0, upper.size[0] - 0.002)  # 2 mm into the capsule
+    slab = ObjectSpec(
+        name="slab",
+        box=(0.1, 0.1, 0.02),
+        stiffness=3000.0,
+        damping=30.0,
+        pose=Pose(tuple(top + np.array([0.0, 0.0, 0.01]))),
+    )
+    scene = build_scene(SceneFile(name="slab", tool=tool, slave=SlaveGains(kind="puma560"), objects=(slab,)))
+    arm = ArmSlave(scene)
+    reading = FTReading()
+    for _ in range(500):
+        reading = arm.step(SlaveCommand())
+    assert sum(c.count for c in arm.link_contacts) > 0
+    link_force = sum(float(np.linalg.norm(c.force_w)) for c in arm.link_contacts)
+    assert link_force > 5.0
+    assert arm.contact.count == 0
+    np.testing.assert_allclose(reading.wrench_S, probe.reading().wrench_S, atol=0.05)
+
+
+def test_out_of_reach_the_command_is_limited_flagged_and_felt() -> None:
+    """Pushing the PUMA outward past its reach: the set-point stops at the edge, TRACKING is set,
+    and the reading (payload removed) pushes back against the command."""
+    arm = ArmSlave(arm_scene("puma560"))
+    model = arm.slave_model()
+    flags = ArmStatus.NONE
+    for _ in range(3000):
+        reading = arm.step(rate((0.0, 0.0, 0.25, 0.0, 0.0, 0.0)))
+        flags |= arm.status
+    assert arm.status & ArmStatus.TRACKING
+    F = reading.wrench_S.copy()
+    remove_weight(reading.R_w_S, model.gravity_w, model.payload_mass, model.payload_com_S, F)
+    f_w = reading.R_w_S @ F[0:3]
+    assert f_w[2] < -5.0  # a wall above: the operator feels the arm's limit
+    lo, hi = arm.joint_limits.T
+    assert np.all(arm.q >= lo)
+    assert np.all(arm.q <= hi)
+
+
+def test_table1_experiment_and_the_log_run_with_an_arm(tmp_path: Path) -> None:
+    report = run_experiment(tmp_path / "exp", repetitions=1, operators=OPERATORS[:1], duration=1.5, slave="puma560")
+    for works in report.work[OPERATORS[0].name].values():
+        assert len(works) == 1
+        assert math.isfinite(works[0])
+    session = load_session("probe_rate").with_changes(slave="redundant7", duration=1.0)
+    result = run_session(session, out_dir=tmp_path / "run")
+    assert result.log_dir is not None
+    log = read_log(result.log_dir)
+    assert "slave_status" in log.column_names
+    assert "slave_status_ticks" in result.summary

@@ -7,6 +7,7 @@ stderr as one line naming the file and field, with exit code 2 and no traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -69,6 +70,31 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from app.sweep import load_sweep, run_sweep
+
+    plan = load_sweep(args.file)
+    out_dir = Path(args.out) if args.out else Path("runs") / "sweeps" / Path(args.file).stem
+    report = run_sweep(plan, out_dir, args.workers, args.address, args.metric, progress=True)
+    print(
+        f"results:  {report.results} ({report.table.num_rows} points: {report.ran} run now, {report.skipped} resumed)"
+    )
+    print(f"failed:   {report.failed}" + (" (see the 'error' column)" if report.failed else ""))
+    if report.plot is not None:
+        print(f"plot:     {report.plot}")
+    return 0
+
+
+def _workers(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if not 0 <= value <= 4096:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 4096, got {text}")
+    return value
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     from app import bench
 
@@ -128,6 +154,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repetitions", type=int, default=3, help="runs per operator and condition")
     p.add_argument("--duration", type=float, default=None, help="override the session duration (s)")
     p.set_defaults(func=_cmd_experiment)
+
+    p = sub.add_parser(
+        "sweep",
+        help="run a sweep of sessions (Ray)",
+        description="Run every point of a sweep file (sweeps/README.md) as a headless session; "
+        "results to Parquet, resumable, with a plot.",
+    )
+    p.add_argument("file", help="sweep .toml file")
+    p.add_argument("--out", help="output directory (default runs/sweeps/<file>); re-running into it resumes")
+    p.add_argument(
+        "--workers",
+        type=_workers,
+        default=os.cpu_count() or 1,
+        help="parallel workers (default: every core; 1 = serially without Ray; 0 = every CPU of a cluster)",
+    )
+    p.add_argument("--address", default=None, help="join this Ray cluster (default: RAY_ADDRESS, else local)")
+    p.add_argument("--metric", default=None, help="metric to plot (default: the sweep file's metric)")
+    p.set_defaults(func=_cmd_sweep)
 
     p = sub.add_parser("bench", help="benchmarks (median and p99)", description="Print timing benchmarks.")
     p.add_argument(

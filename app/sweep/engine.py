@@ -88,7 +88,7 @@ def _run_ray(task: Task, points: Iterable[Point], workers: int, address: str | N
         worker_cls = ray.remote(num_cpus=1)(_Worker)
         task_ref = ray.put(task)
         actors = [worker_cls.remote(task_ref) for _ in range(n)]
-        pending: dict[Any, tuple[int, int]] = {}
+        pending: dict[Any, tuple[int, int, Any]] = {}
         load = [0] * n
         queue = iter(points)
 
@@ -97,7 +97,7 @@ def _run_ray(task: Task, points: Iterable[Point], workers: int, address: str | N
             if nxt is None:
                 return False
             index, payload = nxt
-            pending[actors[k].run.remote(payload)] = (index, k)  # type: ignore[attr-defined]
+            pending[actors[k].run.remote(payload)] = (index, k, actors[k])  # type: ignore[attr-defined]
             load[k] += 1
             return True
 
@@ -107,14 +107,15 @@ def _run_ray(task: Task, points: Iterable[Point], workers: int, address: str | N
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
             ref = done[0]
-            index, k = pending.pop(ref)
+            index, k, actor = pending.pop(ref)
             load[k] -= 1
             try:
                 row = ray.get(ref)
             except RayActorError as exc:
                 # The worker process died (a crash, out of memory): this point fails, a new worker takes over.
                 row = {"status": "error", "error": f"worker died: {' '.join(str(exc).split())[:300]}"}
-                actors[k] = worker_cls.remote(task_ref)
+                if actors[k] is actor:
+                    actors[k] = worker_cls.remote(task_ref)
             except RayTaskError as exc:
                 row = error_row(exc.cause if isinstance(exc.cause, BaseException) else exc)
             yield index, row

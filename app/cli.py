@@ -63,10 +63,17 @@ def _positive_seconds(text: str) -> float:
 def _cmd_experiment(args: argparse.Namespace) -> int:
     from app.session.experiment import run_experiment
 
-    out_dir = Path(args.out)
-    report = run_experiment(out_dir, repetitions=args.repetitions, duration=args.duration, progress=True)
+    report = run_experiment(
+        Path(args.out),
+        n_operators=args.operators,
+        seed=args.seed,
+        time_limit=args.time_limit,
+        workers=args.workers,
+        address=args.address,
+        progress=True,
+    )
     print(report.table)
-    print(f"\nchart: {report.chart}\nresults: {report.json_path}")
+    print(f"\nchart: {report.chart}\nresults: {report.results}\nsummary: {report.json_path}")
     return 0
 
 
@@ -85,14 +92,25 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
-def _workers(text: str) -> int:
+def _count(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if not 0 <= value <= 4096:
-        raise argparse.ArgumentTypeError(f"must be between 0 and 4096, got {text}")
+    if not 0 <= value <= 10_000_000:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 10000000, got {text}")
     return value
+
+
+def _engine_arguments(p: argparse.ArgumentParser) -> None:
+    """``--workers`` and ``--address`` of the point engine (sweeps and the experiment)."""
+    p.add_argument(
+        "--workers",
+        type=_count,
+        default=os.cpu_count() or 1,
+        help="parallel workers (default: every core; 1 = serially without Ray; 0 = every CPU of a cluster)",
+    )
+    p.add_argument("--address", default=None, help="join this Ray cluster (default: RAY_ADDRESS, else local)")
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -151,8 +169,15 @@ def build_parser() -> argparse.ArgumentParser:
         description="Dual peg-in-the-holes for several simulated operators, FRHC/NTRFC vs blind (paper Sec 4.3).",
     )
     p.add_argument("--out", default="runs/experiment", help="output directory")
-    p.add_argument("--repetitions", type=int, default=3, help="runs per operator and condition")
-    p.add_argument("--duration", type=float, default=None, help="override the session duration (s)")
+    p.add_argument("--operators", type=_count, default=100, help="operators drawn from the population (default 100)")
+    p.add_argument("--seed", type=_count, default=0, help="seed of the population (default 0)")
+    p.add_argument(
+        "--time-limit",
+        type=_positive_seconds,
+        default=12.0,
+        help="simulated seconds a run may take before it counts as failed (default 12)",
+    )
+    _engine_arguments(p)
     p.set_defaults(func=_cmd_experiment)
 
     p = sub.add_parser(
@@ -163,13 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("file", help="sweep .toml file")
     p.add_argument("--out", help="output directory (default runs/sweeps/<file>); re-running into it resumes")
-    p.add_argument(
-        "--workers",
-        type=_workers,
-        default=os.cpu_count() or 1,
-        help="parallel workers (default: every core; 1 = serially without Ray; 0 = every CPU of a cluster)",
-    )
-    p.add_argument("--address", default=None, help="join this Ray cluster (default: RAY_ADDRESS, else local)")
+    _engine_arguments(p)
     p.add_argument("--metric", default=None, help="metric to plot (default: the sweep file's metric)")
     p.set_defaults(func=_cmd_sweep)
 

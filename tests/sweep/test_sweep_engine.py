@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import operator
 import os
 import subprocess
 import sys
+from functools import partial
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -54,13 +56,16 @@ def test_a_failing_point_is_a_row_with_its_error_and_the_sweep_goes_on(serial: P
     assert [r["point"] for r in table] == list(range(6))
     bad = [r for r in table if r["tremor"] < 0]
     good = [r for r in table if r["tremor"] >= 0]
-    assert bad and good
+    assert bad
+    assert good
     for r in bad:
         assert r["status"] == "error"
-        assert "field 'tremor'" in r["error"] and "non-negative" in r["error"]
+        assert "field 'tremor'" in r["error"]
+        assert "non-negative" in r["error"]
         assert r["work_eq13"] is None
     for r in good:
-        assert r["status"] == "ok" and r["error"] == ""
+        assert r["status"] == "ok"
+        assert r["error"] == ""
         assert r["simulated_s"] == pytest.approx(0.12)
         assert 1000.0 <= r["scene.objects.surface.stiffness"] <= 5000.0
     assert (serial / "peak_contact_force_N.png").stat().st_size > 0
@@ -127,12 +132,21 @@ def test_command_line_grid_sweep_with_a_heatmap(tmp_path: Path) -> None:
 
 
 def test_the_engine_turns_exceptions_and_dead_workers_into_rows(local_ray: None) -> None:
-    """``dict`` is the task: a list of pairs makes a row, an integer raises TypeError; ``os._exit``
-    kills its worker process."""
-    rows = dict(run_points(dict, [(0, [("a", 1)]), (1, 7), (2, [("a", 3)])], workers=2))
+    """``operator.call`` is the task and each payload a call: ``dict`` of pairs makes a row, of an
+    integer raises TypeError; ``os._exit`` kills its worker process, whose place a new one takes."""
+    points = [
+        (0, partial(dict, [("a", 1)])),
+        (1, partial(dict, 7)),
+        (2, partial(os._exit, 3)),
+        *[(k, partial(dict, [("a", k)])) for k in range(3, 8)],
+    ]
+    rows = dict(run_points(operator.call, points, workers=2))
     assert rows[0] == {"a": 1, "status": "ok", "error": ""}
-    assert rows[1]["status"] == "error" and rows[1]["error"].startswith("TypeError")
-    assert rows[2]["a"] == 3
-    died = dict(run_points(os._exit, [(0, 3)], workers=2))
-    assert died[0]["status"] == "error" and "worker died" in died[0]["error"]
-    assert dict(run_points(dict, [(5, [("b", 2)])], workers=2))[5]["b"] == 2
+    assert rows[1]["status"] == "error"
+    assert rows[1]["error"].startswith("TypeError")
+    assert rows[2]["status"] == "error"
+    assert "worker died" in rows[2]["error"]
+    # At most the one point queued behind the dying one on its worker fails with it.
+    ok = [k for k in range(3, 8) if rows[k]["status"] == "ok"]
+    assert len(ok) >= 4
+    assert all(rows[k]["a"] == k for k in ok)

@@ -112,7 +112,8 @@ def test_grid_is_the_product_with_log_and_integer_spacing(tmp_path: Path) -> Non
     assert sorted({p[0] for p in points}) == pytest.approx([100.0, 1000.0, 10000.0])
     assert sorted({p[1] for p in points}) == [0, 5, 10]
     assert all(isinstance(p[1], int) for p in points)
-    assert points[0] == (pytest.approx(100.0), 0, "rate") and points[1][2] == "pose"
+    assert points[0] == (pytest.approx(100.0), 0, "rate")
+    assert points[1][2] == "pose"
 
 
 def test_values_reach_the_session_scene_and_gains(tmp_path: Path) -> None:

@@ -49,3 +49,7 @@ class InputError(FrhcError, ValueError):
 
 class ContactQueryError(FrhcError):
     """A collision query failed or returned a non-finite result."""
+
+
+class EngineError(FrhcError):
+    """The point engine could not start or reach its workers (a Ray instance or cluster)."""

@@ -222,7 +222,8 @@ def _chart(rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> P
             axes[1].hist([r["peak_contact_force_N"] for r in done], bins=20, alpha=0.6, label=cond)
     axes[0].set_xscale("log")
     axes[0].set_xlabel("work on the environment, Eq 13 (J)")
-    axes[0].legend(fontsize=8)
+    if axes[0].patches:
+        axes[0].legend(fontsize=8)
     axes[1].set_xlabel("peak contact force (N)")
     rs = np.array(list(ratios(rows).values()))
     if len(rs):

@@ -21,7 +21,7 @@ import traceback
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
-from app.errors import FrhcError
+from app.errors import EngineError, FrhcError
 
 Task = Callable[[Any], dict[str, Any]]
 Point = tuple[int, Any]
@@ -74,15 +74,19 @@ def _run_ray(task: Task, points: Iterable[Point], workers: int, address: str | N
 
     started = not ray.is_initialized()
     if started:
-        if address is None:
-            ray.init(
-                num_cpus=workers or os.cpu_count(),
-                include_dashboard=False,
-                log_to_driver=False,
-                configure_logging=False,
-            )
-        else:
-            ray.init(address=address, log_to_driver=False, configure_logging=False)
+        try:
+            if address is None:
+                ray.init(
+                    num_cpus=workers or os.cpu_count(),
+                    include_dashboard=False,
+                    log_to_driver=False,
+                    configure_logging=False,
+                )
+            else:
+                ray.init(address=address, log_to_driver=False, configure_logging=False)
+        except Exception as exc:
+            where = f"the Ray cluster at {address}" if address else "a local Ray instance"
+            raise EngineError(f"cannot start {where}: {' '.join(str(exc).split())}") from None
     try:
         n = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         worker_cls = ray.remote(num_cpus=1)(_Worker)

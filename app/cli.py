@@ -197,7 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
         "what",
         nargs="?",
         default="all",
-        choices=["all", "controller", "plant", "contact", "tick", "stability"],
+        choices=["all", "controller", "plant", "contact", "tick", "stability", "sweep"],
         help="what to time",
     )
     p.add_argument("--quick", action="store_true", help="fewer iterations")

@@ -13,6 +13,7 @@ from app.controller.gains import ControllerGains
 from app.device.hand import HandParams
 from app.device.spec import CalibrationSpec, DeviceFile, MotorSpec, PlantParams
 from app.session.spec import MAX_TICKS, SessionFile, SwitchEvent, Waypoint
+from app.sweep.spec import SweepFile, Vary
 from app.world.scene_file import (
     MAX_OBJECTS,
     MAX_TOOL_SPHERES,
@@ -49,6 +50,8 @@ SECTIONS = [
     ("sessions/README.md", "## `[[waypoints]]`", Waypoint),
     ("sessions/README.md", "## `[[events]]`", SwitchEvent),
     ("sessions/README.md", "## `[hand]`", HandParams),
+    ("sweeps/README.md", "## Top level", SweepFile),
+    ("sweeps/README.md", "## `[[vary]]`", Vary),
 ]
 
 
@@ -87,7 +90,7 @@ def schema_classes(cls: type, seen: set[type]) -> set[type]:
 
 def test_every_schema_class_has_a_documented_section() -> None:
     classes: set[type] = set()
-    for root in (SceneFile, DeviceFile, SessionFile, CalibrationSpec, ControllerGains, HandParams):
+    for root in (SceneFile, DeviceFile, SessionFile, CalibrationSpec, ControllerGains, HandParams, SweepFile):
         schema_classes(root, classes)
     assert classes == {cls for _, _, cls in SECTIONS}
 

@@ -11,7 +11,9 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
+from app.config import fmt_number
 from app.errors import ConfigError, FrhcError
 
 
@@ -50,14 +52,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _positive_seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 1e-3 <= value <= 3600.0:
-        raise argparse.ArgumentTypeError(f"must be between 0.001 and 3600 s, got {text}")
-    return value
+def _bounded(cast: Callable[[str], float], lo: float, hi: float, unit: str = "") -> Callable[[str], Any]:
+    """An argparse type: ``cast`` of the text, refused outside [lo, hi] (``unit`` in the message)."""
+
+    def parse(text: str) -> Any:
+        try:
+            value = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not {'an integer' if cast is int else 'a number'}: {text!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be between {fmt_number(lo)} and {fmt_number(hi)}{unit}, got {text}")
+        return value
+
+    return parse
+
+
+_positive_seconds = _bounded(float, 1e-3, 3600.0, " s")
+_count = _bounded(int, 0, 10_000_000)
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
@@ -90,16 +101,6 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     if report.plot is not None:
         print(f"plot:     {report.plot}")
     return 0
-
-
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if not 0 <= value <= 10_000_000:
-        raise argparse.ArgumentTypeError(f"must be between 0 and 10000000, got {text}")
-    return value
 
 
 def _engine_arguments(p: argparse.ArgumentParser) -> None:

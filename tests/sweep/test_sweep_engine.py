@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import operator
 import os
-import subprocess
-import sys
 from functools import partial
 from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
+from sweep_helpers import frhc
 
 from app.sweep import load_sweep, run_sweep
 from app.sweep.engine import run_points
@@ -93,13 +92,7 @@ def test_resume_runs_only_the_missing_points(sweep_file: Path, serial: Path, tmp
 def test_an_output_directory_of_another_sweep_is_refused(sweep_file: Path, serial: Path, tmp_path: Path) -> None:
     other = tmp_path / "other.toml"
     other.write_text(SWEEP.replace("seed = 3", "seed = 4"))
-    res = subprocess.run(
-        [sys.executable, "-m", "app.cli", "sweep", str(other), "--out", str(serial), "--workers", "1"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
+    res = frhc("sweep", str(other), "--out", str(serial), "--workers", "1")
     assert res.returncode == 2
     assert "holds the results of another sweep" in res.stderr
 
@@ -110,13 +103,7 @@ def test_command_line_grid_sweep_with_a_heatmap(tmp_path: Path) -> None:
         'base = "probe_rate"\n[[vary]]\nfield = "gains.k_t[0:3]"\nvalues = [0.5, 1.0]\n'
         '[[vary]]\nfield = "servo_rate"\nvalues = [500.0, 1000.0]\n[[vary]]\nfield = "duration"\nvalues = [0.1]\n'
     )
-    res = subprocess.run(
-        [sys.executable, "-m", "app.cli", "sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "1"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        check=False,
-    )
+    res = frhc("sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "1")
     assert res.returncode == 0, res.stderr
     assert "4 points: 4 run now, 0 resumed" in res.stdout
     rows = pq.read_table(tmp_path / "o" / "results.parquet").to_pylist()

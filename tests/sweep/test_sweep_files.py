@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from sweep_helpers import frhc
 
 from app.errors import ConfigError
 from app.sweep import load_sweep
@@ -72,13 +71,7 @@ def test_a_bad_sweep_file_is_refused_naming_the_field(tmp_path: Path, case: str)
 def test_the_command_line_refuses_a_bad_file_in_one_line_before_running(tmp_path: Path) -> None:
     path = write(tmp_path, 'base = "probe_rate"\n[[vary]]\nfield = "tremor"\nvalues = [0.001, 1.0]\n')
     out = tmp_path / "out"
-    res = subprocess.run(
-        [sys.executable, "-m", "app.cli", "sweep", str(path), "--out", str(out), "--workers", "1"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
+    res = frhc("sweep", str(path), "--out", str(out), "--workers", "1")
     assert res.returncode == 2
     assert res.stderr.strip().count("\n") == 0
     assert f"{path}: field 'vary[0].values[1]'" in res.stderr
@@ -87,13 +80,7 @@ def test_the_command_line_refuses_a_bad_file_in_one_line_before_running(tmp_path
 
 
 def test_a_bad_workers_count_is_refused(tmp_path: Path) -> None:
-    res = subprocess.run(
-        [sys.executable, "-m", "app.cli", "sweep", "x.toml", "--workers", "-2"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    res = frhc("sweep", "x.toml", "--workers", "-2")
     assert res.returncode == 2
     assert "--workers" in res.stderr
 

@@ -174,7 +174,7 @@ def _cell(r: dict[str, Any] | None) -> str:
         return f"{'error':>22}"
     if not r["completed"]:
         return f"{'failed':>22}"
-    return f"{r['work_eq13']:>8.3f} J {r['peak_contact_force_N']:>5.1f} N {r['completion_time_s']:>4.1f}s"
+    return f"{r['work_eq13']:>8.2g} J {r['peak_contact_force_N']:>5.1f} N {r['completion_time_s']:>4.1f}s"
 
 
 def _fmt(value: float | None, spec: str) -> str:
@@ -198,7 +198,7 @@ def _table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
         s = summary[cond]
         errors = f" ({s['errors']} errors)" if s["errors"] else ""
         lines.append(
-            f"  {cond:<14} completed {s['completed']}/{s['runs']}{errors}, work {_fmt(s['median_work_J'], '.3f')} J, "
+            f"  {cond:<14} completed {s['completed']}/{s['runs']}{errors}, work {_fmt(s['median_work_J'], '.3g')} J, "
             f"peak force {_fmt(s['median_peak_force_N'], '.1f')} N, time {_fmt(s['median_time_s'], '.2f')} s"
         )
     r = summary["ratio_blind_over_ntrfc"]

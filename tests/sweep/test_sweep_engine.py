@@ -76,12 +76,12 @@ def test_ray_gives_the_serial_rows(sweep_file: Path, serial: Path, tmp_path: Pat
     assert report.table.equals(pq.read_table(serial / "results.parquet"))
 
 
-def test_resume_runs_only_the_missing_points(sweep_file: Path, serial: Path, tmp_path: Path) -> None:
+def test_resume_runs_only_the_missing_points(sweep_file: Path, serial: Path, tmp_path: Path, local_ray: None) -> None:
     full = pq.read_table(serial / "results.parquet")
     (tmp_path / "parts").mkdir()
     (tmp_path / "sweep.json").write_text((serial / "sweep.json").read_text())
     pq.write_table(full.slice(0, 4), tmp_path / "parts" / "part-000000.parquet")
-    report = run_sweep(load_sweep(sweep_file), tmp_path, workers=1)
+    report = run_sweep(load_sweep(sweep_file), tmp_path, workers=2)
     assert (report.ran, report.skipped) == (2, 4)
     assert report.table.equals(full)
     again = run_sweep(load_sweep(sweep_file), tmp_path, workers=1)

@@ -18,7 +18,7 @@ work with FRHC/NTRFC for each of its three subjects (Table I: 1.66/2.55/1.51 J b
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -87,6 +87,7 @@ def run_experiment(
     workers: int = 1,
     address: str | None = None,
     progress: bool = False,
+    on_run: Callable[[int, int], None] | None = None,
 ) -> ExperimentReport:
     """Run every operator in both conditions; write ``results.parquet``, ``table1.txt``,
     ``table1.json`` and ``table1.png`` to ``out_dir``.
@@ -98,6 +99,7 @@ def run_experiment(
         time_limit: Simulated seconds (s) a run may take before it counts as failed.
         workers, address: The engine's workers and Ray cluster (:func:`app.sweep.engine.run_points`).
         progress: Show a progress bar.
+        on_run: Called with (runs done, total) after each run (e.g. to show progress in the web page).
     """
     from app.sweep.engine import run_points
 
@@ -110,6 +112,8 @@ def run_experiment(
             op, cond = points[index][1]
             rows.append({"point": index, "operator": op.name, "condition": cond, **dataclasses.asdict(op), **row})
             bar.update(1)
+            if on_run is not None:
+                on_run(len(rows), len(points))
     rows.sort(key=lambda r: r["point"])
     results = out_dir / "results.parquet"
     pq.write_table(pa.Table.from_pylist(rows), results)

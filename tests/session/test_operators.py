@@ -90,7 +90,11 @@ def test_an_operator_needs_a_task() -> None:
 def test_the_experiment_reports_both_conditions_and_finishes_early(tmp_path: Path) -> None:
     """One default operator: both insertions complete, the run ends when the operator has
     withdrawn, and blind (nothing felt, no accommodation) presses harder than with FRHC/NTRFC."""
-    report = run_experiment(tmp_path, operators=[OperatorParams("Subject A")], workers=1)
+    calls: list[tuple[int, int]] = []
+    report = run_experiment(
+        tmp_path, operators=[OperatorParams("Subject A")], workers=1, on_run=lambda *a: calls.append(a)
+    )
+    assert calls == [(1, 2), (2, 2)]
     rows = {r["condition"]: r for r in report.rows}
     for cond in (NTRFC, BLIND):
         assert rows[cond]["status"] == "ok"

@@ -7,10 +7,13 @@ stderr as one line naming the file and field, with exit code 2 and no traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
+from app.config import fmt_number
 from app.errors import ConfigError, FrhcError, InvalidField
 
 
@@ -49,14 +52,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _positive_seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 1e-3 <= value <= 3600.0:
-        raise argparse.ArgumentTypeError(f"must be between 0.001 and 3600 s, got {text}")
-    return value
+def _bounded(cast: Callable[[str], float], lo: float, hi: float, unit: str = "") -> Callable[[str], Any]:
+    """An argparse type: ``cast`` of the text, refused outside [lo, hi] (``unit`` in the message)."""
+
+    def parse(text: str) -> Any:
+        try:
+            value = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not {'an integer' if cast is int else 'a number'}: {text!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be between {fmt_number(lo)} and {fmt_number(hi)}{unit}, got {text}")
+        return value
+
+    return parse
+
+
+_positive_seconds = _bounded(float, 1e-3, 3600.0, " s")
+_count = _bounded(int, 0, 10_000_000)
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
@@ -68,13 +80,45 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
             check_slave_kind(args.slave, "--slave")
         except InvalidField as exc:
             raise ConfigError("frhc experiment", exc.field, exc.reason) from None
-    out_dir = Path(args.out)
     report = run_experiment(
-        out_dir, repetitions=args.repetitions, duration=args.duration, progress=True, slave=args.slave
+        Path(args.out),
+        n_operators=args.operators,
+        seed=args.seed,
+        time_limit=args.time_limit,
+        workers=args.workers,
+        address=args.address,
+        progress=True,
+        slave=args.slave,
     )
     print(report.table)
-    print(f"\nchart: {report.chart}\nresults: {report.json_path}")
+    print(f"\nchart: {report.chart}\nresults: {report.results}\nsummary: {report.json_path}")
     return 0
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from app.sweep import load_sweep, run_sweep
+
+    plan = load_sweep(args.file)
+    out_dir = Path(args.out) if args.out else Path("runs") / "sweeps" / Path(args.file).stem
+    report = run_sweep(plan, out_dir, args.workers, args.address, args.metric, progress=True)
+    print(
+        f"results:  {report.results} ({report.table.num_rows} points: {report.ran} run now, {report.skipped} resumed)"
+    )
+    print(f"failed:   {report.failed}" + (" (see the 'error' column)" if report.failed else ""))
+    if report.plot is not None:
+        print(f"plot:     {report.plot}")
+    return 0
+
+
+def _engine_arguments(p: argparse.ArgumentParser) -> None:
+    """``--workers`` and ``--address`` of the point engine (sweeps and the experiment)."""
+    p.add_argument(
+        "--workers",
+        type=_count,
+        default=os.cpu_count() or 1,
+        help="parallel workers (default: every core; 1 = serially without Ray; 0 = every CPU of a cluster)",
+    )
+    p.add_argument("--address", default=None, help="join this Ray cluster (default: RAY_ADDRESS, else local)")
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -193,17 +237,36 @@ def build_parser() -> argparse.ArgumentParser:
         description="Dual peg-in-the-holes for several simulated operators, FRHC/NTRFC vs blind (paper Sec 4.3).",
     )
     p.add_argument("--out", default="runs/experiment", help="output directory")
-    p.add_argument("--repetitions", type=int, default=3, help="runs per operator and condition")
-    p.add_argument("--duration", type=float, default=None, help="override the session duration (s)")
+    p.add_argument("--operators", type=_count, default=100, help="operators drawn from the population (default 100)")
+    p.add_argument("--seed", type=_count, default=0, help="seed of the population (default 0)")
+    p.add_argument(
+        "--time-limit",
+        type=_positive_seconds,
+        default=12.0,
+        help="simulated seconds a run may take before it counts as failed (default 12)",
+    )
+    _engine_arguments(p)
     p.add_argument("--slave", default=None, help="tool or an arm in slaves/ (default: the scene's)")
     p.set_defaults(func=_cmd_experiment)
+
+    p = sub.add_parser(
+        "sweep",
+        help="run a sweep of sessions (Ray)",
+        description="Run every point of a sweep file (sweeps/README.md) as a headless session; "
+        "results to Parquet, resumable, with a plot.",
+    )
+    p.add_argument("file", help="sweep .toml file")
+    p.add_argument("--out", help="output directory (default runs/sweeps/<file>); re-running into it resumes")
+    _engine_arguments(p)
+    p.add_argument("--metric", default=None, help="metric to plot (default: the sweep file's metric)")
+    p.set_defaults(func=_cmd_sweep)
 
     p = sub.add_parser("bench", help="benchmarks (median and p99)", description="Print timing benchmarks.")
     p.add_argument(
         "what",
         nargs="?",
         default="all",
-        choices=["all", "controller", "plant", "contact", "tick", "arm", "stability"],
+        choices=["all", "controller", "plant", "contact", "tick", "arm", "stability", "sweep"],
         help="what to time",
     )
     p.add_argument("--quick", action="store_true", help="fewer iterations")

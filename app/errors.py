@@ -54,3 +54,7 @@ class ContactQueryError(FrhcError):
 class ContactInputError(ContactQueryError):
     """The contact API was called with an unusable pose or twist (wrong shape or type, or a pose
     that is not a rigid transform): a programming error, raised rather than returned."""
+
+
+class EngineError(FrhcError):
+    """The point engine could not start or reach its workers (a Ray instance or cluster)."""

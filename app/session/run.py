@@ -9,7 +9,7 @@ Example::
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -72,6 +72,7 @@ def run_session(
     progress: bool = False,
     realtime: bool = False,
     flush_interval: float = 0.1,
+    operator: Callable[[ServoLoop], Operator] | None = None,
 ) -> SessionResult:
     """Run ``session`` to its duration.
 
@@ -83,6 +84,8 @@ def run_session(
         realtime: Pace ticks to the wall clock instead of running as fast as possible; the
             summary then has the pacing figures under ``pacing``.
         flush_interval: Simulated seconds of ticks per log part: the most a crash can lose (s).
+        operator: Makes the operator from the new loop (default: the session's script). An
+            operator whose ``finished`` attribute turns true ends the session before its duration.
     """
     loop = ServoLoop(LoopConfig.from_session(session))
     d = session.data
@@ -94,9 +97,12 @@ def run_session(
         log = loop.observe(TickLog(out_dir / "log", session.device.n_joints, loop.dt, flush_interval, meta))
     pacer = Pacer(loop.dt) if realtime else None
     bar = tqdm(total=n_ticks, unit="tick", disable=not progress, mininterval=0.5)
+    actor = operator(loop) if operator is not None else OperatorScript.for_loop(d, loop)
     try:
-        for _ in play(session, loop, pacer):
+        for _ in drive(loop, actor, n_ticks, pacer):
             bar.update(1)
+            if getattr(actor, "finished", False):
+                break
     finally:
         bar.close()
         if log is not None:

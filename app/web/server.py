@@ -231,11 +231,11 @@ class DemoApp:
         if self.player is not None:
             self.player.speed = factor
 
-    def start_experiment(self, repetitions: int) -> None:
+    def start_experiment(self, operators: int) -> None:
         """Run the Table I experiment in the background; the panel shows progress and results."""
         if self.experiment is not None and not self.experiment.finished:
             return
-        self.experiment = ExperimentJob(RUNS_DIR / f"web-experiment-{datetime.now():%Y%m%d-%H%M%S}", repetitions)
+        self.experiment = ExperimentJob(RUNS_DIR / f"web-experiment-{datetime.now():%Y%m%d-%H%M%S}", operators)
 
     def set_passivity(self, on: bool) -> None:
         """Switch the passivity controller (its settings otherwise as the defaults)."""

@@ -64,7 +64,7 @@ class SessionActions(Protocol):
 
     def set_replay_speed(self, factor: float) -> None: ...
 
-    def start_experiment(self, repetitions: int) -> None: ...
+    def start_experiment(self, operators: int) -> None: ...
 
 
 class SessionPanel:
@@ -108,14 +108,17 @@ class SessionPanel:
         self.replay_speed.on_update(lambda _: a.set_replay_speed(float(self.replay_speed.value)))
 
         with gui.add_folder("Experiment (Table I)", expand_by_default=False):
-            gui.add_markdown("Dual peg-in-the-holes, three simulated operators, FRHC/NTRFC against blind (Sec 4.3).")
-            self.repetitions = gui.add_slider("Repetitions", min=1, max=3, step=1, initial_value=1)
+            gui.add_markdown(
+                "Dual peg-in-the-holes (Sec 4.3): simulated operators that react, drawn from a seeded "
+                "population, each with FRHC/NTRFC and blind. `frhc experiment` runs 100 on Ray."
+            )
+            self.operators = gui.add_slider("Operators", min=1, max=20, step=1, initial_value=3)
             self.run_experiment = gui.add_button("Run experiment")
             self.progress = gui.add_progress_bar(0.0, visible=False)
             self.experiment_result = gui.add_markdown("")
             self.server = server
             self.chart: viser.GuiImageHandle | None = None
-        self.run_experiment.on_click(lambda _: a.start_experiment(int(self.repetitions.value)))
+        self.run_experiment.on_click(lambda _: a.start_experiment(int(self.operators.value)))
 
     def show_replay(self, duration: float | None, text: str) -> None:
         """Enable the timeline for a log of ``duration`` seconds (None: live again)."""
@@ -151,19 +154,19 @@ class ExperimentJob:
         failed, if it did.
     """
 
-    def __init__(self, out_dir: Path, repetitions: int) -> None:
+    def __init__(self, out_dir: Path, operators: int) -> None:
         self.done, self.total = 0, 1
         self.report: ExperimentReport | None = None
         self.error: str | None = None
-        self._thread = threading.Thread(target=self._run, args=(out_dir, repetitions), name="experiment", daemon=True)
+        self._thread = threading.Thread(target=self._run, args=(out_dir, operators), name="experiment", daemon=True)
         self._thread.start()
 
-    def _run(self, out_dir: Path, repetitions: int) -> None:
+    def _run(self, out_dir: Path, operators: int) -> None:
         def progress(done: int, total: int) -> None:
             self.done, self.total = done, total
 
         try:
-            self.report = run_experiment(out_dir, repetitions=repetitions, on_run=progress)
+            self.report = run_experiment(out_dir, n_operators=operators, on_run=progress)
         except Exception as exc:  # shown in the page; the server must live on
             self.error = f"{type(exc).__name__}: {exc}"
 

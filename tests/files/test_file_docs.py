@@ -14,6 +14,7 @@ from app.controller.passivity import PassivitySettings
 from app.device.hand import HandParams
 from app.device.spec import CalibrationSpec, DeviceFile, MotorSpec, PlantParams
 from app.session.spec import MAX_TICKS, SessionFile, SwitchEvent, Waypoint
+from app.sweep.spec import SweepFile, Vary
 from app.teleop.channel import ChannelSettings
 from app.world.scene_file import (
     MAX_OBJECTS,
@@ -53,6 +54,8 @@ SECTIONS = [
     ("sessions/README.md", "## `[hand]`", HandParams),
     ("sessions/README.md", "## `[passivity]`", PassivitySettings),
     ("sessions/README.md", "## `[channel]`", ChannelSettings),
+    ("sweeps/README.md", "## Top level", SweepFile),
+    ("sweeps/README.md", "## `[[vary]]`", Vary),
 ]
 
 
@@ -91,7 +94,7 @@ def schema_classes(cls: type, seen: set[type]) -> set[type]:
 
 def test_every_schema_class_has_a_documented_section() -> None:
     classes: set[type] = set()
-    for root in (SceneFile, DeviceFile, SessionFile, CalibrationSpec, ControllerGains, HandParams):
+    for root in (SceneFile, DeviceFile, SessionFile, CalibrationSpec, ControllerGains, HandParams, SweepFile):
         schema_classes(root, classes)
     assert classes == {cls for _, _, cls in SECTIONS}
 

@@ -118,7 +118,7 @@ def test_replay_shows_the_recorded_tick(demo: DemoApp, page: object, tmp_path: P
 
 
 def test_experiment_button_shows_the_table(demo: DemoApp, page: object) -> None:
-    demo.panel.repetitions.value = 1
+    demo.panel.operators.value = 1
     _click(page, "Run experiment")
     end = time.monotonic() + 6 * STEP_TIMEOUT
     while "blind / NTRFC" not in _body(page):
@@ -126,5 +126,5 @@ def test_experiment_button_shows_the_table(demo: DemoApp, page: object) -> None:
         assert "experiment failed" not in _body(page)
         time.sleep(0.5)
     text = _body(page)
-    assert "Paper's finding" in text
+    assert "FRHC/NTRFC" in text
     assert demo.panel.chart is not None

@@ -16,8 +16,9 @@ from world_helpers import sphere_tool
 
 from app.controller.payload import remove_weight
 from app.controller.types import FTReading, SlaveCommand
-from app.session.experiment import OPERATORS, run_experiment
+from app.session.experiment import run_experiment
 from app.session.log import read_log
+from app.session.operators import sample_population
 from app.session.run import run_session
 from app.session.spec import load_session
 from app.spatial import rotation_log, zyx_to_matrix
@@ -258,10 +259,10 @@ def test_out_of_reach_the_command_is_limited_flagged_and_felt() -> None:
 
 
 def test_table1_experiment_and_the_log_run_with_an_arm(tmp_path: Path) -> None:
-    report = run_experiment(tmp_path / "exp", repetitions=1, operators=OPERATORS[:1], duration=1.5, slave="puma560")
-    for works in report.work[OPERATORS[0].name].values():
-        assert len(works) == 1
-        assert math.isfinite(works[0])
+    report = run_experiment(tmp_path / "exp", operators=sample_population(1, seed=3), time_limit=1.5, slave="puma560")
+    assert len(report.rows) == 2  # one operator, both conditions
+    for row in report.rows:
+        assert math.isfinite(row["work_eq13"])
     session = load_session("probe_rate").with_changes(slave="redundant7", duration=1.0)
     result = run_session(session, out_dir=tmp_path / "run")
     assert result.log_dir is not None

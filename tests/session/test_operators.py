@@ -1,0 +1,118 @@
+"""Reacting operators: delayed senses, the force threshold, the population, the experiment."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from app.session import load_session
+from app.session.experiment import BLIND, NTRFC, run_experiment
+from app.session.loop import LoopConfig, ServoLoop
+from app.session.operators import (
+    POPULATION,
+    V_DB,
+    OperatorParams,
+    ReactingOperator,
+    _Delayed,
+    sample_population,
+)
+
+
+@given(delay=st.floats(0.0, 0.3), rate=st.sampled_from([500.0, 1000.0, 2000.0]))
+def test_a_sense_reports_exactly_its_delay_late(delay: float, rate: float) -> None:
+    dt = 1.0 / rate
+    n = max(1, round(delay / dt))
+    sense = _Delayed(delay, dt, np.zeros(3))
+    out = [sense.push(np.full(3, float(k)))[0] for k in range(1, n + 20)]
+    # Tick k (1-based) perceives what happened n ticks before; before that, the first sample (0).
+    assert out == [max(0.0, float(k - n)) for k in range(1, n + 20)]
+
+
+def test_the_population_is_seeded_and_inside_its_ranges() -> None:
+    a, b = sample_population(50, seed=7), sample_population(50, seed=7)
+    assert a == b
+    assert a != sample_population(50, seed=8)
+    for name, (lo, hi) in POPULATION.items():
+        values = [getattr(op, name) for op in a]
+        assert all(lo <= v <= hi for v in values)
+        assert max(values) - min(values) > 0.5 * (hi - lo)  # spread over the range, not one value
+
+
+def stub(record_T_0_G: np.ndarray, tool: np.ndarray, force: np.ndarray, t: float, tick: int) -> SimpleNamespace:
+    T_w_MRF = np.eye(4)
+    T_w_MRF[0:3, 3] = tool
+    out = SimpleNamespace(G_F_T=np.concatenate((force, np.zeros(3))))
+    record = SimpleNamespace(T_w_MRF=T_w_MRF, reading=SimpleNamespace(T_0_G=record_T_0_G), out=out)
+    loop = SimpleNamespace(record=record, time=t, ticks=tick, targets=[])
+    loop.set_hand_target = lambda T: loop.targets.append(T.copy())
+    return loop
+
+
+def test_a_felt_force_above_the_threshold_is_yielded_to_after_the_haptic_delay() -> None:
+    """Seen at home, far from the goal, the operator wants the tool down at ``speed``; holding the
+    rate-mode inverse ``d = v / K_V + DB tanh(v / V_DB)``. A felt upward force of twice the threshold
+    adds ``+speed`` upward: the two cancel and the hand returns to the start, ``haptic_delay`` later."""
+    session = load_session("peg_ntrfc")
+    loop = ServoLoop(LoopConfig.from_session(session))
+    params = OperatorParams("test", tremor=0.0, aim_error=0.0, haptic_delay=0.05, force_threshold=3.0, speed=0.03)
+    op = ReactingOperator(params, session, loop)
+    T_0_G = loop.reading.T_0_G.copy()
+    home = loop.record.T_w_MRF[0:3, 3].copy()
+    k_v, db = session.gains.k_v[2], session.gains.deadband[2]
+    pushing = -(params.speed / k_v + db * math.tanh(params.speed / V_DB))
+    n_delay = round(params.haptic_delay * loop.config.servo_rate)
+    heights = []
+    for k in range(3 * n_delay):
+        force = np.array([0.0, 0.0, 6.0]) if k >= n_delay else np.zeros(3)
+        s = stub(T_0_G, home, force, k * loop.dt, k)
+        op.before_tick(s)
+        heights.append(s.targets[-1][2, 3] - T_0_G[2, 3])
+    assert heights[n_delay] == pytest.approx(pushing, rel=1e-9)
+    assert heights[2 * n_delay - 1] == pytest.approx(pushing, rel=1e-9)
+    assert heights[2 * n_delay] == pytest.approx(0.0, abs=1e-12)
+    assert op.phase == "insert"
+
+
+def test_an_operator_needs_a_task() -> None:
+    session = load_session("probe_rate")
+    loop = ServoLoop(LoopConfig.from_session(session))
+    with pytest.raises(ValueError, match="no task"):
+        ReactingOperator(OperatorParams("x"), session, loop)
+
+
+def test_the_experiment_reports_both_conditions_and_finishes_early(tmp_path: Path) -> None:
+    """One default operator: both insertions complete, the run ends when the operator has
+    withdrawn, and blind (nothing felt, no accommodation) presses harder than with FRHC/NTRFC."""
+    calls: list[tuple[int, int]] = []
+    report = run_experiment(
+        tmp_path, operators=[OperatorParams("Subject A")], workers=1, on_run=lambda *a: calls.append(a)
+    )
+    assert calls == [(1, 2), (2, 2)]
+    rows = {r["condition"]: r for r in report.rows}
+    for cond in (NTRFC, BLIND):
+        assert rows[cond]["status"] == "ok"
+        assert rows[cond]["completed"]
+        assert rows[cond]["simulated_s"] < 12.0
+    assert rows[BLIND]["peak_contact_force_N"] > 2.0 * rows[NTRFC]["peak_contact_force_N"]
+    assert "Subject A" in report.table
+    assert report.chart.stat().st_size > 0
+    assert pq.read_table(report.results).num_rows == 2
+
+
+def test_failed_runs_are_reported_not_averaged_and_ray_gives_the_serial_rows(tmp_path: Path, local_ray: None) -> None:
+    """A 0.3 s limit is too short to insert anything: every run fails, no work is averaged."""
+    ops = sample_population(2, seed=5)
+    serial = run_experiment(tmp_path / "s", operators=ops, time_limit=0.3, workers=1)
+    assert all(r["status"] == "ok" and not r["completed"] for r in serial.rows)
+    summary = serial.table.split("Population")[1]
+    assert "completed 0/2, work - J" in summary
+    assert serial.table.count("failed") == 4
+    on_ray = run_experiment(tmp_path / "r", operators=ops, time_limit=0.3, workers=2)
+    assert on_ray.rows == serial.rows

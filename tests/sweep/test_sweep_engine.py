@@ -1,0 +1,139 @@
+"""Running sweeps: rows as on a serial run when on Ray, resume, failing points, plots, the engine."""
+
+from __future__ import annotations
+
+import operator
+import os
+from functools import partial
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from sweep_helpers import frhc
+
+from app.sweep import load_sweep, run_sweep
+from app.sweep.engine import run_points
+
+#: Six short probe sessions; tremor drawn from a normal distribution, so some draws are negative
+#: (out of its range): those points fail alone, with the one-line error naming the field.
+SWEEP = """
+base = "probe_rate"
+samples = 6
+seed = 3
+metric = "peak_contact_force_N"
+
+[[vary]]
+field = "tremor"
+normal = [0.0005, 0.002]
+
+[[vary]]
+field = "scene.objects.surface.stiffness"
+range = [1000.0, 5000.0]
+
+[[vary]]
+field = "duration"
+values = [0.12]
+"""
+
+
+@pytest.fixture(scope="module")
+def sweep_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("sweep") / "s.toml"
+    path.write_text(SWEEP)
+    return path
+
+
+@pytest.fixture(scope="module")
+def serial(sweep_file: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("serial")
+    run_sweep(load_sweep(sweep_file), out, workers=1)
+    return out
+
+
+def test_a_failing_point_is_a_row_with_its_error_and_the_sweep_goes_on(serial: Path) -> None:
+    table = pq.read_table(serial / "results.parquet").to_pylist()
+    assert [r["point"] for r in table] == list(range(6))
+    bad = [r for r in table if r["tremor"] < 0]
+    good = [r for r in table if r["tremor"] >= 0]
+    assert bad
+    assert good
+    for r in bad:
+        assert r["status"] == "error"
+        assert "field 'tremor'" in r["error"]
+        assert "non-negative" in r["error"]
+        assert r["work_eq13"] is None
+    for r in good:
+        assert r["status"] == "ok"
+        assert r["error"] == ""
+        assert r["simulated_s"] == pytest.approx(0.12)
+        assert 1000.0 <= r["scene.objects.surface.stiffness"] <= 5000.0
+    assert (serial / "peak_contact_force_N.png").stat().st_size > 0
+
+
+def test_ray_gives_the_serial_rows(sweep_file: Path, serial: Path, tmp_path: Path, local_ray: None) -> None:
+    report = run_sweep(load_sweep(sweep_file), tmp_path, workers=2)
+    assert report.ran == 6
+    assert report.table.equals(pq.read_table(serial / "results.parquet"))
+
+
+def test_resume_runs_only_the_missing_points(sweep_file: Path, serial: Path, tmp_path: Path, local_ray: None) -> None:
+    full = pq.read_table(serial / "results.parquet")
+    (tmp_path / "parts").mkdir()
+    (tmp_path / "sweep.json").write_text((serial / "sweep.json").read_text())
+    pq.write_table(full.slice(0, 4), tmp_path / "parts" / "part-000000.parquet")
+    report = run_sweep(load_sweep(sweep_file), tmp_path, workers=2)
+    assert (report.ran, report.skipped) == (2, 4)
+    assert report.table.equals(full)
+    again = run_sweep(load_sweep(sweep_file), tmp_path, workers=1)
+    assert (again.ran, again.skipped) == (0, 6)
+    assert again.table.equals(full)
+
+
+def test_an_output_directory_of_another_sweep_is_refused(sweep_file: Path, serial: Path, tmp_path: Path) -> None:
+    other = tmp_path / "other.toml"
+    other.write_text(SWEEP.replace("seed = 3", "seed = 4"))
+    res = frhc("sweep", str(other), "--out", str(serial), "--workers", "1")
+    assert res.returncode == 2
+    assert "holds the results of another sweep" in res.stderr
+
+
+def test_command_line_grid_sweep_with_a_heatmap(tmp_path: Path) -> None:
+    path = tmp_path / "grid.toml"
+    path.write_text(
+        'base = "probe_rate"\n[[vary]]\nfield = "gains.k_t[0:3]"\nvalues = [0.5, 1.0]\n'
+        '[[vary]]\nfield = "servo_rate"\nvalues = [500.0, 1000.0]\n[[vary]]\nfield = "duration"\nvalues = [0.1]\n'
+    )
+    res = frhc("sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "1")
+    assert res.returncode == 0, res.stderr
+    assert "4 points: 4 run now, 0 resumed" in res.stdout
+    rows = pq.read_table(tmp_path / "o" / "results.parquet").to_pylist()
+    assert [(r["gains.k_t[0:3]"], r["servo_rate"], r["status"]) for r in rows] == [
+        (0.5, 500.0, "ok"),
+        (0.5, 1000.0, "ok"),
+        (1.0, 500.0, "ok"),
+        (1.0, 1000.0, "ok"),
+    ]
+    # 0.1 s at 500 Hz is 50 ticks, at 1 kHz 100.
+    assert [round(r["simulated_s"] * r["servo_rate"]) for r in rows] == [50, 100, 50, 100]
+    assert (tmp_path / "o" / "work_eq13.png").stat().st_size > 0
+
+
+def test_the_engine_turns_exceptions_and_dead_workers_into_rows(local_ray: None) -> None:
+    """``operator.call`` is the task and each payload a call: ``dict`` of pairs makes a row, of an
+    integer raises TypeError; ``os._exit`` kills its worker process, whose place a new one takes."""
+    points = [
+        (0, partial(dict, [("a", 1)])),
+        (1, partial(dict, 7)),
+        (2, partial(os._exit, 3)),
+        *[(k, partial(dict, [("a", k)])) for k in range(3, 8)],
+    ]
+    rows = dict(run_points(operator.call, points, workers=2))
+    assert rows[0] == {"a": 1, "status": "ok", "error": ""}
+    assert rows[1]["status"] == "error"
+    assert rows[1]["error"].startswith("TypeError")
+    assert rows[2]["status"] == "error"
+    assert "worker died" in rows[2]["error"]
+    # At most the one point queued behind the dying one on its worker fails with it.
+    ok = [k for k in range(3, 8) if rows[k]["status"] == "ok"]
+    assert len(ok) >= 4
+    assert all(rows[k]["a"] == k for k in ok)

@@ -63,28 +63,36 @@ def test_the_guide_is_on_the_first_page(page: object) -> None:
 
 
 def test_try_the_peg_task_plays_it_to_the_inserted_state(demo: DemoApp, page: object, tmp_path: Path) -> None:
-    """The button rebuilds the loop for peg_in_hole and plays peg_ntrfc live: the pegs go in, and
-    the status shows the contact force on the way."""
+    """The button rebuilds the loop for peg_in_hole and plays peg_ntrfc live: the status shows the
+    contact force when the pegs press on the block (the play is paused there for the slow page),
+    and the pegs go in."""
     _click(page, "Try the peg task")
     _wait_for(lambda: demo.rt.snapshot.playing is not None, "the session did not start playing")
     task = load_scene("peg_in_hole").spec.task
     assert task is not None
-    forces: list[float] = []
-    inserted = False
+    # Hold the play once the pegs press on the block, so the page (slow: software WebGL) can show it.
     end = time.monotonic() + 3 * STEP_TIMEOUT
+    while float(np.linalg.norm(demo.rt.snapshot.F_MRF[0:3])) < 0.5:
+        assert demo.rt.snapshot.playing is not None, "the session ended without a contact force"
+        assert time.monotonic() < end, "no contact force"
+        time.sleep(0.01)
+    demo.panel.pause.value = True
+    _wait_for(lambda: demo.rt.snapshot.paused, "the loop did not pause")
+    shown = float(np.linalg.norm(demo.rt.snapshot.F_MRF[0:3]))
+    _wait_for(
+        lambda: f"|F_MRF| = {shown:.2f} N" in _body(page), f"the page does not show the {shown:.2f} N contact force"
+    )
+    demo.panel.pause.value = False
+    inserted = False
     while demo.rt.snapshot.playing is not None:
         assert time.monotonic() < end, "the session did not finish"
-        match = re.search(r"\|F_MRF\| = ([0-9.]+) N", _body(page))
-        if match:
-            forces.append(float(match.group(1)))
         inserted |= task.done(demo.rt.snapshot.T_w_MRF)
-        time.sleep(0.05)
+        time.sleep(0.02)
     snap = demo.rt.snapshot
     # Inserted: the goal depth was reached (the script then pushes on to the holes' floor).
     goal = task.goal.matrix()[0:3, 3]
     p = snap.T_w_MRF[0:3, 3]
     assert inserted or (np.linalg.norm(p[0:2] - goal[0:2]) < task.position_tolerance and p[2] < goal[2]), p
-    assert max(forces) > 0.5  # the page showed the contact force while the pegs met the holes
     page.get_by_text("no session playing").first.wait_for(state="attached", timeout=STEP_TIMEOUT * 1000)  # type: ignore[attr-defined]
     SCREENSHOT_DIR.mkdir(parents=True, exist_ok=True)
     page.screenshot(path=str(tmp_path / "peg.png"))  # type: ignore[attr-defined]

@@ -36,12 +36,16 @@ import numpy as np
 import numpy.typing as npt
 
 from app.device.hand import HandParams, OperatorHand, add_hand
+from app.device.plant_kernel import plant_period
 from app.device.spec import DeviceSpec, MotorSpec, PlantParams
 from app.errors import ConfigError
-from app.spatial import Array
+from app.mjcall import address, pointers
+from app.spatial import Array, IntArray
 
 #: Integer motor commands (counts), shape (n,).
 Counts = npt.NDArray[np.integer[Any]]
+
+_I8 = np.dtype(np.int64)
 
 #: The amplifier's servo watchdog (s): 20 servo periods at 1 kHz without new counts.
 WATCHDOG = 0.02
@@ -182,9 +186,8 @@ class DevicePlant:
 
         motors = spec.data.motors
         cmax = motors.counts_max
-        self._counts_max = np.int64(cmax)
-        self._counts_min = np.int64(-cmax)
-        self._substep_range = range(self.params.substeps)
+        self._counts_max = int(cmax)
+        self._no_counts = np.zeros(0, dtype=np.int64)
         # The true curve is tabulated at every integer count, so a step's motor stage is one gather.
         grid = np.broadcast_to(np.arange(-cmax, cmax + 1, dtype=float)[:, None], (2 * cmax + 1, n))
         gear = np.asarray(motors.gear_ratio)
@@ -192,15 +195,16 @@ class DevicePlant:
         table = np.clip(true_motor_torque(self.params, motors, grid) * gear, -limit_joint, limit_joint)
         self._table = np.ascontiguousarray(table.T).ravel()
         self._row_offset = np.arange(n, dtype=np.int64) * (2 * cmax + 1) + cmax
-        self._idx = np.zeros(n, dtype=np.int64)
         self._tau_out = self.data.qfrc_applied[dof_slice]
 
         cpr = self.params.per_joint("encoder_counts_per_rev", n)
-        self._quantise = bool(np.all(cpr > 0))
         hinge = int(mujoco.mjtJoint.mjJNT_HINGE)
         is_hinge = np.array([int(self.model.jnt_type[j]) == hinge for j in spec.joint_ids])
-        self._enc_scale = np.where(is_hinge, cpr / (2.0 * math.pi), cpr)
-        self._enc_inv = np.divide(1.0, self._enc_scale, out=np.zeros(n), where=self._enc_scale > 0)
+        # Quantise every joint or none (a zero resolution anywhere means ideal encoders).
+        scale = np.where(is_hinge, cpr / (2.0 * math.pi), cpr) if np.all(cpr > 0) else np.zeros(n)
+        inverse = np.divide(1.0, scale, out=np.zeros(n), where=scale > 0)
+        self._encoders = np.concatenate((scale, inverse))
+        self._mj = (address("mj_step1"), address("mj_step2"), *pointers(self.model, self.data))
         self._qfrc_constraint = self.data.qfrc_constraint[dof_slice]
         self._eq0 = self.model.neq - n  # the brakes were appended after the MJCF's own equalities
         self._dt = 0.0
@@ -288,40 +292,57 @@ class DevicePlant:
                 raise ValueError(f"dt must be positive, got {dt}")
             m.opt.timestep = dt / self.params.substeps
             self._dt = dt
+        r = self.reading
+        commands = self._no_counts
         if counts is None:
             self._since_counts += dt
             # The relative margin keeps a sum of periods equal to the watchdog from tripping it.
-            if self._since_counts > self.watchdog * (1.0 + 1e-9) and not self.reading.motors_off:
+            if self._since_counts > self.watchdog * (1.0 + 1e-9) and not r.motors_off:
                 self._tau_out[:] = 0.0
-                self.reading.motors_off = True
-                self.reading.watchdog_trips += 1
+                r.motors_off = True
+                r.watchdog_trips += 1
         else:
+            ok = counts.__class__ is np.ndarray and counts.dtype is _I8 and counts.shape == self._tau_out.shape
+            commands = counts if ok else self._checked_counts(counts)  # type: ignore[assignment]
             self._since_counts = 0.0
-            self.reading.motors_off = False
-            idx = self._idx
-            # minimum/maximum and ndarray.take rather than np.clip/np.take, whose Python wrappers
-            # cost microseconds each: this method is the whole plant's per-tick Python overhead.
-            np.minimum(counts, self._counts_max, out=idx)
-            np.maximum(idx, self._counts_min, out=idx)
-            np.add(idx, self._row_offset, out=idx)
-            self._table.take(idx, out=self._tau_out)
-        for _ in self._substep_range:
-            # step2 then step1: the kinematics left in data always belong to the new state.
-            mujoco.mj_step2(m, d)
-            mujoco.mj_step1(m, d)
-        self._read()
-        return self.reading
+            r.motors_off = False
+        plant_period(
+            *self._mj,
+            self.params.substeps,
+            commands,
+            self._counts_max,
+            self._table,
+            self._row_offset,
+            self._tau_out,
+            self._encoders,
+            r.q_true,
+            r.q,
+        )
+        r.time = d.time
+        return r
+
+    def _checked_counts(self, counts: object) -> IntArray:
+        """``counts`` as int64 of shape (n,), or ValueError (a wrong type would compile a new kernel)."""
+        c = np.asarray(counts)
+        if c.shape != self._tau_out.shape or c.dtype.kind not in "iu":
+            raise ValueError(f"counts must be integers of shape {self._tau_out.shape}, got {c.dtype} {c.shape}")
+        return np.ascontiguousarray(c, dtype=np.int64)
 
     def _read(self) -> None:
-        r = self.reading
-        if self._quantise:
-            q = r.q
-            np.multiply(r.q_true, self._enc_scale, out=q)
-            np.rint(q, out=q)
-            np.multiply(q, self._enc_inv, out=q)
-        else:
-            np.copyto(r.q, r.q_true)
-        r.time = self.data.time
+        """The encoders at the present state, without stepping (after a reset)."""
+        plant_period(
+            *self._mj,
+            0,
+            self._no_counts,
+            0,
+            self._table,
+            self._row_offset,
+            self._tau_out,
+            self._encoders,
+            self.reading.q_true,
+            self.reading.q,
+        )
+        self.reading.time = self.data.time
 
     def lock_joints(self, locked: bool) -> None:
         """Calibration stand: brake every joint at its present angle (True) or release (False).

@@ -54,6 +54,10 @@ class FTReading:
     omega_w: Array = field(default_factory=lambda: np.zeros(3))
     valid: bool = True
 
+    def copy(self) -> FTReading:
+        """A reading with its own arrays (a slave's step returns one it overwrites next tick)."""
+        return FTReading(self.wrench_S.copy(), self.R_w_S.copy(), self.acc_w.copy(), self.omega_w.copy(), self.valid)
+
 
 @dataclass(frozen=True)
 class SlaveModel:

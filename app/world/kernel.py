@@ -19,10 +19,17 @@ import math
 import numpy as np
 from numba import njit
 
-from app.spatial import Array, cross3, quat_to_matrix, rotation_exp, rotation_log
+from app.mjcall import call_model_data
+from app.spatial import Array, IntArray, cross3, quat_to_matrix, rotation_exp, rotation_log
 
 # Slots of the PD gain vector handed to :func:`drive_wrench` (see ``SlaveGains``).
 KP_LIN, KD_LIN, KP_ROT, KD_ROT, FORCE_LIMIT, TORQUE_LIMIT = range(6)
+# Slots of the rest of :func:`tool_substep`'s constant parameter vector, after the PD gains.
+K_ACC, MAX_LEAD_LIN, MAX_LEAD_ROT, WEIGHT_W, GRAVITY_W, MASS, INERTIA_C, N_PARAMS = 6, 12, 13, 14, 17, 20, 21, 30
+# What :func:`tool_substep` does to the reference before driving toward it.
+HOLD, RATE, POSE, KEEP = range(4)
+# Slots of the packed F/T reading (the fields of :class:`~app.controller.types.FTReading`).
+R_WRENCH, R_ROT, R_ACC, R_OMEGA, N_READING = 0, 6, 15, 21, 24
 
 
 @njit(cache=True)
@@ -194,7 +201,8 @@ def sensor_reading(
     gravity_w: Array,
     contact_S: Array,
     valid: bool,
-) -> tuple[Array, Array, Array, Array]:
+    reading: Array,
+) -> None:
     """F/T reading at {S}: contact + weight - inertial load of the body outboard of the sensor.
 
     Args:
@@ -205,18 +213,20 @@ def sensor_reading(
         mass: Outboard mass (kg). ``gravity_w``: gravity in {w} (m/s^2), (3,).
         contact_S: Contact wrench at {S} in {S}, (6,).
         valid: False gives zero wrench and accelerations (the reading is not trustworthy).
-
-    Returns:
-        ``(wrench_S (6,), R_w_S (3, 3), acc_w (6,), omega_w (3,))`` as
-        :class:`~app.controller.types.FTReading` defines them; new arrays.
+        reading: Output, ``[wrench_S (6); R_w_S (9, row-major); acc_w (6); omega_w (3)]`` as
+            :class:`~app.controller.types.FTReading` defines them, (24,).
     """
     R_w_C = _mul_t(T_w_MRF[0:3, 0:3], T_C_MRF[0:3, 0:3])
     R_w_S = _mul(R_w_C, T_C_S[0:3, 0:3])
-    w_w = V_w_MRF[3:6].copy()
-    F_S = np.zeros(6)
-    acc_w = np.zeros(6)
+    w_w = V_w_MRF[3:6]
+    for i in range(3):
+        reading[R_OMEGA + i] = w_w[i]
+        for j in range(3):
+            reading[R_ROT + 3 * i + j] = R_w_S[i, j]
     if not valid:
-        return F_S, R_w_S, acc_w, w_w
+        reading[R_WRENCH : R_WRENCH + 6] = 0.0
+        reading[R_ACC : R_ACC + 6] = 0.0
+        return
     a_com = qacc[0:3]
     alpha_w = _apply(R_w_C, qacc[3:6])
     r_com_S = _apply(R_w_C, T_C_S[0:3, 3])  # centre of mass to the {S} origin, {w}
@@ -225,8 +235,92 @@ def sensor_reading(
     I_w = _apply(R_w_C, _apply(inertia_C, _apply_t(R_w_C, w_w)))
     f_body = mass * (gravity_w - a_com)  # weight minus inertial force, at the centre of mass
     m_body = cross3(f_body, r_com_S) - (I_alpha + cross3(w_w, I_w))  # about the {S} origin
-    F_S[0:3] = contact_S[0:3] + _apply_t(R_w_S, f_body)
-    F_S[3:6] = contact_S[3:6] + _apply_t(R_w_S, m_body)
-    acc_w[0:3] = a_com + cross3(alpha_w, r_com_S) + cross3(w_w, cross3(w_w, r_com_S))
-    acc_w[3:6] = alpha_w
-    return F_S, R_w_S, acc_w, w_w
+    reading[R_WRENCH : R_WRENCH + 3] = contact_S[0:3] + _apply_t(R_w_S, f_body)
+    reading[R_WRENCH + 3 : R_WRENCH + 6] = contact_S[3:6] + _apply_t(R_w_S, m_body)
+    reading[R_ACC : R_ACC + 3] = a_com + cross3(alpha_w, r_com_S) + cross3(w_w, cross3(w_w, r_com_S))
+    reading[R_ACC + 3 : R_ACC + 6] = alpha_w
+
+
+@njit(cache=True)
+def tool_substep(
+    mj: IntArray,
+    reference: int,
+    twist: Array,
+    T_cmd: Array,
+    prev_contact: Array,
+    dt: float,
+    params: Array,
+    frames: Array,
+    T_w_MRF: Array,
+    V_w_MRF: Array,
+    T_ref: Array,
+    V_ref_w: Array,
+    qpos: Array,
+    qvel: Array,
+    qacc: Array,
+    xfrc: Array,
+    contact: Array,
+    valid: bool,
+    reading: Array,
+) -> None:
+    """One substep of the ideal tool in one call: reference, PD drive, ``mj_step``, F/T sensor, new state.
+
+    Args:
+        mj: ``[mj_step address, mjModel*, mjData*]`` (:mod:`app.mjcall`), (3,).
+        reference: :data:`HOLD` (inactive command: the reference stops), :data:`RATE`
+            (integrate ``twist`` plus the accommodation term), :data:`POSE` (the reference is
+            ``T_cmd``) or :data:`KEEP` (a later substep of the same tick: unchanged).
+        twist: Commanded ``[v; w]`` for :data:`RATE` (see :func:`rate_reference`), (6,).
+        T_cmd: Commanded {MRF} pose for :data:`POSE`, (4, 4).
+        prev_contact: The previous contact result's ``w`` (:class:`~app.world.contact.ContactResult`),
+            (15,): its {MRF} wrench drives the accommodation; all zero turns it off.
+        dt: The servo period (s) the rate reference integrates over (the substep is MuJoCo's
+            timestep).
+        params: ``[pd (6, see drive_wrench); K_acc (6); max_lead_lin; max_lead_rot; m g in {w}
+            (3); g in {w} (3); mass; inertia_C (9)]``, (30,).
+        frames: ``[T_C_MRF, T_C_S]``, (2, 4, 4).
+        T_w_MRF, V_w_MRF: The tool's {MRF} pose (4, 4) and twist (6,) at the substep's start (in),
+            then at its end (out).
+        T_ref, V_ref_w: The reference pose (4, 4) and twist (6,), updated as ``reference`` says.
+        qpos, qvel, qacc, xfrc: MuJoCo's free joint state (7,), (6,), (6,) and the body's
+            ``xfrc_applied`` row (6,).
+        contact: This substep's contact result ``w`` at ``T_w_MRF`` (15,); ``valid`` its flag.
+        reading: Output, the F/T reading ``[wrench_S (6); R_w_S (9, row-major); acc_w (6);
+            omega_w (3)]`` at the substep's start with the accelerations it applied, (24,).
+    """
+    if reference == HOLD:
+        V_ref_w[:] = 0.0
+    elif reference == POSE:
+        T_ref[:, :] = T_cmd
+        V_ref_w[:] = 0.0
+    elif reference == RATE:
+        F_acc = params[K_ACC : K_ACC + 6] * prev_contact[6:12]
+        rate_reference(twist, F_acc, T_w_MRF, dt, params[MAX_LEAD_LIN], params[MAX_LEAD_ROT], T_ref, V_ref_w)
+    drive_wrench(
+        T_w_MRF,
+        V_w_MRF,
+        T_ref,
+        V_ref_w,
+        params[0:6],
+        qpos,
+        contact[12:15],
+        contact[6:12],
+        params[WEIGHT_W : WEIGHT_W + 3],
+        xfrc,
+    )
+    call_model_data(mj[0], mj[1], mj[2])
+    inertia_C = params[INERTIA_C : INERTIA_C + 9].reshape((3, 3))
+    sensor_reading(
+        T_w_MRF,
+        V_w_MRF,
+        qacc,
+        frames[0],
+        frames[1],
+        inertia_C,
+        params[MASS],
+        params[GRAVITY_W : GRAVITY_W + 3],
+        contact[0:6],
+        valid,
+        reading,
+    )
+    mrf_state(qpos, qvel, frames[0], T_w_MRF, V_w_MRF)

@@ -35,15 +35,37 @@ import mujoco
 import numpy as np
 
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
+from app.mjcall import address, pointers
 from app.spatial import Array, invert_pose, matrix_to_quat
 from app.world.contact import ContactModel, ContactResult
-from app.world.kernel import drive_wrench, mrf_state, rate_reference, sensor_reading
+from app.world.kernel import (
+    GRAVITY_W,
+    HOLD,
+    INERTIA_C,
+    KEEP,
+    MASS,
+    N_PARAMS,
+    N_READING,
+    POSE,
+    R_ACC,
+    R_OMEGA,
+    R_ROT,
+    R_WRENCH,
+    RATE,
+    mrf_state,
+    rate_reference,
+    sensor_reading,
+    tool_substep,
+)
 from app.world.scene import Scene
 
 DEFAULT_PERIOD = 1e-3  # s, the servo period
 # A read-only zero six-vector: the accelerations of a tool held at rest, no accommodation term.
 _ZERO6 = np.zeros(6)
 _ZERO6.flags.writeable = False
+# A contact result's ``w`` with no wrench: no accommodation. Left writeable (the kernel only reads
+# it) because numba compiles a separate kernel for read-only arrays.
+_ZERO15 = np.zeros(15)
 
 
 def _tool_xml(scene: Scene, timestep: float) -> str:
@@ -147,8 +169,7 @@ class SlaveBase:
         reset so the controller's first tick does not see a zero wrench (which its payload
         removal would turn into a false ``+m g``).
         """
-        r = self._reading
-        return FTReading(r.wrench_S.copy(), r.R_w_S.copy(), r.acc_w.copy(), r.omega_w.copy(), r.valid)
+        return self._reading.copy()
 
     def slave_model(self) -> SlaveModel:
         """What the controller may know about the tool (for payload weight/inertia removal)."""
@@ -189,15 +210,31 @@ class VirtualSlave(SlaveBase):
         self._qvel = self.data.qvel
         self._qacc = self.data.qacc
         self._xfrc = self.data.xfrc_applied[body]
-        self._mass = tool.mass
-        self._inertia_C = tool.inertia_T
+        self._mj = np.array((address("mj_step"), *pointers(self.model, self.data)), dtype=np.int64)
         # Poses of {MRF} and {S} in the body frame {C} (centre of mass, {T} axes).
         T_C_T = np.eye(4)
         T_C_T[0:3, 3] = -tool.com_T
-        self._T_C_MRF = T_C_T @ tool.T_T_MRF
-        self._T_C_S = T_C_T @ tool.T_T_S
-        self._weight_w = tool.mass * np.asarray(scene.gravity_w, dtype=float)
-        self._pd = np.array((g.kp_lin, g.kd_lin, g.kp_rot, g.kd_rot, g.force_limit, g.torque_limit))
+        self._frames = np.stack((T_C_T @ tool.T_T_MRF, T_C_T @ tool.T_T_S))
+        self._T_C_MRF = self._frames[0]
+        gravity_w = np.asarray(scene.gravity_w, dtype=float)
+        self._params = np.concatenate(
+            (
+                (g.kp_lin, g.kd_lin, g.kp_rot, g.kd_rot, g.force_limit, g.torque_limit),
+                self._k_acc,
+                (self._max_lead_lin, self._max_lead_rot),
+                tool.mass * gravity_w,
+                gravity_w,
+                (tool.mass,),
+                np.asarray(tool.inertia_T, dtype=float).ravel(),
+            )
+        )
+        assert len(self._params) == N_PARAMS
+        # The F/T reading every step returns (one buffer, overwritten): no allocation per tick.
+        self._ft_buffer = np.zeros(N_READING)
+        b = self._ft_buffer
+        self._reading = FTReading(
+            b[R_WRENCH : R_WRENCH + 6], b[R_ROT : R_ROT + 9].reshape(3, 3), b[R_ACC : R_ACC + 6], b[R_OMEGA:]
+        )
         # {MRF} pose and twist (in the base's buffers) of the current MuJoCo state, valid while ``_fresh``.
         self._fresh = False
         self._fault: str | None = None
@@ -257,8 +294,9 @@ class VirtualSlave(SlaveBase):
     def step(self, command: SlaveCommand, dt: float = DEFAULT_PERIOD) -> FTReading:
         """Advance one servo period ``dt`` (s) under ``command``; return the F/T sensor reading.
 
-        A faulted slave (see :meth:`reset`), or a non-finite command or period, returns an
-        invalid reading and leaves the state as it was.
+        The reading is the slave's own object, overwritten by the next step and reset (copy what
+        you keep). A faulted slave (see :meth:`reset`), or a non-finite command or period,
+        returns an invalid reading and leaves the state as it was.
         """
         error = self._fault or command_error(command, dt)
         if error is not None:
@@ -267,30 +305,39 @@ class VirtualSlave(SlaveBase):
         h = dt / self._substeps
         if h != self._h:
             self.model.opt.timestep = self._h = h
-        model, data, T, V = self.model, self.data, self._T, self._V
-        for sub in range(self._substeps):
-            self._state()
-            if sub == 0:
-                self._update_reference(command, dt)
+        T, V = self._state()
+        reference = RATE if command.active and command.mode == "rate" else POSE if command.active else HOLD
+        prev = self._contact
+        accommodate = prev.w if self.accommodation and prev.valid else _ZERO15
+        for _ in range(self._substeps):
             contact = self.contact_model.wrench(T, V)
-            self._contact = contact
-            drive_wrench(
+            # The reading is taken at the substep's start, where the forces were computed; semi-
+            # implicit Euler then applied exactly qacc over the substep. The state moves on after.
+            tool_substep(
+                self._mj,
+                reference,
+                command.twist,
+                command.T_w_MRF,
+                accommodate,
+                dt,
+                self._params,
+                self._frames,
                 T,
                 V,
                 self._T_ref,
                 self._V_ref_w,
-                self._pd,
                 self._qpos,
-                contact.force_w,
-                contact.wrench_MRF,
-                self._weight_w,
+                self._qvel,
+                self._qacc,
                 self._xfrc,
+                contact.w,
+                contact.valid,
+                self._ft_buffer,
             )
-            mujoco.mj_step(model, data)
-            self._fresh = False
-        # The buffers still hold the pose and twist of the last substep's start, where its forces
-        # were computed; semi-implicit Euler then applied exactly qacc over the substep.
-        self._reading = self._sensor(contact, self._qacc)
+            reference = KEEP
+        self._fresh = True
+        self._contact = contact
+        self._reading.valid = contact.valid
         return self._reading
 
     def _invalid(self, error: str) -> ContactResult:
@@ -302,16 +349,19 @@ class VirtualSlave(SlaveBase):
 
     def _sensor(self, contact: ContactResult, qacc: Array) -> FTReading:
         """F/T reading at {S} for the pose and twist in the buffers, accelerations ``qacc`` (6,)."""
-        F_S, R_w_S, acc_w, omega_w = sensor_reading(
+        p = self._params
+        sensor_reading(
             self._T,
             self._V,
             qacc,
-            self._T_C_MRF,
-            self._T_C_S,
-            self._inertia_C,
-            self._mass,
-            self.scene.gravity_w,
+            self._frames[0],
+            self._frames[1],
+            p[INERTIA_C : INERTIA_C + 9].reshape(3, 3),
+            p[MASS],
+            p[GRAVITY_W : GRAVITY_W + 3],
             contact.wrench_S,
             contact.valid,
+            self._ft_buffer,
         )
-        return FTReading(F_S, R_w_S, acc_w, omega_w, contact.valid)
+        self._reading.valid = contact.valid
+        return self._reading

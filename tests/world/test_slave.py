@@ -24,7 +24,7 @@ def rate(v: tuple[float, ...]) -> SlaveCommand:
 
 
 def run(slave: VirtualSlave, command: SlaveCommand, ticks: int) -> list[FTReading]:
-    return [slave.step(command) for _ in range(ticks)]
+    return [slave.step(command).copy() for _ in range(ticks)]
 
 
 def remove_payload(reading: FTReading, model: SlaveModel, inertial: bool) -> np.ndarray:

@@ -204,7 +204,7 @@ class DevicePlant:
         scale = np.where(is_hinge, cpr / (2.0 * math.pi), cpr) if np.all(cpr > 0) else np.zeros(n)
         inverse = np.divide(1.0, scale, out=np.zeros(n), where=scale > 0)
         self._encoders = np.concatenate((scale, inverse))
-        self._mj = (address("mj_step1"), address("mj_step2"), *pointers(self.model, self.data))
+        self._mj = np.array((address("mj_step1"), address("mj_step2"), *pointers(self.model, self.data)))
         self._qfrc_constraint = self.data.qfrc_constraint[dof_slice]
         self._eq0 = self.model.neq - n  # the brakes were appended after the MJCF's own equalities
         self._dt = 0.0
@@ -307,7 +307,7 @@ class DevicePlant:
             self._since_counts = 0.0
             r.motors_off = False
         plant_period(
-            *self._mj,
+            self._mj,
             self.params.substeps,
             commands,
             self._counts_max,
@@ -331,7 +331,7 @@ class DevicePlant:
     def _read(self) -> None:
         """The encoders at the present state, without stepping (after a reset)."""
         plant_period(
-            *self._mj,
+            self._mj,
             0,
             self._no_counts,
             0,

@@ -16,10 +16,7 @@ from app.spatial import Array, IntArray
 
 @njit(cache=True)
 def plant_period(
-    step1: int,
-    step2: int,
-    m: int,
-    d: int,
+    mj: IntArray,
     substeps: int,
     counts: IntArray,
     counts_max: int,
@@ -33,8 +30,7 @@ def plant_period(
     """Advance the device one servo period and read its encoders.
 
     Args:
-        step1, step2: Addresses of MuJoCo's ``mj_step1`` and ``mj_step2``; ``m``, ``d`` the
-            model and data pointers (:func:`app.mjcall.pointers`).
+        mj: ``[mj_step1 address, mj_step2 address, mjModel*, mjData*]`` (:mod:`app.mjcall`), (4,).
         substeps: Physics steps in the period (the model's timestep is period / substeps).
         counts: Motor commands (counts), (n,), or an empty array: no new counts, the joint
             torques in ``tau_joint`` are held (the amplifier's last output, or zero after its
@@ -56,8 +52,8 @@ def plant_period(
         tau_joint[j] = table[row_offset[j] + c]
     # step2 then step1: the kinematics left in data always belong to the new state.
     for _ in range(substeps):
-        call_model_data(step2, m, d)
-        call_model_data(step1, m, d)
+        call_model_data(mj[1], mj[2], mj[3])
+        call_model_data(mj[0], mj[2], mj[3])
     for j in range(n):
         scale = encoders[j]
         q[j] = np.rint(q_true[j] * scale) * encoders[n + j] if scale > 0.0 else q_true[j]

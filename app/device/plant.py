@@ -35,6 +35,7 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
+from app.compiled import I8, entry_point
 from app.device.hand import HandParams, OperatorHand, add_hand
 from app.device.plant_kernel import plant_period
 from app.device.spec import DeviceSpec, MotorSpec, PlantParams
@@ -44,8 +45,6 @@ from app.spatial import Array, IntArray
 
 #: Integer motor commands (counts), shape (n,).
 Counts = npt.NDArray[np.integer[Any]]
-
-_I8 = np.dtype(np.int64)
 
 #: The amplifier's servo watchdog (s): 20 servo periods at 1 kHz without new counts.
 WATCHDOG = 0.02
@@ -205,10 +204,24 @@ class DevicePlant:
         inverse = np.divide(1.0, scale, out=np.zeros(n), where=scale > 0)
         self._encoders = np.concatenate((scale, inverse))
         self._mj = np.array((address("mj_step1"), address("mj_step2"), *pointers(self.model, self.data)))
+        self.reading = PlantReading(self)
+        # ``step`` checks the counts; everything else passed is the plant's own.
+        self._period = entry_point(
+            plant_period,
+            self._mj,
+            1,
+            self._no_counts,
+            self._counts_max,
+            self._table,
+            self._row_offset,
+            self._tau_out,
+            self._encoders,
+            self.reading.q_true,
+            self.reading.q,
+        )
         self._qfrc_constraint = self.data.qfrc_constraint[dof_slice]
         self._eq0 = self.model.neq - n  # the brakes were appended after the MJCF's own equalities
         self._dt = 0.0
-        self.reading = PlantReading(self)
         self.reset()
 
     @staticmethod
@@ -302,11 +315,16 @@ class DevicePlant:
                 r.motors_off = True
                 r.watchdog_trips += 1
         else:
-            ok = counts.__class__ is np.ndarray and counts.dtype is _I8 and counts.shape == self._tau_out.shape
+            ok = (
+                counts.__class__ is np.ndarray
+                and counts.dtype is I8
+                and counts.shape == self._tau_out.shape
+                and counts.flags.c_contiguous
+            )
             commands = counts if ok else self._checked_counts(counts)  # type: ignore[assignment]
             self._since_counts = 0.0
             r.motors_off = False
-        plant_period(
+        self._period(
             self._mj,
             self.params.substeps,
             commands,

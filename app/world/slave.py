@@ -34,7 +34,9 @@ import math
 import mujoco
 import numpy as np
 
+from app.compiled import entry_point, is_f8
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
+from app.errors import InputError
 from app.mjcall import address, pointers
 from app.spatial import Array, invert_pose, matrix_to_quat
 from app.world.contact import ContactModel, ContactResult
@@ -66,6 +68,7 @@ _ZERO6.flags.writeable = False
 # A contact result's ``w`` with no wrench: no accommodation. Left writeable (the kernel only reads
 # it) because numba compiles a separate kernel for read-only arrays.
 _ZERO15 = np.zeros(15)
+SHAPE_6, SHAPE_44 = (6,), (4, 4)
 
 
 def _tool_xml(scene: Scene, timestep: float) -> str:
@@ -102,6 +105,17 @@ def command_error(command: SlaveCommand, dt: float) -> str | None:
     if command.mode == "pose":
         return None if finite(command.T_w_MRF) else "non-finite pose command"
     raise ValueError(f"unknown slave command mode {command.mode!r}")
+
+
+def checked_command(command: SlaveCommand) -> tuple[Array, Array]:
+    """The command's twist (6,) and pose (4, 4) as C-contiguous float64, or :class:`InputError`."""
+    arrays = []
+    for name, value, shape in (("twist", command.twist, SHAPE_6), ("T_w_MRF", command.T_w_MRF, SHAPE_44)):
+        a = np.asarray(value)
+        if a.dtype.kind not in "iuf" or a.shape != shape:
+            raise InputError(f"SlaveCommand.{name}: expected real numbers of shape {shape}, got {a.dtype} {a.shape}")
+        arrays.append(np.ascontiguousarray(a, dtype=np.float64))
+    return arrays[0], arrays[1]
 
 
 def invalid_contact(error: str) -> ContactResult:
@@ -240,6 +254,29 @@ class VirtualSlave(SlaveBase):
         self._fault: str | None = None
         self.status = 0  # the ideal tool always follows (its limits are the PD's saturation)
         self.reset()
+        # ``step`` checks the command's arrays; everything else passed is the slave's own.
+        self._substep = entry_point(
+            tool_substep,
+            self._mj,
+            RATE,
+            np.zeros(6),
+            np.eye(4),
+            _ZERO15,
+            period,
+            self._params,
+            self._frames,
+            self._T,
+            self._V,
+            self._T_ref,
+            self._V_ref_w,
+            self._qpos,
+            self._qvel,
+            self._qacc,
+            self._xfrc,
+            self._contact.w,
+            True,
+            self._ft_buffer,
+        )
 
     # --- state -----------------------------------------------------------------------------
     def reset(self, T_w_MRF: Array | None = None) -> None:
@@ -307,17 +344,20 @@ class VirtualSlave(SlaveBase):
             self.model.opt.timestep = self._h = h
         T, V = self._state()
         reference = RATE if command.active and command.mode == "rate" else POSE if command.active else HOLD
+        twist, T_cmd = command.twist, command.T_w_MRF
+        if not (is_f8(twist, SHAPE_6) and is_f8(T_cmd, SHAPE_44)):
+            twist, T_cmd = checked_command(command)
         prev = self._contact
         accommodate = prev.w if self.accommodation and prev.valid else _ZERO15
         for _ in range(self._substeps):
             contact = self.contact_model.wrench(T, V)
             # The reading is taken at the substep's start, where the forces were computed; semi-
             # implicit Euler then applied exactly qacc over the substep. The state moves on after.
-            tool_substep(
+            self._substep(
                 self._mj,
                 reference,
-                command.twist,
-                command.T_w_MRF,
+                twist,
+                T_cmd,
                 accommodate,
                 dt,
                 self._params,

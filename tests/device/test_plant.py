@@ -214,3 +214,20 @@ def test_freflex_is_redundant_and_jt_is_7x6() -> None:
     assert np.linalg.matrix_rank(J_G) == 6
     tau = J_G.T @ np.array([2.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     assert tau.shape == (7,)
+
+
+def test_counts_of_other_integer_types_and_layouts_step_like_int64() -> None:
+    """The compiled period is called without numba's typing: other inputs are converted first."""
+    spec = load_device("kraft")
+    counts = np.array([300, -200, 100, 0, 50, -50], dtype=np.int64)
+    reference, other = DevicePlant(spec), DevicePlant(spec)
+    strided = np.zeros(12, dtype=np.int32)
+    strided[::2] = counts
+    for _ in range(50):
+        reference.step(counts, 1e-3)
+        other.step(strided[::2], 1e-3)
+    np.testing.assert_array_equal(other.reading.q_true, reference.reading.q_true)
+    with pytest.raises(ValueError, match="counts must be integers"):
+        other.step(np.zeros(6), 1e-3)
+    with pytest.raises(ValueError, match="counts must be integers"):
+        other.step(np.zeros(5, dtype=np.int64), 1e-3)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
+from app.errors import InputError
 from app.world import load_scene
 from app.world.scene import Scene
 from app.world.slave import VirtualSlave
@@ -184,3 +185,21 @@ def test_non_finite_input_keeps_the_last_good_state() -> None:
     np.testing.assert_array_equal(slave.T_w_MRF, home)
     assert not slave.step(SlaveCommand(active=False), dt=math.nan).valid
     assert slave.step(SlaveCommand(active=False)).valid
+
+
+def test_command_arrays_of_other_types_and_layouts_step_like_float64() -> None:
+    """The compiled substep is called without numba's typing: other arrays are converted first,
+    wrong shapes refused with the field's name."""
+    twist = np.array([0.0, 0.01, -0.02, 0.0, 0.0, 0.1])
+    reference, other = VirtualSlave(load_scene("probe")), VirtualSlave(load_scene("probe"))
+    strided = np.zeros(12, dtype=np.float32)
+    strided[::2] = twist
+    for _ in range(200):
+        expected = reference.step(rate(tuple(twist.astype(np.float32))))
+        got = other.step(SlaveCommand(active=True, mode="rate", twist=strided[::2]))
+    np.testing.assert_array_equal(got.wrench_S, expected.wrench_S)
+    np.testing.assert_array_equal(other.T_w_MRF, reference.T_w_MRF)
+    with pytest.raises(InputError, match=r"SlaveCommand.twist"):
+        other.step(SlaveCommand(active=True, mode="rate", twist=np.zeros(3)))
+    with pytest.raises(InputError, match=r"SlaveCommand.T_w_MRF"):
+        other.step(SlaveCommand(active=True, mode="pose", T_w_MRF=np.eye(3)))

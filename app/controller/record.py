@@ -30,8 +30,7 @@ TAU_T, TAU_RD, TAU_RDS, TAU_G, TAU_PC, TAU, TAU_SAT, TAU_MOTOR = (
     TORQUE_ROWS.index(name) for name in ("tau_T", "tau_RD", "tau_RDs", "tau_G", "tau_PC", "tau", "tau_sat", "tau_motor")
 )
 ASSIST_SCALE, SATURATION_SCALE, ROT_WEIGHT, RAMP, PO_ENERGY, PC_CUT = (
-    SCALARS.index(name)
-    for name in ("assist_scale", "saturation_scale", "rot_weight", "ramp", "po_energy", "pc_cut")
+    SCALARS.index(name) for name in ("assist_scale", "saturation_scale", "rot_weight", "ramp", "po_energy", "pc_cut")
 )
 
 

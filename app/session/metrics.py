@@ -112,7 +112,8 @@ class SessionMetrics:
             self._stage_ns[self._ticks] = tick.stage_ns
         row = self._tail[self._ticks % len(self._tail)]
         row[0] = f
-        row[1] = math.sqrt(float(out.G_F_T[0:3] @ out.G_F_T[0:3]))
+        # What the motors rendered: the PC and the saturation scale the task wrench down.
+        row[1] = math.sqrt(float(out.G_F_T[0:3] @ out.G_F_T[0:3])) * (1.0 - out.pc_cut) * out.saturation_scale
         row[2:5] = out.delta_x[0:3]
         self._min_energy = min(self._min_energy, out.po_energy)
         pc = out.pc_cut

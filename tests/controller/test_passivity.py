@@ -108,7 +108,8 @@ def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits
         worst = np.abs(rendered) @ d
         assert worst <= max(energy, 0.0) + credit * d.sum() + 1e-12
     if np.abs(tau_r) @ d <= max(energy, 0.0) + credit * d.sum():
-        assert cut == 0.0 and np.all(tau_pc == 0.0)  # enough energy: the PC does not act
+        assert cut == 0.0  # enough energy: the PC does not act
+        assert np.all(tau_pc == 0.0)
 
 
 @pytest.mark.parametrize(

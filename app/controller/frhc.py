@@ -28,7 +28,7 @@ from app.controller.layout import GAIN_ROWS, RTC_LAWS, TORQUE_ROWS, vector_row_n
 from app.controller.passivity import PassivitySettings
 from app.controller.record import (
     ASSIST_SCALE,
-    PC_DAMPING,
+    PC_CUT,
     PO_ENERGY,
     RAMP,
     ROT_WEIGHT,
@@ -68,7 +68,7 @@ class ControllerOutput:
         G_F_RD: Assist wrench ``G_F_R + G_F_D`` (Eq 10) in {G}.
         W_F_T: The task wrench moved to the wrist {W}, in {W} (Eq 6 form, G -> W).
         tau_T, tau_RD, tau_RDs, tau_G: Task, assist, scaled assist (Eq 11) and gravity torques.
-        tau_PC: The passivity controller's damping torque (zero unless it acts).
+        tau_PC: The passivity controller's correction ``(s - 1) tau_r`` (zero unless it acts).
         tau: Total ``tau_T + tau_RDs + tau_G + tau_PC`` (Eq 12, plus the PC).
         tau_sat: ``tau`` after uniform saturation to the joint limits.
         tau_motor: Motor-side torques ``tau_sat / gear_ratio`` (N m).
@@ -79,7 +79,7 @@ class ControllerOutput:
         rot_weight: 1 normally; tapers to 0 near the Z-Y-X singularity |beta| -> 90 deg.
         po_energy: Energy the passivity observer saw the controller absorb, summed over the
             joints (J); negative means the rendering gave energy out.
-        pc_damping: Largest joint damping the passivity controller applied this tick (N m s/rad).
+        pc_cut: Share of the rendered torque the passivity controller removed this tick (0..1).
         reflecting: Task wrench and assists were rendered this tick (deadman and reflection on).
         faults: Why the safe output was used this tick (``Fault.NONE`` if it was not).
         fault_message: Human-readable reason, empty when there is no fault.
@@ -144,9 +144,9 @@ class ControllerOutput:
         return float(self.scalars[PO_ENERGY])
 
     @property
-    def pc_damping(self) -> float:
-        """Largest joint damping the passivity controller applied this tick (N m s/rad)."""
-        return float(self.scalars[PC_DAMPING])
+    def pc_cut(self) -> float:
+        """Share of the rendered torque the passivity controller removed this tick (0..1)."""
+        return float(self.scalars[PC_CUT])
 
 
 class FRHCController:
@@ -250,8 +250,8 @@ class FRHCController:
         rec["pc_on"] = settings.enabled
         rec["pc_limit"] = settings.max_torque_fraction * self.joint_limit
         rec["po_cap"] = settings.energy_cap
-        rec["pc_min_speed"] = settings.min_speed
-        rec["pc_max_damping"] = settings.max_damping
+        rec["pc_step"] = settings.step
+        rec["pc_credit"] = settings.friction_credit
         rec["pc_filter"] = settings.velocity_filter
 
     def reset(self, q: Array, T_w_MRF_home: Array | None = None) -> None:
@@ -266,7 +266,7 @@ class FRHCController:
         self.out.scalars[RAMP] = 0.0
         for name in ("po_energy", "po_tau", "pc_velocity"):
             self._rec[name] = 0.0
-        self.out.scalars[PO_ENERGY] = self.out.scalars[PC_DAMPING] = 0.0
+        self.out.scalars[PO_ENERGY] = self.out.scalars[PC_CUT] = 0.0
 
     def resume(self) -> None:
         """After a gap in the servo ticks (an overrun): no velocity across the gap, and the wrench
@@ -370,7 +370,7 @@ class FRHCController:
             o.tau[:] -= self._brake_damping * self._rec["qdot"][0]
         o.scalars[ASSIST_SCALE] = 1.0
         o.scalars[RAMP] = 0.0  # the wrench ramps in again once the fault clears
-        o.scalars[PC_DAMPING] = 0.0
+        o.scalars[PC_CUT] = 0.0
         # The brake's damping is not credited to the observer (the conservative side).
         self._rec["po_tau"] = 0.0
         o.scalars[SATURATION_SCALE] = kernel.motor_commands(o.torques, self._motors, o.counts)

@@ -49,7 +49,7 @@ from app.controller.record import (
     K_T,
     K_V,
     K_WALL,
-    PC_DAMPING,
+    PC_CUT,
     PO_ENERGY,
     RAMP,
     ROT_WEIGHT,
@@ -189,7 +189,7 @@ def controller_tick(
     # The observer runs on every tick, faults included: the device moved under last tick's torque.
     po_energy, qdot = r.po_energy[:], r.qdot[:]
     out.scalars[PO_ENERGY] = observe_energy(po_energy, r.po_tau[:], qdot, dt if period_ok else 0.0, r.po_cap)
-    out.scalars[PC_DAMPING] = 0.0
+    out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]
     filter_velocity(qdot, dt if period_ok else 0.0, r.pc_filter, pc_velocity)
     if not ft_valid:
@@ -245,13 +245,13 @@ def controller_tick(
         po_tau[j] = torques[TAU, j] - torques[TAU_G, j]
         torques[TAU_PC, j] = 0.0
     if r.pc_on:
-        out.scalars[PC_DAMPING] = passivity_control(
+        out.scalars[PC_CUT] = passivity_control(
             po_energy,
             po_tau,
             pc_velocity,
             dt,
-            r.pc_min_speed,
-            r.pc_max_damping,
+            r.pc_step,
+            r.pc_credit,
             r.pc_limit[:],
             torques[TAU],
             torques[TAU_PC],

@@ -39,7 +39,7 @@ TORQUE_ROWS = ("tau_T", "tau_RD", "tau_RDs", "tau_G", "tau_PC", "tau", "tau_sat"
 """Rows of the ``torques`` block (8, n): joint-side torques (``tau_PC`` is the passivity
 controller's damping, :mod:`app.controller.passivity`), then motor-side ``tau_motor``."""
 
-SCALARS = ("assist_scale", "saturation_scale", "rot_weight", "ramp", "po_energy", "pc_damping")
+SCALARS = ("assist_scale", "saturation_scale", "rot_weight", "ramp", "po_energy", "pc_cut")
 """Slots of the ``scalars`` block (6,): the Eq 11 assist scale, the Sec 3.4 saturation scale, the
 rotational fade near gimbal lock, the safety ramp level (:mod:`app.controller.safety`), the
 passivity observer's energy summed over the joints (J) and the largest joint damping the

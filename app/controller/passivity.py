@@ -1,33 +1,45 @@
-"""Time-domain passivity observer and controller on the device port (Hannaford & Ryu 2002), compiled.
+"""Time-domain passivity observer and controller on the device port (after Hannaford & Ryu 2002), compiled.
 
 The controller, seen from the device, is a one-port: the motors put the rendered torque ``tau_r``
-(task wrench, assists and the PC's own damping: everything but gravity compensation, which
+(task wrench, assists and the PC's own correction: everything but gravity compensation, which
 balances a conservative field) into the joints while the joints move. Passive means it never
 gives out more energy than it took in.
 
-**Observer (PO)**, per joint, from measured quantities only, no model: the torque commanded in
-the last tick was held over the period (zero-order hold) while the joint moved by ``dq`` (encoder
-difference), so that tick's work on the controller is exactly ``-tau_r dq``;
+**Observer (PO)**, one for the whole port, from measured quantities only, no model: the torque
+commanded in the last tick was held over the period (zero-order hold) while the joints moved by
+``dq`` (encoder differences), so that tick's work on the controller is exactly ``-tau_r . dq``;
 
-    E_j(n) = E_j(n-1) - tau_r,j(n-1) * (q_j(n) - q_j(n-1))     (J, or N m rad)
+    E(n) = min(E(n-1) - sum_j tau_r,j(n-1) (q_j(n) - q_j(n-1)), energy_cap)      (J)
 
-is the energy the controller has absorbed through joint j (>= 0 while it is passive). It runs
-always, so the trace shows how active plain rendering is; optionally ``E_j`` is capped at
-``energy_cap`` so a long dissipative stretch cannot bank energy for a long active one.
+is the energy the controller has absorbed (>= 0 while it is passive). It runs always, so the
+trace shows how active plain rendering is. Summed over the joints, not per joint: joint power
+sums to the grip's power (``tau . qdot = F . J qdot``), so this is the passivity of the port the
+operator holds; per joint, a Cartesian push that one joint absorbs while another gives some back
+starves the giving joint, and the wall collapses.
 
-**Controller (PC)**, when enabled: the energy after this tick is predicted with the last joint
-velocity, ``E_pred = E_j - T tau_r,j qdot_j``; if it is negative the joint gets the damping
-``alpha_j = -E_pred / (T qdot_j^2)`` (``tau_PC,j = -alpha_j qdot_j``), which dissipates exactly
-that excess, limited so that ``|tau_j + tau_PC,j|`` stays within ``max_torque_fraction`` of the
-joint's limit and never reverses sign (it can only take energy out). Below ``min_speed`` the PC
-does not act (the damping needed would be unbounded, and the excess cannot leave through a
-joint that does not move).
+**Controller (PC)**, when enabled: an *energy-bounding* (admittance-type) PC that scales the
+rendered torque, ``tau = s tau_r`` with ``0 <= s <= 1`` (uniformly, so the force keeps its
+direction), so that the next step the encoders can show cannot take ``E`` below zero:
 
-Per joint rather than per Cartesian axis at the grip: joint torques and encoder differences are
-what the controller commands and measures, so the observed energy needs no Jacobian (which is
-uncertain near singularities, where activity is likeliest), and joint power sums to the grip's
-power (``tau . qdot = F . J qdot``), so passive joints make a passive grip. The price is some
-conservatism: energy one joint gives back is not credited to another.
+    s = min(1, (max(E, 0) + credit sum_j d_j) / sum_j |tau_r,j| d_j),   d_j = max(step, |v_j| T)
+
+where ``step`` is one encoder count, ``v_j`` the low-passed joint velocity (it predicts steps of
+more than one count) and ``credit`` the torque the joints' own Coulomb friction dissipates over any
+step (Diolaiti et al. 2006: friction absorbs ``f_c d`` per count moved; 0 = no credit).
+
+Why not the textbook series damper ``tau_PC = -alpha qdot`` with ``alpha = -E/(T qdot^2)``: on
+this device the joint velocity is an encoder difference, so near contact it is 0 or +-1 count a
+tick (0.38 rad/s on a 16384-count encoder) and its sign flips from tick to tick; the damper then
+acts on the wrong sign half the time and on a one-tick-old value always, which is itself active:
+with it, pose-mode contact oscillated even where plain rendering settles. The wall's limit cycle
+here is a one-count chatter (the force per count, felt stiffness times one count, exceeds the
+operator's push), and a damper cannot act on motion inside a count. Bounding the *torque* by the
+energy over the next count needs no velocity sign, never adds energy (``|tau| <= |tau_r|``, same
+sign), never exceeds the motor limits when ``tau_r`` does not, and removes the chatter: each
+cycle out of the wall gives back more than it took in, so ``E`` drains until the force step per
+count is within what friction absorbs, and the grip stays in one count. The price is
+transparency: a stiff wall is felt softer while ``E`` is low (``frhc bench stability`` reports
+the felt stiffness with and without it).
 """
 
 from __future__ import annotations
@@ -47,43 +59,43 @@ class PassivitySettings(Checked):
     """The passivity controller's settings (the observer always runs).
 
     Attributes:
-        enabled: The PC adds its damping (else the energy is only observed).
+        enabled: The PC bounds the rendered torque (else the energy is only observed).
         max_torque_fraction: Share (0, 1] of each joint's torque limit the total may reach
-            because of the PC's damping (-).
-        energy_cap: Largest energy (J; N m rad for revolute joints) a joint's observer may
-            bank; inf = none.
-        min_speed: Joint speed (rad/s, or m/s for slides) below which the PC does not act.
-        max_damping: Largest joint damping the PC applies (N m s/rad; N s/m for slides): a
-            damper acting on the last tick's velocity is itself active beyond about inertia/T.
+            because of the PC's correction (-).
+        energy_cap: Largest energy (J) the observer may bank; inf = none. A cap keeps a long
+            dissipative stretch from paying for a long active one.
+        step: Smallest joint step the encoders resolve (rad, or m for slides): one count.
+        friction_credit: Torque (N m, or N for slides) the joints' Coulomb friction surely
+            dissipates on every step; 0 = none (strictly model-free).
         velocity_filter: Time constant (s) of the first-order low-pass on the encoder velocity
-            the PC damps and predicts with (0 = none): one encoder count a tick is a velocity
-            spike of the wrong sign half the time. The observer always uses the exact difference.
+            the PC predicts steps of more than one count with (0 = none). The observer always
+            uses the exact difference.
     """
 
     enabled: bool = False
     max_torque_fraction: Annotated[float, Range(0.0, 1.0, lo_open=True)] = 1.0
     energy_cap: Annotated[float, Range(0.0, 1e3, "J", inf_ok=True)] = math.inf
-    min_speed: Annotated[float, Range(0.0, 10.0, "rad/s")] = 1e-3
-    max_damping: Annotated[float, Range(0.0, 1e3, "N m s/rad")] = 1e3
-    velocity_filter: Annotated[float, Range(0.0, 0.1, "s")] = 0.0
+    step: Annotated[float, Range(0.0, 0.1, "rad", lo_open=True)] = 2.0 * math.pi / 16384
+    friction_credit: Annotated[float, Range(0.0, 10.0, "N m")] = 0.03
+    velocity_filter: Annotated[float, Range(0.0, 0.1, "s")] = 0.003
 
 
 @njit(cache=True)
 def observe_energy(energy: Array, tau_prev: Array, qdot: Array, dt: float, cap: float) -> float:
-    """PO step: ``energy_j -= tau_prev_j * qdot_j * dt`` (then capped at ``cap``); returns the sum.
+    """PO step: ``E -= dt * sum_j tau_prev_j qdot_j`` (then capped at ``cap``); returns ``E``.
 
     Args:
-        energy: Energy absorbed by the controller per joint (J), (n,), updated.
+        energy: Energy the controller has absorbed through the device port (J), (1,), updated.
         tau_prev: Rendered joint torque held over the last period (N m or N), (n,).
         qdot: Joint velocity over that period, ``dq / dt`` (rad/s or m/s), (n,).
         dt: The period (s); 0 when there is no usable velocity (nothing is added).
+        cap: The most energy the observer may bank (J).
     """
-    total = 0.0
-    for j in range(energy.shape[0]):
-        e = energy[j] - tau_prev[j] * qdot[j] * dt
-        energy[j] = min(e, cap)
-        total += energy[j]
-    return total
+    power = 0.0
+    for j in range(tau_prev.shape[0]):
+        power += tau_prev[j] * qdot[j]
+    energy[0] = min(energy[0] - power * dt, cap)
+    return energy[0]
 
 
 @njit(cache=True)
@@ -98,39 +110,38 @@ def filter_velocity(qdot: Array, dt: float, time_constant: float, v: Array) -> N
 def passivity_control(
     energy: Array,
     tau_r: Array,
-    qdot: Array,
+    velocity: Array,
     dt: float,
-    min_speed: float,
-    max_damping: float,
+    step: float,
+    credit: float,
     limit: Array,
     tau: Array,
     tau_pc: Array,
 ) -> float:
-    """PC step: per-joint damping that dissipates the predicted energy deficit; returns the largest.
+    """PC step: scale the rendered torque so the next observed step cannot overdraw the energy.
 
     Args:
-        energy: Observed energy per joint (J), (n,).
+        energy: Observed energy (J), (1,).
         tau_r: Rendered torque about to be applied (N m or N), (n,).
-        qdot: Last joint velocity (rad/s or m/s), (n,): the predicted velocity over this tick.
-        dt: Servo period (s). ``min_speed``: below it a joint gets no damping.
-        max_damping: The largest ``alpha_j`` (N m s/rad or N s/m).
+        velocity: Low-passed joint velocity (rad/s or m/s), (n,): predicts steps beyond one count.
+        dt: Servo period (s). ``step``: smallest joint step the encoders resolve (rad or m).
+        credit: Torque (N m or N) per joint the device's own friction dissipates on any step.
         limit: Largest ``|tau_j|`` the PC may lead to (N m or N), (n,).
         tau: The total joint torque (N m or N), (n,): the PC torque is added in place.
-        tau_pc: The PC torque ``-alpha_j qdot_j`` (N m or N), (n,), written.
+        tau_pc: The PC torque ``(s - 1) tau_r`` (N m or N), (n,), written.
 
     Returns:
-        The largest damping ``alpha_j`` applied (N m s/rad, or N s/m for slides).
+        ``1 - s``: the share of the rendered torque the PC removed (0 when it does not act).
     """
-    alpha_max = 0.0
-    for j in range(energy.shape[0]):
-        tau_pc[j] = 0.0
-        v = qdot[j]
-        if not abs(v) > min_speed or not dt > 0.0:
-            continue
-        predicted = energy[j] - dt * tau_r[j] * v
-        if predicted >= 0.0:
-            continue
-        t = max(predicted / (dt * v * v), -max_damping) * v  # opposes v: only dissipates
+    worst = 0.0
+    budget = max(energy[0], 0.0)
+    for j in range(tau_r.shape[0]):
+        d = max(step, abs(velocity[j]) * dt)
+        worst += abs(tau_r[j]) * d
+        budget += credit * d
+    s = budget / worst if worst > budget else 1.0
+    for j in range(tau_r.shape[0]):
+        t = (s - 1.0) * tau_r[j]
         # Keep the total within the limit; a clip that would reverse the PC's sign gives 0.
         hi = limit[j] - tau[j]
         lo = -limit[j] - tau[j]
@@ -140,5 +151,4 @@ def passivity_control(
             t = min(lo, 0.0)
         tau_pc[j] = t
         tau[j] += t
-        alpha_max = max(alpha_max, -t / v)
-    return alpha_max
+    return 1.0 - s

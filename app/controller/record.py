@@ -29,9 +29,8 @@ DELTA_X, DELTA_X_CMD, F_S_TASK, F_MRF, G_F_T, G_F_R, G_F_D, G_F_RD, W_F_T = (
 TAU_T, TAU_RD, TAU_RDS, TAU_G, TAU_PC, TAU, TAU_SAT, TAU_MOTOR = (
     TORQUE_ROWS.index(name) for name in ("tau_T", "tau_RD", "tau_RDs", "tau_G", "tau_PC", "tau", "tau_sat", "tau_motor")
 )
-ASSIST_SCALE, SATURATION_SCALE, ROT_WEIGHT, RAMP, PO_ENERGY, PC_DAMPING = (
-    SCALARS.index(name)
-    for name in ("assist_scale", "saturation_scale", "rot_weight", "ramp", "po_energy", "pc_damping")
+ASSIST_SCALE, SATURATION_SCALE, ROT_WEIGHT, RAMP, PO_ENERGY, PC_CUT = (
+    SCALARS.index(name) for name in ("assist_scale", "saturation_scale", "rot_weight", "ramp", "po_energy", "pc_cut")
 )
 
 
@@ -117,7 +116,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         lock. gravity_compensation, remove_payload, remove_inertia: the options of the same
         names. min_period, max_period: accepted periods (s). ramp_rate (1/s), max_joint_speed and
         release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. pc_on, pc_limit
-        (n,) (N m or N), po_cap (J), pc_min_speed (rad/s), pc_max_damping (N m s/rad), pc_filter (s):
+        (n,) (N m or N), po_cap (J), pc_step (rad), pc_credit (N m), pc_filter (s):
         :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
         (n,) each (N m or N; -). horner_pos, horner_neg: (n, n_coeffs) torque curves, highest
         order first; counts_max: the amplifier's range. payload_mass (kg), payload_com_S (m, in
@@ -131,7 +130,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         prev_reference, prev_deadman, prev_reflecting: Last tick's switches, for edges. J_W:
         wrist Jacobian (6, n). q_prev, have_q_prev: last finite joint angles; qdot: joint
         velocities from their difference (n,). braking: the velocity brake is on. po_energy:
-        the passivity observer's energy per joint (J), (n,); po_tau: the rendered torque
+        the passivity observer's energy of the whole port (J), (1,); po_tau: the rendered torque
         commanded last tick (N m or N), (n,); pc_velocity: the low-passed joint velocity the
         passivity controller uses (n,).
 
@@ -158,8 +157,8 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("pc_on", b1),
             ("pc_limit", f8, (n,)),
             ("po_cap", f8),
-            ("pc_min_speed", f8),
-            ("pc_max_damping", f8),
+            ("pc_step", f8),
+            ("pc_credit", f8),
             ("pc_filter", f8),
             ("assist_limit", f8, (n,)),
             ("joint_limit", f8, (n,)),
@@ -184,7 +183,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("have_q_prev", b1),
             ("qdot", f8, (n,)),
             ("braking", b1),
-            ("po_energy", f8, (n,)),
+            ("po_energy", f8, (1,)),
             ("po_tau", f8, (n,)),
             ("pc_velocity", f8, (n,)),
             ("J_W", f8, (6, n)),

@@ -112,10 +112,11 @@ class SessionMetrics:
             self._stage_ns[self._ticks] = tick.stage_ns
         row = self._tail[self._ticks % len(self._tail)]
         row[0] = f
-        row[1] = math.sqrt(float(out.G_F_T[0:3] @ out.G_F_T[0:3]))
+        # What the motors rendered: the PC and the saturation scale the task wrench down.
+        row[1] = math.sqrt(float(out.G_F_T[0:3] @ out.G_F_T[0:3])) * (1.0 - out.pc_cut) * out.saturation_scale
         row[2:5] = out.delta_x[0:3]
         self._min_energy = min(self._min_energy, out.po_energy)
-        pc = out.pc_damping
+        pc = out.pc_cut
         self._max_pc = max(self._max_pc, pc)
         self._pc_ticks += pc > 0.0
         if self._dx_touch is None and tick.contact.count > 0:
@@ -146,7 +147,7 @@ class SessionMetrics:
             "settled": bool(math.isfinite(ripple) and ripple < SETTLE_RIPPLE * max(abs(mean), 1e-9)),
             "felt_stiffness_N_per_m": felt,
             "min_energy_J": self._min_energy,
-            "max_pc_damping": self._max_pc,
+            "max_pc_cut": self._max_pc,
             "pc_active_ticks": self._pc_ticks,
         }
 

@@ -312,7 +312,7 @@ class Controls:
             f"(p99 {timing.tick_p99_us:.0f}) · jitter p99 {timing.jitter_p99_us:.0f} us · slips {timing.slips} · {scheduling}\n\n"
             f"saturation scale {snap.saturation_scale:.3f} · force ramp {snap.ramp:.2f} · "
             f"contacts {len(snap.contact_points_w)} · amplifier watchdog trips {snap.watchdog_trips} · "
-            f"PO energy {snap.po_energy:+.3f} J · PC damping {snap.pc_damping:.3g} N m s/rad · "
+            f"PO energy {snap.po_energy:+.3f} J · PC cut {snap.pc_cut:.0%} · "
             f"faults: {fault_text}"
         )
         f_mrf = float(np.linalg.norm(snap.F_MRF[0:3]))

@@ -140,7 +140,7 @@ class LogReplay:
             saturation_scale=float(c["saturation_scale"][i]),
             ramp=float(c["ramp"][i]),
             po_energy=float(c["po_energy"][i]) if "po_energy" in c else 0.0,
-            pc_damping=float(c["pc_damping"][i]) if "pc_damping" in c else 0.0,
+            pc_cut=float(c["pc_cut"][i]) if "pc_cut" in c else 0.0,
             watchdog_trips=int(c["watchdog_trips"][i]),
         )
 

@@ -52,7 +52,7 @@ class Snapshot:
         saturation_scale: Uniform torque saturation factor in (0, 1] (1 = not saturated).
         ramp: Safety ramp level of the rendered wrench in [0, 1] (:mod:`app.controller.safety`).
         po_energy: Energy the passivity observer saw enter the device port, summed over joints (J).
-        pc_damping: The passivity controller's largest joint damping this tick (N m s/rad).
+        pc_cut: Share of the rendered torque the passivity controller removed this tick (0..1).
         watchdog_trips: Times the amplifier's watchdog switched the motors off since the reset.
         recording: The log directory being written, or None.
         playing: The session file whose script drives the loop, or None.
@@ -85,7 +85,7 @@ class Snapshot:
     saturation_scale: float
     ramp: float
     po_energy: float
-    pc_damping: float
+    pc_cut: float
     watchdog_trips: int
     recording: Path | None = None
     playing: Path | None = None
@@ -127,7 +127,7 @@ def take_snapshot(
         saturation_scale=out.saturation_scale,
         ramp=out.ramp,
         po_energy=out.po_energy,
-        pc_damping=out.pc_damping,
+        pc_cut=out.pc_cut,
         watchdog_trips=reading.watchdog_trips,
         recording=recording,
         playing=playing,

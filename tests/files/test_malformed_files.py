@@ -192,7 +192,9 @@ CASES: dict[str, dict[str, Case]] = {
             "accommodation = true", "accommodation = true\n[hand]\ndamping_trans = 1e300", "hand.damping_trans"
         ),
         "passivity damping inf": P(
-            "accommodation = true", "accommodation = true\n[passivity]\nmax_damping = inf", "passivity.max_damping"
+            "accommodation = true",
+            "accommodation = true\n[passivity]\nfriction_credit = inf",
+            "passivity.friction_credit",
         ),
         "channel delay -5": P(
             "accommodation = true", "accommodation = true\n[channel]\ndelay_ms = -5.0", "channel.delay_ms"

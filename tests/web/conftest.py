@@ -29,5 +29,8 @@ def demo() -> Iterator[DemoApp]:
 def page(demo: DemoApp) -> Iterator[object]:
     """A headless chromium page showing ``demo``, once its panel is drawn."""
     with open_page(f"http://127.0.0.1:{demo.server.get_port()}/") as p:
+        # Every page call gets a step's time (playwright's default 30 s is too short when
+        # chromium renders WebGL in software on a loaded machine).
+        p.set_default_timeout(STEP_TIMEOUT * 1000)
         p.get_by_text("Deadman [D]").first.wait_for(timeout=STEP_TIMEOUT * 1000)
         yield p

@@ -19,6 +19,7 @@ import math
 
 import numpy as np
 
+from app.compiled import entry_point
 from app.controller import kernel
 from app.controller.calibration import TorqueCurve
 from app.controller.gains import ControllerGains
@@ -216,6 +217,10 @@ class FRHCController:
         rec["p_W_G"] = R_0_W.T @ (kin.p_0_G - kin.p_0_W)
         # The compiled tick's arguments that stay the same objects for this controller's life.
         self._fixed_args = (*kin.fk_arrays, rec)
+        # ``step`` checks the reading and the angles (type, dtype, shape, layout) and passes its
+        # own arrays for the rest, so the compiled tick is called without numba's typing.
+        example = (np.zeros(device.n_joints), np.zeros(6), np.eye(3), np.zeros(6), np.zeros(3), 1e-3)
+        self._tick = entry_point(kernel.controller_tick, *example, True, True, True, True, *self._fixed_args)
         self.set_gains(gains)
         self.set_passivity(passivity if passivity is not None else PassivitySettings())
         self.reset(np.array(device.data.home))
@@ -310,6 +315,11 @@ class FRHCController:
             and R.shape == SHAPE_33
             and acc.shape == SHAPE_6
             and omega.shape == SHAPE_3
+            and q.flags.c_contiguous
+            and w.flags.c_contiguous
+            and R.flags.c_contiguous
+            and acc.flags.c_contiguous
+            and omega.flags.c_contiguous
         ):
             q, w, R, acc, omega = checked_arrays(
                 (q, w, R, acc, omega),
@@ -321,7 +331,7 @@ class FRHCController:
         # FK runs even on unusable angles (MuJoCo just computes NaN poses): the kernel checks q
         # before it reads them, for a fraction of what a numpy check here would cost.
         self.kin.update(q)
-        code = kernel.controller_tick(
+        code = self._tick(
             q,
             w,
             R,

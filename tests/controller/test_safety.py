@@ -219,3 +219,22 @@ def test_amplifier_watchdog_switches_the_motors_off_and_the_loop_ramps_back() ->
     assert not record.reading.motors_off
     assert record.reading.watchdog_trips == 1
     assert record.out.ramp == pytest.approx(loop.dt / loop.config.safety.ramp_time)
+
+
+def test_strided_or_transposed_inputs_give_the_contiguous_answer(kraft: DeviceSpec, slave: SlaveModel) -> None:
+    """The compiled tick is called without numba's typing: other layouts are converted first."""
+    tilt = np.array([[1.0, 0.0, 0.0], [0.0, 0.8, -0.6], [0.0, 0.6, 0.8]])
+    q = np.array(kraft.data.home) + 0.05
+    sw = Switches(deadman=True, reflection=True)
+    contiguous, other = (FRHCController(kraft, kraft.data.gains, slave) for _ in range(2))
+    ft = pushed(slave)
+    ft.R_w_S[:] = tilt
+    odd = FTReading(ft.wrench_S.copy(), np.asfortranarray(tilt), ft.acc_w.copy(), ft.omega_w.copy())
+    strided_q = np.repeat(q, 2)[::2]
+    assert not odd.R_w_S.flags.c_contiguous
+    assert not strided_q.flags.c_contiguous
+    for _ in range(5):
+        expected = contiguous.step(q, sw, ft, DT).tau.copy()
+        got = other.step(strided_q, sw, odd, DT).tau
+    np.testing.assert_array_equal(got, expected)
+    assert np.abs(expected).max() > 0.0

@@ -13,7 +13,8 @@ from sweep_helpers import frhc
 
 from app.errors import ConfigError
 from app.sweep import load_sweep
-from app.sweep.spec import SweepFile, SweepPlan, Vary, parse_target
+from app.sweep.fields import parse_target
+from app.sweep.spec import SweepFile, SweepPlan, Vary
 
 ROOT = Path(__file__).resolve().parents[2]
 

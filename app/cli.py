@@ -273,7 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser(
-        "check", help="check scene/device/session files", description="Load and check files without running."
+        "check", help="check scene/device/session/sweep files", description="Load and check files without running."
     )
     p.add_argument("files", nargs="+", help="scene, device or session .toml files (or names)")
     p.set_defaults(func=_cmd_check)

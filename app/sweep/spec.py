@@ -36,7 +36,10 @@ from app.errors import ConfigError, InvalidField
 from app.session.spec import Session, SessionFile, resolve_session, resolve_session_path
 from app.sweep.fields import Target, assign, broadcast, parse_target
 from app.sweep.results import METRICS
-from app.world.scene import SceneFile, build_scene, resolve_scene_path
+from app.world.scene import ROOT_DIR, SceneFile, build_scene, resolve_scene_path
+
+#: Where sweep files given by name (``frhc check probe_stiffness``) are found.
+SWEEPS_DIR = ROOT_DIR / "sweeps"
 
 #: Most points of one sweep (grid product or samples): a resource limit on the plan held in memory.
 MAX_POINTS = 10_000_000

@@ -5,12 +5,8 @@ Speed goals live here, not in timed tests: the figures depend on the machine.
 
 from __future__ import annotations
 
-import itertools
-import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -137,127 +133,10 @@ def bench_stability(quick: bool = False) -> str:
     return "\n".join(lines)
 
 
-@dataclass(frozen=True)
-class _Timed:
-    """A sweep task that also reports where its worker spent the point (picklable, for Ray).
+def _sweep(quick: bool) -> str:
+    from app.sweep.bench import run
 
-    Adds to the row the worker's process id ``_pid``, the wall-clock times (s, ``time.time``:
-    one clock for every process of the machine) ``_t0`` and ``_t1`` when the session started and
-    ended, ``_busy_s = _t1 - _t0`` and the process's CPU time meanwhile ``_cpu_s`` (s). The gaps
-    between one session's end and the next one's start on the same worker are what the engine costs.
-    """
-
-    task: Callable[[Any], dict[str, Any]]
-
-    def __call__(self, payload: Any) -> dict[str, Any]:
-        t0, cpu = time.time(), time.process_time()
-        row = self.task(payload)
-        t1 = time.time()
-        return {
-            **row,
-            "_pid": os.getpid(),
-            "_t0": t0,
-            "_t1": t1,
-            "_busy_s": t1 - t0,
-            "_cpu_s": time.process_time() - cpu,
-        }
-
-
-def _gaps(rows: list[dict[str, Any]]) -> list[float]:
-    """Wall time (s) each worker spent between the end of one of its sessions and the start of the next."""
-    gaps = []
-    for pid in {r["_pid"] for r in rows}:
-        mine = sorted((r["_t0"], r["_t1"]) for r in rows if r["_pid"] == pid)
-        gaps += [start - end for (_, end), (start, _) in itertools.pairwise(mine)]
-    return gaps
-
-
-def bench_sweep(quick: bool = False) -> str:
-    """Sweep throughput: a fixed sweep of short probe sessions with ``--workers 1`` (serially, in
-    this process) and with 2 Ray workers, in one run.
-
-    Start-up (starting Ray and its workers; each worker's first points, which import the package
-    and load the numba cache) is timed apart from the steady state, on two extra points per
-    worker. The serial run is split around the Ray run (first half before, second half after)
-    so that a change of load from other processes weighs on both alike. Ray's per-point overhead
-    is the wall time a worker spends between two sessions (the remote call, pickling the row and
-    the next payload); the tail is the time the first worker to finish waits for the last. The CPU share (CPU time over wall time inside sessions) shows how
-    much of a core each session got: below 1 the machine is shared and no engine can reach 2x.
-    """
-    import tempfile
-    from pathlib import Path
-
-    from app.sweep import load_sweep
-    from app.sweep.engine import Engine, run_one
-    from app.sweep.run import SweepPoint
-
-    n = 12 if quick else 40
-    workers = 2
-    warm = 2 * workers
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "bench.toml"
-        path.write_text(
-            f'base = "probe_rate"\nsamples = {n + warm}\nseed = 1\n'
-            '[[vary]]\nfield = "scene.objects.surface.stiffness"\nrange = [1000.0, 20000.0]\nlog = true\n'
-            '[[vary]]\nfield = "duration"\nvalues = [0.5]\n'
-        )
-        plan = load_sweep(path)
-    task = _Timed(SweepPoint(plan))
-    points = list(enumerate(plan.points()))
-    measured = points[warm:]
-    load_before = os.getloadavg()[0]
-
-    serial: dict[int, dict[str, Any]] = {}
-
-    def run_serial(part: list[tuple[int, Any]]) -> float:
-        t0 = time.perf_counter()
-        serial.update((index, run_one(task, payload)) for index, payload in part)
-        return time.perf_counter() - t0
-
-    for _, payload in points[:warm]:
-        task(payload)  # this process's own warm-up: imports, numba cache, lru caches
-    serial_s = run_serial(measured[: n // 2])
-
-    t0 = time.perf_counter()
-    with Engine(workers) as engine:
-        t_start = time.perf_counter()
-        list(engine.run(task, points[:warm]))
-        t_warm = time.perf_counter()
-        on_ray = dict(engine.run(task, measured))
-        t_end = time.perf_counter()
-    serial_s += run_serial(measured[n // 2 :])
-    load_after = os.getloadavg()[0]
-
-    def strip(rows: dict[int, dict[str, Any]]) -> dict[int, dict[str, Any]]:
-        return {k: {c: v for c, v in r.items() if not c.startswith("_")} for k, r in rows.items()}
-
-    def share(rows: dict[int, dict[str, Any]]) -> float:
-        return sum(r["_cpu_s"] for r in rows.values()) / sum(r["_busy_s"] for r in rows.values())
-
-    steady = t_end - t_warm
-    rate_serial, rate_ray = n / serial_s, n / steady
-    rate_whole = n / (t_end - t0)
-    gaps = _gaps(list(on_ray.values()))
-    ends = [max(r["_t1"] for r in on_ray.values() if r["_pid"] == pid) for pid in {r["_pid"] for r in on_ray.values()}]
-    cpu = {name: sum(r["_cpu_s"] for r in rows.values()) / n for name, rows in (("serial", serial), ("ray", on_ray))}
-    same = "same rows as serial" if strip(on_ray) == strip(serial) else "ROWS DIFFER from serial"
-    return "\n".join(
-        [
-            f"sweep throughput, {n} probe sessions of 0.5 s, on {os.cpu_count()} cores "
-            f"(load average {load_before:.1f} before, {load_after:.1f} after):",
-            f"  --workers 1 (serially, in this process): {rate_serial:6.2f} sessions/s, "
-            f"{cpu['serial'] * 1e3:.0f} ms CPU and CPU share {share(serial):.2f} per session",
-            f"  2 Ray workers, steady state:             {rate_ray:6.2f} sessions/s, "
-            f"{cpu['ray'] * 1e3:.0f} ms CPU and CPU share {share(on_ray):.2f} per session ({same})",
-            f"  speed-up, 2 workers / 1 (steady state):  {rate_ray / rate_serial:.2f}x",
-            f"  Ray start-up: {t_start - t0:.1f} s to start Ray and its workers, {t_warm - t_start:.1f} s for the "
-            f"first {warm} points (imports, numba cache); with it, {rate_whole:.2f} sessions/s "
-            f"({rate_whole / rate_serial:.2f}x)",
-            f"  Ray overhead per point (a worker's wall time between two sessions): median "
-            f"{np.median(gaps) * 1e3:.1f} ms, max {max(gaps) * 1e3:.1f} ms; idle tail at the end "
-            f"{max(ends) - min(ends):.2f} s",
-        ]
-    )
+    return run(quick=quick)
 
 
 def _plant(quick: bool) -> str:
@@ -279,7 +158,7 @@ BENCHES: dict[str, Callable[[bool], str]] = {
     "tick": bench_tick,
     "arm": bench_arm,
     "stability": bench_stability,
-    "sweep": bench_sweep,
+    "sweep": _sweep,
 }
 
 

@@ -119,7 +119,12 @@ def stability_edge(
 
 @dataclass(frozen=True)
 class EdgeTask:
-    """One bisection as a point of the sweep engine (picklable): payload ``(renderer, damping)``."""
+    """One bisection as a point of the sweep engine (picklable): payload ``(renderer, damping)``.
+
+    Attributes:
+        device: Device name. servo_rate: Servo rate (Hz). delay_ms: One-way channel delay (ms).
+        iterations: Bisection steps after the two ends.
+    """
 
     device: str
     servo_rate: float

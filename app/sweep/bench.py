@@ -144,7 +144,7 @@ def run(quick: bool = False) -> str:
             f"  {WORKERS} Ray workers, steady state:             {rate_ray:6.2f} sessions/s on {cores_ray:.2f} cores, "
             f"{_cpu(on_ray)} ({same})",
             f"  speed-up {WORKERS} workers / 1: {rate_ray / rate_serial:.2f}x; per core received {per_core:.2f} "
-            f"(so {WORKERS * per_core:.2f}x on {WORKERS} free cores)",
+            "(the cores are the scheduler's to give, the work per session is the engine's)",
             f"  Ray start-up: {t_start - t0:.1f} s to start Ray and its workers, {t_warm - t_start:.1f} s for the "
             f"first {warm} points (imports, numba cache); counting it, {rate_whole:.2f} sessions/s "
             f"({rate_whole / rate_serial:.2f}x)",

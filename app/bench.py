@@ -133,58 +133,10 @@ def bench_stability(quick: bool = False) -> str:
     return "\n".join(lines)
 
 
-def bench_sweep(quick: bool = False) -> str:
-    """Sweep throughput: one fixed sweep of short probe sessions serially, on Ray with 1 worker and
-    with 2, in one run. Sessions per second exclude starting Ray and warming its workers: each run
-    gets ``2 * workers`` extra points first, and the clock starts when they are done. Ray's
-    per-point overhead is (Ray 1 worker - serial) / points."""
-    import tempfile
-    from pathlib import Path
+def _sweep(quick: bool) -> str:
+    from app.sweep.bench import run
 
-    import ray
-
-    from app.sweep import load_sweep
-    from app.sweep.engine import run_points
-    from app.sweep.run import SweepPoint
-
-    n = 12 if quick else 40
-    warm = 4
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "bench.toml"
-        path.write_text(
-            f'base = "probe_rate"\nsamples = {n + warm}\nseed = 1\n'
-            '[[vary]]\nfield = "scene.objects.surface.stiffness"\nrange = [1000.0, 20000.0]\nlog = true\n'
-            '[[vary]]\nfield = "duration"\nvalues = [0.5]\n'
-        )
-        plan = load_sweep(path)
-    task = SweepPoint(plan)
-    points = list(enumerate(plan.points()))
-
-    def timed(workers: int) -> tuple[float, dict[int, dict[str, object]]]:
-        """Sessions per second after the first ``2 * workers`` points, and every row."""
-        rows: dict[int, dict[str, object]] = {}
-        start = 0.0
-        for index, row in run_points(task, points[: 2 * workers] + points[warm:], workers):
-            rows[index] = row
-            if len(rows) == 2 * workers:
-                start = time.perf_counter()
-        return n / (time.perf_counter() - start), {k: v for k, v in rows.items() if k >= warm}
-
-    lines = [f"sweep throughput, {n} probe sessions of 0.5 s (Ray start-up and worker warm-up excluded):"]
-    serial_rate, serial = timed(1)
-    lines.append(f"  serial (--workers 1): {serial_rate:6.2f} sessions/s")
-    rates = {}
-    for workers in (1, 2):
-        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, configure_logging=False)
-        try:
-            rates[workers], rows = timed(workers)
-        finally:
-            ray.shutdown()
-        same = "same rows as serial" if rows == serial else "ROWS DIFFER from serial"
-        lines.append(f"  Ray, {workers} worker(s):     {rates[workers]:6.2f} sessions/s ({same})")
-    lines.append(f"  speed-up 2 Ray workers / serial: {rates[2] / serial_rate:.2f}x")
-    lines.append(f"  Ray overhead per point (1 worker vs serial): {(1 / rates[1] - 1 / serial_rate) * 1e3:+.0f} ms")
-    return "\n".join(lines)
+    return run(quick=quick)
 
 
 def _plant(quick: bool) -> str:
@@ -206,7 +158,7 @@ BENCHES: dict[str, Callable[[bool], str]] = {
     "tick": bench_tick,
     "arm": bench_arm,
     "stability": bench_stability,
-    "sweep": bench_sweep,
+    "sweep": _sweep,
 }
 
 

@@ -1,10 +1,12 @@
-"""``frhc check``: load scene, device and session files and build what ``frhc run`` would, without running.
+"""``frhc check``: load scene, device, session and sweep files and build what ``frhc run`` would, without running.
 
 A file passes only if everything a run builds from it builds: the parsed and range-checked
 file, its meshes, MJCF and calibration, the device plant (the MJCF perturbed by ``[plant]``
 plus the operator's hand), the virtual slave's MuJoCo model (tool mass and inertia) and the
 controller. A scene is built with the default device and a device with the default scene, at
-their default gains. So ``check`` ok means ``run`` starts.
+their default gains. A sweep file is checked as ``frhc sweep`` checks it before running
+(:func:`app.sweep.spec.load_sweep`: its fields, ranges and every value written in it) and its
+base session is built. So ``check`` ok means ``run`` (or ``sweep``) starts.
 """
 
 from __future__ import annotations
@@ -21,14 +23,15 @@ from app.device.spec import DEFAULT_DEVICE, DeviceFile, load_device, resolve_dev
 from app.errors import ConfigError
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.spec import SessionFile, load_session, resolve_session_path
+from app.sweep.spec import SWEEPS_DIR, SweepFile, load_sweep
 from app.world.scene import DEFAULT_SCENE, SCENES_DIR, SceneFile, load_scene
 
 #: The schema of each kind of file; a file's kind is the one whose fields its keys match best.
-KINDS: dict[str, type] = {"device": DeviceFile, "scene": SceneFile, "session": SessionFile}
+KINDS: dict[str, type] = {"device": DeviceFile, "scene": SceneFile, "session": SessionFile, "sweep": SweepFile}
 
 
 def file_kind(path: Path, data: dict[str, Any]) -> str:
-    """``"device"``, ``"scene"`` or ``"session"``: the schema sharing the most top-level keys with ``data``.
+    """``"device"``, ``"scene"``, ``"session"`` or ``"sweep"``: the schema sharing the most top-level keys with ``data``.
 
     Raises:
         ConfigError: No schema matches any key, or two match equally well.
@@ -37,7 +40,7 @@ def file_kind(path: Path, data: dict[str, Any]) -> str:
     best = max(scores.values())
     winners = [kind for kind, score in scores.items() if score == best]
     if best == 0 or len(winners) > 1:
-        raise ConfigError(path, "<file>", "cannot tell whether this is a device, scene or session file")
+        raise ConfigError(path, "<file>", "cannot tell whether this is a device, scene, session or sweep file")
     return winners[0]
 
 
@@ -51,20 +54,30 @@ def _model_errors(path: Path) -> Iterator[None]:
 
 
 def check_file(name: str) -> str:
-    """Load ``name`` (a path, or a device/scene/session name) fully; return a one-line description.
+    """Load ``name`` (a path, or a device/scene/session/sweep name) fully; return a one-line description.
 
     Raises:
         ConfigError: naming the file and field on any problem.
     """
     path = Path(name)
     if not path.suffix:
-        candidates = [resolve_device_path(name), SCENES_DIR / f"{name}.toml", resolve_session_path(name)]
+        candidates = [
+            resolve_device_path(name),
+            SCENES_DIR / f"{name}.toml",
+            resolve_session_path(name),
+            SWEEPS_DIR / f"{name}.toml",
+        ]
         found = [c for c in candidates if c.is_file()]
         if not found:
-            raise ConfigError(name, "<file>", "no such file, device, scene or session")
+            raise ConfigError(name, "<file>", "no such file, device, scene, session or sweep")
         path = found[0]
     kind = file_kind(path, load_toml(path))
     with deferred_warnings():
+        if kind == "sweep":
+            plan = load_sweep(path)
+            with _model_errors(plan.base_path):
+                ServoLoop(LoopConfig.from_session(load_session(plan.base_path)))
+            return f"sweep {path.stem}: {plan.n_points()} points of {plan.base_path.stem} varying {', '.join(plan.fields)} ({path})"
         if kind == "session":
             session = load_session(path)
             with _model_errors(path):

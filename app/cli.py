@@ -111,7 +111,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _engine_arguments(p: argparse.ArgumentParser) -> None:
-    """``--workers`` and ``--address`` of the point engine (sweeps and the experiment)."""
+    """``--workers`` and ``--address`` of the point engine (sweeps, the experiment, zwidth)."""
     p.add_argument(
         "--workers",
         type=_count,
@@ -171,6 +171,8 @@ def _cmd_zwidth(args: argparse.Namespace) -> int:
         delay_ms=args.delay_ms,
         iterations=args.iterations,
         progress=True,
+        workers=args.workers,
+        address=args.address,
     )
     print(
         f"{'renderer':<9} {'K_D (N s/m)':>12} {'largest stable K_T':>19} {'felt (N/m)':>12} {'oscillates at K_T':>18}"
@@ -178,6 +180,7 @@ def _cmd_zwidth(args: argparse.Namespace) -> int:
     for e in edges:
         print(
             f"{e.renderer:<9} {e.damping:>12g} {e.k_t_stable:>19.3g} {e.felt_stiffness:>12,.0f} {e.k_t_unstable:>18.3g}"
+            + (f"   failed: {e.error}" if e.error else "")
         )
     print(f"table: {out / 'zwidth.parquet'}\nplot:  {out / 'zwidth.png'}")
     return 0
@@ -273,7 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser(
-        "check", help="check scene/device/session files", description="Load and check files without running."
+        "check", help="check scene/device/session/sweep files", description="Load and check files without running."
     )
     p.add_argument("files", nargs="+", help="scene, device or session .toml files (or names)")
     p.set_defaults(func=_cmd_check)
@@ -313,6 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dampings", type=_list_of(_damping), default=[0.0, 4.0, 16.0], help="K_D values (N s/m)")
     p.add_argument("--iterations", type=int, default=5, choices=range(1, 13), metavar="1..12", help="bisection steps")
     p.add_argument("--out", default="runs/zwidth", help="output directory")
+    _engine_arguments(p)
     p.set_defaults(func=_cmd_zwidth)
     return parser
 

@@ -18,6 +18,8 @@ settings.load_profile("frhc")
 @pytest.fixture(scope="session")
 def local_ray() -> Iterator[None]:
     ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    from app.sweep.engine import init_local_ray
+
+    init_local_ray(2)
     yield
     ray.shutdown()

@@ -12,11 +12,14 @@ largest stable K_T is found by bisection in log space between ``k_t_low`` (must 
 Renderers: ``plain`` (the paper's controller), ``pc`` (with the passivity controller,
 :mod:`app.controller.passivity`), ``wave`` (wave variables across the delayed channel,
 :mod:`app.teleop.wave`). Every point is an ordinary headless session run by
-:func:`~app.session.stability.run_point`, so a sweep engine can run the same points elsewhere.
+:func:`~app.session.stability.run_point`. Each (renderer, damping) bisection is sequential but
+independent of the others, so :func:`zwidth` runs the bisections as the points of the sweep
+engine (:func:`app.sweep.engine.run_points`: serially or on Ray, the same edges).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +53,7 @@ class ZWidthPoint:
         felt_stiffness: Felt stiffness measured at ``k_t_stable`` (N/m, NaN if none).
         k_t_unstable: Smallest K_T found oscillating (inf if even ``k_t_high`` settles).
         points: Sessions run for this edge.
+        error: Why the bisection failed (one line; the numbers are then NaN), empty when it ran.
     """
 
     renderer: str
@@ -58,6 +62,7 @@ class ZWidthPoint:
     felt_stiffness: float
     k_t_unstable: float
     points: int
+    error: str = ""
 
 
 def _press(k_t: float, damping: float, renderer: str, device: str, servo_rate: float, delay_ms: float) -> PressResult:
@@ -112,6 +117,28 @@ def stability_edge(
     return ZWidthPoint(renderer, damping, lo, felt, hi, run)
 
 
+@dataclass(frozen=True)
+class EdgeTask:
+    """One bisection as a point of the sweep engine (picklable): payload ``(renderer, damping)``.
+
+    Attributes:
+        device: Device name. servo_rate: Servo rate (Hz). delay_ms: One-way channel delay (ms).
+        iterations: Bisection steps after the two ends.
+    """
+
+    device: str
+    servo_rate: float
+    delay_ms: float
+    iterations: int
+
+    def __call__(self, payload: tuple[str, float]) -> dict[str, Any]:
+        renderer, damping = payload
+        edge = stability_edge(
+            renderer, damping, self.device, self.servo_rate, self.delay_ms, iterations=self.iterations
+        )
+        return dataclasses.asdict(edge)
+
+
 def zwidth(
     out_dir: Path,
     renderers: tuple[str, ...] = ("plain", "pc"),
@@ -121,15 +148,30 @@ def zwidth(
     delay_ms: float = 0.0,
     iterations: int = 5,
     progress: bool = False,
+    workers: int = 1,
+    address: str | None = None,
 ) -> list[ZWidthPoint]:
-    """Every (renderer, damping) edge; writes ``zwidth.parquet`` and ``zwidth.png`` to ``out_dir``."""
+    """Every (renderer, damping) edge; writes ``zwidth.parquet`` and ``zwidth.png`` to ``out_dir``.
+
+    The edges are bisected in parallel on the sweep engine's ``workers`` (1 = serially in this
+    process) and ``address`` (a Ray cluster; see :func:`app.sweep.engine.run_points`). An edge
+    whose bisection fails is kept, with NaN numbers and its ``error``.
+    """
+    from app.sweep.engine import run_points
+
     out_dir.mkdir(parents=True, exist_ok=True)
-    edges: list[ZWidthPoint] = []
-    with tqdm(total=len(renderers) * len(dampings), unit="edge", disable=not progress) as bar:
-        for renderer in renderers:
-            for damping in dampings:
-                edges.append(stability_edge(renderer, damping, device, servo_rate, delay_ms, iterations=iterations))
-                bar.update(1)
+    pairs = [(renderer, damping) for renderer in renderers for damping in dampings]
+    task = EdgeTask(device, servo_rate, delay_ms, iterations)
+    found: dict[int, ZWidthPoint] = {}
+    with tqdm(total=len(pairs), unit="edge", disable=not progress) as bar:
+        for index, row in run_points(task, enumerate(pairs), workers, address):
+            renderer, damping = pairs[index]
+            if row["status"] == "ok":
+                found[index] = ZWidthPoint(**{k: row[k] for k in ZWidthPoint.__dataclass_fields__})
+            else:
+                found[index] = ZWidthPoint(renderer, damping, math.nan, math.nan, math.nan, 0, row["error"])
+            bar.update(1)
+    edges = [found[i] for i in range(len(pairs))]
     columns = {name: [getattr(e, name) for e in edges] for name in ZWidthPoint.__dataclass_fields__}
     table = pa.table({**columns, "device": [device] * len(edges), "servo_rate": [servo_rate] * len(edges)})
     table = table.append_column("delay_ms", pa.array([delay_ms] * len(edges)))

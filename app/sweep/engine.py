@@ -3,22 +3,35 @@
 A *task* is a picklable callable ``task(payload) -> dict`` (a row of results); a *point* is
 ``(index, payload)``. :func:`run_points` yields ``(index, row)`` as points finish, in any order.
 A point that raises (a :class:`~app.errors.ConfigError` from a value out of range, a fault
-turned exception, any bug) or whose worker process dies becomes a row with ``status = "error"``
-and the one-line ``error``; the other points go on.
+turned exception, any bug) becomes a row with ``status = "error"`` and the one-line ``error``;
+the other points go on. A worker process that dies (a crash, ``os._exit``, the OOM killer) is
+replaced: the points queued behind the one it was running are run again elsewhere, the point it
+was running is tried once more (the death may not be its fault) and, if it kills a worker
+again, becomes a row with ``status = "error"`` and ``error = "worker died ..."``.
 
 Ray (https://docs.ray.io) rather than ``multiprocessing`` because the same code then runs on a
 cluster: with ``address`` (or ``RAY_ADDRESS``) it joins an existing Ray cluster, whose nodes must
 have this package and its data files installed at the same version. Locally it starts a private
-Ray instance with ``workers`` CPUs and no dashboard. Each worker is a Ray actor that keeps its
-process (and its imported, compiled code) for the whole run and holds the task once, so a point
-costs one small remote call. ``workers = 1`` runs in this process without Ray.
+Ray instance with ``workers`` CPUs and no dashboard. ``workers = 1`` runs in this process without
+Ray.
+
+Where the time goes on Ray (``frhc bench sweep`` measures it): starting a local Ray instance
+(~10 s on a loaded 2-core machine), then each worker's first point, which imports the package
+(~4 s) and loads the numba cache; after that a point costs one remote call of ~1 ms, hidden by
+queueing one point ahead on each worker. So an :class:`Engine` keeps its worker processes (an
+actor each) for its whole life and gives them each task once: several runs in one ``with``
+block (a warm-up and a timed run, the rounds of a search) pay the start-up once.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
 import traceback
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from types import TracebackType
 from typing import Any
 
 from app.errors import EngineError, FrhcError
@@ -28,6 +41,10 @@ Point = tuple[int, Any]
 
 #: Points queued per worker beyond the one it runs: hides the round trip without hoarding work.
 QUEUE_PER_WORKER = 1
+#: Times a point may be running when its worker dies before it is reported as failed.
+MAX_KILLS = 2
+#: Times a point may be lost with a dead worker in all (running or queued) before it is reported.
+MAX_LOSSES = 4
 
 
 def error_row(exc: BaseException) -> dict[str, Any]:
@@ -49,92 +66,207 @@ def run_one(task: Task, payload: Any) -> dict[str, Any]:
         return error_row(exc)
 
 
+def init_local_ray(cpus: int) -> None:
+    """Start a private local Ray instance of ``cpus`` CPUs (no dashboard, quiet).
+
+    Ray runs its worker processes at nice +15 by default, so that they yield to everything else
+    on the machine: on a machine shared with other work that starves the sweep (its workers got
+    a tenth of a core each, against a whole one for the same session run serially). Sweep workers
+    do the work the user asked for, at the priority of the command that asked (nice 0 here).
+    """
+    import ray
+
+    ray.init(
+        num_cpus=cpus,
+        include_dashboard=False,
+        log_to_driver=False,
+        configure_logging=False,
+        _system_config={"worker_niceness": 0},
+    )
+
+
 def run_points(task: Task, points: Iterable[Point], workers: int = 1, address: str | None = None) -> Iterator[Point]:
     """Run ``task`` on every point; yields ``(index, row)`` as each finishes.
 
-    Args:
-        task: Picklable callable, payload -> row (a dict of column values).
-        points: ``(index, payload)`` pairs.
-        workers: Parallel workers (1 = serially in this process). With an ``address`` the
-            default 0 means every CPU of the cluster.
-        address: A Ray cluster to join (``"auto"``, ``"ray://host:10001"``, ...); None = the
-            ``RAY_ADDRESS`` environment variable, else a private local instance.
+    One :class:`Engine` for this run (see it for ``workers`` and ``address``).
     """
-    address = address or os.environ.get("RAY_ADDRESS") or None
-    if workers == 1 and address is None:
-        for index, payload in points:
-            yield index, run_one(task, payload)
-        return
-    yield from _run_ray(task, points, workers, address)
+    with Engine(workers, address) as engine:
+        yield from engine.run(task, points)
 
 
-def _run_ray(task: Task, points: Iterable[Point], workers: int, address: str | None) -> Iterator[Point]:
-    import ray
-    from ray.exceptions import RayActorError, RayTaskError
+@dataclass
+class _Job:
+    """A point submitted to worker slot ``k`` during that slot's ``life`` (-th worker), ``seq``-th overall."""
 
-    started = not ray.is_initialized()
-    if started:
-        try:
-            if address is None:
-                ray.init(
-                    num_cpus=workers or os.cpu_count(),
-                    include_dashboard=False,
-                    log_to_driver=False,
-                    configure_logging=False,
-                )
-            else:
-                ray.init(address=address, log_to_driver=False, configure_logging=False)
-        except Exception as exc:
-            where = f"the Ray cluster at {address}" if address else "a local Ray instance"
-            raise EngineError(f"cannot start {where}: {' '.join(str(exc).split())}") from None
-    try:
-        n = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
-        worker_cls = ray.remote(num_cpus=1)(_Worker)
+    index: int
+    payload: Any
+    k: int
+    life: int
+    seq: int
+    kills: int = 0
+    losses: int = 0
+
+
+class Engine:
+    """Workers that run points, kept from ``__enter__`` to ``__exit__`` (a context manager).
+
+    Args:
+        workers: Parallel workers (1 = serially in this process, without Ray). With an
+            ``address`` the default 0 means every CPU of the cluster.
+        address: A Ray cluster to join (``"auto"``, ``"ray://host:10001"``, ...); None = the
+            ``RAY_ADDRESS`` environment variable, else a private local instance (started here
+            unless Ray is already initialised in this process, and shut down on exit).
+
+    Raises:
+        EngineError: on entry, when Ray cannot start or the cluster cannot be reached.
+    """
+
+    def __init__(self, workers: int = 1, address: str | None = None) -> None:
+        self.address = address or os.environ.get("RAY_ADDRESS") or None
+        self.serial = workers == 1 and self.address is None
+        self._workers = workers
+        self._started = False
+        self._actors: list[Any] = []
+        self._lives: list[int] = []
+
+    @property
+    def size(self) -> int:
+        """Workers running points (1 when serial)."""
+        return 1 if self.serial else len(self._actors)
+
+    def __enter__(self) -> Engine:
+        if not self.serial:
+            self._start()
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+        self.close()
+
+    def _start(self) -> None:
+        import ray
+
+        if not ray.is_initialized():
+            try:
+                if self.address is None:
+                    init_local_ray(self._workers or os.cpu_count() or 1)
+                else:
+                    ray.init(address=self.address, log_to_driver=False, configure_logging=False)
+            except Exception as exc:
+                where = f"the Ray cluster at {self.address}" if self.address else "a local Ray instance"
+                raise EngineError(f"cannot start {where}: {' '.join(str(exc).split())}") from None
+            self._started = True
+        n = self._workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
+        self._worker_cls = ray.remote(num_cpus=1)(_Worker)
+        self._actors = [self._worker_cls.remote() for _ in range(n)]
+        self._lives = [0] * n
+
+    def close(self) -> None:
+        """End the workers, and Ray if this engine started it."""
+        if self.serial:
+            return
+        import ray
+
+        for actor in self._actors:
+            ray.kill(actor)
+        self._actors = []
+        if self._started:
+            ray.shutdown()
+            self._started = False
+
+    def run(self, task: Task, points: Iterable[Point]) -> Iterator[Point]:
+        """Run ``task`` on every point; yields ``(index, row)`` as each finishes (any order)."""
+        if self.serial:
+            for index, payload in points:
+                yield index, run_one(task, payload)
+            return
+        yield from self._run_ray(task, points)
+
+    def _run_ray(self, task: Task, points: Iterable[Point]) -> Iterator[Point]:
+        import ray
+        from ray.exceptions import RayActorError, RayTaskError
+
         task_ref = ray.put(task)
-        actors = [worker_cls.remote(task_ref) for _ in range(n)]
-        pending: dict[Any, tuple[int, int, Any]] = {}
+        for actor in self._actors:
+            actor.use.remote(task_ref)
+        n = len(self._actors)
+        pending: dict[Any, _Job] = {}
         load = [0] * n
         queue = iter(points)
+        again: deque[_Job] = deque()  # points of dead workers, run before new ones
+        culprit: dict[tuple[int, int], int] = {}  # (slot, life) of a dead worker -> seq of the point it ran
+        seq = itertools.count()
 
         def submit(k: int) -> bool:
-            nxt = next(queue, None)
-            if nxt is None:
-                return False
-            index, payload = nxt
-            pending[actors[k].run.remote(payload)] = (index, k, actors[k])  # type: ignore[attr-defined]
+            if again:
+                job = again.popleft()
+            else:
+                nxt = next(queue, None)
+                if nxt is None:
+                    return False
+                job = _Job(nxt[0], nxt[1], k, 0, 0)
+            job.k, job.life, job.seq = k, self._lives[k], next(seq)
+            pending[self._actors[k].run.remote(job.payload)] = job
             load[k] += 1
             return True
 
-        for k in range(n):
-            for _ in range(1 + QUEUE_PER_WORKER):
-                submit(k)
+        def fill() -> None:
+            for k in range(n):
+                while load[k] < 1 + QUEUE_PER_WORKER and submit(k):
+                    pass
+
+        fill()
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
-            ref = done[0]
-            index, k, actor = pending.pop(ref)
-            load[k] -= 1
+            job = pending.pop(done[0])
+            load[job.k] -= 1
             try:
-                row = ray.get(ref)
+                yield job.index, ray.get(done[0])
             except RayActorError as exc:
-                # The worker process died (a crash, out of memory): this point fails, a new worker takes over.
-                row = {"status": "error", "error": f"worker died: {' '.join(str(exc).split())[:300]}"}
-                if actors[k] is actor:
-                    actors[k] = worker_cls.remote(task_ref)
+                row = self._lost(job, exc, culprit, pending, task_ref)
+                if row is None:
+                    again.append(job)
+                else:
+                    yield job.index, row
             except RayTaskError as exc:
-                row = error_row(exc.cause if isinstance(exc.cause, BaseException) else exc)
-            yield index, row
-            while load[k] < 1 + QUEUE_PER_WORKER and submit(k):
-                pass
-    finally:
-        if started:
-            ray.shutdown()
+                yield job.index, error_row(exc.cause if isinstance(exc.cause, BaseException) else exc)
+            fill()
+
+    def _lost(
+        self,
+        job: _Job,
+        exc: BaseException,
+        culprit: dict[tuple[int, int], int],
+        pending: dict[Any, _Job],
+        task_ref: Any,
+    ) -> dict[str, Any] | None:
+        """``job``'s worker died: replace the worker; None to run the job again, else its error row."""
+        life = (job.k, job.life)
+        if life not in culprit:
+            # Actor calls run in order: of the points still held by the dead worker, the first
+            # submitted is the one it was running, the others were queued behind it.
+            held = [j.seq for j in pending.values() if (j.k, j.life) == life]
+            culprit[life] = min([job.seq, *held])
+        if self._lives[job.k] == job.life:
+            self._actors[job.k] = self._worker_cls.remote()
+            self._actors[job.k].use.remote(task_ref)
+            self._lives[job.k] += 1
+        job.losses += 1
+        job.kills += job.seq == culprit[life]
+        if job.kills < MAX_KILLS and job.losses < MAX_LOSSES:
+            return None
+        return {"status": "error", "error": f"worker died running this point: {' '.join(str(exc).split())[:300]}"}
 
 
 class _Worker:
-    """A Ray actor: one process that keeps the task and runs points with :func:`run_one`."""
+    """A Ray actor: one process that keeps the current task and runs points with :func:`run_one`."""
 
-    def __init__(self, task: Task) -> None:
+    def __init__(self) -> None:
+        self.task: Task | None = None
+
+    def use(self, task: Task) -> None:
+        """Run ``task`` from now on (unpickling it imports its modules, once per worker)."""
         self.task = task
 
     def run(self, payload: Any) -> dict[str, Any]:
+        assert self.task is not None, "use() is called before run()"
         return run_one(self.task, payload)

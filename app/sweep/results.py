@@ -26,6 +26,40 @@ import pyarrow.parquet as pq
 
 from app.errors import ConfigError
 
+#: Summary metrics of a point: the results' columns after the varied fields, with their types.
+METRICS: dict[str, type] = {
+    "work_eq13": float,
+    "peak_contact_force_N": float,
+    "peak_contact_moment_Nm": float,
+    "rms_contact_force_N": float,
+    "contact_fraction": float,
+    "task_completed": bool,
+    "task_time_s": float,
+    "fault_ticks": int,
+    "saturated_ticks": int,
+    "watchdog_trips": int,
+    "simulated_s": float,
+}
+
+
+def metrics_row(summary: dict[str, Any]) -> dict[str, Any]:
+    """The :data:`METRICS` of a session summary (``task_*`` None without a task)."""
+    task = summary.get("task") or {}
+    return {
+        "work_eq13": summary["work_eq13"],
+        "peak_contact_force_N": summary["peak_contact_force_N"],
+        "peak_contact_moment_Nm": summary["peak_contact_moment_Nm"],
+        "rms_contact_force_N": summary["rms_contact_force_N"],
+        "contact_fraction": summary["contact_fraction"],
+        "task_completed": task.get("completed"),
+        "task_time_s": task.get("time_s"),
+        "fault_ticks": sum(summary["faults"].values()),
+        "saturated_ticks": summary["saturated_ticks"],
+        "watchdog_trips": summary["watchdog_trips"],
+        "simulated_s": summary["simulated_s"],
+    }
+
+
 _ARROW: dict[type, pa.DataType] = {float: pa.float64(), int: pa.int64(), bool: pa.bool_(), str: pa.string()}
 
 

@@ -20,8 +20,8 @@ from tqdm import tqdm
 from app.errors import ConfigError
 from app.session.run import run_session
 from app.sweep.engine import run_points
-from app.sweep.results import ResultsWriter, arrow_schema
-from app.sweep.spec import METRICS, SweepPlan, metrics_row
+from app.sweep.results import METRICS, ResultsWriter, arrow_schema, metrics_row
+from app.sweep.spec import SweepPlan
 
 
 @dataclass(frozen=True)

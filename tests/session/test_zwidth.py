@@ -25,6 +25,19 @@ def test_edge_brackets_the_onset_and_is_written(tmp_path: Path) -> None:
     assert (tmp_path / "zwidth.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_bisections_on_ray_give_the_serial_edges(tmp_path: Path, local_ray: None) -> None:
+    """The independent bisections run as points of the sweep engine: two Ray workers give the
+    edges (and table) of the serial run, in the same order."""
+    serial = zwidth(tmp_path / "serial", renderers=("plain",), dampings=(4.0, 16.0), iterations=1)
+    on_ray = zwidth(tmp_path / "ray", renderers=("plain",), dampings=(4.0, 16.0), iterations=1, workers=2)
+    assert [e.damping for e in on_ray] == [4.0, 16.0]
+    assert all(e.error == "" and e.points == 3 for e in on_ray)
+    assert on_ray == serial
+    assert pq.read_table(tmp_path / "ray" / "zwidth.parquet").equals(
+        pq.read_table(tmp_path / "serial" / "zwidth.parquet")
+    )
+
+
 def test_bad_arguments_are_refused_in_one_line(tmp_path: Path) -> None:
     for args in (["--renderers", "plain,magic"], ["--dampings", "4,-1"], ["--iterations", "0"]):
         done = subprocess.run(

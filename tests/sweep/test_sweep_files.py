@@ -11,9 +11,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 from sweep_helpers import frhc
 
+from app.check import check_file
 from app.errors import ConfigError
 from app.sweep import load_sweep
-from app.sweep.spec import SweepFile, SweepPlan, Vary, parse_target
+from app.sweep.fields import parse_target
+from app.sweep.spec import SweepFile, SweepPlan, Vary
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -66,6 +68,35 @@ def test_a_bad_sweep_file_is_refused_naming_the_field(tmp_path: Path, case: str)
     assert err.value.source == str(path)
     assert err.value.field == field
     assert reason in str(err.value)
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_check_refuses_a_bad_sweep_file_as_the_sweep_would(tmp_path: Path, case: str) -> None:
+    body, field, reason = BAD[case]
+    path = write(tmp_path, f'base = "probe_rate"\n{body}\n')
+    with pytest.raises(ConfigError) as err:
+        check_file(str(path))
+    assert (err.value.source, err.value.field) == (str(path), field)
+    assert reason in str(err.value)
+
+
+def test_frhc_check_names_file_and_field_of_a_bad_sweep_in_one_line(tmp_path: Path) -> None:
+    """The issue's three kinds of bad sweep file, through the command line: exit 2, one line."""
+    for case in ("unknown field", "empty range", "wrong type"):
+        body, field, _ = BAD[case]
+        path = write(tmp_path, f'base = "probe_rate"\n{body}\n')
+        res = frhc("check", str(path))
+        assert res.returncode == 2, (case, res.stderr)
+        assert res.stdout == ""
+        assert res.stderr.count("\n") == 1, res.stderr
+        assert res.stderr.startswith(f"error: {path}: field '{field}': "), res.stderr
+
+
+def test_frhc_check_passes_the_shipped_sweeps_by_name() -> None:
+    res = frhc("check", "probe_stiffness", "hand_and_gains")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.startswith("ok: sweep probe_stiffness: 12 points of probe_rate")
+    assert res.stdout.count("ok: sweep") == 2
 
 
 def test_the_command_line_refuses_a_bad_file_in_one_line_before_running(tmp_path: Path) -> None:

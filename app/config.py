@@ -28,6 +28,7 @@ nested dataclasses. Adapting a library's error objects to that line would be as 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 import types
@@ -260,12 +261,19 @@ def _field_path(path: str, name: str) -> str:
     return f"{path}.{name}" if path else name
 
 
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    """``cls``'s resolved field types: resolving string annotations is a third of building a
+    session, and a sweep builds one per point."""
+    return get_type_hints(cls)
+
+
 def _convert(tp: Any, value: Any, source: str | Path, path: str) -> Any:
     where = path or "<root>"
     if dataclasses.is_dataclass(tp) and isinstance(tp, type):
         if not isinstance(value, dict):
             raise ConfigError(source, where, f"expected a table, got {type(value).__name__}")
-        hints = get_type_hints(tp)
+        hints = _hints(tp)
         fields = {f.name: f for f in dataclasses.fields(tp) if f.init}
         unknown = sorted(set(value) - set(fields))
         if unknown:

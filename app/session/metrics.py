@@ -17,6 +17,9 @@ from app.world.scene import TaskSpec
 SETTLE_WINDOW = 0.6
 #: Settled: the contact force's peak-to-peak over the window below this fraction of its mean (-).
 SETTLE_RIPPLE = 0.05
+#: ... and its mean at least this (N): a press that never reaches the surface is not a settled
+#: contact (a ripple of 0 below 5 % of a mean of 0 would otherwise pass).
+SETTLE_MIN_FORCE = 0.1
 
 
 def work_increment(T_prev: Array, T: Array, F_prev: Array, F: Array) -> Array:
@@ -54,7 +57,8 @@ class SessionMetrics:
 
     Settling (the oscillation criterion of ``frhc zwidth``): over the last :data:`SETTLE_WINDOW`
     seconds the contact force magnitude at {MRF} is settled when its peak-to-peak (ripple) is
-    below :data:`SETTLE_RIPPLE` of its mean (and finite). The felt stiffness is the rendered
+    below :data:`SETTLE_RIPPLE` of its mean (and finite), the mean being at least
+    :data:`SETTLE_MIN_FORCE` (the tool is in contact). The felt stiffness is the rendered
     force at the grip (``|G_F_T|``, mean over the window) over the grip's displacement since the
     tool first touched (``|Delta X|`` translation, mean over the window, minus its value then).
     """
@@ -144,7 +148,7 @@ class SessionMetrics:
             "window_s": SETTLE_WINDOW,
             "mean_force_N": mean,
             "ripple_N": ripple,
-            "settled": bool(math.isfinite(ripple) and ripple < SETTLE_RIPPLE * max(abs(mean), 1e-9)),
+            "settled": bool(math.isfinite(ripple) and mean >= SETTLE_MIN_FORCE and ripple < SETTLE_RIPPLE * mean),
             "felt_stiffness_N_per_m": felt,
             "min_energy_J": self._min_energy,
             "max_pc_cut": self._max_pc,

@@ -26,7 +26,8 @@ class PressResult:
     Attributes:
         mean_force: Mean contact force magnitude over the settling window (N).
         ripple: Peak-to-peak contact force over that window (N).
-        settled: ``ripple`` below 5 % of the mean (and finite).
+        settled: ``ripple`` below 5 % of the mean (and finite), the mean at least 0.1 N
+            (:data:`~app.session.metrics.SETTLE_MIN_FORCE`: in contact).
         felt_stiffness: Rendered grip force over grip travel since contact (N/m).
         summary: The whole session summary.
     """

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from app.session.run import run_session
+from app.session.spec import load_session
 from app.session.stability import press
 from app.world.scene import available_scenes, load_scene
 
@@ -28,3 +30,11 @@ def test_a_felt_stiffness_well_past_the_passivity_bound_oscillates() -> None:
     """The stability check can fail: K_T = 16 in pose mode makes the felt wall ~4x stiffer than 2b/T."""
     r = press(1e5, "pose", gains={"k_t": [16.0, 16.0, 16.0, 1.0, 1.0, 1.0]})
     assert not r.settled
+
+
+def test_a_run_that_never_touches_is_not_settled() -> None:
+    """Zero ripple around a zero mean is free space, not a settled contact."""
+    s = run_session(load_session("probe_rate").with_changes(duration=0.8), out_dir=None).summary
+    assert s["contact_fraction"] == 0.0
+    assert s["settling"]["ripple_N"] == 0.0
+    assert not s["settling"]["settled"]

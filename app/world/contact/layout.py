@@ -108,6 +108,7 @@ TRIANGLE = np.dtype(
         ("v", "i8", (3,)),  # vertices
         ("e", "i8", (3,)),  # edges: e[k] joins v[k] and v[(k + 1) % 3]
         ("n", "f8", (3,)),  # outward unit normal
+        ("off", "f8"),  # the face's plane is n . x = off
         ("box", "f8", (6,)),  # bounding box: minimum (3), maximum (3)
         ("m", "f8", (3, 3)),  # m[k]: unit vector in the face, normal to edge k, pointing inside
         ("m_adj", "f8", (3, 3)),  # m_adj[k]: the same for the face across edge k (0 on a cut)

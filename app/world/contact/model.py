@@ -163,8 +163,9 @@ class ContactModel:
         self._out_f = out.view(np.float64).reshape(len(out), 9)
         self._no_twist = np.zeros(6)
         # The kernel's arguments after the pose and twist, bound once.
-        # Gather scratch: which triangles the current gather has seen (F,).
-        stamp = np.zeros(len(geo.tris), dtype=np.int64)
+        # Gather scratch: which triangles the current gather has seen, then its vertex-cone
+        # tests (F + V,).
+        stamp = np.zeros(len(geo.tris) + len(geo.verts), dtype=np.int64)
         self._args = (
             self._tool,
             objs,

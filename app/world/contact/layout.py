@@ -87,6 +87,7 @@ PAIR = np.dtype(
         ("hot", "i8"),  # 1: evaluated every tick while its object's slack holds
         ("cache_c", "f8", (3,)),  # centre the candidate cache was gathered at
         ("cache_n", "i8"),  # candidates in the pool row; -1: no cache
+        ("near_t", "i8"),  # nearest triangle at the last evaluation (-1: none): checked first
         ("mem", "i8"),  # 1 while a pop-through plane is remembered
         ("mem_q", "f8", (3,)),  # its point and outward normal
         ("mem_n", "f8", (3,)),

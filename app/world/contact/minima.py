@@ -27,7 +27,6 @@ import numpy as np
 from numba import njit
 
 from app.world.contact.geometry import (
-    box_distance2,
     closest_on_triangle,
     feature_normal,
     segment_distance,
@@ -195,6 +194,11 @@ def local_minima(
     # The nearest point is a local minimum: within r + R, it is on a cached triangle (the cache
     # covers r + 2 R around its centre); otherwise it is farther than that.
     nearest2 = (r * (1.0 + CACHE_FRAC)) ** 2
+    # Start from last time's nearest triangle: with the distance to the mesh known from the
+    # outset, the lower bounds below skip nearly every other triangle of a pair out of contact.
+    near_t = pair.near_t
+    if near_t >= 0:
+        nearest2 = min(nearest2, closest_on_triangle(verts, tris, near_t, cx, cy, cz)[0])
     # |phi| of the farthest kept minimum once MAX_PER_PAIR are kept (inf before, or while one
     # is marked dropped): a candidate no nearer changes nothing (a face minimum displaces no
     # one, an edge or vertex one only a farther partner), so it is skipped unprocessed. On a
@@ -209,7 +213,11 @@ def local_minima(
         plane = abs(cx * tri.n[0] + cy * tri.n[1] + cz * tri.n[2] - tri.off) - _PLANE_SLACK
         if plane > 0.0 and plane * plane >= nearest2 and (plane >= worst or plane * plane >= r2):
             continue
-        box2 = box_distance2(tri.box, cx, cy, cz)
+        box = tri.box
+        gx = max(box[0] - cx, 0.0, cx - box[3])  # the gaps to the triangle's box along each axis
+        gy = max(box[1] - cy, 0.0, cy - box[4])
+        gz = max(box[2] - cz, 0.0, cz - box[5])
+        box2 = gx * gx + gy * gy + gz * gz
         if box2 >= r2 and box2 >= nearest2:
             continue
         # Where c projects, from the inward edge normals: inside the face, the nearest point is
@@ -236,11 +244,15 @@ def local_minima(
         if outside == 1 and reject:
             continue
         if outside > 0:
-            # The triangle lies in its plane on the inner side of each edge line, so its
-            # distance is at least the hypotenuse of the plane distance and ``beyond``: above a
-            # hole's rim, the wall facets below are skipped without a nearest-point search.
-            beyond -= _PLANE_SLACK
-            bound2 = max(plane, 0.0) ** 2 + (beyond * beyond if beyond > 0.0 else 0.0)
+            # The distance is at least the hypotenuse of the plane distance and of a bound on
+            # the offset within the plane: ``beyond`` (the triangle is on the inner side of each
+            # edge line), or an axis's box gap less what the plane-normal part can take of it
+            # (above a vertical wall's top: the height). Above a hole's rim, the wall facets
+            # below are thus skipped without a nearest-point search.
+            up = plane + 2.0 * _PLANE_SLACK  # at least the plane distance
+            n = tri.n
+            aside = max(gx - up * abs(n[0]), gy - up * abs(n[1]), gz - up * abs(n[2]), beyond) - _PLANE_SLACK
+            bound2 = max(plane, 0.0) ** 2 + (aside * aside if aside > 0.0 else 0.0)
             if bound2 >= nearest2 and (bound2 >= r2 or math.sqrt(bound2) >= worst):
                 continue
         if outside == 0:
@@ -249,7 +261,8 @@ def local_minima(
             d2, qx, qy, qz, feat = sd * sd, cx - sd * tri.n[0], cy - sd * tri.n[1], cz - sd * tri.n[2], FEAT_FACE
         else:
             d2, qx, qy, qz, feat = closest_on_triangle(verts, tris, t, cx, cy, cz)
-        nearest2 = min(nearest2, d2)
+        if d2 < nearest2:
+            nearest2, near_t = d2, t
         if d2 >= r2:
             continue
         d = math.sqrt(d2)
@@ -319,4 +332,5 @@ def local_minima(
         pair.min_f[slot] = feat
         worst = _worst(pair.min_phi, n_min)
     pair.n_min = n_min
+    pair.near_t = near_t
     return math.sqrt(max(nearest2, 0.0))

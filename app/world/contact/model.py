@@ -189,6 +189,7 @@ class ContactModel:
         p["slack"] = -1.0
         p["hot"] = 0
         p["cache_n"] = -1
+        p["near_t"] = -1
         p["mem"] = 0
         self._objs["slack"] = -1.0
         self._objs["near"] = 0

@@ -202,6 +202,7 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
         tris["v"][fs] = c.faces + v0[j]
         tris["e"][fs] = c.face_edges + e0[j]
         tris["n"][fs] = c.face_normals
+        tris["off"][fs] = np.einsum("ij,ij->i", c.face_normals, c.vertices[c.faces[:, 0]])
         corners = c.vertices[c.faces]
         tris["box"][fs] = np.column_stack([corners.min(axis=1), corners.max(axis=1)])
         tris["m"][fs] = c.edge_inward

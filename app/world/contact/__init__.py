@@ -40,12 +40,14 @@ Inputs: a non-finite pose or twist gives an invalid, zero reading (a servo loop 
 it); a wrong shape or a pose that is not a rigid transform raises
 :class:`~app.errors.ContactInputError`.
 
-Speed: every per-tick step runs in one compiled call (:mod:`.step`). Culling is exact (the
-distance is 1-Lipschitz in the centre); each pair caches the triangles that may hold a local
-minimum while its centre stays within ``R = 0.1 r`` of where they were gathered (every triangle
-within ``r + 2 R`` whose face, edge or vertex Voronoi region comes within R, found through a
-per-object grid, :mod:`.grid`), so a tick in steady contact scans a handful of triangles per sphere, even on a
-million-triangle mesh.
+Speed: every per-tick step runs in one compiled call (:mod:`.step`), entered without numba's
+per-call argument typing. Culling is exact (the distance is 1-Lipschitz in the centre); each
+pair caches the triangles that may hold a local minimum while its centre stays within
+``R = 0.05 r`` of where they were gathered (every triangle within ``r + 2 R`` whose face, edge
+or vertex Voronoi region comes within R, found through a per-object grid, :mod:`.grid`), so a
+tick in steady contact scans a handful of triangles per sphere, even on a million-triangle mesh;
+the scan starts from the pair's last nearest triangle and skips, on lower bounds of their
+distance (plane, edge lines, box), the triangles that cannot change the result.
 
 Limits: a sharp-cornered part hidden behind less than r of material still pushes (as a second
 object would); with the centre inside the solid, a secondary contact can switch on or off where

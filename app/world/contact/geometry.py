@@ -126,8 +126,14 @@ def may_hold_minimum(
     cy: float,
     cz: float,
     R: float,
+    cones: np.ndarray,
+    serial: int,
 ) -> bool:
     """Whether triangle t can hold a local minimum of the distance for some centre within R of c.
+
+    ``cones`` (V,) memoises the vertex-cone test for one (c, R), numbered ``serial`` (> 0):
+    ``2 serial + result``. It walks every face around the vertex, and a fan's centre (a hole's
+    bottom) has hundreds, each a triangle asking the same question.
 
     The local minima of :mod:`app.world.contact.minima` lie where c is in a feature's Voronoi
     region: inside the face's prism, in an edge's wedge (c does not project into either face
@@ -169,6 +175,9 @@ def may_hold_minimum(
             fx, fy, fz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
             if ex * fx + ey * fy + ez * fz > R * math.sqrt(fx * fx + fy * fy + fz * fz):
                 corner = False
-        if corner and _in_vertex_cone(verts, tris, vertex_faces, v, cx, cy, cz, R):
-            return True
+        if corner:
+            if cones[v] >> 1 != serial:
+                cones[v] = 2 * serial + _in_vertex_cone(verts, tris, vertex_faces, v, cx, cy, cz, R)
+            if cones[v] & 1:
+                return True
     return False

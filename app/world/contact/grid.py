@@ -83,8 +83,9 @@ def gather(
     the sphere.
 
     ``lists`` holds the grid's triangles (``cells.start``) and the faces around each vertex.
-    ``stamp`` (F,) marks the triangles this gather (number ``serial``) has seen: a long triangle
-    spans many cells, and one load per visit is far cheaper than deciding which cell owns it.
+    ``stamp`` (F + V,) marks the triangles this gather (number ``serial``) has seen: a long
+    triangle spans many cells, and one load per visit is far cheaper than deciding which cell
+    owns it; its last V entries memoise the pruning test's vertex cones.
     Returns -1 if they do not fit in ``out`` or the search box covers more than ``MAX_CELLS`` cells.
     """
     h = obj.grid_h
@@ -98,6 +99,7 @@ def gather(
     if n_cells > MAX_CELLS:
         return -1
     ny, nz, base = obj.grid_dims[1], obj.grid_dims[2], obj.grid_base
+    cones = stamp[tris.shape[0] :]
     n = 0
     n_keys = cells.shape[0] - 1  # the last row is a sentinel
     reach2 = reach * reach
@@ -115,9 +117,11 @@ def gather(
                     stamp[t] = serial
                     if box_distance2(tris[t].box, cx, cy, cz) > reach2:
                         continue
-                    if obj.prune and not may_hold_minimum(verts, tris, lists, t, cx, cy, cz, R):
-                        continue
+                    # The exact distance first: the pruning test walks the faces around each
+                    # vertex, hundreds at the centre of a fan (a hole's bottom).
                     if closest_on_triangle(verts, tris, t, cx, cy, cz)[0] > reach2:
+                        continue
+                    if obj.prune and not may_hold_minimum(verts, tris, lists, t, cx, cy, cz, R, cones, serial):
                         continue
                     if n == out.shape[0]:
                         return -1

@@ -87,6 +87,7 @@ PAIR = np.dtype(
         ("hot", "i8"),  # 1: evaluated every tick while its object's slack holds
         ("cache_c", "f8", (3,)),  # centre the candidate cache was gathered at
         ("cache_n", "i8"),  # candidates in the pool row; -1: no cache
+        ("near_t", "i8"),  # nearest triangle at the last evaluation (-1: none): checked first
         ("mem", "i8"),  # 1 while a pop-through plane is remembered
         ("mem_q", "f8", (3,)),  # its point and outward normal
         ("mem_n", "f8", (3,)),
@@ -108,6 +109,7 @@ TRIANGLE = np.dtype(
         ("v", "i8", (3,)),  # vertices
         ("e", "i8", (3,)),  # edges: e[k] joins v[k] and v[(k + 1) % 3]
         ("n", "f8", (3,)),  # outward unit normal
+        ("off", "f8"),  # the face's plane is n . x = off
         ("box", "f8", (6,)),  # bounding box: minimum (3), maximum (3)
         ("m", "f8", (3, 3)),  # m[k]: unit vector in the face, normal to edge k, pointing inside
         ("m_adj", "f8", (3, 3)),  # m_adj[k]: the same for the face across edge k (0 on a cut)

@@ -27,7 +27,6 @@ import numpy as np
 from numba import njit
 
 from app.world.contact.geometry import (
-    box_distance2,
     closest_on_triangle,
     feature_normal,
     segment_distance,
@@ -40,6 +39,10 @@ from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, MAX_PER_PAIR, Record,
 TOUCH = 1e-9
 # Distance (m) under which two nearest points are one (the same point computed from two faces).
 _SAME_POINT = 1e-10
+# Rounding allowance (m) of the lower bounds of a triangle's distance (from its plane and edge
+# lines) against the nearest point computed from the vertices (1e-16 relative at coordinates
+# under 1 km): a candidate is skipped only if it certainly is no nearer.
+_PLANE_SLACK = 1e-12
 # Edge or vertex minima on neighbouring triangles with normals closer than the cut angle are one
 # contact (cos of 30 degrees, app.world.collision.CUT_ANGLE_DEG).
 _PARTNER_COS = 0.8660254037844387
@@ -115,6 +118,23 @@ def _crease_weight(
 
 
 @njit(cache=True)
+def _farthest(phi: np.ndarray) -> int:
+    """Slot of the largest ``|phi|`` of a full set of minima, (MAX_PER_PAIR,)."""
+    slot = 0
+    for e in range(1, MAX_PER_PAIR):
+        if abs(phi[e]) > abs(phi[slot]):
+            slot = e
+    return slot
+
+
+@njit(cache=True)
+def _worst(phi: np.ndarray, n_min: int) -> float:
+    """The largest ``|phi|`` of ``n_min`` kept minima if the set is full (inf if one of them is
+    marked dropped), else inf."""
+    return abs(phi[_farthest(phi)]) if n_min == MAX_PER_PAIR else math.inf
+
+
+@njit(cache=True)
 def _share_vertex(tris: Records, a: int, b: int) -> bool:
     """Whether triangles a and b share a vertex (never across a cut: each side has its own copies)."""
     va, vb = tris[a].v, tris[b].v
@@ -174,24 +194,47 @@ def local_minima(
     # The nearest point is a local minimum: within r + R, it is on a cached triangle (the cache
     # covers r + 2 R around its centre); otherwise it is farther than that.
     nearest2 = (r * (1.0 + CACHE_FRAC)) ** 2
+    # Start from last time's nearest triangle: with the distance to the mesh known from the
+    # outset, the lower bounds below skip nearly every other triangle of a pair out of contact.
+    near_t = pair.near_t
+    if near_t >= 0:
+        nearest2 = min(nearest2, closest_on_triangle(verts, tris, near_t, cx, cy, cz)[0])
+    # |phi| of the farthest kept minimum once MAX_PER_PAIR are kept (inf before, or while one
+    # is marked dropped): a candidate no nearer changes nothing (a face minimum displaces no
+    # one, an edge or vertex one only a farther partner), so it is skipped unprocessed. On a
+    # finely tessellated concave surface (a hole's wall) every facet under the sphere holds a
+    # minimum, and most end at this test or at the plane test below.
+    worst = math.inf
     for s in range(pair.cache_n):
         t = pool_k[s]
-        box2 = box_distance2(tris[t].box, cx, cy, cz)
+        tri = tris[t]
+        # The distance to the face's plane bounds the distance to the triangle from below, and
+        # is three products away (the slack covers rounding, so a skip is never a change).
+        plane = abs(cx * tri.n[0] + cy * tri.n[1] + cz * tri.n[2] - tri.off) - _PLANE_SLACK
+        if plane > 0.0 and plane * plane >= nearest2 and (plane >= worst or plane * plane >= r2):
+            continue
+        box = tri.box
+        gx = max(box[0] - cx, 0.0, cx - box[3])  # the gaps to the triangle's box along each axis
+        gy = max(box[1] - cy, 0.0, cy - box[4])
+        gz = max(box[2] - cz, 0.0, cz - box[5])
+        box2 = gx * gx + gy * gy + gz * gz
         if box2 >= r2 and box2 >= nearest2:
             continue
         # Where c projects, from the inward edge normals: inside the face, the nearest point is
         # the projection. Beyond exactly one edge and abreast of it, the nearest point is on that
         # edge, and if c also projects into the face across it that face is nearer right there:
         # no minimum on t. Either way no full nearest-point search.
-        tri = tris[t]
         outside = 0
         reject = False
+        beyond = 0.0  # how far c is beyond the farthest edge line, in the face's plane
         for k in range(3):
             a = verts[tri.v[k]].p
             ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
             m = tri.m[k]
-            if ex * m[0] + ey * m[1] + ez * m[2] < 0.0:
+            inward = ex * m[0] + ey * m[1] + ez * m[2]
+            if inward < 0.0:
                 outside += 1
+                beyond = max(beyond, -inward)
                 ma = tri.m_adj[k]
                 if ex * ma[0] + ey * ma[1] + ez * ma[2] > 0.0:
                     b = verts[tri.v[(k + 1) % 3]].p
@@ -200,16 +243,31 @@ def local_minima(
                     reject = 0.0 < u < bx * bx + by * by + bz * bz
         if outside == 1 and reject:
             continue
+        if outside > 0:
+            # The distance is at least the hypotenuse of the plane distance and of a bound on
+            # the offset within the plane: ``beyond`` (the triangle is on the inner side of each
+            # edge line), or an axis's box gap less what the plane-normal part can take of it
+            # (above a vertical wall's top: the height). Above a hole's rim, the wall facets
+            # below are thus skipped without a nearest-point search.
+            up = plane + 2.0 * _PLANE_SLACK  # at least the plane distance
+            n = tri.n
+            aside = max(gx - up * abs(n[0]), gy - up * abs(n[1]), gz - up * abs(n[2]), beyond) - _PLANE_SLACK
+            bound2 = max(plane, 0.0) ** 2 + (aside * aside if aside > 0.0 else 0.0)
+            if bound2 >= nearest2 and (bound2 >= r2 or math.sqrt(bound2) >= worst):
+                continue
         if outside == 0:
             a = verts[tri.v[0]].p
             sd = (cx - a[0]) * tri.n[0] + (cy - a[1]) * tri.n[1] + (cz - a[2]) * tri.n[2]
             d2, qx, qy, qz, feat = sd * sd, cx - sd * tri.n[0], cy - sd * tri.n[1], cz - sd * tri.n[2], FEAT_FACE
         else:
             d2, qx, qy, qz, feat = closest_on_triangle(verts, tris, t, cx, cy, cz)
-        nearest2 = min(nearest2, d2)
-        if d2 >= r2 or not _is_local_min(verts, tris, edges, lists, t, feat, qx, qy, qz, cx, cy, cz):
+        if d2 < nearest2:
+            nearest2, near_t = d2, t
+        if d2 >= r2:
             continue
         d = math.sqrt(d2)
+        if d >= worst or not _is_local_min(verts, tris, edges, lists, t, feat, qx, qy, qz, cx, cy, cz):
+            continue
         w = 1.0
         if d < TOUCH:
             phi = 0.0
@@ -244,6 +302,7 @@ def local_minima(
                 else:
                     pair.min_phi[e] = math.inf  # dropped below
         if skip:
+            worst = _worst(pair.min_phi, n_min)
             continue
         n_kept = 0
         for e in range(n_min):
@@ -260,10 +319,7 @@ def local_minima(
         slot = n_min
         if n_min == MAX_PER_PAIR:
             # Full: replace the farthest if this one is nearer.
-            slot = 0
-            for e in range(1, MAX_PER_PAIR):
-                if abs(pair.min_phi[e]) > abs(pair.min_phi[slot]):
-                    slot = e
+            slot = _farthest(pair.min_phi)
             if abs(pair.min_phi[slot]) <= d:
                 continue
         else:
@@ -274,5 +330,7 @@ def local_minima(
         pair.min_w[slot] = w
         pair.min_t[slot] = t
         pair.min_f[slot] = feat
+        worst = _worst(pair.min_phi, n_min)
     pair.n_min = n_min
+    pair.near_t = near_t
     return math.sqrt(max(nearest2, 0.0))

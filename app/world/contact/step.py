@@ -204,7 +204,7 @@ def contact_step(
     The record arrays are those of :mod:`app.world.contact.layout`: ``tool_a`` (1,), ``objs``
     (m,), ``pairs`` (m n,), ``pool`` (m n, cache size) of candidate triangles, ``out``
     (m n MAX_PER_PAIR,) contacts, the packed geometry (:class:`~app.world.collision.PackedMeshes`),
-    and ``stamp`` (F,), the scratch of candidate gathers.
+    and ``stamp`` (F + V,), the scratch of candidate gathers.
 
     Returns the number of contacts written to ``out`` (the wrench is in the tool record), or an
     ``ERR_*`` code (< 0).

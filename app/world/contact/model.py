@@ -4,13 +4,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TypeVar
 
 import numpy as np
-from numba import typeof
 
+from app.compiled import entry_point
 from app.errors import ContactInputError
 from app.spatial import Array, IntArray, invert_pose
 from app.world.contact import layout
@@ -179,7 +178,10 @@ class ContactModel:
             geo.lists,
             stamp,
         )
-        self._step = _compiled_step(self._args)
+        # ``wrench`` checks the pose and twist (C-contiguous float64 of their shapes) and passes
+        # the model's own arrays for the rest, so the compiled step is called without numba's
+        # typing of its 14 arguments (~1.5 us a call).
+        self._step = entry_point(contact_step, np.eye(4), np.zeros(6), False, *self._args)
         self.reset()
 
     def reset(self) -> None:
@@ -244,19 +246,6 @@ class ContactModel:
             # Every field positional: the default factories cost microseconds on this path.
             return ContactResult(True, w, _NO_CONTACTS, queries, gathers, None)
         return ContactResult(True, w, self._out_f[:code].copy(), queries, gathers, None)
-
-
-def _compiled_step(args: tuple[object, ...]) -> Callable[..., int]:
-    """The compiled :func:`contact_step` for the pose, the twist and the model's arrays ``args``.
-
-    Calling the compiled entry point skips numba's dispatch, which types all 14 arguments on
-    every call (about 1.5 us, a third of a tick in steady contact). Safe only because
-    :meth:`ContactModel.wrench` passes the types compiled here: a pose and a twist that are
-    C-contiguous float64 arrays of checked shapes, and the model's own arrays.
-    """
-    sig = tuple(typeof(a) for a in (np.eye(4), np.zeros(6), False, *args))
-    step: Callable[..., int] = contact_step.compile(sig)
-    return step
 
 
 def _as_array(x: object, name: str) -> Array:

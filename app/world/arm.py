@@ -8,7 +8,7 @@ follows that command as a real robot controller would:
 1. The Cartesian reference is updated exactly as for the ideal tool
    (:func:`app.world.kernel.rate_reference`, with NTRFC accommodation and the following-error
    limit, or the pose command).
-2. Differential IK (:mod:`app.world.arm_kernel`) moves a joint set-point toward that reference
+2. Differential IK (:mod:`app.world.arm_ik`) moves a joint set-point toward that reference
    under joint, velocity and singularity limits; the redundant arm spends its null space on
    joint-limit avoidance. The pose error of the set-point is ``e(q) - J (q_c - q)``, linearised
    about the measured state (the set-point is within a servo lag of it), which saves a second
@@ -28,19 +28,20 @@ When the arm cannot follow (joint limit, singularity, velocity limit, workspace 
 command is limited smoothly by the IK, the condition is set in :attr:`ArmSlave.status`
 (:class:`ArmStatus`, logged per tick as ``slave_status``), and the operator feels it: the part of
 the reference the set-point cannot reach beyond a small dead band is reflected as a spring wrench
-at {MRF} (:func:`app.world.arm_kernel.limit_wrench`, the scene's ``kp_lin``/``kp_rot``, saturated
+at {MRF} (:func:`app.world.arm_ik.limit_wrench`, the scene's ``kp_lin``/``kp_rot``, saturated
 at its force and torque limits), added to the sensor reading, so the controller renders a wall
 at the limit without changing.
 
 Frames as in :mod:`app.world.scene`, plus the arm's base (upright, placed so that the home
 keyframe of the arm file reaches the scene's home pose) and the flange (z out of the wrist). The
 tool's {T} is mounted with its -z along the flange's z: every scene's tool points down -z.
+
+The arithmetic of a tick is compiled (:mod:`app.world.arm_kernel`, three calls per substep on
+one record of the arm's state); building the arm is :mod:`app.world.arm_model`.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 from enum import IntFlag
 
 import mujoco
@@ -48,54 +49,27 @@ import numpy as np
 
 from app.controller.types import FTReading, SlaveCommand
 from app.spatial import Array
+from app.world import arm_ik
 from app.world import arm_kernel as ak
-from app.world.arm_model import ArmGeom, arm_spec, link_contact_models, scene_box
+from app.world.arm_model import ArmGeom, ArmParams, arm_record, arm_spec, link_contact_models, place_base
 from app.world.contact import ContactModel, ContactResult
 from app.world.scene import Scene
 from app.world.slave import DEFAULT_PERIOD, SlaveBase, command_error, finite, invalid_contact
-
-_ZERO6 = np.zeros(6)
-_ZERO6.flags.writeable = False
 
 
 class ArmStatus(IntFlag):
     """Why the arm did not follow the command exactly this tick (combinable)."""
 
     NONE = 0
-    SINGULAR = ak.SINGULAR  # near a singularity: damped least squares active
-    JOINT_LIMIT = ak.JOINT_LIMIT  # a joint's rate was clamped near its limit
-    VELOCITY = ak.VELOCITY  # the commanded motion was scaled down to the joint velocity limits
-    TRACKING = ak.TRACKING  # the reference is out of reach (beyond the dead band): the limit wrench acts
-    TORQUE = ak.TORQUE  # a motor saturated (e.g. the arm is blocked)
+    SINGULAR = arm_ik.SINGULAR  # near a singularity: damped least squares active
+    JOINT_LIMIT = arm_ik.JOINT_LIMIT  # a joint's rate was clamped near its limit
+    VELOCITY = arm_ik.VELOCITY  # the commanded motion was scaled down to the joint velocity limits
+    TRACKING = arm_ik.TRACKING  # the reference is out of reach (beyond the dead band): the limit wrench acts
+    TORQUE = arm_ik.TORQUE  # a motor saturated (e.g. the arm is blocked)
 
 
-@dataclass(frozen=True)
-class ArmParams:
-    """Tuning of the arm's IK and joint servos (the same for every arm; rates per second).
-
-    Attributes:
-        servo_bandwidth: Joint servo natural frequency (Hz); ``kp = M_ii w^2`` with ``M_ii`` the
-            joint's inertia (armature included) at the home configuration.
-        servo_damping: Joint servo damping ratio (-): ``kd = 2 zeta M_ii w``.
-        k_ik: Gain (1/s) on the set-point's pose error (half of it corrected per 1 ms tick).
-        lambda_max: Largest damping (-) of the least squares, reached at a singularity.
-        eps_singular: Smallest singular value of J (m or rad per rad) below which damping starts.
-        k_limit: Rate (1/s) at which a joint may approach its soft limit.
-        k_null: Null-space pull (1/s) toward the middle of the joint ranges (redundant arms only).
-        limit_margin: Soft joint limits inside the hard stops (rad).
-        dead_lin, dead_rot: Dead band (m, rad) of the limit wrench.
-    """
-
-    servo_bandwidth: float = 12.0
-    servo_damping: float = 1.0
-    k_ik: float = 500.0
-    lambda_max: float = 0.08
-    eps_singular: float = 0.06
-    k_limit: float = 20.0
-    k_null: float = 1.0
-    limit_margin: float = 0.05
-    dead_lin: float = 0.001
-    dead_rot: float = 0.01
+# Every combination, built once: making an IntFlag from an int costs about a microsecond a tick.
+_STATUS = tuple(ArmStatus(bits) for bits in range(2 * max(ArmStatus)))
 
 
 class ArmSlave(SlaveBase):
@@ -105,79 +79,57 @@ class ArmSlave(SlaveBase):
         scene: The scene; ``scene.spec.slave.kind`` names the arm (``slaves/<kind>/arm.xml``).
         accommodation: NTRFC force accommodation on (True) or "blind" rate control (False).
         period: Servo period (s) the slave expects; ``step`` may be given another ``dt``.
-        params: IK and servo tuning.
+        params: IK and servo tuning (default :class:`ArmParams`).
 
     Attributes:
         q_home: Joint angles (rad) the reset's inverse kinematics starts from (the arm file's
             home keyframe); a redundant arm's reset picks the solution nearest it.
+        T_w_base: Pose of the arm's base in {w} (4, 4).
         status: :class:`ArmStatus` of the last step.
         link_contacts: The last contact results of the links near the world (empty when none is):
             they load the arm, not the sensor; :attr:`contact` is the tool's.
     """
 
     def __init__(
-        self, scene: Scene, accommodation: bool = True, period: float = DEFAULT_PERIOD, params: ArmParams = ArmParams()
+        self, scene: Scene, accommodation: bool = True, period: float = DEFAULT_PERIOD, params: ArmParams | None = None
     ) -> None:
         super().__init__(scene, accommodation)
-        self.params = params
+        self.params = params = params or ArmParams()
         g = self.gains
         self.name = g.kind
         self._substeps = g.substeps
         self._h = period / g.substeps
         self.model = m = arm_spec(scene, g.kind, self._h).compile()
         self.data = d = mujoco.MjData(m)
-        self.n = n = m.nu
+        self.n = m.nu
         self.contact_model = ContactModel(scene)
-        obj = mujoco.mjtObj
-        self._tool = mujoco.mj_name2id(m, obj.mjOBJ_BODY, "tool")
-        self._site_mrf = mujoco.mj_name2id(m, obj.mjOBJ_SITE, "mrf")
-        self._site_ft = mujoco.mj_name2id(m, obj.mjOBJ_SITE, "ft")
-        self._sens = int(m.sensor_adr[0])
-        base = mujoco.mj_name2id(m, obj.mjOBJ_BODY, "base")
-        # Place the upright base so that the home keyframe puts {MRF} at the scene's home position.
-        self.q_home = m.key_qpos[0].copy()
-        d.qpos[:] = self.q_home
-        mujoco.mj_kinematics(m, d)
-        m.body_pos[base] = tool_home = scene.tool.T_w_MRF_home[0:3, 3] - d.site_xpos[self._site_mrf]
-        self.T_w_base = np.eye(4)
-        self.T_w_base[0:3, 3] = tool_home
-        rng = m.jnt_range[:n]
-        self._lo = rng[:, 0] + params.limit_margin
-        self._hi = rng[:, 1] - params.limit_margin
-        self._mid = 0.5 * (rng[:, 0] + rng[:, 1])
-        self._qd_max = m.numeric("velocity_limit").data.copy()
-        self._tau_max = m.actuator_ctrlrange[:, 1].copy()
-        mujoco.mj_forward(m, d)
-        M = np.zeros((m.nv, m.nv))
-        mujoco.mj_fullM(m, d, M)
-        w = 2.0 * math.pi * params.servo_bandwidth
-        self._kp = np.diag(M) * w * w
-        self._kd = np.diag(M) * 2.0 * params.servo_damping * w
-        self._ik = np.array(
-            (params.k_ik, params.lambda_max, params.eps_singular, params.k_limit, params.k_null if n > 6 else 0.0)
-        )
-        self._links, self._link_models, self._link_spheres = link_contact_models(m, self._tool, scene)
-        self._scene_lo, self._scene_hi = scene_box(scene)
+        self.q_home, self.T_w_base = place_base(m, d, scene)
+        tool = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "tool")
+        self._links, self._link_models, spheres = link_contact_models(m, tool, scene)
+        self._rec = arm_record(m, d, scene, params, self._links, spheres)
+        r = self._rec[0]
+        # The base's buffers become views of the record, which the compiled tick writes.
+        self._T, self._V, self._T_ref, self._V_ref_w = r["T"], r["V"], r["T_ref"], r["V_ref"]
+        self._jac, self._q_c, self._qd_c, self._sv, self._W_limit = r["jac"], r["q_c"], r["qd_c"], r["sv"], r["W_limit"]
+        self._lo, self._hi, self._near = r["lo"], r["hi"], r["near"]
+        self._gravity_w = scene.gravity_w
         # Views into MjData (never reallocated), fetched once: attribute access costs ~1 us.
-        self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
-        self._bias, self._xfrc, self._sdata = d.qfrc_bias, d.xfrc_applied, d.sensordata
-        self._site_xpos, self._site_xmat, self._xpos, self._xipos = d.site_xpos, d.site_xmat, d.xpos, d.xipos
-        self._xmat = d.xmat
-        self._link_ids = np.array(self._links, dtype=np.int64)
-        self._jac = np.zeros((6, m.nv))
+        self._qpos, self._qvel, self._ctrl, self._bias = d.qpos, d.qvel, d.ctrl, d.qfrc_bias
+        self._xfrc, self._sdata, self._xanchor, self._xaxis = d.xfrc_applied, d.sensordata, d.xanchor, d.xaxis
+        self._site_xpos, self._site_xmat, self._xpos, self._xmat, self._xipos = (
+            d.site_xpos,
+            d.site_xmat,
+            d.xpos,
+            d.xmat,
+            d.xipos,
+        )
+        self._cvel, self._cacc, self._subtree_com = d.cvel, d.cacc, d.subtree_com
         self._res = np.zeros(6)
-        self._q_c = np.zeros(n)
-        self._qd_c = np.zeros(n)
-        self._e = np.zeros(6)
-        self._sv = np.full(7, 1.0)  # [sigma_min, warm start of its singular vector]
-        self._W_limit = np.zeros(6)
-        self._feel = np.array((params.dead_lin, params.dead_rot, g.kp_lin, g.kp_rot, g.force_limit, g.torque_limit))
         self.status = ArmStatus.NONE
         self._fault: str | None = None
         self.link_contacts: list[ContactResult] = []
         self.reset()
 
-    # --- construction helpers ------------------------------------------------------------------
     # --- state ---------------------------------------------------------------------------------
     def reset(self, T_w_MRF: Array | None = None) -> None:
         """Put the arm at rest with {MRF} at ``T_w_MRF`` (default: the scene's home), reference there.
@@ -215,27 +167,33 @@ class ArmSlave(SlaveBase):
         self._reading = self._make_reading(self._contact, at_rest=True)
 
     def _solve_ik(self, T: Array, iterations: int = 300) -> Array | None:
-        """Joint angles (n,) putting {MRF} at ``T`` from the home keyframe, or None if out of reach."""
+        """Joint angles (n,) putting {MRF} at ``T`` from the home keyframe, or None if out of reach.
+
+        Uses MuJoCo's kinematics; the arm's state (and the {MRF} buffers) are put back afterwards.
+        """
         m, d = self.model, self.data
+        q_was = self._qpos.copy()
         q = self.q_home.copy()
         e = np.zeros(6)
+        J, T_now = self._jac, self._T
+        found = None
         for _ in range(iterations):
-            d.qpos[:] = q
+            self._qpos[:] = q
             mujoco.mj_kinematics(m, d)
-            mujoco.mj_comPos(m, d)
-            mujoco.mj_jacSite(m, d, self._jac[0:3], self._jac[3:6], self._site_mrf)
-            ak.pose_error(T, d.site_xpos[self._site_mrf], d.site_xmat[self._site_mrf].reshape(3, 3), e)
+            self._read_mrf()
+            arm_ik.pose_error(T, T_now[0:3, 3], T_now[0:3, 0:3], e)
             if np.linalg.norm(e[0:3]) < 1e-9 and np.linalg.norm(e[3:6]) < 1e-8:
-                return q
-            J = self._jac
+                found = q
+                break
             q = np.clip(q + J.T @ np.linalg.solve(J @ J.T + 1e-6 * np.eye(6), e), self._lo, self._hi)
-        return None
+        self._qpos[:] = q_was
+        mujoco.mj_kinematics(m, d)
+        self._read_mrf()
+        return found
 
     def _read_mrf(self) -> None:
-        """Jacobian of {MRF}, its pose and twist for the current kinematics, into the buffers."""
-        s, J = self._site_mrf, self._jac
-        mujoco.mj_jacSite(self.model, self.data, J[0:3], J[3:6], s)
-        ak.mrf_from_site(self._site_xpos[s], self._site_xmat[s], J, self._qvel, self._T, self._V)
+        """Jacobian of {MRF}, its pose and twist for the current kinematics, into the record."""
+        ak.mrf_state(self._rec, self._xanchor, self._xaxis, self._site_xpos, self._site_xmat, self._qvel)
 
     @property
     def sigma_min(self) -> float:
@@ -280,42 +238,6 @@ class ArmSlave(SlaveBase):
         return out
 
     # --- servo tick ------------------------------------------------------------------------------
-    def _apply_contacts(self) -> ContactResult:
-        """Tool and link contact wrenches into ``xfrc_applied`` for the current state."""
-        xfrc = self._xfrc
-        xfrc.fill(0.0)
-        contact = self.contact_model.wrench(self._T, self._V)
-        if contact.valid:
-            T = self._T
-            ak.body_wrench(
-                contact.force_w,
-                contact.wrench_MRF[3:6],
-                T[0:3, 0:3],
-                T[0:3, 3],
-                self._xipos[self._tool],
-                xfrc[self._tool],
-            )
-        near = ak.links_near(
-            self._xpos, self._xmat, self._link_ids, *self._link_spheres, self._scene_lo, self._scene_hi
-        )
-        if not near.any():
-            if self.link_contacts:
-                self.link_contacts = []
-            return contact
-        self.link_contacts = []
-        for i in np.flatnonzero(near):
-            b = self._links[i]
-            T = np.eye(4)
-            T[0:3, 0:3] = self._xmat[b].reshape(3, 3)
-            T[0:3, 3] = self._xpos[b]
-            mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_BODY, b, self._res, 0)
-            V = np.concatenate((self._res[3:6], self._res[0:3]))
-            r = self._link_models[i].wrench(T, V)
-            self.link_contacts.append(r)
-            if r.valid:
-                ak.body_wrench(r.force_w, r.wrench_MRF[3:6], T[0:3, 0:3], T[0:3, 3], self._xipos[b], xfrc[b])
-        return contact
-
     def step(self, command: SlaveCommand, dt: float = DEFAULT_PERIOD) -> FTReading:
         """Advance one servo period ``dt`` (s) under ``command``; return the F/T sensor reading.
 
@@ -329,78 +251,88 @@ class ArmSlave(SlaveBase):
         h = dt / self._substeps
         if h != self._h:
             self.model.opt.timestep = self._h = h
-        m, d, n = self.model, self.data, self.n
+        m, d, rec, T, V = self.model, self.data, self._rec, self._T, self._V
         status = 0
         contact = self._contact
         for sub in range(self._substeps):
             mujoco.mj_step1(m, d)
-            self._read_mrf()
+            ak.mrf_state(rec, self._xanchor, self._xaxis, self._site_xpos, self._site_xmat, self._qvel)
             if sub == 0:
+                # Accommodation reads the previous tick's contact, as the ideal tool's does.
                 self._update_reference(command, dt)
-                status = ak.ik_step(
-                    self._jac[:, :n],
-                    self._T_ref,
-                    self._V_ref_w,
-                    self._T,
-                    self._qpos[:n],
-                    self._q_c,
-                    self._qd_c,
-                    self._lo,
-                    self._hi,
-                    self._qd_max,
-                    self._mid,
-                    self._ik,
-                    self._sv,
-                    self._feel,
-                    dt,
-                    self._e,
-                    self._W_limit,
-                )
-            status |= ak.joint_servo(
-                self._q_c,
-                self._qd_c,
-                self._qpos[:n],
-                self._qvel[:n],
-                self._bias[:n],
-                self._kp,
-                self._kd,
-                self._tau_max,
+            contact = self.contact_model.wrench(T, V)
+            bits, near = ak.control(
+                rec,
+                sub == 0,
+                dt,
+                self._qpos,
+                self._qvel,
+                self._bias,
                 self._ctrl,
+                self._xfrc,
+                self._xpos,
+                self._xmat,
+                self._xipos,
+                contact.force_w,
+                contact.wrench_MRF,
+                contact.valid,
             )
-            contact = self._apply_contacts()
+            status |= bits
+            if near:
+                self._link_contacts()
+            elif self.link_contacts:
+                self.link_contacts = []
             mujoco.mj_step2(m, d)
         self._contact = contact
-        self.status = ArmStatus(status)
+        self.status = _STATUS[status]
         self._reading = self._make_reading(contact)
         return self._reading
+
+    def _link_contacts(self) -> None:
+        """Contact wrenches of the links near the world (``near`` in the record), added to ``xfrc_applied``."""
+        self.link_contacts = []
+        xfrc = self._xfrc
+        for i in np.flatnonzero(self._near):
+            b = self._links[i]
+            T = np.eye(4)
+            T[0:3, 0:3] = self._xmat[b].reshape(3, 3)
+            T[0:3, 3] = self._xpos[b]
+            mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_BODY, b, self._res, 0)
+            V = np.concatenate((self._res[3:6], self._res[0:3]))
+            r = self._link_models[i].wrench(T, V)
+            self.link_contacts.append(r)
+            if r.valid:
+                ak.body_wrench(r.force_w, r.wrench_MRF[3:6], T[0:3, 0:3], T[0:3, 3], self._xipos[b], xfrc[b])
 
     def _make_reading(self, contact: ContactResult, at_rest: bool = False) -> FTReading:
         """The F/T reading at {S} for the state the last step's forces were computed at
         (:func:`~app.world.arm_kernel.ft_reading`). ``at_rest`` evaluates MuJoCo's sensors with
         zero accelerations (a held arm) and adds the contact at that pose."""
-        m, d, s = self.model, self.data, self._site_ft
-        if at_rest or not contact.valid:
+        held = at_rest or not contact.valid
+        if held:
+            m, d = self.model, self.data
             d.qacc[:] = 0.0
             mujoco.mj_rnePostConstraint(m, d)
             mujoco.mj_sensorAcc(m, d)
             self._W_limit.fill(0.0)
-            self._res.fill(0.0)
-            self._res[3:6] = -self.scene.gravity_w
-        else:
-            mujoco.mj_objectAcceleration(m, d, mujoco.mjtObj.mjOBJ_SITE, s, self._res, 0)
-        wrench_S, R_w_S, acc_w, omega_w = ak.ft_reading(
+        wrench_S, R_w_S, acc_w, omega_w = np.empty(6), np.empty((3, 3)), np.empty(6), np.empty(3)
+        ak.ft_reading(
+            self._rec,
+            held,
             self._sdata,
-            self._sens,
-            self._W_limit,
-            self._T,
-            self._V,
-            self._site_xmat[s],
-            self._site_xpos[s],
-            self._res,
-            self.scene.gravity_w,
+            self._site_xpos,
+            self._site_xmat,
+            self._cvel,
+            self._cacc,
+            self._subtree_com,
+            self._gravity_w,
+            wrench_S,
+            R_w_S,
+            acc_w,
+            omega_w,
         )
         if not contact.valid:
-            return FTReading(np.zeros(6), R_w_S, np.zeros(6), omega_w, False)
+            return FTReading(np.zeros(6), R_w_S, acc_w, omega_w, False)
         if at_rest:
             wrench_S += contact.wrench_S
         return FTReading(wrench_S, R_w_S, acc_w, omega_w, True)

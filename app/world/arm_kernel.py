@@ -1,335 +1,169 @@
-"""The arithmetic of one arm-slave tick (:mod:`app.world.arm`), compiled with numba.
+"""The arm slave's tick around MuJoCo (:mod:`app.world.arm`), compiled with numba.
 
-Differential inverse kinematics by damped least squares, hand-written rather than taken from a
-library (mink solves a quadratic program per tick with daqp: some hundred microseconds on this
-machine, against the 40 us budget of a whole slave step; here a 6 x 6 solve and an eigenvalue
-problem per pass cost about 2 us). Each tick, for a Jacobian ``J`` (6, n) at the joint set-point:
+One servo tick of :class:`~app.world.arm.ArmSlave` crosses from Python into compiled code three
+times, whatever the arm: :func:`mrf_state` after ``mj_step1`` (the {MRF} Jacobian, pose and
+twist), :func:`control` before ``mj_step2`` (the IK of :mod:`app.world.arm_ik`, the joint servo,
+the tool's contact wrench and which links are near the world) and :func:`ft_reading` after it.
+Each crossing costs about 0.1 us per argument, so everything the arm owns (its constants, the IK
+state and the {MRF} buffers) is one numpy record (:func:`arm_record_dtype`) passed as a single
+argument; MuJoCo's arrays are passed as they are (views of ``MjData``, fetched once).
 
-1. Desired twist ``V = V_ref + k_ik e`` with ``e`` the pose error of the set-point against the
-   Cartesian reference (``[dp; rotation log]``, m and rad, {w}).
-2. Velocity limits: ``qd = J^T (J J^T + lambda^2 I)^-1 (V - J z) + z`` is scaled down uniformly
-   until every ``|qd_i| <= qd_max_i`` (the Cartesian direction is kept: the command is limited
-   smoothly, never bent). ``z`` is the secondary goal (joint-limit avoidance toward the middle of
-   each range) for a redundant arm, zero for a 6-dof one; the first term removes what ``z`` does
-   to the tool, so it acts in the null space of ``J``.
-3. Joint limits: each joint's rate is bounded by ``k_limit`` times its distance to the soft limit
-   (it slows exponentially as it nears the limit and never crosses it). A joint that would
-   violate its bound is clamped there and the rest solve again for what it no longer provides
-   (the arm slides along the limit rather than stopping), at most n passes.
-4. Singularity robustness: the damping ``lambda^2 = lambda_max^2 (1 - (sigma_min / eps)^2)`` turns
-   on only where the smallest singular value of ``J`` drops below ``eps`` (Nakamura and Hanafusa
-   1986; Maciejewski and Klein 1988), so joint rates stay bounded through a wrist flip.
-
-The module is a little over 400 lines because the tick's small dense linear algebra (Cholesky of
-a 6 x 6 Gram matrix, loops instead of numba's BLAS calls) is written out beside its only user.
-
-Then the joint servo: ``tau = kp (q_c - q) + kd (qd_c - qd) + bias`` with ``bias`` MuJoCo's
-gravity and Coriolis forces, saturated at each motor's torque limit.
+The joint servo: ``tau = kp (q_c - q) + kd (qd_c - qd) + bias`` with ``bias`` MuJoCo's gravity
+and Coriolis forces, saturated at each motor's torque limit.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
-from numpy.typing import NDArray
 
-from app.spatial import Array, IntArray, cross3, rotation_log
-
-BoolArray = NDArray[np.bool_]
-
-# Status bits of :func:`ik_rates` and the arm (see :class:`app.world.arm.ArmStatus`).
-SINGULAR, JOINT_LIMIT, VELOCITY, TRACKING, TORQUE = 1, 2, 4, 8, 16
-# Slots of the IK parameter vector.
-K_IK, LAMBDA_MAX, EPS_SING, K_LIMIT, K_NULL = range(5)
+from app.spatial import Array, cross3
+from app.world.arm_ik import TORQUE, ik_step, matTvec, matvec
 
 
-@njit(cache=True)
-def pose_error(T_ref: Array, p: Array, R: Array, out: Array) -> None:
-    """``[p_ref - p; log(R_ref R^T)]`` (m, rad; {w}) of the pose ``(p, R)`` against ``T_ref`` (4, 4), into ``out`` (6,)."""
-    Rr = T_ref[0:3, 0:3]
-    M = np.empty((3, 3))
-    for i in range(3):
-        out[i] = T_ref[i, 3] - p[i]
-        for j in range(3):
-            M[i, j] = Rr[i, 0] * R[j, 0] + Rr[i, 1] * R[j, 1] + Rr[i, 2] * R[j, 2]
-    w = rotation_log(M)
-    out[3:6] = w
+def arm_record_dtype(n: int, links: int, spheres: int) -> np.dtype:
+    """The arm's record for ``n`` hinge joints, ``links`` links with contact spheres and ``spheres`` spheres.
 
+    Fields (angles rad, rates rad/s, torques N m, lengths m; {w} unless stated):
 
-@njit(cache=True)
-def _matvec(A: Array, x: Array) -> Array:
-    """``A @ x`` by loops (numba's ``@`` calls BLAS, whose overhead dwarfs a 6 x 7 product)."""
-    out = np.zeros(A.shape[0])
-    for i in range(A.shape[0]):
-        for j in range(A.shape[1]):
-            out[i] += A[i, j] * x[j]
-    return out
+    Constants:
+        lo, hi: Soft joint limits (n,). qd_max: joint velocity limits (n,). mid: the redundant
+        arm's secondary goal (n,). kp, kd: servo gains (N m/rad, N m s/rad), (n,). tau_max:
+        motor torque limits (n,). ik: :data:`~app.world.arm_ik.K_IK` ... parameters (5,). feel:
+        ``[dead_lin, dead_rot, kp_lin, kp_rot, f_max, t_max]`` of
+        :func:`~app.world.arm_ik.limit_wrench`. links: body ids of the links with contact spheres
+        (links,). owner: index into ``links`` of each sphere (spheres,); centers: sphere centres
+        in their link's frame (spheres, 3); radii (spheres,). box: ``[lo; hi]`` of every object,
+        grown by the contact margin (2, 3). site_mrf, site_ft: MuJoCo site ids of {MRF} and {S};
+        tool: the tool's body id; root: its root body (MuJoCo's ``cacc`` is about that body's
+        subtree centre of mass); sensor: address of the force sensor in ``sensordata`` (the
+        torque sensor follows).
 
-
-@njit(cache=True)
-def _matTvec(A: Array, x: Array) -> Array:
-    """``A.T @ x`` by loops."""
-    return _matvec(A.T, x)
-
-
-@njit(cache=True)
-def _gram_cholesky(J: Array, free: BoolArray, lam2: float) -> Array:
-    """Lower Cholesky factor L (6, 6) of ``J_f J_f^T + lam2 I`` (``J_f``: the ``free`` columns of J)."""
-    A = np.zeros((6, 6))
-    for i in range(6):
-        for j in range(i + 1):
-            acc = 0.0
-            for k in range(J.shape[1]):
-                if free[k]:
-                    acc += J[i, k] * J[j, k]
-            A[i, j] = acc
-        A[i, i] += lam2
-    L = np.zeros((6, 6))
-    for j in range(6):
-        d = A[j, j]
-        for k in range(j):
-            d -= L[j, k] * L[j, k]
-        L[j, j] = math.sqrt(max(d, 1e-300))
-        for i in range(j + 1, 6):
-            acc = A[i, j]
-            for k in range(j):
-                acc -= L[i, k] * L[j, k]
-            L[i, j] = acc / L[j, j]
-    return L
-
-
-@njit(cache=True)
-def _cholesky_solve(L: Array, b: Array) -> Array:
-    """``x`` with ``L L^T x = b`` (6,)."""
-    y = np.empty(6)
-    for i in range(6):
-        acc = b[i]
-        for k in range(i):
-            acc -= L[i, k] * y[k]
-        y[i] = acc / L[i, i]
-    x = np.empty(6)
-    for i in range(5, -1, -1):
-        acc = y[i]
-        for k in range(i + 1, 6):
-            acc -= L[k, i] * x[k]
-        x[i] = acc / L[i, i]
-    return x
-
-
-@njit(cache=True)
-def smallest_singular_value(J: Array, v: Array) -> float:
-    """Smallest singular value of J (6, n), n >= 6, by inverse iteration on ``J J^T`` warm-started
-    from ``v`` (6,, updated in place): the servo calls it every tick, so a few iterations track it.
-
-    A tiny regularisation keeps the factorisation defined at an exact singularity.
+    State:
+        q_c, qd_c: Joint set-point and its rate (n,). sv: ``[sigma_min, warm start (6)]``. e: the
+        set-point's pose error (6,). W_limit: the limit wrench at {MRF} (6,). jac: {MRF} Jacobian
+        (6, n), rows ``[v; w]``. T, V: {MRF} pose (4, 4) and twist ``[v; w]`` (6,). T_ref,
+        V_ref: the Cartesian reference pose (4, 4) and twist (6,). near: the links whose spheres
+        reach ``box``, 1 or 0 (links,) (numba's records hold no bool arrays).
     """
-    free = np.ones(J.shape[1], dtype=np.bool_)
-    L = _gram_cholesky(J, free, 1e-12)
-    x = v.copy()
-    rq = 0.0
-    for _ in range(4):
-        n = math.sqrt(np.sum(x * x))
-        x = x / n if n > 0.0 else np.ones(6) / math.sqrt(6.0)
-        y = _cholesky_solve(L, x)
-        rq = np.sum(x * y)  # x^T A^-1 x -> 1 / lambda_min
-        x = y
-    v[:] = x / math.sqrt(np.sum(x * x))
-    return math.sqrt(max(1.0 / rq - 1e-12, 0.0))
+    f8, i8 = np.float64, np.int64
+    fields: list[tuple[str, type, tuple[int, ...]]] = [
+        *((name, f8, (n,)) for name in ("lo", "hi", "qd_max", "mid", "kp", "kd", "tau_max", "q_c", "qd_c")),
+        ("ik", f8, (5,)),
+        ("feel", f8, (6,)),
+        ("sv", f8, (7,)),
+        ("e", f8, (6,)),
+        ("W_limit", f8, (6,)),
+        ("jac", f8, (6, n)),
+        ("T", f8, (4, 4)),
+        ("V", f8, (6,)),
+        ("T_ref", f8, (4, 4)),
+        ("V_ref", f8, (6,)),
+        ("links", i8, (links,)),
+        ("near", i8, (links,)),
+        ("owner", i8, (spheres,)),
+        ("centers", f8, (spheres, 3)),
+        ("radii", f8, (spheres,)),
+        ("box", f8, (2, 3)),
+    ]
+    scalars = [(name, i8) for name in ("site_mrf", "site_ft", "tool", "root", "sensor")]
+    return np.dtype([*fields, *scalars])
 
 
 @njit(cache=True)
-def _dls(J: Array, free: BoolArray, V: Array, z: Array, lam2: float) -> Array:
-    """``J_f^T (J_f J_f^T + lam2 I)^-1 (V - J_f z) + z`` on the free joints (zero elsewhere), (n,).
+def mrf_state(rec: Array, xanchor: Array, xaxis: Array, site_xpos: Array, site_xmat: Array, qvel: Array) -> None:
+    """The {MRF} Jacobian, pose and twist of the current kinematics into ``rec`` (``jac``, ``T``, ``V``).
 
-    ``lam2`` includes a tiny floor so that fewer than six free joints still factorise; the part of
-    ``V`` they cannot produce then maps to nothing (``J_f^T`` annihilates it).
-    """
-    n = J.shape[1]
-    zf = z.copy()
-    for k in range(n):
-        if not free[k]:
-            zf[k] = 0.0
-    r = V - _matvec(J, zf)
-    L = _gram_cholesky(J, free, lam2 + 1e-9)
-    qd = _matTvec(J, _cholesky_solve(L, r))
-    for k in range(n):
-        qd[k] = qd[k] + zf[k] if free[k] else 0.0
-    return qd
-
-
-@njit(cache=True)
-def ik_rates(
-    J: Array,
-    e: Array,
-    V_ref: Array,
-    q_c: Array,
-    lo: Array,
-    hi: Array,
-    qd_max: Array,
-    mid: Array,
-    p: Array,
-    sv: Array,
-    qd_out: Array,
-) -> int:
-    """Joint rates (rad/s) that move the set-point ``q_c`` toward the reference (module docstring).
+    Every joint is a hinge on the tool's chain (checked by the arm's constructor), so column k of
+    the Jacobian is ``[a_k x (p - c_k); a_k]`` with ``a_k``, ``c_k`` MuJoCo's joint axis and anchor
+    in {w} (``xaxis``, ``xanchor``, (njnt, 3)) and p the {MRF} origin; the same as ``mj_jacSite``
+    without a call through the bindings.
 
     Args:
-        J: Jacobian (6, n) of the {MRF} origin and the tool's rotation at ``q_c``, rows ``[v; w]`` in {w}.
-        e: Pose error of the set-point against the reference (6,), see :func:`pose_error`.
-        V_ref: Reference twist ``[v; w]`` in {w} (6,).
-        q_c: Joint set-point (rad), (n,). ``lo``, ``hi``: soft joint limits (rad), (n,).
-        qd_max: Joint velocity limits (rad/s), (n,).
-        mid: Joint configuration the secondary goal pulls toward (rad), (n,).
-        p: ``[k_ik (1/s), lambda_max (-), eps (-), k_limit (1/s), k_null (1/s)]``; ``k_null = 0`` turns
-            the secondary goal off.
-        sv: ``[sigma_min, v (6)]``: the smallest singular value of J, written, and the warm start
-            of its estimate (:func:`smallest_singular_value`), updated.
-        qd_out: Output (n,).
-
-    Returns:
-        Status bits: ``SINGULAR``, ``JOINT_LIMIT``, ``VELOCITY``.
+        rec: The arm's record (a one-element array of :func:`arm_record_dtype`).
+        site_xpos, site_xmat: MuJoCo's site positions (nsite, 3) and orientations (nsite, 9).
+        qvel: Joint velocities (n,).
     """
-    n = J.shape[1]
-    status = 0
-    V = V_ref + p[K_IK] * e
-    z = -p[K_NULL] * (q_c - mid)
-    sigma_min = smallest_singular_value(J, sv[1:7])
-    sv[0] = sigma_min
-    lam2 = 0.0
-    if sigma_min < p[EPS_SING]:
-        status |= SINGULAR
-        lam2 = p[LAMBDA_MAX] ** 2 * (1.0 - (sigma_min / p[EPS_SING]) ** 2)
-    free = np.ones(n, dtype=np.bool_)
-    qd = _dls(J, free, V, z, lam2)
-    scale = 1.0
-    for k in range(n):
-        if abs(qd[k]) * scale > qd_max[k]:
-            scale = qd_max[k] / abs(qd[k])
-    if scale < 1.0:
-        status |= VELOCITY
-        V = V * scale
-        qd = qd * scale
-    # Joint limits: clamp the joints that would overrun their bound, re-solve the rest.
-    fixed = np.zeros(n)
-    for _ in range(n):
-        worst, worst_k, bound = 0.0, -1, 0.0
-        for k in range(n):
-            if not free[k]:
-                continue
-            up = min(qd_max[k], p[K_LIMIT] * (hi[k] - q_c[k]))
-            down = max(-qd_max[k], p[K_LIMIT] * (lo[k] - q_c[k]))
-            over = max(qd[k] - up, down - qd[k])
-            if over > worst:
-                worst, worst_k, bound = over, k, up if qd[k] > up else down
-        if worst_k < 0:
-            break
-        status |= JOINT_LIMIT
-        free[worst_k] = False
-        fixed[worst_k] = bound
-        qd = _dls(J, free, V - _matvec(J, fixed), z, lam2) + fixed
-    qd_out[:] = qd
-    return status
-
-
-@njit(cache=True)
-def mrf_from_site(p_site: Array, xmat_site: Array, J: Array, qvel: Array, T_w_MRF: Array, V_w_MRF: Array) -> None:
-    """{MRF} pose (4, 4) and twist ``[v; w]`` (6,) in {w} from its site's position (3,), orientation
-    (9,) and Jacobian ``J`` (6, nv) times the joint velocities (nv,), into the outputs."""
+    r = rec[0]
+    s = r["site_mrf"]
+    J, T = r["jac"], r["T"]
+    p = site_xpos[s]
     for i in range(3):
-        T_w_MRF[i, 3] = p_site[i]
+        T[i, 3] = p[i]
         for j in range(3):
-            T_w_MRF[i, j] = xmat_site[3 * i + j]
-    V_w_MRF[:] = _matvec(J, qvel)
+            T[i, j] = site_xmat[s, 3 * i + j]
+    for k in range(J.shape[1]):
+        a = xaxis[k]
+        v = cross3(a, p - xanchor[k])
+        for i in range(3):
+            J[i, k] = v[i]
+            J[3 + i, k] = a[i]
+    r["V"][:] = matvec(J, qvel)
 
 
 @njit(cache=True)
-def ik_step(
-    J: Array,
-    T_ref: Array,
-    V_ref: Array,
-    T_w_MRF: Array,
-    q: Array,
-    q_c: Array,
-    qd_c: Array,
-    lo: Array,
-    hi: Array,
-    qd_max: Array,
-    mid: Array,
-    p: Array,
-    sv: Array,
-    feel: Array,
+def control(
+    rec: Array,
+    ik: bool,
     dt: float,
-    e: Array,
-    W_limit: Array,
-) -> int:
-    """One tick of the set-point: pose error, limit wrench, :func:`ik_rates`, integration.
+    qpos: Array,
+    qvel: Array,
+    bias: Array,
+    ctrl: Array,
+    xfrc: Array,
+    xpos: Array,
+    xmat: Array,
+    xipos: Array,
+    force_w: Array,
+    wrench_MRF: Array,
+    contact_valid: bool,
+) -> tuple[int, bool]:
+    """One substep's control: the IK (``ik``: first substep of a tick of ``dt`` s), joint servo
+    into ``ctrl``, the tool's contact wrench into ``xfrc`` (cleared first) and the near links.
 
     Args:
-        J: Jacobian (6, n) at the measured joints ``q`` (n,); ``T_w_MRF`` the measured {MRF} pose.
-        T_ref, V_ref: Cartesian reference pose (4, 4) and twist (6,) in {w}.
-        q_c, qd_c: Joint set-point (rad) and its rate (rad/s), (n,), updated in place.
-        lo, hi, qd_max, mid, p, sv: As :func:`ik_rates`.
-        feel: ``[dead_lin, dead_rot, kp_lin, kp_rot, f_max, t_max]`` of :func:`limit_wrench`.
-        dt: Servo period (s).
-        e, W_limit: Outputs: the set-point's pose error (6,) and the limit wrench (6,) in {w} at {MRF}.
+        rec: The arm's record; ``jac``, ``T``, ``T_ref``, ``V_ref`` current.
+        qpos, qvel, bias, ctrl: MuJoCo's joint angles, velocities, bias forces and controls.
+        xfrc: MuJoCo's applied body wrenches (nbody, 6), ``[f; torque about the com]``.
+        xpos, xmat, xipos: Body origins (nbody, 3), orientations (nbody, 9), centres of mass (nbody, 3).
+        force_w, wrench_MRF, contact_valid: The tool's :class:`~app.world.contact.ContactResult`
+            ``force_w`` (3,), ``wrench_MRF`` (6,) and ``valid``.
 
     Returns:
-        Status bits (``TRACKING`` when the limit wrench is non-zero, and those of :func:`ik_rates`).
+        Status bits (:mod:`app.world.arm_ik`) and whether any link is near the world (``rec.near``).
     """
-    pose_error(T_ref, T_w_MRF[0:3, 3], T_w_MRF[0:3, 0:3], e)
-    # The set-point's error, linearised about the measured state (see app.world.arm).
-    e -= _matvec(J, q_c - q)
-    W_limit[:] = limit_wrench(e, feel[0], feel[1], feel[2], feel[3], feel[4], feel[5])
+    r = rec[0]
+    n = r["q_c"].shape[0]
     status = 0
-    for i in range(6):
-        if W_limit[i] != 0.0:
-            status = TRACKING
-    status |= ik_rates(J, e, V_ref, q_c, lo, hi, qd_max, mid, p, sv, qd_c)
-    for k in range(q_c.shape[0]):
-        q_c[k] = min(max(q_c[k] + qd_c[k] * dt, lo[k]), hi[k])
-    return status
-
-
-@njit(cache=True)
-def ft_reading(
-    sdata: Array,
-    adr: int,
-    W_limit: Array,
-    T_w_MRF: Array,
-    V_w_MRF: Array,
-    xmat_S: Array,
-    p_S: Array,
-    acc: Array,
-    gravity_w: Array,
-) -> tuple[Array, Array, Array, Array]:
-    """The F/T reading at {S}: ``(wrench_S (6,), R_w_S (3, 3), acc_w (6,), omega_w (3,))`` as
-    :class:`~app.controller.types.FTReading` defines them; new arrays.
-
-    Args:
-        sdata, adr: MuJoCo's sensor data and the address of the force sensor (the torque sensor
-            follows): the force and moment (about the {S} origin, in {S}) the parent exerts on
-            everything outboard; the external wrench a sensor reports is their opposite.
-        W_limit: The limit wrench (6,) in {w}, acting at the {MRF} origin, added.
-        T_w_MRF, V_w_MRF: {MRF} pose (4, 4) and twist (6,); {S} is on the same body.
-        xmat_S, p_S: Orientation (9,) and origin (3,) of {S} in {w}.
-        acc: MuJoCo's ``[angular; linear]`` acceleration of {S} in {w} (6,), which includes the
-            -gravity of its base frame (an accelerometer's view).
-        gravity_w: Gravity (m/s^2), (3,).
-    """
-    R_w_S = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            R_w_S[i, j] = xmat_S[3 * i + j]
-    wrench_S = wrench_at(W_limit, T_w_MRF[0:3, 3], R_w_S, p_S)
-    acc_w = np.empty(6)
-    for i in range(3):
-        wrench_S[i] -= sdata[adr + i]
-        wrench_S[3 + i] -= sdata[adr + 3 + i]
-        acc_w[i] = acc[3 + i] + gravity_w[i]
-        acc_w[3 + i] = acc[i]
-    return wrench_S, R_w_S, acc_w, V_w_MRF[3:6].copy()
+    if ik:
+        status = ik_step(
+            r["jac"],
+            r["T_ref"],
+            r["V_ref"],
+            r["T"],
+            qpos[:n],
+            r["q_c"],
+            r["qd_c"],
+            r["lo"],
+            r["hi"],
+            r["qd_max"],
+            r["mid"],
+            r["ik"],
+            r["sv"],
+            r["feel"],
+            dt,
+            r["e"],
+            r["W_limit"],
+        )
+    status |= joint_servo(r["q_c"], r["qd_c"], qpos[:n], qvel[:n], bias[:n], r["kp"], r["kd"], r["tau_max"], ctrl)
+    xfrc[:] = 0.0
+    if contact_valid:
+        T = r["T"]
+        b = r["tool"]
+        body_wrench(force_w, wrench_MRF[3:6], T[0:3, 0:3], T[0:3, 3], xipos[b], xfrc[b])
+    near = r["near"]
+    links_near(xpos, xmat, r["links"], r["owner"], r["centers"], r["radii"], r["box"], near)
+    return status, near.any()
 
 
 @njit(cache=True)
@@ -352,6 +186,63 @@ def joint_servo(
 
 
 @njit(cache=True)
+def ft_reading(
+    rec: Array,
+    at_rest: bool,
+    sdata: Array,
+    site_xpos: Array,
+    site_xmat: Array,
+    cvel: Array,
+    cacc: Array,
+    subtree_com: Array,
+    gravity_w: Array,
+    wrench_S: Array,
+    R_w_S: Array,
+    acc_w: Array,
+    omega_w: Array,
+) -> None:
+    """The F/T reading at {S} as :class:`~app.controller.types.FTReading` defines it, into the
+    outputs ``wrench_S`` (6,), ``R_w_S`` (3, 3), ``acc_w`` (6,), ``omega_w`` (3,).
+
+    The wrench is the opposite of MuJoCo's force and torque sensors (the force and moment, about
+    the {S} origin in {S}, the parent exerts on everything outboard), plus the limit wrench
+    ``rec.W_limit`` acting at the {MRF} origin. The acceleration is that of the {S} site, as
+    ``mj_objectAcceleration`` computes it from the tool body's ``cvel`` and ``cacc`` (nbody, 6,
+    ``[angular; linear]`` about ``subtree_com`` of the root), less the -gravity MuJoCo includes
+    (an accelerometer's view); zero ``at_rest`` (a held arm).
+
+    Args:
+        rec: The arm's record (``T``, ``V`` current).
+        sdata: MuJoCo's sensor data. site_xpos, site_xmat: site positions and orientations.
+        gravity_w: Gravity (m/s^2), (3,).
+    """
+    r = rec[0]
+    s, b, adr = r["site_ft"], r["tool"], r["sensor"]
+    p_S = site_xpos[s]
+    for i in range(3):
+        for j in range(3):
+            R_w_S[i, j] = site_xmat[s, 3 * i + j]
+    wrench_S[:] = wrench_at(r["W_limit"], r["T"][0:3, 3], R_w_S, p_S)
+    for i in range(3):
+        wrench_S[i] -= sdata[adr + i]
+        wrench_S[3 + i] -= sdata[adr + 3 + i]
+        omega_w[i] = r["V"][3 + i]
+    if at_rest:
+        acc_w[:] = 0.0
+        return
+    # Motion vectors about the root's subtree centre of mass, moved to the {S} origin; the
+    # linear part then gains omega x v (a point's classical acceleration).
+    d = p_S - subtree_com[r["root"]]
+    w = cvel[b, 0:3]
+    v = cvel[b, 3:6] - cross3(d, w)
+    alpha = cacc[b, 0:3]
+    a = cacc[b, 3:6] - cross3(d, alpha) + cross3(w, v)
+    for i in range(3):
+        acc_w[i] = a[i] + gravity_w[i]
+        acc_w[3 + i] = alpha[i]
+
+
+@njit(cache=True)
 def body_wrench(f_w: Array, m_local: Array, R_w_local: Array, p_w: Array, com_w: Array, xfrc: Array) -> None:
     """Add a contact wrench to a body's ``xfrc_applied`` row ``xfrc`` (6,) (force; torque about
     the centre of mass ``com_w``, {w}).
@@ -360,37 +251,10 @@ def body_wrench(f_w: Array, m_local: Array, R_w_local: Array, p_w: Array, com_w:
         f_w: Force (N) in {w}. ``m_local``: moment (N m) about ``p_w`` in the frame whose
             orientation is ``R_w_local`` (3, 3) (the contact model's {MRF}).
     """
-    t = _matvec(R_w_local, m_local) + cross3(p_w - com_w, f_w)
+    t = matvec(R_w_local, m_local) + cross3(p_w - com_w, f_w)
     for i in range(3):
         xfrc[i] += f_w[i]
         xfrc[3 + i] += t[i]
-
-
-@njit(cache=True)
-def _spring(e: Array, dead: float, k: float, limit: float, out: Array) -> None:
-    """``-min(k (|e| - dead), limit) e / |e|`` for a 3-vector beyond the dead band, into ``out`` (3,)."""
-    n = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
-    if n > dead:
-        mag = min(k * (n - dead), limit)
-        for i in range(3):
-            out[i] = -mag * e[i] / n
-
-
-@njit(cache=True)
-def limit_wrench(
-    e: Array, dead_lin: float, dead_rot: float, kp_lin: float, kp_rot: float, f_max: float, t_max: float
-) -> Array:
-    """The wrench (6,) ``[f; m]`` in {w} at {MRF} the operator feels when the arm cannot follow.
-
-    A spring on the part of the pose error ``e`` (6,) (reference ahead of what the arm reaches)
-    beyond a dead band ``dead_lin`` (m) / ``dead_rot`` (rad), pulling the tool back toward what it
-    can reach, like a wall at the limit; stiffnesses ``kp_lin`` (N/m), ``kp_rot`` (N m/rad),
-    saturated at ``f_max`` (N) and ``t_max`` (N m). Zero while the arm tracks.
-    """
-    out = np.zeros(6)
-    _spring(e[0:3], dead_lin, kp_lin, f_max, out[0:3])
-    _spring(e[3:6], dead_rot, kp_rot, t_max, out[3:6])
-    return out
 
 
 @njit(cache=True)
@@ -399,16 +263,16 @@ def wrench_at(W_w: Array, p_from: Array, R_w_S: Array, p_S: Array) -> Array:
     f = W_w[0:3]
     m = W_w[3:6] + cross3(p_from - p_S, f)
     out = np.empty(6)
-    out[0:3] = _matTvec(R_w_S, f)
-    out[3:6] = _matTvec(R_w_S, m)
+    out[0:3] = matTvec(R_w_S, f)
+    out[3:6] = matTvec(R_w_S, m)
     return out
 
 
 @njit(cache=True)
 def links_near(
-    xpos: Array, xmat: Array, links: IntArray, owner: IntArray, centers: Array, radii: Array, lo: Array, hi: Array
-) -> BoolArray:
-    """Which links have a contact sphere reaching the box ``[lo, hi]`` ({w}), (k,) bool.
+    xpos: Array, xmat: Array, links: Array, owner: Array, centers: Array, radii: Array, box: Array, out: Array
+) -> None:
+    """Which links have a contact sphere reaching ``box`` (``[lo; hi]`` (2, 3), {w}), into ``out`` (k,), 1 or 0.
 
     Args:
         xpos, xmat: MuJoCo's body positions (nbody, 3) and orientations (nbody, 9) in {w}.
@@ -416,10 +280,10 @@ def links_near(
         owner: Index into ``links`` of each sphere (s,). ``centers``: sphere centres (s, 3) in
             their link's frame (m); ``radii`` (s,) (m).
     """
-    out = np.zeros(links.shape[0], dtype=np.bool_)
+    out[:] = 0
     for i in range(owner.shape[0]):
         k = owner[i]
-        if out[k]:
+        if out[k] != 0:
             continue
         b = links[k]
         R = xmat[b]
@@ -427,8 +291,7 @@ def links_near(
         near = True
         for a in range(3):
             c = xpos[b, a] + R[3 * a] * centers[i, 0] + R[3 * a + 1] * centers[i, 1] + R[3 * a + 2] * centers[i, 2]
-            if c + r < lo[a] or c - r > hi[a]:
+            if c + r < box[0, a] or c - r > box[1, a]:
                 near = False
                 break
-        out[k] = near
-    return out
+        out[k] = 1 if near else 0

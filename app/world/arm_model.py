@@ -1,11 +1,13 @@
-"""Building an arm slave: the arm file with the tool on its flange, and the links' contact spheres.
+"""Building an arm slave: the arm file with the tool on its flange, its tuning and record, and
+the links' contact spheres.
 
-Split from :mod:`app.world.arm` (the servo tick). Frames as there.
+Split from :mod:`app.world.arm` (the running slave). Frames as there.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import mujoco
@@ -13,6 +15,8 @@ import numpy as np
 
 from app.errors import ConfigError
 from app.spatial import Array, IntArray, matrix_to_quat
+from app.world import arm_ik
+from app.world.arm_kernel import arm_record_dtype
 from app.world.contact import ContactModel
 from app.world.scene import CapsuleSpec, Scene, capsule_spheres
 from app.world.scene_file import SLAVES_DIR
@@ -21,6 +25,35 @@ from app.world.scene_file import SLAVES_DIR
 #: along the flange's z and, at the arms' home keyframes (flange z down, x toward the base), {T}
 #: has the world's axes like every shipped scene's home.
 _MOUNT_QUAT = np.array([0.0, 0.0, 1.0, 0.0])
+
+
+@dataclass(frozen=True)
+class ArmParams:
+    """Tuning of the arm's IK and joint servos (the same for every arm; rates per second).
+
+    Attributes:
+        servo_bandwidth: Joint servo natural frequency (Hz); ``kp = M_ii w^2`` with ``M_ii`` the
+            joint's inertia (armature included) at the home configuration.
+        servo_damping: Joint servo damping ratio (-): ``kd = 2 zeta M_ii w``.
+        k_ik: Gain (1/s) on the set-point's pose error (half of it corrected per 1 ms tick).
+        lambda_max: Largest damping (-) of the least squares, reached at a singularity.
+        eps_singular: Smallest singular value of J (m or rad per rad) below which damping starts.
+        k_limit: Rate (1/s) at which a joint may approach its soft limit.
+        k_null: Null-space pull (1/s) toward the middle of the joint ranges (redundant arms only).
+        limit_margin: Soft joint limits inside the hard stops (rad).
+        dead_lin, dead_rot: Dead band (m, rad) of the limit wrench.
+    """
+
+    servo_bandwidth: float = 12.0
+    servo_damping: float = 1.0
+    k_ik: float = 500.0
+    lambda_max: float = 0.08
+    eps_singular: float = 0.06
+    k_limit: float = 20.0
+    k_null: float = 1.0
+    limit_margin: float = 0.05
+    dead_lin: float = 0.001
+    dead_rot: float = 0.01
 
 
 @dataclass(frozen=True)
@@ -114,3 +147,90 @@ def scene_box(scene: Scene) -> tuple[Array, Array]:
     lo = np.min([o.collision.lo for o in scene.objects], axis=0) - scene.spec.margin
     hi = np.max([o.collision.hi for o in scene.objects], axis=0) + scene.spec.margin
     return lo, hi
+
+
+def place_base(model: mujoco.MjModel, data: mujoco.MjData, scene: Scene) -> tuple[Array, Array]:
+    """Move the upright base so that the home keyframe puts {MRF} at the scene's home position.
+
+    Returns the home joint angles (n,) (rad) and the base pose ``T_w_base`` (4, 4).
+    """
+    m, d = model, data
+    q_home = m.key_qpos[0].copy()
+    d.qpos[:] = q_home
+    mujoco.mj_kinematics(m, d)
+    base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "base")
+    mrf = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "mrf")
+    T_w_base = np.eye(4)
+    T_w_base[0:3, 3] = scene.tool.T_w_MRF_home[0:3, 3] - d.site_xpos[mrf]
+    m.body_pos[base] = T_w_base[0:3, 3]
+    return q_home, T_w_base
+
+
+def arm_record(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    scene: Scene,
+    params: ArmParams,
+    links: list[int],
+    spheres: tuple[IntArray, Array, Array],
+) -> Array:
+    """The arm's record (:func:`~app.world.arm_kernel.arm_record_dtype`, one element) with its
+    constants filled in; ``data`` holds the configuration the servo gains are tuned at.
+
+    Raises:
+        ConfigError: A joint is not a hinge on the tool's chain, which the record's Jacobian
+            (:func:`~app.world.arm_kernel.mrf_state`) assumes.
+    """
+    m, d = model, data
+    n = m.nu
+    obj = mujoco.mjtObj
+    tool = mujoco.mj_name2id(m, obj.mjOBJ_BODY, "tool")
+    chain = set()
+    b = tool
+    while b > 0:
+        chain.add(b)
+        b = int(m.body_parentid[b])
+    hinges = m.jnt_type == mujoco.mjtJoint.mjJNT_HINGE
+    if m.njnt != n or m.nv != n or not hinges.all() or not set(m.jnt_bodyid.tolist()) <= chain:
+        raise ConfigError(
+            SLAVES_DIR / scene.spec.slave.kind / "arm.xml",
+            "<joints>",
+            "every joint must be a hinge on the flange's chain, one motor each",
+        )
+    owner, centers, radii = spheres
+    rec = np.zeros(1, dtype=arm_record_dtype(n, len(links), len(radii)))
+    r = rec[0]
+    rng = m.jnt_range[:n]
+    r["lo"] = rng[:, 0] + params.limit_margin
+    r["hi"] = rng[:, 1] - params.limit_margin
+    r["mid"] = 0.5 * (rng[:, 0] + rng[:, 1])
+    r["qd_max"] = m.numeric("velocity_limit").data
+    r["tau_max"] = m.actuator_ctrlrange[:, 1]
+    mujoco.mj_forward(m, d)
+    M = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, M)
+    w = 2.0 * math.pi * params.servo_bandwidth
+    r["kp"] = np.diag(M) * w * w
+    r["kd"] = np.diag(M) * 2.0 * params.servo_damping * w
+    ik = np.zeros(5)
+    ik[[arm_ik.K_IK, arm_ik.LAMBDA_MAX, arm_ik.EPS_SING, arm_ik.K_LIMIT, arm_ik.K_NULL]] = (
+        params.k_ik,
+        params.lambda_max,
+        params.eps_singular,
+        params.k_limit,
+        params.k_null if n > 6 else 0.0,
+    )
+    r["ik"] = ik
+    g = scene.spec.slave
+    r["feel"] = (params.dead_lin, params.dead_rot, g.kp_lin, g.kp_rot, g.force_limit, g.torque_limit)
+    r["sv"] = 1.0
+    r["T"] = r["T_ref"] = np.eye(4)  # mrf_state writes the rotation and origin only
+    r["links"] = links
+    r["owner"], r["centers"], r["radii"] = owner, centers, radii
+    r["box"] = scene_box(scene)
+    r["site_mrf"] = mujoco.mj_name2id(m, obj.mjOBJ_SITE, "mrf")
+    r["site_ft"] = mujoco.mj_name2id(m, obj.mjOBJ_SITE, "ft")
+    r["tool"] = tool
+    r["root"] = m.body_rootid[tool]
+    r["sensor"] = m.sensor_adr[0]
+    return rec

@@ -47,6 +47,7 @@ from enum import IntFlag
 import mujoco
 import numpy as np
 
+from app.compiled import entry_point
 from app.controller.types import FTReading, SlaveCommand
 from app.spatial import Array
 from app.world import arm_ik
@@ -125,6 +126,49 @@ class ArmSlave(SlaveBase):
         )
         self._cvel, self._cacc, self._subtree_com = d.cvel, d.cacc, d.subtree_com
         self._res = np.zeros(6)
+        # The F/T reading every step returns (one buffer, overwritten): no allocation per tick.
+        b = self._ft_buffer = np.zeros(24)
+        self._ft = FTReading(b[0:6], b[6:15].reshape(3, 3), b[15:21], b[21:24])
+        # The compiled substep's calls skip numba's typing: apart from the contact result's
+        # arrays (C-contiguous float64 views of its ``w``), everything passed is the arm's own.
+        contact_w = np.zeros(15)
+        self._mrf_state = entry_point(
+            ak.mrf_state, self._rec, self._xanchor, self._xaxis, self._site_xpos, self._site_xmat, self._qvel
+        )
+        self._control = entry_point(
+            ak.control,
+            self._rec,
+            True,
+            period,
+            self._qpos,
+            self._qvel,
+            self._bias,
+            self._ctrl,
+            self._xfrc,
+            self._xpos,
+            self._xmat,
+            self._xipos,
+            contact_w[12:15],
+            contact_w[6:12],
+            True,
+        )
+        ft = self._ft
+        self._ft_reading = entry_point(
+            ak.ft_reading,
+            self._rec,
+            True,
+            self._sdata,
+            self._site_xpos,
+            self._site_xmat,
+            self._cvel,
+            self._cacc,
+            self._subtree_com,
+            self._gravity_w,
+            ft.wrench_S,
+            ft.R_w_S,
+            ft.acc_w,
+            ft.omega_w,
+        )
         self.status = ArmStatus.NONE
         self._fault: str | None = None
         self.link_contacts: list[ContactResult] = []
@@ -256,12 +300,12 @@ class ArmSlave(SlaveBase):
         contact = self._contact
         for sub in range(self._substeps):
             mujoco.mj_step1(m, d)
-            ak.mrf_state(rec, self._xanchor, self._xaxis, self._site_xpos, self._site_xmat, self._qvel)
+            self._mrf_state(rec, self._xanchor, self._xaxis, self._site_xpos, self._site_xmat, self._qvel)
             if sub == 0:
                 # Accommodation reads the previous tick's contact, as the ideal tool's does.
                 self._update_reference(command, dt)
             contact = self.contact_model.wrench(T, V)
-            bits, near = ak.control(
+            bits, near = self._control(
                 rec,
                 sub == 0,
                 dt,
@@ -315,8 +359,8 @@ class ArmSlave(SlaveBase):
             mujoco.mj_rnePostConstraint(m, d)
             mujoco.mj_sensorAcc(m, d)
             self._W_limit.fill(0.0)
-        wrench_S, R_w_S, acc_w, omega_w = np.empty(6), np.empty((3, 3)), np.empty(6), np.empty(3)
-        ak.ft_reading(
+        ft = self._ft
+        self._ft_reading(
             self._rec,
             held,
             self._sdata,
@@ -326,13 +370,14 @@ class ArmSlave(SlaveBase):
             self._cacc,
             self._subtree_com,
             self._gravity_w,
-            wrench_S,
-            R_w_S,
-            acc_w,
-            omega_w,
+            ft.wrench_S,
+            ft.R_w_S,
+            ft.acc_w,
+            ft.omega_w,
         )
+        ft.valid = contact.valid
         if not contact.valid:
-            return FTReading(np.zeros(6), R_w_S, acc_w, omega_w, False)
-        if at_rest:
-            wrench_S += contact.wrench_S
-        return FTReading(wrench_S, R_w_S, acc_w, omega_w, True)
+            ft.wrench_S.fill(0.0)
+        elif at_rest:
+            ft.wrench_S += contact.wrench_S
+        return ft

@@ -27,6 +27,7 @@ from app.session.pacer import TimingStats
 from app.teleop.channel import COUPLINGS
 from app.web.scene_view import DEVICE_ORIGIN_V, FORCE_SCALE, MOMENT_SCALE, WORLD_ORIGIN_V, WRENCH_ARROWS
 from app.web.snapshot import Snapshot
+from app.world.arm import ArmStatus
 
 #: Gain fields typed as six comma-separated numbers, with their labels and units (translations; rotations).
 SIX_GAINS = (
@@ -305,6 +306,8 @@ class Controls:
         """Redraw status and plots from ``snap`` (call from the UI thread)."""
         faults = Fault(snap.faults)
         fault_text = "none" if faults == Fault.NONE else f"{faults!r}: {snap.fault_message}"
+        limits = ArmStatus(snap.slave_status)
+        slave_text = "follows" if limits == ArmStatus.NONE else f"**limited: {limits.name}**"
         self.status.content = (
             f"t = {snap.time:.2f} s · mode **{snap.mode}** · deadman {'ON' if snap.deadman else 'off'} · "
             f"reflection {'ON' if snap.reflection else 'off'}\n\n"
@@ -313,7 +316,7 @@ class Controls:
             f"saturation scale {snap.saturation_scale:.3f} · force ramp {snap.ramp:.2f} · "
             f"contacts {len(snap.contact_points_w)} · amplifier watchdog trips {snap.watchdog_trips} · "
             f"PO energy {snap.po_energy:+.3f} J · PC cut {snap.pc_cut:.0%} · "
-            f"faults: {fault_text}"
+            f"slave {slave_text} · faults: {fault_text}"
         )
         f_mrf = float(np.linalg.norm(snap.F_MRF[0:3]))
         f_g = float(np.linalg.norm(snap.G_F_T[0:3]))

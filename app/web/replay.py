@@ -142,6 +142,7 @@ class LogReplay:
             po_energy=float(c["po_energy"][i]) if "po_energy" in c else 0.0,
             pc_cut=float(c["pc_cut"][i]) if "pc_cut" in c else 0.0,
             watchdog_trips=int(c["watchdog_trips"][i]),
+            slave_status=int(c["slave_status"][i]) if "slave_status" in c else 0,
         )
 
 

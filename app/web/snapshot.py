@@ -54,6 +54,8 @@ class Snapshot:
         po_energy: Energy the passivity observer saw enter the device port, summed over joints (J).
         pc_cut: Share of the rendered torque the passivity controller removed this tick (0..1).
         watchdog_trips: Times the amplifier's watchdog switched the motors off since the reset.
+        slave_status: Why the slave did not follow the command exactly this tick
+            (:class:`~app.world.arm.ArmStatus` bits; 0 = it did, always for the ideal tool).
         recording: The log directory being written, or None.
         playing: The session file whose script drives the loop, or None.
         play_left: Simulated seconds the playing script has still to run.
@@ -87,6 +89,7 @@ class Snapshot:
     po_energy: float
     pc_cut: float
     watchdog_trips: int
+    slave_status: int = 0
     recording: Path | None = None
     playing: Path | None = None
     play_left: float = 0.0
@@ -129,6 +132,7 @@ def take_snapshot(
         po_energy=out.po_energy,
         pc_cut=out.pc_cut,
         watchdog_trips=reading.watchdog_trips,
+        slave_status=tick.slave_status,
         recording=recording,
         playing=playing,
     )

@@ -87,6 +87,11 @@ class TickRecord:
         """``T_0_H`` (4, 4) the hand pulled toward this tick, or None when it let go."""
         return self._hand if self.hand_on else None
 
+    def slave_geom_poses(self) -> tuple[Array, Array]:
+        """The slave's geoms in {w}: positions (ngeom, 3), orientations (ngeom, 9) (views; see
+        :meth:`~app.world.slave_api.Slave.geom_poses`)."""
+        return self._slave.geom_poses()
+
     @property
     def T_w_MRF(self) -> Array:
         """Pose of the tool's {MRF} in the slave world {w} at the end of the tick, (4, 4)."""

@@ -35,6 +35,10 @@ from app.web.snapshot import Snapshot
 from app.world import contact_wrench
 from app.world.scene import load_scene
 
+# The log keeps no arm joint angles: a replay shows the tool, not the arm's links.
+_NO_GEOM_XPOS = np.zeros((0, 3))
+_NO_GEOM_XMAT = np.zeros((0, 3, 3))
+
 
 def _pose(row: dict[str, Array], prefix: str, i: int) -> Array:
     """The pose logged as ``<prefix>_x..z, _qw..qz`` at row ``i``, (4, 4)."""
@@ -143,6 +147,8 @@ class LogReplay:
             pc_cut=float(c["pc_cut"][i]) if "pc_cut" in c else 0.0,
             watchdog_trips=int(c["watchdog_trips"][i]),
             slave_status=int(c["slave_status"][i]) if "slave_status" in c else 0,
+            slave_geom_xpos=_NO_GEOM_XPOS,
+            slave_geom_xmat=_NO_GEOM_XMAT,
         )
 
 

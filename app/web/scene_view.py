@@ -1,4 +1,4 @@
-"""The 3D scene in viser: device, grip frames, hand-target gizmo, world, tool, contacts, wrenches.
+"""The 3D scene in viser: device, grip frames, hand-target gizmo, world, slave arm, tool, contacts, wrenches.
 
 The device base {0} and the slave world {w} are separate spaces. In the viser scene frame {v}
 (z up) they are placed side by side without rotation: {0} at :data:`DEVICE_ORIGIN_V` (left) and
@@ -159,6 +159,15 @@ class SceneView:
                     f"/world/object_{i}", obj.mesh.vertices, obj.mesh.faces, color=(170, 175, 185), opacity=0.9
                 )
             )
+        slave_model = loop.slave.model
+        self.slave_geoms: dict[int, viser.MeshHandle] = {}
+        for g in range(slave_model.ngeom):
+            mesh = _geom_mesh(slave_model, g)
+            if mesh is not None:
+                handle = scene.add_mesh_simple(
+                    f"/slave/geom_{g}", mesh.vertices, mesh.faces, color=_rgb(slave_model.geom_rgba[g]), opacity=0.85
+                )
+                self.slave_geoms[g] = self._add(handle)
         tool = loop.slave.scene.tool
         self._T_MRF_T = invert_pose(tool.T_T_MRF)
         tool_mesh = _tool_mesh(tool.centers_T, tool.radii)
@@ -224,6 +233,10 @@ class SceneView:
         """Move every node to the state in ``snap`` (call from the UI thread)."""
         for g, handle in self.geoms.items():
             self._place(f"geom_{g}", handle, T_V_0 @ make_pose(snap.geom_xmat[g], snap.geom_xpos[g]))
+        if len(snap.slave_geom_xpos):
+            for g, handle in self.slave_geoms.items():
+                T_w_geom = make_pose(snap.slave_geom_xmat[g], snap.slave_geom_xpos[g])
+                self._place(f"slave_geom_{g}", handle, T_V_W @ T_w_geom)
         T_v_G = T_V_0 @ snap.T_0_G
         self._place("grip", self.grip, T_v_G)
         self._place("reference", self.reference, T_V_0 @ snap.T_0_G0)

@@ -56,6 +56,8 @@ class Snapshot:
         watchdog_trips: Times the amplifier's watchdog switched the motors off since the reset.
         slave_status: Why the slave did not follow the command exactly this tick
             (:class:`~app.world.arm.ArmStatus` bits; 0 = it did, always for the ideal tool).
+        slave_geom_xpos, slave_geom_xmat: The slave's own geoms (an arm's links) in {w}, (k, 3)
+            and (k, 3, 3); empty for the ideal tool and in a replay (the log keeps no arm angles).
         recording: The log directory being written, or None.
         playing: The session file whose script drives the loop, or None.
         play_left: Simulated seconds the playing script has still to run.
@@ -89,6 +91,8 @@ class Snapshot:
     po_energy: float
     pc_cut: float
     watchdog_trips: int
+    slave_geom_xpos: Array
+    slave_geom_xmat: Array
     slave_status: int = 0
     recording: Path | None = None
     playing: Path | None = None
@@ -105,6 +109,7 @@ def take_snapshot(
     reading = tick.reading
     T_w_MRF = tick.T_w_MRF.copy()
     hand = tick.hand_target
+    slave_xpos, slave_xmat = tick.slave_geom_poses()
     return Snapshot(
         time=tick.time,
         ticks=tick.index,
@@ -133,6 +138,8 @@ def take_snapshot(
         pc_cut=out.pc_cut,
         watchdog_trips=reading.watchdog_trips,
         slave_status=tick.slave_status,
+        slave_geom_xpos=slave_xpos.copy(),
+        slave_geom_xmat=slave_xmat.reshape(-1, 3, 3).copy(),
         recording=recording,
         playing=playing,
     )

@@ -138,6 +138,8 @@ class SlaveBase:
 
     _contact: ContactResult
     _reading: FTReading
+    model: mujoco.MjModel
+    data: mujoco.MjData
 
     def __init__(self, scene: Scene, accommodation: bool) -> None:
         self.scene = scene
@@ -169,6 +171,11 @@ class SlaveBase:
     def contact(self) -> ContactResult:
         """The last contact evaluation (points, normals, depths for display)."""
         return self._contact
+
+    def geom_poses(self) -> tuple[Array, Array]:
+        """Positions (ngeom, 3) and orientations (ngeom, 9, row-major) in {w} of :attr:`model`'s
+        geoms (an arm's links; none for the ideal tool): MuJoCo's views, overwritten by the next step."""
+        return self.data.geom_xpos, self.data.geom_xmat
 
     @property
     def wrench_MRF_contact(self) -> Array:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from typing import Protocol
 
+import mujoco
+
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
 from app.spatial import Array
 from app.world.arm import ArmSlave
@@ -22,9 +24,12 @@ class Slave(Protocol):
 
     Attributes:
         scene: The world it moves in (objects, tool, gains).
+        model: Its MuJoCo model: the geoms drawn for it (an arm's links; none for the ideal tool,
+            whose spheres are the scene's tool).
     """
 
     scene: Scene
+    model: mujoco.MjModel
 
     def reset(self, T_w_MRF: Array | None = None) -> None:
         """At rest with {MRF} at ``T_w_MRF`` (4, 4, {w}; default the scene's home)."""
@@ -40,6 +45,10 @@ class Slave(Protocol):
 
     def pose_view(self) -> Array:
         """Pose of {MRF} in {w} (4, 4): the slave's own buffer, overwritten by the next step."""
+
+    def geom_poses(self) -> tuple[Array, Array]:
+        """Positions (ngeom, 3) and orientations (ngeom, 9, row-major) in {w} of :attr:`model`'s
+        geoms: views, overwritten by the next step."""
 
     @property
     def T_w_MRF(self) -> Array:

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
+import viser
 
 from app.controller.types import SlaveCommand
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.spec import load_session
+from app.spatial import quat_to_matrix
+from app.web.headless import free_port
+from app.web.scene_view import WORLD_ORIGIN_V, SceneView
 from app.web.snapshot import take_snapshot
 from app.world.arm import ArmStatus
 
@@ -20,3 +24,29 @@ def test_an_arm_out_of_reach_is_flagged_in_the_snapshot() -> None:
         loop.slave.step(up)
     snap = take_snapshot(loop.tick(), np.eye(4))
     assert ArmStatus(snap.slave_status) & ArmStatus.TRACKING
+
+
+def test_the_scene_view_draws_the_arm_links_where_the_arm_is() -> None:
+    """A real viser server (no browser): one mesh per arm geom, placed at the arm's own geom poses."""
+    loop = ServoLoop(LoopConfig.from_session(load_session("probe_rate").with_changes(slave="puma560")))
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        view = SceneView(server, loop, on_hand_moved=lambda _T: None)
+        assert len(view.slave_geoms) == loop.slave.model.ngeom == 11  # pedestal and link capsules
+        up = SlaveCommand(active=True, mode="rate", twist=np.array([0.05, 0.0, 0.05, 0.0, 0.0, 0.0]))
+        for _ in range(300):
+            loop.slave.step(up)
+        view.update(take_snapshot(loop.tick(), np.eye(4)))
+        xpos, xmat = loop.slave.geom_poses()
+        for g, handle in view.slave_geoms.items():
+            np.testing.assert_allclose(handle.position, xpos[g] + WORLD_ORIGIN_V, atol=1e-6)
+            np.testing.assert_allclose(quat_to_matrix(np.asarray(handle.wxyz)), xmat[g].reshape(3, 3), atol=1e-5)
+    finally:
+        server.stop()
+
+
+def test_the_ideal_tool_has_no_links_to_draw() -> None:
+    loop = ServoLoop(LoopConfig.from_session(load_session("probe_rate")))
+    snap = take_snapshot(loop.tick(), np.eye(4))
+    assert snap.slave_geom_xpos.shape == (0, 3)
+    assert snap.slave_geom_xmat.shape == (0, 3, 3)

@@ -205,20 +205,11 @@ class DevicePlant:
         self._encoders = np.concatenate((scale, inverse))
         self._mj = np.array((address("mj_step1"), address("mj_step2"), *pointers(self.model, self.data)))
         self.reading = PlantReading(self)
-        # ``step`` checks the counts; everything else passed is the plant's own.
-        self._period = entry_point(
-            plant_period,
-            self._mj,
-            1,
-            self._no_counts,
-            self._counts_max,
-            self._table,
-            self._row_offset,
-            self._tau_out,
-            self._encoders,
-            self.reading.q_true,
-            self.reading.q,
-        )
+        # The period's arguments after the counts: the plant's own arrays, the same every call.
+        r = self.reading
+        self._own = (self._counts_max, self._table, self._row_offset, self._tau_out, self._encoders, r.q_true, r.q)
+        # ``step`` checks the counts, so the compiled period is called without numba's typing.
+        self._period = entry_point(plant_period, self._mj, 1, self._no_counts, *self._own)
         self._qfrc_constraint = self.data.qfrc_constraint[dof_slice]
         self._eq0 = self.model.neq - n  # the brakes were appended after the MJCF's own equalities
         self._dt = 0.0
@@ -324,18 +315,7 @@ class DevicePlant:
             commands = counts if ok else self._checked_counts(counts)  # type: ignore[assignment]
             self._since_counts = 0.0
             r.motors_off = False
-        self._period(
-            self._mj,
-            self.params.substeps,
-            commands,
-            self._counts_max,
-            self._table,
-            self._row_offset,
-            self._tau_out,
-            self._encoders,
-            r.q_true,
-            r.q,
-        )
+        self._period(self._mj, self.params.substeps, commands, *self._own)
         r.time = d.time
         return r
 
@@ -348,18 +328,7 @@ class DevicePlant:
 
     def _read(self) -> None:
         """The encoders at the present state, without stepping (after a reset)."""
-        plant_period(
-            self._mj,
-            0,
-            self._no_counts,
-            0,
-            self._table,
-            self._row_offset,
-            self._tau_out,
-            self._encoders,
-            self.reading.q_true,
-            self.reading.q,
-        )
+        self._period(self._mj, 0, self._no_counts, *self._own)
         self.reading.time = self.data.time
 
     def lock_joints(self, locked: bool) -> None:

@@ -153,22 +153,9 @@ class ArmSlave(SlaveBase):
             True,
         )
         ft = self._ft
-        self._ft_reading = entry_point(
-            ak.ft_reading,
-            self._rec,
-            True,
-            self._sdata,
-            self._site_xpos,
-            self._site_xmat,
-            self._cvel,
-            self._cacc,
-            self._subtree_com,
-            self._gravity_w,
-            ft.wrench_S,
-            ft.R_w_S,
-            ft.acc_w,
-            ft.omega_w,
-        )
+        motion = (self._sdata, self._site_xpos, self._site_xmat, self._cvel, self._cacc, self._subtree_com)
+        self._ft_args = (*motion, self._gravity_w, ft.wrench_S, ft.R_w_S, ft.acc_w, ft.omega_w)
+        self._ft_reading = entry_point(ak.ft_reading, self._rec, True, *self._ft_args)
         self.status = ArmStatus.NONE
         self._fault: str | None = None
         self.link_contacts: list[ContactResult] = []
@@ -360,21 +347,7 @@ class ArmSlave(SlaveBase):
             mujoco.mj_sensorAcc(m, d)
             self._W_limit.fill(0.0)
         ft = self._ft
-        self._ft_reading(
-            self._rec,
-            held,
-            self._sdata,
-            self._site_xpos,
-            self._site_xmat,
-            self._cvel,
-            self._cacc,
-            self._subtree_com,
-            self._gravity_w,
-            ft.wrench_S,
-            ft.R_w_S,
-            ft.acc_w,
-            ft.omega_w,
-        )
+        self._ft_reading(self._rec, held, *self._ft_args)
         ft.valid = contact.valid
         if not contact.valid:
             ft.wrench_S.fill(0.0)

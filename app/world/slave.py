@@ -261,28 +261,13 @@ class VirtualSlave(SlaveBase):
         self._fault: str | None = None
         self.status = 0  # the ideal tool always follows (its limits are the PD's saturation)
         self.reset()
-        # ``step`` checks the command's arrays; everything else passed is the slave's own.
+        # The substep's arguments that are the slave's own arrays, the same objects every call.
+        own = (self._params, self._frames, self._T, self._V, self._T_ref, self._V_ref_w)
+        self._own = (*own, self._qpos, self._qvel, self._qacc, self._xfrc)
+        # ``step`` checks the command's arrays, so the compiled substep is called without numba's typing.
+        example_command = (RATE, np.zeros(6), np.eye(4), _ZERO15, period)
         self._substep = entry_point(
-            tool_substep,
-            self._mj,
-            RATE,
-            np.zeros(6),
-            np.eye(4),
-            _ZERO15,
-            period,
-            self._params,
-            self._frames,
-            self._T,
-            self._V,
-            self._T_ref,
-            self._V_ref_w,
-            self._qpos,
-            self._qvel,
-            self._qacc,
-            self._xfrc,
-            self._contact.w,
-            True,
-            self._ft_buffer,
+            tool_substep, self._mj, *example_command, *self._own, self._contact.w, True, self._ft_buffer
         )
 
     # --- state -----------------------------------------------------------------------------
@@ -305,7 +290,7 @@ class VirtualSlave(SlaveBase):
         self._qpos[3:7] = matrix_to_quat(T_w_C[0:3, 0:3])
         mujoco.mj_forward(self.model, self.data)
         self._fresh = False
-        self._T_ref = T.copy()
+        self._T_ref[:] = T  # in place: the compiled substep holds this array
         self._V_ref_w.fill(0.0)
         self.contact_model.reset()
         T_now, V_now = self._state()
@@ -367,16 +352,7 @@ class VirtualSlave(SlaveBase):
                 T_cmd,
                 accommodate,
                 dt,
-                self._params,
-                self._frames,
-                T,
-                V,
-                self._T_ref,
-                self._V_ref_w,
-                self._qpos,
-                self._qvel,
-                self._qacc,
-                self._xfrc,
+                *self._own,
                 contact.w,
                 contact.valid,
                 self._ft_buffer,

@@ -135,11 +135,7 @@ class ArmSlave(SlaveBase):
         self._mrf_state = entry_point(
             ak.mrf_state, self._rec, self._xanchor, self._xaxis, self._site_xpos, self._site_xmat, self._qvel
         )
-        self._control = entry_point(
-            ak.control,
-            self._rec,
-            True,
-            period,
+        self._mj_views = (
             self._qpos,
             self._qvel,
             self._bias,
@@ -148,6 +144,13 @@ class ArmSlave(SlaveBase):
             self._xpos,
             self._xmat,
             self._xipos,
+        )
+        self._control = entry_point(
+            ak.control,
+            self._rec,
+            True,
+            period,
+            *self._mj_views,
             contact_w[12:15],
             contact_w[6:12],
             True,
@@ -293,20 +296,7 @@ class ArmSlave(SlaveBase):
                 self._update_reference(command, dt)
             contact = self.contact_model.wrench(T, V)
             bits, near = self._control(
-                rec,
-                sub == 0,
-                dt,
-                self._qpos,
-                self._qvel,
-                self._bias,
-                self._ctrl,
-                self._xfrc,
-                self._xpos,
-                self._xmat,
-                self._xipos,
-                contact.force_w,
-                contact.wrench_MRF,
-                contact.valid,
+                rec, sub == 0, dt, *self._mj_views, contact.force_w, contact.wrench_MRF, contact.valid
             )
             status |= bits
             if near:

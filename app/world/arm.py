@@ -49,6 +49,7 @@ import numpy as np
 
 from app.compiled import entry_point
 from app.controller.types import FTReading, SlaveCommand
+from app.mjcall import address, pointers
 from app.spatial import Array
 from app.world import arm_ik
 from app.world import arm_kernel as ak
@@ -132,8 +133,16 @@ class ArmSlave(SlaveBase):
         # The compiled substep's calls skip numba's typing: apart from the contact result's
         # arrays (C-contiguous float64 views of its ``w``), everything passed is the arm's own.
         contact_w = np.zeros(15)
-        self._mrf_state = entry_point(
-            ak.mrf_state, self._rec, self._xanchor, self._xaxis, self._site_xpos, self._site_xmat, self._qvel
+        self._mj = np.array((address("mj_step1"), address("mj_step2"), *pointers(m, d)))
+        self._begin = entry_point(
+            ak.begin_substep,
+            self._mj,
+            self._rec,
+            self._xanchor,
+            self._xaxis,
+            self._site_xpos,
+            self._site_xmat,
+            self._qvel,
         )
         self._mj_views = (
             self._qpos,
@@ -154,6 +163,7 @@ class ArmSlave(SlaveBase):
             contact_w[12:15],
             contact_w[6:12],
             True,
+            self._mj,
         )
         ft = self._ft
         motion = (self._sdata, self._site_xpos, self._site_xmat, self._cvel, self._cacc, self._subtree_com)
@@ -289,21 +299,20 @@ class ArmSlave(SlaveBase):
         status = 0
         contact = self._contact
         for sub in range(self._substeps):
-            mujoco.mj_step1(m, d)
-            self._mrf_state(rec, self._xanchor, self._xaxis, self._site_xpos, self._site_xmat, self._qvel)
+            self._begin(self._mj, rec, self._xanchor, self._xaxis, self._site_xpos, self._site_xmat, self._qvel)
             if sub == 0:
                 # Accommodation reads the previous tick's contact, as the ideal tool's does.
                 self._update_reference(command, dt)
             contact = self.contact_model.wrench(T, V)
             bits, near = self._control(
-                rec, sub == 0, dt, *self._mj_views, contact.force_w, contact.wrench_MRF, contact.valid
+                rec, sub == 0, dt, *self._mj_views, contact.force_w, contact.wrench_MRF, contact.valid, self._mj
             )
             status |= bits
-            if near:
+            if near:  # the kernel stopped before mj_step2: the links' wrenches go in first
                 self._link_contacts()
+                mujoco.mj_step2(m, d)
             elif self.link_contacts:
                 self.link_contacts = []
-            mujoco.mj_step2(m, d)
         self._contact = contact
         self.status = _STATUS[status]
         self._reading = self._make_reading(contact)

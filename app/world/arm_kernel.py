@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from app.spatial import Array, cross3
+from app.mjcall import call_model_data
+from app.spatial import Array, IntArray, cross3
 from app.world.arm_ik import TORQUE, ik_step, matTvec, matvec
 
 
@@ -102,6 +103,18 @@ def mrf_state(rec: Array, xanchor: Array, xaxis: Array, site_xpos: Array, site_x
 
 
 @njit(cache=True)
+def begin_substep(
+    mj: IntArray, rec: Array, xanchor: Array, xaxis: Array, site_xpos: Array, site_xmat: Array, qvel: Array
+) -> None:
+    """MuJoCo's ``mj_step1`` (kinematics and forces of the present state), then :func:`mrf_state`.
+
+    ``mj``: ``[mj_step1, mj_step2, mjModel*, mjData*]`` addresses (:mod:`app.mjcall`), (4,).
+    """
+    call_model_data(mj[0], mj[2], mj[3])
+    mrf_state(rec, xanchor, xaxis, site_xpos, site_xmat, qvel)
+
+
+@njit(cache=True)
 def control(
     rec: Array,
     ik: bool,
@@ -117,6 +130,7 @@ def control(
     force_w: Array,
     wrench_MRF: Array,
     contact_valid: bool,
+    mj: IntArray,
 ) -> tuple[int, bool]:
     """One substep's control: the IK (``ik``: first substep of a tick of ``dt`` s), joint servo
     into ``ctrl``, the tool's contact wrench into ``xfrc`` (cleared first) and the near links.
@@ -128,6 +142,8 @@ def control(
         xpos, xmat, xipos: Body origins (nbody, 3), orientations (nbody, 9), centres of mass (nbody, 3).
         force_w, wrench_MRF, contact_valid: The tool's :class:`~app.world.contact.ContactResult`
             ``force_w`` (3,), ``wrench_MRF`` (6,) and ``valid``.
+        mj: As for :func:`begin_substep`: with no link near the world the substep ends here
+            with ``mj_step2``; otherwise the caller adds the links' contact wrenches first.
 
     Returns:
         Status bits (:mod:`app.world.arm_ik`) and whether any link is near the world (``rec.near``).
@@ -163,7 +179,10 @@ def control(
         body_wrench(force_w, wrench_MRF[3:6], T[0:3, 0:3], T[0:3, 3], xipos[b], xfrc[b])
     near = r["near"]
     links_near(xpos, xmat, r["links"], r["owner"], r["centers"], r["radii"], r["box"], near)
-    return status, near.any()
+    any_near = near.any()
+    if not any_near:
+        call_model_data(mj[1], mj[2], mj[3])
+    return status, any_near
 
 
 @njit(cache=True)

@@ -84,6 +84,8 @@ class ControllerOutput:
         reflecting: Task wrench and assists were rendered this tick (deadman and reflection on).
         faults: Why the safe output was used this tick (``Fault.NONE`` if it was not).
         fault_message: Human-readable reason, empty when there is no fault.
+        slave_status: The slave's limit bits from the F/T reading this tick used
+            (:attr:`FTReading.slave_status`: joint limit, singularity, out of reach...).
     """
 
     delta_x: Array
@@ -121,6 +123,7 @@ class ControllerOutput:
         self.reflecting = False
         self.faults = Fault.NONE
         self.fault_message = ""
+        self.slave_status = 0
 
     @property
     def assist_scale(self) -> float:
@@ -328,6 +331,7 @@ class FRHCController:
             )
         if type(dt) is not float:
             dt = checked_float(dt, "dt")
+        self.out.slave_status = ft.slave_status
         # FK runs even on unusable angles (MuJoCo just computes NaN poses): the kernel checks q
         # before it reads them, for a fraction of what a numpy check here would cost.
         self.kin.update(q)

@@ -46,6 +46,9 @@ class FTReading:
         omega_w: Angular velocity (rad/s) of the tool in {w}, shape (3,).
         valid: False when the world could not produce a trustworthy reading (failed or
             non-finite contact query); the controller then reflects nothing and flags a fault.
+        slave_status: Why the slave did not follow its command exactly when it took the reading
+            (:class:`~app.world.arm.ArmStatus` bits; 0 = it did, always for the ideal tool): the
+            slave reports it with the reading, and the controller's output carries it on.
     """
 
     wrench_S: Array = field(default_factory=lambda: np.zeros(6))
@@ -53,10 +56,12 @@ class FTReading:
     acc_w: Array = field(default_factory=lambda: np.zeros(6))
     omega_w: Array = field(default_factory=lambda: np.zeros(3))
     valid: bool = True
+    slave_status: int = 0
 
     def copy(self) -> FTReading:
         """A reading with its own arrays (a slave's step returns one it overwrites next tick)."""
-        return FTReading(self.wrench_S.copy(), self.R_w_S.copy(), self.acc_w.copy(), self.omega_w.copy(), self.valid)
+        r = self
+        return FTReading(r.wrench_S.copy(), r.R_w_S.copy(), r.acc_w.copy(), r.omega_w.copy(), r.valid, r.slave_status)
 
 
 @dataclass(frozen=True)

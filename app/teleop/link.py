@@ -29,7 +29,7 @@ from app.teleop.channel import ChannelSettings, DelayLine
 # Forward message layout.
 _ACTIVE, _POSE, _TWIST, _T, _U, _FWD = 0, 1, slice(2, 8), slice(8, 24), slice(24, 27), 27
 # Backward message layout.
-_WRENCH, _R, _ACC, _OMEGA, _VALID, _V, _BACK = (
+_WRENCH, _R, _ACC, _OMEGA, _VALID, _V, _STATUS, _BACK = (
     slice(0, 6),
     slice(6, 15),
     slice(15, 21),
@@ -37,6 +37,7 @@ _WRENCH, _R, _ACC, _OMEGA, _VALID, _V, _BACK = (
     24,
     slice(25, 28),
     28,
+    29,
 )
 
 
@@ -133,6 +134,7 @@ class TeleopLink:
         self.backward.receive()
         out = self.reading
         out.valid = bool(self.backward.out[_VALID])
+        out.slave_status = int(self.backward.out[_STATUS])
         if self._master_waves:
             # The operator feels -F_m: written as the contact part of the reading, weight added back.
             f_w = self._weight_w - self.wave_force
@@ -154,4 +156,5 @@ def _pack_reading(reading: FTReading, row: Array) -> Array:
     row[_ACC] = reading.acc_w
     row[_OMEGA] = reading.omega_w
     row[_VALID] = reading.valid
+    row[_STATUS] = reading.slave_status
     return row

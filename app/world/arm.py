@@ -348,6 +348,7 @@ class ArmSlave(SlaveBase):
         ft = self._ft
         self._ft_reading(self._rec, held, *self._ft_args)
         ft.valid = contact.valid
+        ft.slave_status = int(self.status)
         if not contact.valid:
             ft.wrench_S.fill(0.0)
         elif at_rest:

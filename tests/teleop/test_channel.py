@@ -8,12 +8,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from app.controller.types import SlaveCommand
 from app.errors import InvalidField
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.script import OperatorScript
 from app.session.spec import load_session
 from app.teleop import wave
 from app.teleop.channel import ChannelSettings, DelayLine
+from app.world.arm import ArmStatus
 
 
 def deliveries(line: DelayLine, n: int) -> list[float]:
@@ -109,3 +111,21 @@ def test_channel_settings_outside_their_ranges_are_refused(field: str, value: fl
     with pytest.raises(InvalidField) as exc:
         ChannelSettings(**{field: value})
     assert exc.value.field == field
+
+
+def test_the_slaves_limit_bits_cross_the_channel_with_its_reading() -> None:
+    """An arm pushed out of reach reports TRACKING with its reading; the controller's output gets
+    it one channel delay (plus the reading's one tick) later."""
+    loop = ServoLoop(LoopConfig.from_session(load_session("probe_rate").with_changes(slave="puma560")))
+    loop.set_channel(ChannelSettings(delay_ms=5.0))
+    assert loop.link is not None
+    up = SlaveCommand(active=True, mode="rate", twist=np.array([0.0, 0.0, 0.25, 0.0, 0.0, 0.0]))
+    for _ in range(3000):
+        reading = loop.slave.step(up)
+    assert ArmStatus(reading.slave_status) & ArmStatus.TRACKING
+    seen = []
+    for _ in range(10):
+        loop.tick()  # the slave holds its out-of-reach reference: TRACKING in every reading
+        seen.append(loop.controller.out.slave_status)
+    assert seen[0] == 0  # the readings in flight are from before the push
+    assert ArmStatus(seen[-1]) & ArmStatus.TRACKING

@@ -24,6 +24,8 @@ def test_an_arm_out_of_reach_is_flagged_in_the_snapshot() -> None:
         loop.slave.step(up)
     snap = take_snapshot(loop.tick(), np.eye(4))
     assert ArmStatus(snap.slave_status) & ArmStatus.TRACKING
+    # The controller read the slave's reading, which carries the same bits into its output.
+    assert ArmStatus(loop.controller.out.slave_status) & ArmStatus.TRACKING
 
 
 def test_the_scene_view_draws_the_arm_links_where_the_arm_is() -> None:

@@ -14,6 +14,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import mujoco
+import numpy as np
+
+from app.device.hand import HandParams
+from app.device.plant import DevicePlant
+from app.device.spec import load_device
 from app.session.run import run_session
 from app.session.spec import Session, load_session
 from app.world.scene import SCENES_DIR
@@ -47,6 +53,40 @@ def probe_scene_with_stiffness(stiffness: float, damping: float, folder: Path) -
     path = folder / f"probe_k{stiffness:g}.toml"
     path.write_text(text)
     return path
+
+
+def grip_damping(device: str, hand: HandParams | None = None) -> float:
+    """Physical damping (N s/m) that resists the grip moving along z of the device base {0}.
+
+    The device's joint damping ``D`` (the plant's, i.e. the simulated hardware's, N m s/rad) seen
+    at the grip at the home pose, ``B = (J D^-1 J^T)^-1`` with ``J`` the grip's 6 x n Jacobian
+    (the least damping any joint motion giving that grip twist meets), its z-z entry, plus the
+    hand's translational damping: the ``b`` of the sampled-wall bound ``K < 2 b / T``.
+    """
+    plant = DevicePlant(load_device(device), hand)
+    m, d = plant.model, plant.data
+    mujoco.mj_kinematics(m, d)
+    mujoco.mj_comPos(m, d)
+    J = np.zeros((6, m.nv))
+    mujoco.mj_jacSite(m, d, J[:3], J[3:], plant.grip_site_id)
+    J = J[:, plant.dof_slice]
+    B = np.linalg.inv(J @ (J.T / m.dof_damping[plant.dof_slice][:, None]))
+    return float(B[2, 2]) + (hand or HandParams()).damping_trans
+
+
+def passivity_bound(device: str, servo_rate: float = 1000.0, hand: HandParams | None = None) -> float:
+    """The sampled-data virtual-wall bound ``2 b / T`` (N/m) of Colgate & Brown (1994) for ``device``
+    at ``servo_rate`` (Hz), with ``b`` from :func:`grip_damping`."""
+    return 2.0 * grip_damping(device, hand) * servo_rate
+
+
+def design_stiffness(k_t: float, surface: float = 1e5, device: str = "kraft") -> float:
+    """The pose-mode wall stiffness (N/m) a press with task gain ``k_t`` renders at the grip:
+    ``K_T K_P k_s``, with ``k_s`` the probe slave's tracking spring in series with a surface of
+    stiffness ``surface`` (N/m) and ``K_P`` the device's translational pose gain along z."""
+    session = load_session("probe_rate").with_changes(device=device)
+    kp = session.scene.spec.slave.kp_lin
+    return k_t * session.gains.k_p[2] * kp * surface / (kp + surface)
 
 
 def run_point(session: Session) -> dict[str, Any]:

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import pytest
 
+from app.controller.passivity import PassivitySettings
+from app.device.hand import HandParams
 from app.session.run import run_session
 from app.session.spec import load_session
-from app.session.stability import press
+from app.session.stability import design_stiffness, grip_damping, passivity_bound, press
 from app.world.scene import available_scenes, load_scene
 
 STIFFEST_SHIPPED = max(o.stiffness for name in available_scenes() for o in load_scene(name).objects)
@@ -38,3 +40,29 @@ def test_a_run_that_never_touches_is_not_settled() -> None:
     assert s["contact_fraction"] == 0.0
     assert s["settling"]["ripple_N"] == 0.0
     assert not s["settling"]["settled"]
+
+
+def test_at_three_times_the_passivity_bound_plain_oscillates_and_the_pc_settles_stiffer_than_plain_can() -> None:
+    """A pose-mode wall designed at 3 x 2b/T on the Kraft device: plain rendering oscillates, the
+    PO/PC settles it, and the wall it then renders is felt stiffer than the one plain rendering
+    holds stably (K_T = 1, 0.28 x the bound): the PC widens the stable range, it does not only
+    soften the wall below what plain rendering already manages."""
+    k_t = 3.0 * passivity_bound("kraft") / design_stiffness(1.0)
+    gains = {"k_t": [k_t] * 3 + [1.0] * 3}
+    plain = press(1e5, "pose", gains=gains)
+    pc = press(1e5, "pose", gains=gains, passivity=PassivitySettings(enabled=True))
+    plain_stable = press(1e5, "pose")
+    assert not plain.settled, plain
+    assert pc.settled, pc
+    assert plain_stable.settled, plain_stable
+    assert pc.felt_stiffness > plain_stable.felt_stiffness
+
+
+def test_the_bound_counts_the_hand_damping_once_and_the_device_damping_at_the_grip() -> None:
+    """``b`` is the hand's damping plus the joints' damping seen at the grip (positive, small on
+    these backdrivable devices: under 2 N s/m)."""
+    for device in ("kraft", "jpl", "freflex"):
+        bare = grip_damping(device, HandParams(damping_trans=0.0))
+        assert 0.0 < bare < 2.0
+        assert grip_damping(device, HandParams(damping_trans=10.0)) == pytest.approx(bare + 10.0, abs=1e-9)
+        assert passivity_bound(device, 2000.0, HandParams(damping_trans=0.0)) == pytest.approx(4000.0 * bare)

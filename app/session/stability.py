@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import re
+import shutil
 import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -28,7 +29,7 @@ import numpy as np
 
 from app.device.hand import HandParams
 from app.device.plant import DevicePlant
-from app.device.spec import load_device
+from app.device.spec import load_device, resolve_device_path
 from app.session.metrics import SETTLE_WINDOW
 from app.session.run import run_session
 from app.session.spec import Session, Waypoint, load_session
@@ -59,6 +60,11 @@ class PressResult:
     saturated: bool
     summary: dict[str, Any]
 
+    @property
+    def stable(self) -> bool:
+        """Settled with the motors within their limits: the wall was rendered as a stiffness."""
+        return self.settled and not self.saturated
+
 
 def probe_scene_with_stiffness(stiffness: float, damping: float, folder: Path) -> Path:
     """A copy of the probe scene with another surface stiffness (N/m) and damping (N s/m)."""
@@ -70,7 +76,26 @@ def probe_scene_with_stiffness(stiffness: float, damping: float, folder: Path) -
     return path
 
 
-def grip_damping(device: str, hand: HandParams | None = None) -> float:
+def device_with_encoders(device: str, counts_per_rev: int, folder: Path) -> Path:
+    """A copy of ``device`` (its folder: file, MJCF, calibration) in ``folder`` whose encoders
+    resolve ``counts_per_rev`` counts per revolution on every joint; returns its ``device.toml``.
+
+    The shipped devices' 13- and 14-bit encoders put one count ~0.1 mm from the grip, so a wall
+    stiffer than ~2 f_c / count (Abbott & Okamura 2005: ~8 kN/m at the Kraft's grip) chatters at
+    one count whatever renders it; a finer-encoder copy shows the limit that is left, ``2 b / T``.
+    """
+    source = resolve_device_path(device).parent
+    target = folder / f"{source.name}_{counts_per_rev}"
+    shutil.copytree(source, target)
+    path = target / "device.toml"
+    n = load_device(device).n_joints
+    counts = ", ".join([str(counts_per_rev)] * n)
+    text = re.sub(r"(?m)^encoder_counts_per_rev = .*$", f"encoder_counts_per_rev = [{counts}]", path.read_text())
+    path.write_text(text)
+    return path
+
+
+def grip_damping(device: str | Path, hand: HandParams | None = None) -> float:
     """Physical damping (N s/m) that resists the grip moving along z of the device base {0}.
 
     The device's joint damping ``D`` (the plant's, i.e. the simulated hardware's, N m s/rad) seen
@@ -89,17 +114,17 @@ def grip_damping(device: str, hand: HandParams | None = None) -> float:
     return float(B[2, 2]) + (hand or HandParams()).damping_trans
 
 
-def passivity_bound(device: str, servo_rate: float = 1000.0, hand: HandParams | None = None) -> float:
+def passivity_bound(device: str | Path, servo_rate: float = 1000.0, hand: HandParams | None = None) -> float:
     """The sampled-data virtual-wall bound ``2 b / T`` (N/m) of Colgate & Brown (1994) for ``device``
     at ``servo_rate`` (Hz), with ``b`` from :func:`grip_damping`."""
     return 2.0 * grip_damping(device, hand) * servo_rate
 
 
-def design_stiffness(k_t: float, surface: float = 1e5, device: str = "kraft") -> float:
+def design_stiffness(k_t: float, surface: float = 1e5, device: str | Path = "kraft") -> float:
     """The pose-mode wall stiffness (N/m) a press with task gain ``k_t`` renders at the grip:
     ``K_T K_P k_s``, with ``k_s`` the probe slave's tracking spring in series with a surface of
     stiffness ``surface`` (N/m) and ``K_P`` the device's translational pose gain along z."""
-    session = load_session("probe_rate").with_changes(device=device)
+    session = load_session("probe_rate").with_changes(device=str(device))
     kp = session.scene.spec.slave.kp_lin
     return k_t * session.gains.k_p[2] * kp * surface / (kp + surface)
 

@@ -100,8 +100,7 @@ def stability_edge(
         nonlocal run
         run += 1
         r = _press(k_t, damping, renderer, device, servo_rate, delay_ms)
-        # A wall held at the motors' limit settles as a constant force would: it renders no stiffness.
-        return r.settled and not r.saturated, r.felt_stiffness
+        return r.stable, r.felt_stiffness
 
     ok_low, felt_low = stable(k_t_low)
     if not ok_low:

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
+from app.controller.passivity import PassivitySettings
 from app.device.hand import HandParams
 from app.session.run import run_session
 from app.session.spec import load_session
-from app.session.stability import grip_damping, passivity_bound, press
+from app.session.stability import design_stiffness, device_with_encoders, grip_damping, passivity_bound, press
 from app.world.scene import available_scenes, load_scene
 
 STIFFEST_SHIPPED = max(o.stiffness for name in available_scenes() for o in load_scene(name).objects)
@@ -51,3 +54,28 @@ def test_the_bound_counts_the_hand_damping_once_and_the_device_damping_at_the_gr
         assert 0.0 < bare < 2.0
         assert grip_damping(device, HandParams(damping_trans=10.0)) == pytest.approx(bare + 10.0, abs=1e-9)
         assert passivity_bound(device, 2000.0, HandParams(damping_trans=0.0)) == pytest.approx(4000.0 * bare)
+
+
+def test_at_3x_the_passivity_bound_plain_oscillates_and_the_pc_settles_at_the_bound(tmp_path: Path) -> None:
+    """Kraft with 20-bit encoders (so quantisation does not bind first), pose mode, a wall designed
+    at 3x 2b/T: plain rendering oscillates; with PO/PC it settles, felt about as stiff as the bound
+    (the PC removes exactly the energy the sampled wall would add, no more)."""
+    device = str(device_with_encoders("kraft", 2**20, tmp_path))
+    bound = passivity_bound(device)
+    k_t = 3.0 * bound / design_stiffness(1.0, device=device)
+    gains = {"k_t": [k_t] * 3 + [1.0] * 3}
+    plain = press(1e5, "pose", device=device, gains=gains)
+    assert not plain.stable
+    pc = press(1e5, "pose", device=device, gains=gains, passivity=PassivitySettings(enabled=True))
+    assert pc.stable, pc
+    assert pc.mean_force > 1.0
+    assert 0.8 * bound < pc.felt_stiffness < 1.3 * bound
+
+
+def test_a_saturated_plateau_is_not_a_stable_wall() -> None:
+    """K_T 64 on the probe surface: the motors hold their limit, which settles like a constant
+    force and renders no stiffness (zwidth and the bench must not count it)."""
+    r = press(1e5, "pose", gains={"k_t": [64.0] * 3 + [1.0] * 3, "k_d": [16.0] * 3 + [0.02] * 3})
+    assert r.settled  # the criterion alone would call it stable
+    assert r.saturated
+    assert not r.stable

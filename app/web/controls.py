@@ -195,7 +195,10 @@ class Controls:
 
         with gui.add_folder("Passivity and delay", expand_by_default=False):
             self.pc = gui.add_checkbox(
-                "PO/PC", False, hint="Passivity controller: per-joint damping of observed excess energy"
+                "PO/PC",
+                False,
+                hint="Passivity observer/controller: the rendered torque is scaled down so the device port "
+                "never gives out more energy than it has taken in",
             )
             self.delay = gui.add_number("Delay one way (ms)", 0.0, min=0.0, max=1000.0, step=1.0)
             self.coupling = gui.add_dropdown("Coupling", COUPLINGS, initial_value=COUPLINGS[0])

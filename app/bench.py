@@ -11,6 +11,7 @@ from collections.abc import Callable
 import numpy as np
 
 from app.session.loop import STAGES
+from app.teleop.channel import Coupling
 
 
 def _stats(ns: np.ndarray) -> str:
@@ -130,7 +131,48 @@ def bench_stability(quick: bool = False) -> str:
             f"  pose mode, K_T {k_t:4.0f}: felt stiffness ~{felt:9,.0f} N/m ({felt / (2 * b / 1e-3):4.2f} x bound), "
             f"ripple {r.ripple:8.3f} N, {'settled' if r.settled else 'OSCILLATES'}"
         )
+    lines.extend(_delay_lines(quick))
     return "\n".join(lines)
+
+
+def _delay_lines(quick: bool) -> list[str]:
+    """The probe press in pose mode through a delayed channel: direct reflection against wave variables.
+
+    Against a rigid slave a wave channel of impedance b and one-way delay T feels, at low
+    frequency, like a spring ``b / T`` in series with the slave's (Niemeyer & Slotine): the
+    operator feels about ``K_T K_P / (1 / k_s + T / b)`` where direct reflection without delay
+    gives ``K_T K_P k_s``. The measured felt stiffness counts the grip's travel from the tick the
+    tool touched, which a delayed slave does a round trip late, so it reads high under delay.
+    """
+    from app.session.spec import load_session
+    from app.session.stability import BAR_DELAY_MS, delayed_press
+    from app.teleop.channel import ChannelSettings
+
+    session = load_session("probe_rate")
+    kp = session.scene.spec.slave.kp_lin
+    k_series = kp * 1e5 / (kp + 1e5)
+    scale = session.gains.k_t[2] * session.gains.k_p[2]
+    b = ChannelSettings().wave_impedance
+
+    def line(label: str, coupling: Coupling, delay_ms: float) -> str:
+        r = delayed_press(coupling, delay_ms)
+        expected = scale / (1.0 / k_series + delay_ms * 1e-3 / b) if coupling == "wave" else scale * k_series
+        return (
+            f"  {label:<22} force {r.mean_force:6.2f} N, ripple {r.ripple:7.3f} N, "
+            f"{'settled' if r.settled else 'OSCILLATES':>10}, felt stiffness {r.felt_stiffness:7,.0f} N/m "
+            f"(expected ~{expected:,.0f})"
+        )
+
+    lines = [
+        f"delayed channel, pose mode, surface 100000 N/m, K_T 1, {BAR_DELAY_MS:.0f} ms each way "
+        f"(wave impedance b = {b:g} N s/m)"
+    ]
+    lines.append(line("no delay (for scale)", "direct", 0.0))
+    lines.append(line("direct", "direct", BAR_DELAY_MS))
+    lines.append(line("wave variables", "wave", BAR_DELAY_MS))
+    for delay in () if quick else (0.0, 25.0, 100.0, 200.0):
+        lines.append(line(f"wave, {delay:.0f} ms each way", "wave", delay))
+    return lines
 
 
 def _sweep(quick: bool) -> str:

@@ -16,6 +16,7 @@ from typing import Any
 
 from app.session.run import run_session
 from app.session.spec import Session, load_session
+from app.teleop.channel import ChannelSettings, Coupling
 from app.world.scene import SCENES_DIR
 
 
@@ -87,3 +88,18 @@ def press(
         summary = run_point(session)
     s = summary["settling"]
     return PressResult(s["mean_force_N"], s["ripple_N"], s["settled"], s["felt_stiffness_N_per_m"], summary)
+
+
+#: The delay of issue 13's bar, each way (ms): 100 ms round trip.
+BAR_DELAY_MS = 50.0
+
+
+def delayed_press(coupling: Coupling, delay_ms: float = BAR_DELAY_MS, seconds: float = 2.8) -> PressResult:
+    """The probe press in pose mode on a 1e5 N/m surface (the device's gains, K_T 1) through a
+    master-slave channel of ``delay_ms`` (ms) each way, reflecting with ``coupling``.
+
+    Direct reflection of the delayed force makes the loop oscillate on the surface; wave variables
+    (:mod:`app.teleop.wave`) settle, at the cost of the felt stiffness. ``seconds``: as in
+    :func:`press` (the hand holds its push until 3.5 s).
+    """
+    return press(1e5, "pose", seconds=seconds, channel=ChannelSettings(delay_ms=delay_ms, coupling=coupling))

@@ -331,8 +331,17 @@ def cartesian_tick(
         for k in range(6):
             acc += X_MRF_S[i, k] * F_task[k]
         F_mrf[i] = acc
-    for i in range(6):
-        vectors[G_F_T, i] = gains[K_T, i] * F_mrf[i] if reflecting else 0.0
+    # Forces cross between slave and master in world/base axes, as translations do (Delta X and
+    # the slave's position are in {0} and {w} axes): K_T f_w, re-expressed in {G}. Moments cross
+    # in the tool's and the grip's own axes, as rotations do: K_T m_MRF as a moment in {G}. (Eq 6
+    # read literally puts f_MRF on {G}'s axes: that rotates the felt force against the motion by
+    # R_0_G0 R_w_MRF0^T, which is not the identity on a device whose grip starts tilted.)
+    G_F = vectors[G_F_T]
+    for i in range(3):
+        f = R_w_S[i, 0] * F_task[0] + R_w_S[i, 1] * F_task[1] + R_w_S[i, 2] * F_task[2]
+        G_F[i] = gains[K_T, i] * f if reflecting else 0.0
+        G_F[3 + i] = gains[K_T, 3 + i] * F_mrf[3 + i] if reflecting else 0.0
+    base_to_grip(grip.R_0_G, G_F)
 
     # Assists at the grip: return-to-centre (Eq 8, rate mode only) + damping (Eq 9) = Eq 10.
     rtc_kind = laws.rtc_kind
@@ -353,8 +362,12 @@ def cartesian_tick(
                 d *= rot_weight
         vectors[G_F_R, i] = r
         vectors[G_F_D, i] = d
-        vectors[G_F_RD, i] = r + d
         dx_prev[i] = dx[i]
+    # Delta X's translations are in {0}: so are the assists' forces; the wrenches are in {G}.
+    base_to_grip(grip.R_0_G, vectors[G_F_R])
+    base_to_grip(grip.R_0_G, vectors[G_F_D])
+    for i in range(6):
+        vectors[G_F_RD, i] = vectors[G_F_R, i] + vectors[G_F_D, i]
 
     # {G} -> base coordinates at {W} (Eq 6 form, with W's Jacobian in {0}) and Eq 7: tau = J^T F.
     R_0_G, p_0_G, p_0_W, J_W = grip.R_0_G, grip.p_0_G, grip.p_0_W, grip.J_W
@@ -384,6 +397,15 @@ def cartesian_tick(
         torques[TAU, j] = torques[TAU_T, j] + torques[TAU_RDS, j] + torques[TAU_G, j]  # Eq 12
         total += torques[TAU, j]
     return math.isfinite(total)
+
+
+@njit(cache=True)
+def base_to_grip(R_0_G: Array, F: Array) -> None:
+    """Re-express the force part ``F[0:3]`` of a wrench from base {0} axes in grip {G} axes, in
+    place: ``R_0_G^T F[0:3]`` (``R_0_G`` (3, 3), ``F`` (6,); the moment part is left as it is)."""
+    x, y, z = F[0], F[1], F[2]
+    for i in range(3):
+        F[i] = R_0_G[0, i] * x + R_0_G[1, i] * y + R_0_G[2, i] * z
 
 
 @njit(cache=True)

@@ -58,9 +58,8 @@ class SessionMetrics:
     Settling (the oscillation criterion of ``frhc zwidth``): over the last :data:`SETTLE_WINDOW`
     seconds the contact force magnitude at {MRF} is settled when its peak-to-peak (ripple) is
     below :data:`SETTLE_RIPPLE` of its mean (and finite), the mean being at least
-    :data:`SETTLE_MIN_FORCE` (the tool is in contact). The felt stiffness is the rendered
-    force at the grip (``|G_F_T|``, mean over the window) over the grip's displacement since the
-    tool first touched (``|Delta X|`` translation, mean over the window, minus its value then).
+    :data:`SETTLE_MIN_FORCE` (the tool is in contact). (The felt stiffness needs two pushes:
+    :class:`app.session.stability.FeltStiffness`.)
     """
 
     def __init__(self, start: TickRecord, task: TaskSpec | None, n_ticks: int, dt: float) -> None:
@@ -81,9 +80,8 @@ class SessionMetrics:
         self._watchdog_trips = 0
         self._slave_ticks: dict[str, int] = {}
         self._stage_ns = np.zeros((n_ticks, len(STAGES)), dtype=np.int64)
-        # The last SETTLE_WINDOW of ticks (a ring): contact force, rendered grip force, grip displacement (3).
-        self._tail = np.full((max(1, round(SETTLE_WINDOW / dt)), 5), np.nan)
-        self._dx_touch: Array | None = None
+        # The contact force of the last SETTLE_WINDOW of ticks (a ring).
+        self._tail = np.full(max(1, round(SETTLE_WINDOW / dt)), np.nan)
         self._min_energy = 0.0
         self._max_pc = 0.0
         self._pc_ticks = 0
@@ -114,17 +112,11 @@ class SessionMetrics:
             _count_bits(ArmStatus, tick.slave_status, self._slave_ticks)
         if self._ticks < len(self._stage_ns):
             self._stage_ns[self._ticks] = tick.stage_ns
-        row = self._tail[self._ticks % len(self._tail)]
-        row[0] = f
-        # What the motors rendered: the PC and the saturation scale the task wrench down.
-        row[1] = math.sqrt(float(out.G_F_T[0:3] @ out.G_F_T[0:3])) * (1.0 - out.pc_cut) * out.saturation_scale
-        row[2:5] = out.delta_x[0:3]
+        self._tail[self._ticks % len(self._tail)] = f
         self._min_energy = min(self._min_energy, out.po_energy)
         pc = out.pc_cut
         self._max_pc = max(self._max_pc, pc)
         self._pc_ticks += pc > 0.0
-        if self._dx_touch is None and tick.contact.count > 0:
-            self._dx_touch = out.delta_x[0:3].copy()
 
         self._ticks += 1
         if self._task is not None and self.task_done_at is None and self._task.done(T):
@@ -136,20 +128,15 @@ class SessionMetrics:
         return np.abs(self._work)
 
     def settling(self) -> dict[str, Any]:
-        """Contact force and felt stiffness over the last :data:`SETTLE_WINDOW` s, and the passivity trace."""
+        """Contact force over the last :data:`SETTLE_WINDOW` s, and the passivity trace."""
         tail = self._tail[: min(self._ticks, len(self._tail))]
-        mean = float(np.mean(tail[:, 0])) if len(tail) else math.nan
-        ripple = float(np.ptp(tail[:, 0])) if len(tail) else math.nan
-        felt = math.nan
-        if self._dx_touch is not None and len(tail):
-            travel = float(np.linalg.norm(np.mean(tail[:, 2:5], axis=0) - self._dx_touch))
-            felt = float(np.mean(tail[:, 1])) / travel if travel > 0.0 else math.nan
+        mean = float(np.mean(tail)) if len(tail) else math.nan
+        ripple = float(np.ptp(tail)) if len(tail) else math.nan
         return {
             "window_s": SETTLE_WINDOW,
             "mean_force_N": mean,
             "ripple_N": ripple,
             "settled": bool(math.isfinite(ripple) and mean >= SETTLE_MIN_FORCE and ripple < SETTLE_RIPPLE * mean),
-            "felt_stiffness_N_per_m": felt,
             "min_energy_J": self._min_energy,
             "max_pc_cut": self._max_pc,
             "pc_active_ticks": self._pc_ticks,

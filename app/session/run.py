@@ -9,7 +9,7 @@ Example::
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,7 +22,7 @@ from app.session.metrics import SessionMetrics
 from app.session.pacer import Pacer
 from app.session.script import Operator, OperatorScript
 from app.session.spec import Session
-from app.session.tick import TickRecord
+from app.session.tick import TickObserver, TickRecord
 
 
 @dataclass
@@ -73,6 +73,7 @@ def run_session(
     realtime: bool = False,
     flush_interval: float = 0.1,
     operator: Callable[[ServoLoop], Operator] | None = None,
+    observers: Sequence[TickObserver] = (),
 ) -> SessionResult:
     """Run ``session`` to its duration.
 
@@ -86,6 +87,7 @@ def run_session(
         flush_interval: Simulated seconds of ticks per log part: the most a crash can lose (s).
         operator: Makes the operator from the new loop (default: the session's script). An
             operator whose ``finished`` attribute turns true ends the session before its duration.
+        observers: Further tick observers, added after the metrics and the log.
     """
     loop = ServoLoop(LoopConfig.from_session(session))
     d = session.data
@@ -95,6 +97,8 @@ def run_session(
     if out_dir is not None:
         meta = loop_meta(loop.config, session.path)
         log = loop.observe(TickLog(out_dir / "log", session.device.n_joints, loop.dt, flush_interval, meta))
+    for observer in observers:
+        loop.observe(observer)
     pacer = Pacer(loop.dt) if realtime else None
     bar = tqdm(total=n_ticks, unit="tick", disable=not progress, mininterval=0.5)
     actor = operator(loop) if operator is not None else OperatorScript.for_loop(d, loop)

@@ -2,20 +2,37 @@
 
 Used by ``frhc bench stability`` (a stiffness sweep, compared with the passivity bound
 ``K < 2 b / T`` for a sampled-data virtual wall), by ``frhc zwidth`` (:mod:`app.session.zwidth`)
-and by the tests (the shipped surfaces settle). Every press is an ordinary headless session,
-run by :func:`run_point`, so a sweep engine can run the same points anywhere.
+and by the tests (the shipped surfaces settle). Every press is an ordinary headless session
+(:func:`press`), so a sweep engine can run the same points anywhere.
+
+**Felt stiffness** (pose mode) is measured as the operator would: the hand holds one push, then
+a deeper one, and the felt stiffness is the secant between the two plateaus, the change of the
+force the motors rendered at the grip over the change of the grip's position, both along that
+force (:class:`FeltStiffness`). A secant needs no contact point: the slave's lag at first touch,
+its sag under the tool's weight and the grip's rebound all cancel. The grip position is the
+simulation's true one, not the encoders': on these devices one count is ~0.1 mm at the grip, so
+a wall stiffer than the push step over one count is felt (and measured) only to within a count.
 """
 
 from __future__ import annotations
 
+import math
 import re
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import mujoco
+import numpy as np
+
+from app.device.hand import HandParams
+from app.device.plant import DevicePlant
+from app.device.spec import load_device
+from app.session.metrics import SETTLE_WINDOW
 from app.session.run import run_session
-from app.session.spec import Session, load_session
+from app.session.spec import Session, Waypoint, load_session
+from app.session.tick import TickRecord
 from app.teleop.channel import ChannelSettings, Coupling
 from app.world.scene import SCENES_DIR
 
@@ -29,7 +46,10 @@ class PressResult:
         ripple: Peak-to-peak contact force over that window (N).
         settled: ``ripple`` below 5 % of the mean (and finite), the mean at least 0.1 N
             (:data:`~app.session.metrics.SETTLE_MIN_FORCE`: in contact).
-        felt_stiffness: Rendered grip force over grip travel since contact (N/m).
+        felt_stiffness: Pose mode: the secant stiffness between the press's two plateaus (N/m,
+            :class:`FeltStiffness`); NaN in rate mode, where the grip commands a velocity.
+        saturated: Pose mode: the motors saturated on some tick of a plateau's window, so the
+            wall was rendered as the motors' limit, a force source, not as a stiffness.
         summary: The whole session summary.
     """
 
@@ -37,6 +57,7 @@ class PressResult:
     ripple: float
     settled: bool
     felt_stiffness: float
+    saturated: bool
     summary: dict[str, Any]
 
 
@@ -50,20 +71,116 @@ def probe_scene_with_stiffness(stiffness: float, damping: float, folder: Path) -
     return path
 
 
-def run_point(session: Session) -> dict[str, Any]:
-    """Run ``session`` headless (no files) and return its summary: one point of a stability sweep.
+def grip_damping(device: str, hand: HandParams | None = None) -> float:
+    """Physical damping (N s/m) that resists the grip moving along z of the device base {0}.
 
-    The summary's ``settling`` entry holds the oscillation criterion
-    (:class:`~app.session.metrics.SessionMetrics`); everything is JSON-able, so a sweep engine
-    can run points in other processes and collect these dicts.
+    The device's joint damping ``D`` (the plant's, i.e. the simulated hardware's, N m s/rad) seen
+    at the grip at the home pose, ``B = (J D^-1 J^T)^-1`` with ``J`` the grip's 6 x n Jacobian
+    (the least damping any joint motion giving that grip twist meets), its z-z entry, plus the
+    hand's translational damping: the ``b`` of the sampled-wall bound ``K < 2 b / T``.
     """
-    return run_session(session, out_dir=None, plots=False).summary
+    plant = DevicePlant(load_device(device), hand)
+    m, d = plant.model, plant.data
+    mujoco.mj_kinematics(m, d)
+    mujoco.mj_comPos(m, d)
+    J = np.zeros((6, m.nv))
+    mujoco.mj_jacSite(m, d, J[:3], J[3:], plant.grip_site_id)
+    J = J[:, plant.dof_slice]
+    B = np.linalg.inv(J @ (J.T / m.dof_damping[plant.dof_slice][:, None]))
+    return float(B[2, 2]) + (hand or HandParams()).damping_trans
 
 
-def press_session(scene: Path, mode: str = "rate", seconds: float = 2.8, **changes: Any) -> Session:
-    """The probe session's push (reflection on, the device's gains and the hand) on ``scene``,
-    in ``mode``, for ``seconds`` of simulated time; ``changes`` are further session-file fields."""
-    return load_session("probe_rate").with_changes(scene=str(scene), mode=mode, duration=seconds, **changes)
+def passivity_bound(device: str, servo_rate: float = 1000.0, hand: HandParams | None = None) -> float:
+    """The sampled-data virtual-wall bound ``2 b / T`` (N/m) of Colgate & Brown (1994) for ``device``
+    at ``servo_rate`` (Hz), with ``b`` from :func:`grip_damping`."""
+    return 2.0 * grip_damping(device, hand) * servo_rate
+
+
+def design_stiffness(k_t: float, surface: float = 1e5, device: str = "kraft") -> float:
+    """The pose-mode wall stiffness (N/m) a press with task gain ``k_t`` renders at the grip:
+    ``K_T K_P k_s``, with ``k_s`` the probe slave's tracking spring in series with a surface of
+    stiffness ``surface`` (N/m) and ``K_P`` the device's translational pose gain along z."""
+    session = load_session("probe_rate").with_changes(device=device)
+    kp = session.scene.spec.slave.kp_lin
+    return k_t * session.gains.k_p[2] * kp * surface / (kp + surface)
+
+
+#: Hand-target depths (m) below the grip's start of a pose-mode press: it holds the first, then
+#: the second, so the felt stiffness is a secant between two pushes (~2.5 N and ~8 N at the grip
+#: with the default hand and K_P; both within every device's motors and the slave's force limit).
+PUSH_DEPTHS = (0.03, 0.045)
+#: Simulated time (s) of a press: rate mode holds the probe session's push to the end; pose mode
+#: reaches the first depth at 1.0 s, the second at ``POSE_SECONDS - 2 SETTLE_WINDOW + 0.2``.
+RATE_SECONDS, POSE_SECONDS = 2.8, 3.4
+
+
+class FeltStiffness:
+    """Tick observer: the rendered grip force and the true grip position, averaged over the window
+    ``[end - SETTLE_WINDOW, end)`` of two plateaus, and the secant stiffness between them.
+
+    The rendered force is ``K_T F_MRF`` at the grip as the motors delivered it (after the PC's cut
+    and the uniform saturation), in base {0} axes (N); the grip position is ``T_0_G``'s (m).
+
+    Args:
+        ends: End times (s) of the two plateaus' windows.
+    """
+
+    def __init__(self, ends: tuple[float, float]) -> None:
+        self._ends = ends
+        self._sums = np.zeros((2, 6))
+        self._counts = np.zeros(2)
+        #: The motors saturated (uniform scale below 1) on some tick of a window.
+        self.saturated = False
+
+    def on_tick(self, tick: TickRecord) -> None:
+        for i, end in enumerate(self._ends):
+            if end - SETTLE_WINDOW <= tick.time < end:
+                out, T_0_G = tick.out, tick.reading.T_0_G
+                scale = (1.0 - out.pc_cut) * out.saturation_scale
+                self._sums[i, 0:3] += scale * (T_0_G[0:3, 0:3] @ out.G_F_T[0:3])
+                self._sums[i, 3:6] += T_0_G[0:3, 3]
+                self._counts[i] += 1
+                self.saturated |= out.saturation_scale < 1.0
+
+    def stiffness(self) -> float:
+        """``(F_2 - F_1) . n / ((p_1 - p_2) . n)`` (N/m), ``n`` the unit second-plateau force: the
+        grip pushed further in (against ``n``) meets more force. NaN if a window saw no tick, no
+        force, or no travel."""
+        if not np.all(self._counts):
+            return math.nan
+        mean = self._sums / self._counts[:, None]
+        force = float(np.linalg.norm(mean[1, 0:3]))
+        if force == 0.0:
+            return math.nan
+        n = mean[1, 0:3] / force
+        travel = float((mean[0, 3:6] - mean[1, 3:6]) @ n)
+        return float((mean[1, 0:3] - mean[0, 0:3]) @ n) / travel if travel > 0.0 else math.nan
+
+
+def _pose_push(seconds: float) -> tuple[tuple[Waypoint, ...], tuple[float, float]]:
+    """The hand's waypoints of a pose-mode press lasting ``seconds``, and its plateaus' window ends."""
+    first, second = (Waypoint(0.0, (0.0, 0.0, -d)) for d in PUSH_DEPTHS)
+    end_1 = seconds - SETTLE_WINDOW - 0.4  # the second push starts here, reached 0.2 s later
+    waypoints = (
+        Waypoint(0.3),
+        replace(first, t=1.0),
+        replace(first, t=end_1),
+        replace(second, t=end_1 + 0.2),
+        replace(second, t=seconds),
+    )
+    return waypoints, (end_1, seconds + 1e-9)
+
+
+def press_session(scene: Path, mode: str = "rate", seconds: float | None = None, **changes: Any) -> Session:
+    """The probe session's push (reflection on, the device's gains and the hand) on ``scene``, in
+    ``mode``, for ``seconds`` of simulated time (default :data:`RATE_SECONDS` or
+    :data:`POSE_SECONDS`); in pose mode the hand pushes in two steps (:data:`PUSH_DEPTHS`).
+    ``changes`` are further session-file fields."""
+    if mode == "pose":
+        seconds = seconds or POSE_SECONDS
+        changes.setdefault("waypoints", _pose_push(seconds)[0])
+    duration = seconds or RATE_SECONDS
+    return load_session("probe_rate").with_changes(scene=str(scene), mode=mode, duration=duration, **changes)
 
 
 def press(
@@ -71,7 +188,7 @@ def press(
     mode: str = "rate",
     gains: dict[str, Any] | None = None,
     damping: float = 3.0,
-    seconds: float = 2.8,
+    seconds: float | None = None,
     **changes: Any,
 ) -> PressResult:
     """Run the probe session's push on a surface of another stiffness; judge how the force settles.
@@ -79,27 +196,32 @@ def press(
     Args:
         stiffness: Surface stiffness (N/m). ``damping``: surface damping (N s/m).
         mode: ``"rate"`` or ``"pose"``. ``gains``: overrides of the device's gains.
-        seconds: Simulated time; the force is judged over the last 0.6 s, while the hand still
-            holds the push. ``changes``: further session fields (``passivity``, ``channel``...).
+        seconds: Simulated time (default per mode, see :func:`press_session`); the force is
+            judged over the last 0.6 s, while the hand still holds the (second) push.
+            ``changes``: further session fields (``passivity``, ``channel``...).
     """
     with tempfile.TemporaryDirectory() as tmp:
         scene = probe_scene_with_stiffness(stiffness, damping, Path(tmp))
         session = press_session(scene, mode, seconds, gains=gains or {}, **changes)
-        summary = run_point(session)
+        felt = FeltStiffness(_pose_push(session.data.duration)[1]) if mode == "pose" else None
+        summary = run_session(session, out_dir=None, plots=False, observers=(felt,) if felt else ()).summary
     s = summary["settling"]
-    return PressResult(s["mean_force_N"], s["ripple_N"], s["settled"], s["felt_stiffness_N_per_m"], summary)
+    stiffness, saturated = (felt.stiffness(), felt.saturated) if felt else (math.nan, False)
+    return PressResult(s["mean_force_N"], s["ripple_N"], s["settled"], stiffness, saturated, summary)
 
 
 #: The delay of issue 13's bar, each way (ms): 100 ms round trip.
 BAR_DELAY_MS = 50.0
 
 
-def delayed_press(coupling: Coupling, delay_ms: float = BAR_DELAY_MS, seconds: float = 2.8) -> PressResult:
+def delayed_press(coupling: Coupling, delay_ms: float = BAR_DELAY_MS) -> PressResult:
     """The probe press in pose mode on a 1e5 N/m surface (the device's gains, K_T 1) through a
     master-slave channel of ``delay_ms`` (ms) each way, reflecting with ``coupling``.
 
-    Direct reflection of the delayed force makes the loop oscillate on the surface; wave variables
-    (:mod:`app.teleop.wave`) settle, at the cost of the felt stiffness. ``seconds``: as in
-    :func:`press` (the hand holds its push until 3.5 s).
+    The hand pushes in two steps (:data:`PUSH_DEPTHS`, :data:`POSE_SECONDS` in all); the force is
+    judged over the last :data:`~app.session.metrics.SETTLE_WINDOW` of the second push and the felt
+    stiffness is the secant between the two plateaus (:class:`FeltStiffness`). Direct reflection
+    of the delayed force makes the loop oscillate on the surface; wave variables
+    (:mod:`app.teleop.wave`) settle, at the cost of the felt stiffness.
     """
-    return press(1e5, "pose", seconds=seconds, channel=ChannelSettings(delay_ms=delay_ms, coupling=coupling))
+    return press(1e5, "pose", channel=ChannelSettings(delay_ms=delay_ms, coupling=coupling))

@@ -5,14 +5,16 @@ surface in pose mode (the probe session's push, :func:`~app.session.stability.pr
 stiffness is set by the task-wrench gain K_T (felt ~ K_T K_P k_s, with k_s the slave's tracking
 spring in series with the surface) and the rendered damping by the controller's translational
 K_D. A point is *stable* when the contact force settles: its peak-to-peak over the last 0.6 s
-is below 5 % of its mean (:data:`~app.session.metrics.SETTLE_RIPPLE`). For each damping value the
+is below 5 % of its mean (:data:`~app.session.metrics.SETTLE_RIPPLE`) and the motors did not
+saturate while the hand held its pushes (a wall held at the motors' limit settles as a constant
+force would, and renders no stiffness). For each damping value the
 largest stable K_T is found by bisection in log space between ``k_t_low`` (must be stable) and
 ``k_t_high`` (must oscillate).
 
 Renderers: ``plain`` (the paper's controller), ``pc`` (with the passivity controller,
 :mod:`app.controller.passivity`), ``wave`` (wave variables across the delayed channel,
 :mod:`app.teleop.wave`). Every point is an ordinary headless session run by
-:func:`~app.session.stability.run_point`. Each (renderer, damping) bisection is sequential but
+:func:`~app.session.stability.press`. Each (renderer, damping) bisection is sequential but
 independent of the others, so :func:`zwidth` runs the bisections as the points of the sweep
 engine (:func:`app.sweep.engine.run_points`: serially or on Ray, the same edges).
 """
@@ -49,9 +51,9 @@ class ZWidthPoint:
 
     Attributes:
         renderer: ``plain``, ``pc`` or ``wave``. damping: Rendered translational damping K_D (N s/m).
-        k_t_stable: Largest K_T found stable (NaN if even ``k_t_low`` oscillates).
+        k_t_stable: Largest K_T found stable (NaN if even ``k_t_low`` is not).
         felt_stiffness: Felt stiffness measured at ``k_t_stable`` (N/m, NaN if none).
-        k_t_unstable: Smallest K_T found oscillating (inf if even ``k_t_high`` settles).
+        k_t_unstable: Smallest K_T found unstable (inf if even ``k_t_high`` is stable).
         points: Sessions run for this edge.
         error: Why the bisection failed (one line; the numbers are then NaN), empty when it ran.
     """
@@ -98,7 +100,8 @@ def stability_edge(
         nonlocal run
         run += 1
         r = _press(k_t, damping, renderer, device, servo_rate, delay_ms)
-        return r.settled, r.felt_stiffness
+        # A wall held at the motors' limit settles as a constant force would: it renders no stiffness.
+        return r.settled and not r.saturated, r.felt_stiffness
 
     ok_low, felt_low = stable(k_t_low)
     if not ok_low:

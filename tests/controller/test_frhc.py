@@ -13,7 +13,7 @@ from app.controller.frhc import FRHCController
 from app.controller.gains import ControllerGains
 from app.controller.safety import SafetyLimits
 from app.controller.types import Fault, FTReading, SlaveModel, Switches
-from app.device.spec import DeviceSpec
+from app.device.spec import DeviceSpec, load_device
 from app.errors import ConfigError
 from app.spatial import body_rate_from_euler, tmat_difference, wrench_transform, zyx_to_matrix
 
@@ -155,10 +155,46 @@ def test_payload_removal_leaves_the_contact_wrench(kraft: DeviceSpec, slave: Sla
     np.testing.assert_allclose(out.F_S_task, contact, atol=1e-12)
     X = wrench_transform(slave.T_MRF_S[0:3, 0:3], slave.T_MRF_S[0:3, 3])
     np.testing.assert_allclose(out.F_MRF, X @ contact, atol=1e-12)
-    np.testing.assert_allclose(out.G_F_T, np.array(kraft.data.gains.k_t) * (X @ contact), atol=1e-12)
+    # Kraft's grip is level at home (R_0_G = I): the force crosses in world axes, the moment as Eq 6.
+    k_t = np.array(kraft.data.gains.k_t)
+    np.testing.assert_allclose(out.G_F_T[0:3], k_t[0:3] * (R_w_S @ contact[0:3]), atol=1e-12)
+    np.testing.assert_allclose(out.G_F_T[3:6], k_t[3:6] * (X @ contact)[3:6], atol=1e-12)
     kept = FRHCController(kraft, kraft.data.gains.with_changes(remove_payload=False), slave, safety=PAPER)
     out = kept.step(home(kraft), Switches(True, False, True), FTReading(weight + contact, R_w_S), DT)
     np.testing.assert_allclose(out.F_S_task, weight + contact, atol=1e-12)
+
+
+@pytest.mark.parametrize("mode", ["rate", "pose"])
+def test_forces_cross_in_world_axes_on_a_tilted_grip(slave: SlaveModel, mode: str) -> None:
+    """On JPL's grip (tilted 28.6 deg at home) the felt force is K_T times the slave's force in
+    world axes, re-expressed in {G}, as translations cross in {0}/{w} axes; and the return-to-centre
+    force pushes the grip back toward the reference in {0}: both are passive with the motion."""
+    jpl = load_device("jpl")
+    gains = jpl.data.gains.with_changes(mode=mode)
+    ctrl = FRHCController(jpl, gains, slave, safety=PAPER)
+    R_w_S = zyx_to_matrix(0.3, 0.2, -0.5)
+    contact = np.array([1.0, -2.0, 3.0, 0.0, 0.0, 0.0])
+    weight = np.concatenate((slave.payload_mass * (R_w_S.T @ slave.gravity_w), np.zeros(3)))
+    weight[3:6] = np.cross(slave.payload_com_S, weight[0:3])
+    q0 = home(jpl)
+    ctrl.step(q0, Switches(True, False, True), FTReading(weight + contact, R_w_S), DT)
+    out = ctrl.step(q0, Switches(True, False, True), FTReading(weight + contact, R_w_S), DT)
+    R_0_G = out.T_0_G[0:3, 0:3]
+    assert np.degrees(np.arccos((np.trace(R_0_G) - 1) / 2)) > 20  # the case Eq 6 read literally misses
+    k_t = np.array(gains.k_t)
+    np.testing.assert_allclose(R_0_G @ out.G_F_T[0:3], k_t[0:3] * (R_w_S @ contact[0:3]), atol=1e-12)
+    if mode == "rate":
+        # Displace the grip along base x (j1 swings it sideways); the RTC force opposes that, in {0}.
+        q = q0 + np.array([0.05, 0, 0, 0, 0, 0])
+        ctrl.step(q, Switches(deadman=True, reflection=True), FTReading(weight, R_w_S), DT)
+        out = ctrl.step(q, Switches(deadman=True, reflection=True), FTReading(weight, R_w_S), DT)
+        f_0 = out.T_0_G[0:3, 0:3] @ out.G_F_R[0:3]
+        dx = out.delta_x[0:3]
+        assert dx[2] == 0.0
+        assert abs(dx[1]) > 0.02
+        assert f_0[1] * dx[1] < 0
+        assert f_0[0] * dx[0] <= 0
+        assert abs(f_0[2]) < 1e-12  # nothing leaks into {0}'s z, along which the grip did not move
 
 
 def test_inertial_removal(kraft: DeviceSpec, slave: SlaveModel) -> None:

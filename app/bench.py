@@ -5,6 +5,7 @@ Speed goals live here, not in timed tests: the figures depend on the machine.
 
 from __future__ import annotations
 
+import math
 import tempfile
 import time
 from collections.abc import Callable
@@ -13,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from app.session.loop import STAGES
+from app.teleop.channel import Coupling
 
 
 def _stats(ns: np.ndarray) -> str:
@@ -128,6 +130,7 @@ def bench_stability(quick: bool = False) -> str:
             fine = device_with_encoders(device, 2**20, Path(tmp))
             for label, variant in ((device, device), (f"{device}, 20-bit encoders", str(fine))):
                 lines.extend(_wall_rows(label, variant, multiples))
+    lines.extend(_delay_lines(quick))
     return "\n".join(lines)
 
 
@@ -153,6 +156,61 @@ def _wall_rows(label: str, device: str, multiples: tuple[float, ...]) -> list[st
             cells.append(f"{name} {state:>10} (ripple {r.ripple:6.2f} N, felt {r.felt_stiffness:7,.0f} N/m)")
         lines.append(f"    design {multiple:4.2f} x bound, K_T {k_t:5.2f}: " + " | ".join(cells))
     lines.append(f"    largest stable multiple: plain {largest['plain']:.2f} x, PO/PC {largest['PO/PC']:.2f} x")
+    return lines
+
+
+def _delay_lines(quick: bool) -> list[str]:
+    """The probe press in pose mode through a delayed channel: direct reflection against wave variables.
+
+    The felt stiffness is the secant between the press's two plateaus
+    (:class:`~app.session.stability.FeltStiffness`), so it depends on no contact point. Against a
+    slave of stiffness ``k_s`` (its tracking spring in series with the surface) a wave channel of
+    impedance b and one-way delay T gives way by ``(T + tau) / b`` per newton once the waves are
+    steady, ``tau = 1 / (2 pi wave_cutoff_hz)`` being the lag each end's low-pass on the arriving
+    wave adds to the delay (the integral of ``u - u`` delayed by ``T + tau`` is ``(T + tau) u``;
+    Niemeyer & Slotine's line compliance ``T / b`` with the filters counted). So the operator
+    feels about ``K_T K_P / (1 / k_s + (T + tau) / b)``, where direct reflection gives
+    ``K_T K_P k_s`` (when it settles). Measured (kraft, ``frhc bench stability``), the secant
+    agrees with this: wave variables ~1,050 N/m without delay against ~1,030 expected, ~680 N/m
+    at 50 ms each way against ~680; direct reflection without delay ~6,150 against ~5,800.
+    Without the ``tau`` term the wave figures would be expected ~5.5 x and ~2.2 x too high. A
+    press that did not settle has no steady plateau and its felt figure means little: direct
+    reflection at 50 ms each way bounces on the surface; wave variables overshoot once after
+    each push (the operator meets the wall a round trip late), which is why a delayed press holds
+    its second push six round trips longer before it is judged
+    (:func:`~app.session.stability.delayed_press`).
+    """
+    from app.session.spec import load_session
+    from app.session.stability import BAR_DELAY_MS, delayed_press
+    from app.teleop.channel import ChannelSettings
+
+    session = load_session("probe_rate")
+    kp = session.scene.spec.slave.kp_lin
+    k_series = kp * 1e5 / (kp + 1e5)
+    scale = session.gains.k_t[2] * session.gains.k_p[2]
+    settings = ChannelSettings()
+    b = settings.wave_impedance
+    tau = 1.0 / (2.0 * math.pi * settings.wave_cutoff_hz)
+
+    def line(label: str, coupling: Coupling, delay_ms: float) -> str:
+        r = delayed_press(coupling, delay_ms)
+        expected = scale / (1.0 / k_series + (delay_ms * 1e-3 + tau) / b) if coupling == "wave" else scale * k_series
+        return (
+            f"  {label:<22} force {r.mean_force:6.2f} N, ripple {r.ripple:7.3f} N, "
+            f"{'settled' if r.settled else 'OSCILLATES':>10}, felt stiffness {r.felt_stiffness:7,.0f} N/m "
+            f"(expected ~{expected:,.0f})"
+        )
+
+    lines = [
+        f"delayed channel, pose mode, surface 100000 N/m, K_T 1, {BAR_DELAY_MS:.0f} ms each way "
+        f"(wave impedance b = {b:g} N s/m, wave low-pass lag tau = {tau * 1e3:.0f} ms); expected felt stiffness: "
+        "direct K_T K_P k_s, wave K_T K_P / (1/k_s + (T + tau)/b)"
+    ]
+    lines.append(line("no delay (for scale)", "direct", 0.0))
+    lines.append(line("direct", "direct", BAR_DELAY_MS))
+    lines.append(line("wave variables", "wave", BAR_DELAY_MS))
+    for delay in () if quick else (0.0, 25.0, 100.0, 200.0):
+        lines.append(line(f"wave, {delay:.0f} ms each way", "wave", delay))
     return lines
 
 

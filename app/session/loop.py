@@ -230,7 +230,12 @@ class ServoLoop:
             self.link = None
             return
         self.link = TeleopLink(
-            self.channel, self.config.servo_rate, self.controller.slave, self.controller.out.command, self.ft
+            self.channel,
+            self.config.servo_rate,
+            self.controller.slave,
+            self.controller.out.command,
+            self.ft,
+            self.config.scene.spec.slave.kp_lin,
         )
 
     def stall(self, seconds: float) -> None:

@@ -34,6 +34,7 @@ from app.session.metrics import SETTLE_WINDOW
 from app.session.run import run_session
 from app.session.spec import Session, Waypoint, load_session
 from app.session.tick import TickRecord
+from app.teleop.channel import ChannelSettings, Coupling
 from app.world.scene import SCENES_DIR
 
 
@@ -181,10 +182,15 @@ class FeltStiffness:
         return float((mean[1, 0:3] - mean[0, 0:3]) @ n) / travel if travel > 0.0 else math.nan
 
 
-def _pose_push(seconds: float) -> tuple[tuple[Waypoint, ...], tuple[float, float]]:
-    """The hand's waypoints of a pose-mode press lasting ``seconds``, and its plateaus' window ends."""
+#: Time (s) the hand holds the second push of a pose-mode press before the judged window opens.
+HOLD_SECONDS = 0.2
+
+
+def _pose_push(seconds: float, hold: float) -> tuple[tuple[Waypoint, ...], tuple[float, float]]:
+    """The hand's waypoints of a pose-mode press lasting ``seconds`` that holds its second push
+    ``hold`` (s) before the judged window, and its plateaus' window ends."""
     first, second = (Waypoint(0.0, (0.0, 0.0, -d)) for d in PUSH_DEPTHS)
-    end_1 = seconds - SETTLE_WINDOW - 0.4  # the second push starts here, reached 0.2 s later
+    end_1 = seconds - SETTLE_WINDOW - hold - 0.2  # the second push starts here, reached 0.2 s later
     waypoints = (
         Waypoint(0.3),
         replace(first, t=1.0),
@@ -195,14 +201,17 @@ def _pose_push(seconds: float) -> tuple[tuple[Waypoint, ...], tuple[float, float
     return waypoints, (end_1, seconds + 1e-9)
 
 
-def press_session(scene: Path, mode: str = "rate", seconds: float | None = None, **changes: Any) -> Session:
+def press_session(
+    scene: Path, mode: str = "rate", seconds: float | None = None, hold: float = HOLD_SECONDS, **changes: Any
+) -> Session:
     """The probe session's push (reflection on, the device's gains and the hand) on ``scene``, in
-    ``mode``, for ``seconds`` of simulated time (default :data:`RATE_SECONDS` or
-    :data:`POSE_SECONDS`); in pose mode the hand pushes in two steps (:data:`PUSH_DEPTHS`).
-    ``changes`` are further session-file fields."""
+    ``mode``, for ``seconds`` of simulated time (default :data:`RATE_SECONDS`, or
+    :data:`POSE_SECONDS` lengthened by the ``hold`` beyond :data:`HOLD_SECONDS`); in pose mode the
+    hand pushes in two steps (:data:`PUSH_DEPTHS`) and holds the second ``hold`` (s) before the
+    judged window. ``changes`` are further session-file fields."""
     if mode == "pose":
-        seconds = seconds or POSE_SECONDS
-        changes.setdefault("waypoints", _pose_push(seconds)[0])
+        seconds = seconds or POSE_SECONDS + hold - HOLD_SECONDS
+        changes.setdefault("waypoints", _pose_push(seconds, hold)[0])
     duration = seconds or RATE_SECONDS
     return load_session("probe_rate").with_changes(scene=str(scene), mode=mode, duration=duration, **changes)
 
@@ -213,6 +222,7 @@ def press(
     gains: dict[str, Any] | None = None,
     damping: float = 3.0,
     seconds: float | None = None,
+    hold: float = HOLD_SECONDS,
     **changes: Any,
 ) -> PressResult:
     """Run the probe session's push on a surface of another stiffness; judge how the force settles.
@@ -222,13 +232,35 @@ def press(
         mode: ``"rate"`` or ``"pose"``. ``gains``: overrides of the device's gains.
         seconds: Simulated time (default per mode, see :func:`press_session`); the force is
             judged over the last 0.6 s, while the hand still holds the (second) push.
+        hold: Pose mode: how long (s) the hand holds the second push before that window.
             ``changes``: further session fields (``passivity``, ``channel``...).
     """
     with tempfile.TemporaryDirectory() as tmp:
         scene = probe_scene_with_stiffness(stiffness, damping, Path(tmp))
-        session = press_session(scene, mode, seconds, gains=gains or {}, **changes)
-        felt = FeltStiffness(_pose_push(session.data.duration)[1]) if mode == "pose" else None
+        session = press_session(scene, mode, seconds, hold, gains=gains or {}, **changes)
+        felt = FeltStiffness(_pose_push(session.data.duration, hold)[1]) if mode == "pose" else None
         summary = run_session(session, out_dir=None, plots=False, observers=(felt,) if felt else ()).summary
     s = summary["settling"]
     stiffness, saturated = (felt.stiffness(), felt.saturated) if felt else (math.nan, False)
     return PressResult(s["mean_force_N"], s["ripple_N"], s["settled"], stiffness, saturated, summary)
+
+
+#: The delay of issue 13's bar, each way (ms): 100 ms round trip.
+BAR_DELAY_MS = 50.0
+
+
+def delayed_press(coupling: Coupling, delay_ms: float = BAR_DELAY_MS) -> PressResult:
+    """The probe press in pose mode on a 1e5 N/m surface (the device's gains, K_T 1) through a
+    master-slave channel of ``delay_ms`` (ms) each way, reflecting with ``coupling``.
+
+    The hand pushes in two steps (:data:`PUSH_DEPTHS`) and, as an operator waits out the echo of a
+    delayed line, holds the second six round trips longer than a direct press
+    (:data:`HOLD_SECONDS` + 12 ``delay_ms``) before the force is judged over the last
+    :data:`~app.session.metrics.SETTLE_WINDOW`; the felt stiffness is the secant between the two
+    plateaus (:class:`FeltStiffness`). Direct reflection of the delayed force makes the loop
+    oscillate on the surface; wave variables (:mod:`app.teleop.wave`) settle, at the cost of the
+    felt stiffness (a wave press overshoots once after each push: the operator meets the wall a
+    round trip late).
+    """
+    hold = HOLD_SECONDS + 12.0 * delay_ms * 1e-3
+    return press(1e5, "pose", hold=hold, channel=ChannelSettings(delay_ms=delay_ms, coupling=coupling))

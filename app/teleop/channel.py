@@ -21,6 +21,7 @@ tick, in ticks, deterministically; a ring buffer of preallocated rows is all it 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Annotated, Literal, get_args
 
@@ -54,6 +55,9 @@ class ChannelSettings(Checked):
         wave_filter_ms: Time constant (ms) of the low-pass on the master velocity the wave
             encoder uses: an encoder count a tick would otherwise be a force spike of b times
             its velocity.
+        wave_cutoff_hz: Cutoff (Hz) of the first-order low-pass each end puts on the wave it
+            receives (0 = none): removes wave energy, never adds it, and damps the echoes between
+            the two ends (:func:`app.teleop.wave.smooth`).
     """
 
     delay_ms: Annotated[float, Range(0.0, 1000.0, "ms")] = 0.0
@@ -61,18 +65,30 @@ class ChannelSettings(Checked):
     loss: Annotated[float, Range(0.0, 0.5)] = 0.0
     seed: Annotated[int, Range(0, 2**32 - 1)] = 0
     coupling: Coupling = "direct"
-    wave_impedance: Annotated[float, Range(1.0, 1e4, "N s/m")] = 100.0
+    wave_impedance: Annotated[float, Range(1.0, 1e4, "N s/m")] = 50.0
     wave_filter_ms: Annotated[float, Range(0.0, 100.0, "ms")] = 10.0
+    wave_cutoff_hz: Annotated[float, Range(0.0, 500.0, "Hz")] = 2.0
 
     @property
     def active(self) -> bool:
         """False for the defaults: the loop then joins controller and slave directly."""
-        idle = ChannelSettings(seed=self.seed, wave_impedance=self.wave_impedance, wave_filter_ms=self.wave_filter_ms)
+        idle = ChannelSettings(
+            seed=self.seed,
+            wave_impedance=self.wave_impedance,
+            wave_filter_ms=self.wave_filter_ms,
+            wave_cutoff_hz=self.wave_cutoff_hz,
+        )
         return self != idle
 
     def delay_ticks(self, servo_rate: float) -> int:
         """The one-way delay in whole ticks at ``servo_rate`` (Hz)."""
         return round(self.delay_ms * 1e-3 * servo_rate)
+
+    def wave_smoothing(self, dt: float) -> float:
+        """The gain ``a`` of the arriving waves' low-pass per tick of ``dt`` (s): 1 passes them as they are."""
+        if self.wave_cutoff_hz == 0.0:
+            return 1.0
+        return dt / (1.0 / (2.0 * math.pi * self.wave_cutoff_hz) + dt)
 
     def jitter_ticks(self, servo_rate: float) -> int:
         """The most extra delay in whole ticks at ``servo_rate`` (Hz)."""

@@ -7,14 +7,27 @@ reflects next tick. Messages are packed into float rows of the two
 :class:`~app.teleop.channel.DelayLine` objects:
 
 - forward: ``[active, pose, twist (6), T_w_MRF (16), u (3)]``;
-- backward: ``[wrench_S (6), R_w_S (9), acc_w (6), omega_w (3), valid, v (3)]``.
+- backward: ``[wrench_S (6), R_w_S (9), acc_w (6), omega_w (3), valid, v (3), slave_status]``.
 
 With ``coupling = "wave"`` and a pose command, the translational force crosses the channel as
-wave variables (:mod:`app.teleop.wave`). The master's velocity is that of the commanded slave
-position (``K_P`` already applied, {w} axes); the slave's position command integrates the
-velocity its wave decoder gives, and its force on the environment is the F/T reading without the
-payload weight. The reading the controller gets carries the master's wave force in place of the
-delayed contact force; its moments, and everything in rate mode, are reflected directly (delayed).
+wave variables (:mod:`app.teleop.wave`), per axis of the slave world {w}:
+
+- Master end (in :meth:`TeleopLink.to_slave`): its velocity ``xdot_m`` (m/s) is that of the
+  commanded slave position (``K_P`` and the deadband already applied), low-passed over
+  ``wave_filter_ms`` against encoder steps; it smooths the arriving ``v``, sends ``u`` forward
+  and the controller renders ``-F_m`` (N) as the contact force of the next reading (the weight
+  added back, as the controller removes it). The grip therefore moves at ``xdot_m / K_P`` and
+  feels ``K_T F_m``: the grip's power is ``K_T / K_P`` times the channel's, the same positive
+  factor both ways, so the operator still cannot draw more energy from the grip than went in.
+- Slave end (also in :meth:`TeleopLink.to_slave`, before the slave steps): it smooths the
+  arriving ``u``; its force on the environment is minus the last F/T reading's force with the
+  payload weight removed (for a tool whose whole mass is outboard of {S} that is the force its
+  tracking controller pushes with, inertia included, less what holds the tool's weight up); the velocity its decoder gives is
+  integrated into the position of the pose command, whose orientation passes as commanded. The
+  wave ``v`` it computes goes back with the reading.
+
+The reading the controller gets carries the master's wave force in place of the delayed contact
+force; its moments, and everything in rate mode, are reflected directly (delayed).
 """
 
 from __future__ import annotations
@@ -50,6 +63,8 @@ class TeleopLink:
         slave: What the master side knows of the slave tool (payload mass, gravity).
         command: The command the slave holds before the first one arrives (e.g. inactive).
         reading: The reading the controller holds before the first one arrives.
+        stiffness: The slave's translational tracking stiffness (N/m, the scene's ``kp_lin``):
+            the most force a commanded move adds per metre, before the slave measures it.
 
     Attributes:
         command: The command delivered to the slave this tick (its arrays are reused).
@@ -65,6 +80,7 @@ class TeleopLink:
         slave: SlaveModel,
         command: SlaveCommand,
         reading: FTReading,
+        stiffness: float,
     ) -> None:
         self.settings = settings
         rng = np.random.default_rng(settings.seed)
@@ -76,10 +92,14 @@ class TeleopLink:
         self.reading = FTReading(b[_WRENCH], b[_R].reshape(3, 3), b[_ACC], b[_OMEGA], True)
         self._wave = settings.coupling == "wave"
         self._b = settings.wave_impedance
+        self._stiffness = stiffness
         self._weight_w = slave.payload_mass * np.asarray(slave.gravity_w, dtype=float)
         self._p_prev = np.array(command.T_w_MRF[0:3, 3], dtype=float)
         self._xdot_m = np.zeros(3)
         self._u_m = np.zeros(3)
+        self._v_m = np.zeros(3)
+        self._u_s = np.zeros(3)
+        self._F_port = np.zeros(3)
         self.wave_force = np.zeros(3)
         self._F_s = np.zeros(3)
         self._xdot_s = np.zeros(3)
@@ -95,7 +115,8 @@ class TeleopLink:
         if waves:
             a = dt / (self.settings.wave_filter_ms * 1e-3 + dt)
             self._xdot_m += a * ((p - self._p_prev) / dt - self._xdot_m)
-            wave.master(self._xdot_m, self.backward.out[_V], self._b, self._u_m, self.wave_force)
+            wave.smooth(self.backward.out[_V], self.settings.wave_smoothing(dt), self._v_m)
+            wave.master(self._xdot_m, self._v_m, self._b, self._u_m, self.wave_force)
             row[_U] = self._u_m
         else:
             self.wave_force.fill(0.0)
@@ -111,15 +132,18 @@ class TeleopLink:
         return cmd
 
     def _slave_side(self, cmd: SlaveCommand, u_s: Array, dt: float) -> None:
-        """Wave decoder at the slave: integrate the velocity it gives into the position command."""
+        """Wave decoder at the slave: integrate the velocity it gives into the position command.
+
+        ``u_s`` is the arriving wave (sqrt(W)), (3,); ``dt`` the tick (s)."""
+        wave.smooth(u_s, self.settings.wave_smoothing(dt), self._u_s)
         if not cmd.active:
             # A held slave does not move: the wave is reflected whole (no power in or out).
-            self._v_s[:] = u_s
+            self._v_s[:] = self._u_s
             return
         p = cmd.T_w_MRF[0:3, 3]
         if self._p_slave is None:
             self._p_slave = p.copy()
-        wave.slave(u_s, self._F_s, self._b, self._xdot_s, self._v_s)
+        wave.slave(self._u_s, self._F_s, self._b, self._stiffness * dt, self._xdot_s, self._F_port, self._v_s)
         self._p_slave += self._xdot_s * dt
         p[:] = self._p_slave
 

@@ -199,6 +199,9 @@ CASES: dict[str, dict[str, Case]] = {
         "channel delay -5": P(
             "accommodation = true", "accommodation = true\n[channel]\ndelay_ms = -5.0", "channel.delay_ms"
         ),
+        "channel wave cutoff -1": P(
+            "accommodation = true", "accommodation = true\n[channel]\nwave_cutoff_hz = -1.0", "channel.wave_cutoff_hz"
+        ),
         "channel coupling": P(
             "accommodation = true", 'accommodation = true\n[channel]\ncoupling = "scattering"', "channel.coupling"
         ),

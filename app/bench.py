@@ -117,8 +117,10 @@ def bench_stability(quick: bool = False) -> str:
     virtual wall is ``K < 2 b / T`` with b the physical damping at the grip (device joints plus
     the hand, :func:`~app.session.stability.grip_damping`). Felt stiffness is the secant between
     the press's two plateaus of rendered force and grip position
-    (:class:`~app.session.stability.FeltStiffness`). *Stable* is settled with the motors within
-    their limits (:attr:`~app.session.stability.PressResult.stable`). Each device runs as shipped
+    (:class:`~app.session.stability.FeltStiffness`). *Stable* is settled with the motors and the
+    slave within their limits (:attr:`~app.session.stability.PressResult.stable`): SATURATED is a
+    wall held at the motors' limit, PUSHED IN one the hand pushed the slave through to its force
+    limit. Each device runs as shipped
     and with 20-bit encoders (:func:`~app.session.stability.device_with_encoders`), which
     separates the quantisation limit from the passivity bound.
     """
@@ -134,7 +136,7 @@ def bench_stability(quick: bool = False) -> str:
         )
     multiples = (1.0, 3.0) if quick else (0.25, 0.5, 1.0, 2.0, 3.0, 4.0)
     lines.append(
-        "  pose mode, two pushes (~2.5 N, ~8 N at the grip); stable: settled, motors unsaturated; "
+        "  pose mode, two pushes (~2.5 N, ~8 N at the grip); stable: settled, motors and slave within limits; "
         "felt: secant between the pushes"
     )
     with tempfile.TemporaryDirectory() as tmp:
@@ -164,7 +166,9 @@ def _wall_rows(label: str, device: str, multiples: tuple[float, ...]) -> list[st
             r = press(1e5, "pose", device=device, gains=gains, passivity=PassivitySettings(enabled=enabled))
             if r.stable:
                 largest[name] = max(largest[name], multiple)
-            state = "stable" if r.stable else ("SATURATED" if r.settled else "OSCILLATES")
+            state = (
+                "stable" if r.stable else "OSCILLATES" if not r.settled else "SATURATED" if r.saturated else "PUSHED IN"
+            )
             cells.append(f"{name} {state:>10} (ripple {r.ripple:6.2f} N, felt {r.felt_stiffness:7,.0f} N/m)")
         lines.append(f"    design {multiple:4.2f} x bound, K_T {k_t:5.2f}: " + " | ".join(cells))
     lines.append(f"    largest stable multiple: plain {largest['plain']:.2f} x, PO/PC {largest['PO/PC']:.2f} x")

@@ -252,6 +252,7 @@ def controller_tick(
             dt,
             r.pc_step,
             r.pc_credit,
+            r.pc_reserve,
             r.pc_limit[:],
             torques[TAU],
             torques[TAU_PC],

@@ -19,13 +19,21 @@ starves the giving joint, and the wall collapses.
 
 **Controller (PC)**, when enabled: an *energy-bounding* (admittance-type) PC that scales the
 rendered torque, ``tau = s tau_r`` with ``0 <= s <= 1`` (uniformly, so the force keeps its
-direction), so that the next step the encoders can show cannot take ``E`` below zero:
+direction), so that the next step the encoders can show cannot take ``E`` below ``-E_r``:
 
-    s = min(1, (max(E, 0) + credit sum_j d_j) / sum_j |tau_r,j| d_j),   d_j = max(step, |v_j| T)
+    s = min(1, (max(E + E_r, 0) + credit sum_j d_j) / sum_j |tau_r,j| d_j),   d_j = max(step, |v_j| T)
 
 where ``step`` is one encoder count, ``v_j`` the low-passed joint velocity (it predicts steps of
 more than one count) and ``credit`` the torque the joints' own Coulomb friction dissipates over any
 step (Diolaiti et al. 2006: friction absorbs ``f_c d`` per count moved; 0 = no credit).
+
+``E_r`` is an energy reserve: the port is passive with respect to an initial storage ``E_r``
+(it never gives out more than ``E_r`` plus what it has absorbed). Without one, the touch itself
+(the slave reaches the surface a little after the grip, so the first bounce returns more than
+came in: ~3 mJ on the Kraft) leaves ``E`` near zero, and an energy bound then holds a pressed
+wall's force to what one count of travel could pay for; the hand pushes through a wall that plain
+rendering holds. With 20 mJ the PC leaves such a wall alone (measured: the same force and felt
+stiffness as plain where plain is stable) and still stops a limit cycle once it has drawn 20 mJ.
 
 Why not the textbook series damper ``tau_PC = -alpha qdot`` with ``alpha = -E/(T qdot^2)``: on
 this device the joint velocity is an encoder difference, so near contact it is 0 or +-1 count a
@@ -62,6 +70,8 @@ class PassivitySettings(Checked):
         enabled: The PC bounds the rendered torque (else the energy is only observed).
         max_torque_fraction: Share (0, 1] of each joint's torque limit the total may reach
             because of the PC's correction (-).
+        energy_reserve: Energy (J) the port may give out beyond what it has absorbed: the PC
+            keeps the observed energy at or above ``-energy_reserve`` (0 = strict).
         energy_cap: Largest energy (J) the observer may bank; inf = none. A cap keeps a long
             dissipative stretch from paying for a long active one.
         step: Smallest joint step the encoders resolve (rad, or m for slides): one count.
@@ -74,6 +84,7 @@ class PassivitySettings(Checked):
 
     enabled: bool = False
     max_torque_fraction: Annotated[float, Range(0.0, 1.0, lo_open=True)] = 1.0
+    energy_reserve: Annotated[float, Range(0.0, 1.0, "J")] = 0.02
     energy_cap: Annotated[float, Range(0.0, 1e3, "J", inf_ok=True)] = math.inf
     step: Annotated[float, Range(0.0, 0.1, "rad", lo_open=True)] = 2.0 * math.pi / 16384
     friction_credit: Annotated[float, Range(0.0, 10.0, "N m")] = 0.03
@@ -114,6 +125,7 @@ def passivity_control(
     dt: float,
     step: float,
     credit: float,
+    reserve: float,
     limit: Array,
     tau: Array,
     tau_pc: Array,
@@ -126,6 +138,7 @@ def passivity_control(
         velocity: Low-passed joint velocity (rad/s or m/s), (n,): predicts steps beyond one count.
         dt: Servo period (s). ``step``: smallest joint step the encoders resolve (rad or m).
         credit: Torque (N m or N) per joint the device's own friction dissipates on any step.
+        reserve: Energy (J) the port may give out beyond what it absorbed (``E >= -reserve``).
         limit: Largest ``|tau_j|`` the PC may lead to (N m or N), (n,).
         tau: The total joint torque (N m or N), (n,): the PC torque is added in place.
         tau_pc: The PC torque ``(s - 1) tau_r`` (N m or N), (n,), written.
@@ -134,7 +147,7 @@ def passivity_control(
         ``1 - s``: the share of the rendered torque the PC removed (0 when it does not act).
     """
     worst = 0.0
-    budget = max(energy[0], 0.0)
+    budget = max(energy[0] + reserve, 0.0)
     for j in range(tau_r.shape[0]):
         d = max(step, abs(velocity[j]) * dt)
         worst += abs(tau_r[j]) * d

@@ -51,6 +51,8 @@ class PressResult:
             :class:`FeltStiffness`); NaN in rate mode, where the grip commands a velocity.
         saturated: Pose mode: the motors saturated on some tick of a plateau's window, so the
             wall was rendered as the motors' limit, a force source, not as a stiffness.
+        pushed_through: The mean contact force reached 95 % of the slave's force limit: the
+            slave pushed as hard as it can, the wall the hand felt did not hold it back.
         summary: The whole session summary.
     """
 
@@ -59,12 +61,13 @@ class PressResult:
     settled: bool
     felt_stiffness: float
     saturated: bool
+    pushed_through: bool
     summary: dict[str, Any]
 
     @property
     def stable(self) -> bool:
-        """Settled with the motors within their limits: the wall was rendered as a stiffness."""
-        return self.settled and not self.saturated
+        """Settled with the motors and the slave within their limits: a wall was rendered."""
+        return self.settled and not self.saturated and not self.pushed_through
 
 
 def probe_scene_with_stiffness(stiffness: float, damping: float, folder: Path) -> Path:
@@ -240,9 +243,11 @@ def press(
         session = press_session(scene, mode, seconds, hold, gains=gains or {}, **changes)
         felt = FeltStiffness(_pose_push(session.data.duration, hold)[1]) if mode == "pose" else None
         summary = run_session(session, out_dir=None, plots=False, observers=(felt,) if felt else ()).summary
+        force_limit = session.scene.spec.slave.force_limit
     s = summary["settling"]
     stiffness, saturated = (felt.stiffness(), felt.saturated) if felt else (math.nan, False)
-    return PressResult(s["mean_force_N"], s["ripple_N"], s["settled"], stiffness, saturated, summary)
+    pushed_through = s["mean_force_N"] >= 0.95 * force_limit
+    return PressResult(s["mean_force_N"], s["ripple_N"], s["settled"], stiffness, saturated, pushed_through, summary)
 
 
 #: The delay of issue 13's bar, each way (ms): 100 ms round trip.

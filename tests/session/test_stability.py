@@ -79,3 +79,30 @@ def test_a_saturated_plateau_is_not_a_stable_wall() -> None:
     assert r.settled  # the criterion alone would call it stable
     assert r.saturated
     assert not r.stable
+
+
+def test_where_plain_holds_the_wall_the_pc_leaves_it_alone_and_without_a_reserve_it_gives_way() -> None:
+    """Kraft as shipped, a wall at half the bound: plain rendering holds it. PO/PC with its energy
+    reserve renders the same wall (the touch's ~3 mJ comes out of the reserve); with no reserve
+    the touch leaves no energy to hold the force with, and the hand pushes the slave in far deeper."""
+    k_t = 0.5 * passivity_bound("kraft") / design_stiffness(1.0)
+    gains = {"k_t": [k_t] * 3 + [1.0] * 3}
+    plain = press(1e5, "pose", gains=gains)
+    assert plain.stable
+    pc = press(1e5, "pose", gains=gains, passivity=PassivitySettings(enabled=True))
+    assert pc.stable
+    assert pc.felt_stiffness == pytest.approx(plain.felt_stiffness, rel=0.05)
+    strict = press(1e5, "pose", gains=gains, passivity=PassivitySettings(enabled=True, energy_reserve=0.0))
+    assert not strict.stable
+    assert strict.mean_force > 3.0 * plain.mean_force
+
+
+def test_a_wall_the_hand_pushed_through_is_not_stable() -> None:
+    """Kraft as shipped at 3x the bound with PO/PC: past the quantisation limit (~8 kN/m) the
+    energy bound holds the force down and the hand pushes the slave to its 40 N limit. The force
+    is steady there, but that is the slave's limit, not a wall."""
+    k_t = 3.0 * passivity_bound("kraft") / design_stiffness(1.0)
+    r = press(1e5, "pose", gains={"k_t": [k_t] * 3 + [1.0] * 3}, passivity=PassivitySettings(enabled=True))
+    assert r.pushed_through
+    assert r.felt_stiffness < 0.05 * passivity_bound("kraft")
+    assert not r.stable

@@ -120,6 +120,7 @@ def _in_vertex_cone(
 def may_hold_minimum(
     verts: Records,
     tris: Records,
+    edges: Records,
     vertex_faces: np.ndarray,
     t: int,
     cx: float,
@@ -140,7 +141,9 @@ def may_hold_minimum(
     across it, and projects onto the segment), or in a vertex's cone (c makes no acute angle with
     any edge from it). Each test is a set of signed distances to planes, 1-Lipschitz in c, so
     relaxing every one by R covers every centre within R; the test does not depend on which side
-    of the surface c is.
+    of the surface c is. Only the features t reports count (:mod:`app.world.contact.minima`: a
+    shared edge by its lower-numbered face, a vertex by its first face): on a hole's rim, the wall
+    facets below the rim edges are left out.
     """
     tri = tris[t]
     inside_prism = True
@@ -161,12 +164,17 @@ def may_hold_minimum(
                 le = math.sqrt(bx * bx + by * by + bz * bz)
                 u = (ex * bx + ey * by + ez * bz) / le
                 if -R <= u <= le + R:
-                    return True
+                    fs = edges[tri.e[k]].faces
+                    other = fs[1] if fs[0] == t else fs[0]
+                    if other < 0 or other > t:
+                        return True
     if inside_prism:
         return True
     for k in range(3):
         # A vertex's cone lies within t's own corner region there: test that first (two edges).
         v = tri.v[k]
+        if vertex_faces[verts[v].f0] != t:
+            continue
         p = verts[v].p
         ex, ey, ez = cx - p[0], cy - p[1], cz - p[2]
         corner = True

@@ -70,6 +70,7 @@ def gather(
     R: float,
     verts: Records,
     tris: Records,
+    edges: Records,
     cells: Records,
     lists: np.ndarray,
     stamp: np.ndarray,
@@ -121,7 +122,7 @@ def gather(
                     # vertex, hundreds at the centre of a fan (a hole's bottom).
                     if closest_on_triangle(verts, tris, t, cx, cy, cz)[0] > reach2:
                         continue
-                    if obj.prune and not may_hold_minimum(verts, tris, lists, t, cx, cy, cz, R, cones, serial):
+                    if obj.prune and not may_hold_minimum(verts, tris, edges, lists, t, cx, cy, cz, R, cones, serial):
                         continue
                     if n == out.shape[0]:
                         return -1

@@ -113,6 +113,9 @@ TRIANGLE = np.dtype(
         ("box", "f8", (6,)),  # bounding box: minimum (3), maximum (3)
         ("m", "f8", (3, 3)),  # m[k]: unit vector in the face, normal to edge k, pointing inside
         ("m_adj", "f8", (3, 3)),  # m_adj[k]: the same for the face across edge k (0 on a cut)
+        # The features it reports (minima): bit k edge k (the lower-numbered of its faces reports
+        # a shared edge), bit 3 + k vertex k (its first face reports a vertex).
+        ("own", "i8"),
     ],
     align=True,
 )

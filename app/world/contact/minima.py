@@ -46,6 +46,8 @@ _PLANE_SLACK = 1e-12
 # Edge or vertex minima on neighbouring triangles with normals closer than the cut angle are one
 # contact (cos of 30 degrees, app.world.collision.CUT_ANGLE_DEG).
 _PARTNER_COS = 0.8660254037844387
+# Bits of ``TRIANGLE.own`` for edge k and its two ends (vertex k and k + 1 mod 3).
+_EDGE_AND_ENDS = (0b011001, 0b110010, 0b101100)
 # A pair's cache stays valid while its centre moves less than CACHE_FRAC * r from where it was
 # gathered: larger means fewer gathers on the move but more triangles to scan each tick.
 CACHE_FRAC = 0.05
@@ -153,6 +155,7 @@ def ensure_cache(
     r: float,
     verts: Records,
     tris: Records,
+    edges: Records,
     cells: Records,
     lists: np.ndarray,
     stamp: np.ndarray,
@@ -170,7 +173,7 @@ def ensure_cache(
         if ex * ex + ey * ey + ez * ez <= R * R:
             return 0
     tool.serial += 1
-    n = gather(obj, c[0], c[1], c[2], r + 2.0 * R, R, verts, tris, cells, lists, stamp, tool.serial, pool[k])
+    n = gather(obj, c[0], c[1], c[2], r + 2.0 * R, R, verts, tris, edges, cells, lists, stamp, tool.serial, pool[k])
     pair.cache_n = n
     pair.cache_c[:] = c
     return 1 if n >= 0 else -1
@@ -227,11 +230,14 @@ def local_minima(
         outside = 0
         reject = False
         beyond = 0.0  # how far c is beyond the farthest edge line, in the face's plane
+        near = 0  # the edges c may be beyond and their ends (bits as ``tri.own``)
         for k in range(3):
             a = verts[tri.v[k]].p
             ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
             m = tri.m[k]
             inward = ex * m[0] + ey * m[1] + ez * m[2]
+            if inward < _PLANE_SLACK:
+                near |= _EDGE_AND_ENDS[k]
             if inward < 0.0:
                 outside += 1
                 beyond = max(beyond, -inward)
@@ -242,6 +248,11 @@ def local_minima(
                     u = ex * bx + ey * by + ez * bz
                     reject = 0.0 < u < bx * bx + by * by + bz * bz
         if outside == 1 and reject:
+            continue
+        # With c clearly beyond an edge line, the nearest point is on an edge c is beyond or at an
+        # end of one: if t reports none of those features, it holds no minimum (on a hole's rim,
+        # most wall facets and top triangles).
+        if beyond > _PLANE_SLACK and tri.own & near == 0:
             continue
         if outside > 0:
             # The distance is at least the hypotenuse of the plane distance and of a bound on

@@ -105,13 +105,14 @@ def _in_vertex_cone(
 ) -> bool:
     """Whether c makes no angle below 90 degrees (relaxed by R) with any edge from vertex v."""
     p = verts[v].p
+    ex, ey, ez = cx - p[0], cy - p[1], cz - p[2]
     for s in range(verts[v].f0, verts[v].f1):  # every edge from the vertex, through its faces
-        fv = tris[vertex_faces[s]].v
-        for x in range(3):
-            w = verts[fv[x]].p
-            ex, ey, ez = w[0] - p[0], w[1] - p[1], w[2] - p[2]
-            le = math.sqrt(ex * ex + ey * ey + ez * ez)
-            if le > 0.0 and (cx - p[0]) * ex + (cy - p[1]) * ey + (cz - p[2]) * ez > R * le:
+        f = tris[vertex_faces[s]]
+        x = 0 if f.v[0] == v else (1 if f.v[1] == v else 2)
+        # The edges to the next corner (x) and from the previous one ((x + 2) % 3).
+        for k, w in ((x, f.v[(x + 1) % 3]), ((x + 2) % 3, f.v[(x + 2) % 3])):
+            q = verts[w].p
+            if ex * (q[0] - p[0]) + ey * (q[1] - p[1]) + ez * (q[2] - p[2]) > R * f.len[k]:
                 return False
     return True
 
@@ -147,6 +148,7 @@ def may_hold_minimum(
     """
     tri = tris[t]
     inside_prism = True
+    own = tri.own
     for k in range(3):
         a = verts[tri.v[k]].p
         ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
@@ -154,34 +156,29 @@ def may_hold_minimum(
         s = ex * m[0] + ey * m[1] + ez * m[2]
         if s < -R:
             inside_prism = False
-        if s <= R:
+        if s <= R and own >> k & 1:
             # c may be beyond edge k: in its wedge if it does not project into the face across
             # it either (none on a cut: m_adj is 0), and projects onto the segment.
             ma = tri.m_adj[k]
             if ex * ma[0] + ey * ma[1] + ez * ma[2] <= R:
                 b = verts[tri.v[(k + 1) % 3]].p
-                bx, by, bz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-                le = math.sqrt(bx * bx + by * by + bz * bz)
-                u = (ex * bx + ey * by + ez * bz) / le
+                le = tri.len[k]
+                u = (ex * (b[0] - a[0]) + ey * (b[1] - a[1]) + ez * (b[2] - a[2])) / le
                 if -R <= u <= le + R:
-                    fs = edges[tri.e[k]].faces
-                    other = fs[1] if fs[0] == t else fs[0]
-                    if other < 0 or other > t:
-                        return True
+                    return True
     if inside_prism:
         return True
     for k in range(3):
         # A vertex's cone lies within t's own corner region there: test that first (two edges).
-        v = tri.v[k]
-        if vertex_faces[verts[v].f0] != t:
+        if not own >> (3 + k) & 1:
             continue
+        v = tri.v[k]
         p = verts[v].p
         ex, ey, ez = cx - p[0], cy - p[1], cz - p[2]
         corner = True
-        for w in (tri.v[(k + 1) % 3], tri.v[(k + 2) % 3]):
+        for w, le in ((tri.v[(k + 1) % 3], tri.len[k]), (tri.v[(k + 2) % 3], tri.len[(k + 2) % 3])):
             q = verts[w].p
-            fx, fy, fz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
-            if ex * fx + ey * fy + ez * fz > R * math.sqrt(fx * fx + fy * fy + fz * fz):
+            if ex * (q[0] - p[0]) + ey * (q[1] - p[1]) + ez * (q[2] - p[2]) > R * le:
                 corner = False
         if corner:
             if cones[v] >> 1 != serial:

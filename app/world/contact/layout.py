@@ -116,6 +116,7 @@ TRIANGLE = np.dtype(
         # The features it reports (minima): bit k edge k (the lower-numbered of its faces reports
         # a shared edge), bit 3 + k vertex k (its first face reports a vertex).
         ("own", "i8"),
+        ("len", "f8", (3,)),  # len[k]: length of edge k
     ],
     align=True,
 )

@@ -186,3 +186,41 @@ def may_hold_minimum(
             if cones[v] & 1:
                 return True
     return False
+
+
+@njit(cache=True)
+def dormancy(verts: Records, tris: Records, t: int, cx: float, cy: float, cz: float, gap: float) -> float:
+    """How far (m) c may move before triangle t can hold a local minimum it reports, or one nearer
+    than its distance less ``gap`` (m): a lower bound of the distance from c to the Voronoi regions
+    of t's face and of the edges and vertices it reports (a vertex's cone through t's own corner
+    region, which holds it), or ``gap`` if that is larger; at most 0 when c is in one of them.
+
+    Each region is an intersection of half-spaces, and the largest signed distance to their
+    planes bounds the distance to it from below (:func:`may_hold_minimum` relaxes the same planes).
+    """
+    tri = tris[t]
+    own = tri.own
+    face = -math.inf  # the face's prism: inside every edge's plane
+    best = math.inf
+    for k in range(3):
+        a = verts[tri.v[k]].p
+        ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
+        m = tri.m[k]
+        s = ex * m[0] + ey * m[1] + ez * m[2]
+        face = max(face, -s)
+        if own >> k & 1:
+            # Edge k's wedge: beyond it in both faces' planes, abreast of the segment.
+            ma = tri.m_adj[k]
+            b = verts[tri.v[(k + 1) % 3]].p
+            le = tri.len[k]
+            u = (ex * (b[0] - a[0]) + ey * (b[1] - a[1]) + ez * (b[2] - a[2])) / le
+            best = min(best, max(s, ex * ma[0] + ey * ma[1] + ez * ma[2], -u, u - le))
+        if own >> (3 + k) & 1:
+            # Vertex k's cone, within t's corner there: c makes no acute angle with either edge.
+            b = verts[tri.v[(k + 1) % 3]].p
+            w = verts[tri.v[(k + 2) % 3]].p
+            along_b = (ex * (b[0] - a[0]) + ey * (b[1] - a[1]) + ez * (b[2] - a[2])) / tri.len[k]
+            along_w = (ex * (w[0] - a[0]) + ey * (w[1] - a[1]) + ez * (w[2] - a[2])) / tri.len[(k + 2) % 3]
+            best = min(best, max(along_b, along_w))
+    mu = max(min(best, face), gap)
+    return mu if mu == mu else -math.inf  # a degenerate triangle (NaN) is never skipped

@@ -13,11 +13,14 @@ import math
 import numpy as np
 from numba import njit
 
-from app.world.contact.geometry import box_distance2, closest_on_triangle, may_hold_minimum
+from app.world.contact.geometry import box_distance2, closest_on_triangle, dormancy, may_hold_minimum
 from app.world.contact.layout import Record, Records
 
 # A gather covering more grid cells than this fails (the sphere is far larger than the cells).
 MAX_CELLS = 1 << 16
+# Rounding allowance (m) taken off a candidate's dormancy: the planes of its bound and the
+# nearest-point search round differently, by far less than this at coordinates under 1 km.
+_DORMANCY_SLACK = 1e-12
 
 
 @njit(cache=True)
@@ -104,6 +107,7 @@ def gather(
     n = 0
     n_keys = cells.shape[0] - 1  # the last row is a sentinel
     reach2 = reach * reach
+    cap = reach - R  # minima within r + R of a centre within R matter (``local_minima``)
     for x in range(lo[0], hi[0] + 1):
         for y in range(lo[1], hi[1] + 1):
             # The column's cells have consecutive keys: one search finds its first occupied cell.
@@ -120,13 +124,18 @@ def gather(
                         continue
                     # The exact distance first: the pruning test walks the faces around each
                     # vertex, hundreds at the centre of a fan (a hole's bottom).
-                    if closest_on_triangle(verts, tris, t, cx, cy, cz)[0] > reach2:
+                    d2 = closest_on_triangle(verts, tris, t, cx, cy, cz)[0]
+                    if d2 > reach2:
                         continue
-                    if obj.prune and not may_hold_minimum(verts, tris, edges, lists, t, cx, cy, cz, R, cones, serial):
-                        continue
+                    mu = -math.inf
+                    if obj.prune:
+                        if not may_hold_minimum(verts, tris, edges, lists, t, cx, cy, cz, R, cones, serial):
+                            continue
+                        mu = dormancy(verts, tris, t, cx, cy, cz, math.sqrt(d2) - cap) - _DORMANCY_SLACK
                     if n == out.shape[0]:
                         return -1
-                    out[n] = t
+                    out[n].t = t
+                    out[n].mu = mu
                     n += 1
                 s += 1
     return n

@@ -208,8 +208,15 @@ def local_minima(
     # finely tessellated concave surface (a hole's wall) every facet under the sphere holds a
     # minimum, and most end at this test or at the plane test below.
     worst = math.inf
+    # A candidate is dormant while the centre is nearer the cache's centre than its ``mu``: it
+    # then holds no local minimum within r + R (nor is nearer than that), so skipping it changes
+    # nothing; the order of the others is kept.
+    ex, ey, ez = cx - pair.cache_c[0], cy - pair.cache_c[1], cz - pair.cache_c[2]
+    moved = math.sqrt(ex * ex + ey * ey + ez * ez)
     for s in range(pair.cache_n):
-        t = pool_k[s]
+        if pool_k[s].mu > moved:
+            continue
+        t = pool_k[s].t
         tri = tris[t]
         # The distance to the face's plane bounds the distance to the triangle from below, and
         # is three products away (the slack covers rounding, so a skip is never a change).

@@ -151,7 +151,7 @@ class ContactModel:
         self._pairs["c_T"] = np.tile(tool.centers_T, (m, 1))  # pair k = object k // n, sphere k % n
         self._pairs["r"] = np.tile(tool.radii, m)
         # Untouched rows of np.empty cost no memory: only pairs that gather ever touch theirs.
-        self._pool = np.empty((m * n, CACHE_MAX), dtype=np.int64)
+        self._pool = np.empty((m * n, CACHE_MAX), dtype=layout.CANDIDATE)
         self._out = out = np.zeros(max(1, m * n * layout.MAX_PER_PAIR), dtype=layout.CONTACT)
         # Views of the outputs, made once: reading fields of record arrays costs microseconds.
         self._out_w = t["out"][0]

@@ -10,7 +10,10 @@ import math
 import numpy as np
 from numba import njit
 
-from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, FEAT_VERTEX, Records
+from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, FEAT_VERTEX, Record, Records
+
+# Rounding allowance (m) of a dormancy bound (:func:`dormancy`).
+_PLANE_ROUNDING = 1e-12
 
 
 @njit(cache=True)
@@ -222,5 +225,18 @@ def dormancy(verts: Records, tris: Records, t: int, cx: float, cy: float, cz: fl
             along_b = (ex * (b[0] - a[0]) + ey * (b[1] - a[1]) + ez * (b[2] - a[2])) / tri.len[k]
             along_w = (ex * (w[0] - a[0]) + ey * (w[1] - a[1]) + ez * (w[2] - a[2])) / tri.len[(k + 2) % 3]
             best = min(best, max(along_b, along_w))
-    mu = max(min(best, face), gap)
+    # Less a rounding allowance: the planes of the bound and the nearest-point search round
+    # differently, by far less than this at coordinates under 1 km.
+    mu = max(min(best, face), gap) - _PLANE_ROUNDING
     return mu if mu == mu else -math.inf  # a degenerate triangle (NaN) is never skipped
+
+
+@njit(cache=True)
+def doze(
+    cand: Record, verts: Records, tris: Records, cx: float, cy: float, cz: float, gap: float, retry: float
+) -> None:
+    """Set a cached candidate's dormancy (:func:`dormancy`) from c: skipped while the centre is
+    within ``mu`` of c, or, if it may hold a minimum already, asked again after ``retry`` (m)."""
+    mu = dormancy(verts, tris, cand.t, cx, cy, cz, gap)
+    cand.mu = mu if mu > 0.0 else -retry
+    cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz

@@ -13,14 +13,11 @@ import math
 import numpy as np
 from numba import njit
 
-from app.world.contact.geometry import box_distance2, closest_on_triangle, dormancy, may_hold_minimum
+from app.world.contact.geometry import box_distance2, closest_on_triangle, doze, may_hold_minimum
 from app.world.contact.layout import Record, Records
 
 # A gather covering more grid cells than this fails (the sphere is far larger than the cells).
 MAX_CELLS = 1 << 16
-# Rounding allowance (m) taken off a candidate's dormancy: the planes of its bound and the
-# nearest-point search round differently, by far less than this at coordinates under 1 km.
-_DORMANCY_SLACK = 1e-12
 
 
 @njit(cache=True)
@@ -127,15 +124,16 @@ def gather(
                     d2 = closest_on_triangle(verts, tris, t, cx, cy, cz)[0]
                     if d2 > reach2:
                         continue
-                    mu = -math.inf
-                    if obj.prune:
-                        if not may_hold_minimum(verts, tris, edges, lists, t, cx, cy, cz, R, cones, serial):
-                            continue
-                        mu = dormancy(verts, tris, t, cx, cy, cz, math.sqrt(d2) - cap) - _DORMANCY_SLACK
+                    if obj.prune and not may_hold_minimum(verts, tris, edges, lists, t, cx, cy, cz, R, cones, serial):
+                        continue
                     if n == out.shape[0]:
                         return -1
-                    out[n].t = t
-                    out[n].mu = mu
+                    cand = out[n]
+                    cand.t = t
+                    if obj.prune:
+                        doze(cand, verts, tris, cx, cy, cz, math.sqrt(d2) - cap, 0.25 * R)
+                    else:
+                        cand.mu = -math.inf  # every candidate scanned every time
                     n += 1
                 s += 1
     return n

@@ -122,9 +122,9 @@ TRIANGLE = np.dtype(
 )
 
 # One cached candidate of a pair (a row of the pool): its triangle, and how far the centre may
-# move from where the cache was gathered before that triangle can hold a local minimum within
-# ``r + R`` (the scan skips it until then).
-CANDIDATE = np.dtype([("t", "i8"), ("mu", "f8")], align=True)
+# move from ``ref`` before that triangle can hold a local minimum within ``r + R`` (mu > 0: the
+# scan skips it until then), or, mu <= 0, how far before it is worth asking again (-mu).
+CANDIDATE = np.dtype([("t", "i8"), ("mu", "f8"), ("ref", "f8", (3,))], align=True)
 
 # One vertex: position, angle-weighted pseudonormal, and its faces ``lists[f0:f1]``.
 VERTEX = np.dtype([("p", "f8", (3,)), ("pn", "f8", (3,)), ("f0", "i8"), ("f1", "i8")], align=True)

@@ -28,6 +28,7 @@ from numba import njit
 
 from app.world.contact.geometry import (
     closest_on_triangle,
+    doze,
     feature_normal,
     segment_distance,
 )
@@ -208,20 +209,28 @@ def local_minima(
     # finely tessellated concave surface (a hole's wall) every facet under the sphere holds a
     # minimum, and most end at this test or at the plane test below.
     worst = math.inf
-    # A candidate is dormant while the centre is nearer the cache's centre than its ``mu``: it
-    # then holds no local minimum within r + R (nor is nearer than that), so skipping it changes
-    # nothing; the order of the others is kept.
-    ex, ey, ez = cx - pair.cache_c[0], cy - pair.cache_c[1], cz - pair.cache_c[2]
-    moved = math.sqrt(ex * ex + ey * ey + ez * ez)
+    # A candidate is dormant while the centre is within ``mu`` of its ``ref``: it then holds no
+    # local minimum within r + R (nor is nearer than that), so skipping it changes nothing; the
+    # order of the others is kept. A candidate found idle after it woke (or after the centre
+    # moved ``-mu`` since it was last asked) dozes off again from here.
+    cap = r * (1.0 + CACHE_FRAC)
+    retry = 0.25 * CACHE_FRAC * r
     for s in range(pair.cache_n):
-        if pool_k[s].mu > moved:
+        cand = pool_k[s]
+        mu = cand.mu
+        ex, ey, ez = cx - cand.ref[0], cy - cand.ref[1], cz - cand.ref[2]
+        far2 = ex * ex + ey * ey + ez * ez
+        if mu > 0.0 and far2 < mu * mu:
             continue
-        t = pool_k[s].t
+        wake = far2 >= mu * mu
+        t = cand.t
         tri = tris[t]
         # The distance to the face's plane bounds the distance to the triangle from below, and
         # is three products away (the slack covers rounding, so a skip is never a change).
         plane = abs(cx * tri.n[0] + cy * tri.n[1] + cz * tri.n[2] - tri.off) - _PLANE_SLACK
         if plane > 0.0 and plane * plane >= nearest2 and (plane >= worst or plane * plane >= r2):
+            if wake:
+                doze(cand, verts, tris, cx, cy, cz, plane - cap, retry)
             continue
         box = tri.box
         gx = max(box[0] - cx, 0.0, cx - box[3])  # the gaps to the triangle's box along each axis
@@ -229,6 +238,8 @@ def local_minima(
         gz = max(box[2] - cz, 0.0, cz - box[5])
         box2 = gx * gx + gy * gy + gz * gz
         if box2 >= r2 and box2 >= nearest2:
+            if wake:
+                doze(cand, verts, tris, cx, cy, cz, math.sqrt(box2) - cap, retry)
             continue
         # Where c projects, from the inward edge normals: inside the face, the nearest point is
         # the projection. Beyond exactly one edge and abreast of it, the nearest point is on that
@@ -254,12 +265,12 @@ def local_minima(
                     bx, by, bz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
                     u = ex * bx + ey * by + ez * bz
                     reject = 0.0 < u < bx * bx + by * by + bz * bz
-        if outside == 1 and reject:
-            continue
         # With c clearly beyond an edge line, the nearest point is on an edge c is beyond or at an
         # end of one: if t reports none of those features, it holds no minimum (on a hole's rim,
         # most wall facets and top triangles).
-        if beyond > _PLANE_SLACK and tri.own & near == 0:
+        if (outside == 1 and reject) or (beyond > _PLANE_SLACK and tri.own & near == 0):
+            if wake:
+                doze(cand, verts, tris, cx, cy, cz, plane - cap, retry)
             continue
         if outside > 0:
             # The distance is at least the hypotenuse of the plane distance and of a bound on
@@ -272,6 +283,8 @@ def local_minima(
             aside = max(gx - up * abs(n[0]), gy - up * abs(n[1]), gz - up * abs(n[2]), beyond) - _PLANE_SLACK
             bound2 = max(plane, 0.0) ** 2 + (aside * aside if aside > 0.0 else 0.0)
             if bound2 >= nearest2 and (bound2 >= r2 or math.sqrt(bound2) >= worst):
+                if wake:
+                    doze(cand, verts, tris, cx, cy, cz, math.sqrt(bound2) - cap, retry)
                 continue
         if outside == 0:
             a = verts[tri.v[0]].p
@@ -281,10 +294,10 @@ def local_minima(
             d2, qx, qy, qz, feat = closest_on_triangle(verts, tris, t, cx, cy, cz)
         if d2 < nearest2:
             nearest2, near_t = d2, t
-        if d2 >= r2:
-            continue
         d = math.sqrt(d2)
-        if d >= worst or not _is_local_min(verts, tris, edges, lists, t, feat, qx, qy, qz, cx, cy, cz):
+        if d2 >= r2 or d >= worst or not _is_local_min(verts, tris, edges, lists, t, feat, qx, qy, qz, cx, cy, cz):
+            if wake:
+                doze(cand, verts, tris, cx, cy, cz, d - cap, retry)
             continue
         w = 1.0
         if d < TOUCH:

@@ -266,6 +266,8 @@ def contact_step(
         for i in range(n):
             k = j * n + i
             pair = pairs[k]
+            if not (full or pair.hot):
+                continue  # its centre is only needed at the next full check
             s = pair.c_T
             for a in range(3):
                 pair.c[a] = R[a, 0] * s[0] + R[a, 1] * s[1] + R[a, 2] * s[2] + p[a]
@@ -273,8 +275,6 @@ def contact_step(
                 ex, ey, ez = pair.c[0] - pair.last[0], pair.c[1] - pair.last[1], pair.c[2] - pair.last[2]
                 if math.sqrt(ex * ex + ey * ey + ez * ez) < pair.slack:
                     continue
-            elif not pair.hot:
-                continue
             r = pair.r
             queries += 1
             g = ensure_cache(pair, k, o, r, verts, tris, edges, cells, lists, stamp, tool, pool)

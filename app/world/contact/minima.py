@@ -50,8 +50,13 @@ _PARTNER_COS = 0.8660254037844387
 # Bits of ``TRIANGLE.own`` for edge k and its two ends (vertex k and k + 1 mod 3).
 _EDGE_AND_ENDS = (0b011001, 0b110010, 0b101100)
 # A pair's cache stays valid while its centre moves less than CACHE_FRAC * r from where it was
-# gathered: larger means fewer gathers on the move but more triangles to scan each tick.
-CACHE_FRAC = 0.05
+# gathered: larger means fewer gathers on the move, each of more triangles (most of them dormant
+# in a scan, so a scan costs little more).
+CACHE_FRAC = 0.075
+# A scan finds the distance to the mesh up to (1 + NEAR_FRAC) r (the culling bound of a pair out
+# of contact: it need not be checked until it has moved NEAR_FRAC r); a candidate that may hold a
+# minimum is asked again after its centre has moved NEAR_FRAC r / 4.
+NEAR_FRAC = 0.05
 
 
 @njit(cache=True)
@@ -174,7 +179,10 @@ def ensure_cache(
         if ex * ex + ey * ey + ez * ez <= R * R:
             return 0
     tool.serial += 1
-    n = gather(obj, c[0], c[1], c[2], r + 2.0 * R, R, verts, tris, edges, cells, lists, stamp, tool.serial, pool[k])
+    reach, cap, retry = r + 2.0 * R, r * (1.0 + NEAR_FRAC), 0.25 * NEAR_FRAC * r
+    n = gather(
+        obj, c[0], c[1], c[2], reach, R, cap, retry, verts, tris, edges, cells, lists, stamp, tool.serial, pool[k]
+    )
     pair.cache_n = n
     pair.cache_c[:] = c
     return 1 if n >= 0 else -1
@@ -196,8 +204,10 @@ def local_minima(
     r2 = r * r
     n_min = 0
     # The nearest point is a local minimum: within r + R, it is on a cached triangle (the cache
-    # covers r + 2 R around its centre); otherwise it is farther than that.
-    nearest2 = (r * (1.0 + CACHE_FRAC)) ** 2
+    # covers r + 2 R around its centre), and within the cap, on one awake; otherwise it is
+    # farther than the cap.
+    cap = r * (1.0 + NEAR_FRAC)
+    nearest2 = cap * cap
     # Start from last time's nearest triangle: with the distance to the mesh known from the
     # outset, the lower bounds below skip nearly every other triangle of a pair out of contact.
     near_t = pair.near_t
@@ -210,11 +220,10 @@ def local_minima(
     # minimum, and most end at this test or at the plane test below.
     worst = math.inf
     # A candidate is dormant while the centre is within ``mu`` of its ``ref``: it then holds no
-    # local minimum within r + R (nor is nearer than that), so skipping it changes nothing; the
-    # order of the others is kept. A candidate found idle after it woke (or after the centre
+    # local minimum within the cap (nor is nearer than that), so skipping it changes nothing;
+    # the order of the others is kept. A candidate found idle after it woke (or after the centre
     # moved ``-mu`` since it was last asked) dozes off again from here.
-    cap = r * (1.0 + CACHE_FRAC)
-    retry = 0.25 * CACHE_FRAC * r
+    retry = 0.25 * NEAR_FRAC * r
     for s in range(pair.cache_n):
         cand = pool_k[s]
         mu = cand.mu
@@ -230,7 +239,9 @@ def local_minima(
         plane = abs(cx * tri.n[0] + cy * tri.n[1] + cz * tri.n[2] - tri.off) - _PLANE_SLACK
         if plane > 0.0 and plane * plane >= nearest2 and (plane >= worst or plane * plane >= r2):
             if wake:
-                doze(cand, verts, tris, cx, cy, cz, plane - cap, retry)
+                # This test is cheaper than a dormancy bound: keep taking it until ``retry``.
+                cand.mu = -retry
+                cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz
             continue
         box = tri.box
         gx = max(box[0] - cx, 0.0, cx - box[3])  # the gaps to the triangle's box along each axis
@@ -239,7 +250,7 @@ def local_minima(
         box2 = gx * gx + gy * gy + gz * gz
         if box2 >= r2 and box2 >= nearest2:
             if wake:
-                doze(cand, verts, tris, cx, cy, cz, math.sqrt(box2) - cap, retry)
+                doze(cand, verts, tris, lists, cx, cy, cz, math.sqrt(box2) - cap, retry)
             continue
         # Where c projects, from the inward edge normals: inside the face, the nearest point is
         # the projection. Beyond exactly one edge and abreast of it, the nearest point is on that
@@ -270,7 +281,7 @@ def local_minima(
         # most wall facets and top triangles).
         if (outside == 1 and reject) or (beyond > _PLANE_SLACK and tri.own & near == 0):
             if wake:
-                doze(cand, verts, tris, cx, cy, cz, plane - cap, retry)
+                doze(cand, verts, tris, lists, cx, cy, cz, plane - cap, retry)
             continue
         if outside > 0:
             # The distance is at least the hypotenuse of the plane distance and of a bound on
@@ -284,7 +295,7 @@ def local_minima(
             bound2 = max(plane, 0.0) ** 2 + (aside * aside if aside > 0.0 else 0.0)
             if bound2 >= nearest2 and (bound2 >= r2 or math.sqrt(bound2) >= worst):
                 if wake:
-                    doze(cand, verts, tris, cx, cy, cz, math.sqrt(bound2) - cap, retry)
+                    doze(cand, verts, tris, lists, cx, cy, cz, math.sqrt(bound2) - cap, retry)
                 continue
         if outside == 0:
             a = verts[tri.v[0]].p
@@ -297,7 +308,7 @@ def local_minima(
         d = math.sqrt(d2)
         if d2 >= r2 or d >= worst or not _is_local_min(verts, tris, edges, lists, t, feat, qx, qy, qz, cx, cy, cz):
             if wake:
-                doze(cand, verts, tris, cx, cy, cz, d - cap, retry)
+                doze(cand, verts, tris, lists, cx, cy, cz, d - cap, retry)
             continue
         w = 1.0
         if d < TOUCH:

@@ -219,6 +219,7 @@ def local_minima(
     # finely tessellated concave surface (a hole's wall) every facet under the sphere holds a
     # minimum, and most end at this test or at the plane test below.
     worst = math.inf
+    dropped = False  # whether a kept minimum is marked dropped (|phi| = inf)
     # A candidate is dormant while the centre is within ``mu`` of its ``ref``: it then holds no
     # local minimum within the cap (nor is nearer than that), so skipping it changes nothing;
     # the order of the others is kept. A candidate found idle after it woke (or after the centre
@@ -310,14 +311,11 @@ def local_minima(
             if wake:
                 doze(cand, verts, tris, lists, cx, cy, cz, d - cap, retry)
             continue
-        w = 1.0
         if d < TOUCH:
             phi = 0.0
             nx, ny, nz = feature_normal(verts, tris, edges, t, feat)
         else:
             ux, uy, uz = (cx - qx) / d, (cy - qy) / d, (cz - qz) / d
-            if feat == FEAT_FACE:
-                w = _crease_weight(verts, tris, edges, t, d, qx, qy, qz)
             # Inside a face c - q is along the face normal; elsewhere only the pseudonormal tells the side.
             px, py, pz = feature_normal(verts, tris, edges, t, feat)
             if ux * px + uy * py + uz * pz >= 0.0:
@@ -343,21 +341,24 @@ def local_minima(
                     skip = True
                 else:
                     pair.min_phi[e] = math.inf  # dropped below
+                    dropped = True
         if skip:
             worst = _worst(pair.min_phi, n_min)
             continue
-        n_kept = 0
-        for e in range(n_min):
-            if pair.min_phi[e] < math.inf:
-                if e != n_kept:
-                    pair.min_q[n_kept] = pair.min_q[e]
-                    pair.min_n[n_kept] = pair.min_n[e]
-                    pair.min_phi[n_kept] = pair.min_phi[e]
-                    pair.min_w[n_kept] = pair.min_w[e]
-                    pair.min_t[n_kept] = pair.min_t[e]
-                    pair.min_f[n_kept] = pair.min_f[e]
-                n_kept += 1
-        n_min = n_kept
+        if dropped:
+            n_kept = 0
+            for e in range(n_min):
+                if pair.min_phi[e] < math.inf:
+                    if e != n_kept:
+                        pair.min_q[n_kept] = pair.min_q[e]
+                        pair.min_n[n_kept] = pair.min_n[e]
+                        pair.min_phi[n_kept] = pair.min_phi[e]
+                        pair.min_w[n_kept] = pair.min_w[e]
+                        pair.min_t[n_kept] = pair.min_t[e]
+                        pair.min_f[n_kept] = pair.min_f[e]
+                    n_kept += 1
+            n_min = n_kept
+            dropped = False
         slot = n_min
         if n_min == MAX_PER_PAIR:
             # Full: replace the farthest if this one is nearer.
@@ -369,6 +370,10 @@ def local_minima(
         pair.min_q[slot, 0], pair.min_q[slot, 1], pair.min_q[slot, 2] = qx, qy, qz
         pair.min_n[slot, 0], pair.min_n[slot, 1], pair.min_n[slot, 2] = nx, ny, nz
         pair.min_phi[slot] = phi
+        # Its weight, once it is kept (a face minimum near a gentle concave crease).
+        w = 1.0
+        if feat == FEAT_FACE and d >= TOUCH:
+            w = _crease_weight(verts, tris, edges, t, d, qx, qy, qz)
         pair.min_w[slot] = w
         pair.min_t[slot] = t
         pair.min_f[slot] = feat

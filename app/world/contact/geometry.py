@@ -19,7 +19,7 @@ _PLANE_ROUNDING = 1e-12
 _CONE_FACES = 16
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def closest_on_triangle(
     verts: Records, tris: Records, t: int, cx: float, cy: float, cz: float
 ) -> tuple[float, float, float, float, int]:
@@ -73,7 +73,7 @@ def closest_on_triangle(
     return (cx - qx) ** 2 + (cy - qy) ** 2 + (cz - qz) ** 2, qx, qy, qz, feat
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def feature_normal(verts: Records, tris: Records, edges: Records, t: int, feat: int) -> tuple[float, float, float]:
     """Outward pseudonormal of feature ``feat`` of triangle t (face normal, edge or vertex pseudonormal)."""
     if feat == FEAT_FACE:
@@ -85,7 +85,7 @@ def feature_normal(verts: Records, tris: Records, edges: Records, t: int, feat: 
     return n[0], n[1], n[2]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def segment_distance(verts: Records, i0: int, i1: int, qx: float, qy: float, qz: float) -> float:
     """Distance (m) from point q to the segment joining vertices i0 and i1."""
     a, b = verts[i0].p, verts[i1].p
@@ -96,7 +96,7 @@ def segment_distance(verts: Records, i0: int, i1: int, qx: float, qy: float, qz:
     return math.sqrt((px - s * ex) ** 2 + (py - s * ey) ** 2 + (pz - s * ez) ** 2)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def box_distance2(box: np.ndarray, cx: float, cy: float, cz: float) -> float:
     """Squared distance from c to an axis-aligned box (minimum (3), maximum (3)): a lower bound for its triangle."""
     dx = max(box[0] - cx, 0.0, cx - box[3])

@@ -59,7 +59,7 @@ CACHE_FRAC = 0.075
 NEAR_FRAC = 0.05
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _holds(
     verts: Records, tris: Records, f: int, qx: float, qy: float, qz: float, cx: float, cy: float, cz: float
 ) -> bool:
@@ -69,7 +69,7 @@ def _holds(
     return feat != FEAT_FACE and (fx - qx) ** 2 + (fy - qy) ** 2 + (fz - qz) ** 2 <= _SAME_POINT * _SAME_POINT
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _is_local_min(
     verts: Records,
     tris: Records,
@@ -107,7 +107,7 @@ def _is_local_min(
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _crease_weight(
     verts: Records, tris: Records, edges: Records, t: int, d: float, qx: float, qy: float, qz: float
 ) -> float:
@@ -125,7 +125,7 @@ def _crease_weight(
     return w
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _farthest(phi: np.ndarray) -> int:
     """Slot of the largest ``|phi|`` of a full set of minima, (MAX_PER_PAIR,)."""
     slot = 0
@@ -135,14 +135,14 @@ def _farthest(phi: np.ndarray) -> int:
     return slot
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _worst(phi: np.ndarray, n_min: int) -> float:
     """The largest ``|phi|`` of ``n_min`` kept minima if the set is full (inf if one of them is
     marked dropped), else inf."""
     return abs(phi[_farthest(phi)]) if n_min == MAX_PER_PAIR else math.inf
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _share_vertex(tris: Records, a: int, b: int) -> bool:
     """Whether triangles a and b share a vertex (never across a cut: each side has its own copies)."""
     va, vb = tris[a].v, tris[b].v

@@ -259,7 +259,11 @@ def doze(
     retry: float,
 ) -> None:
     """Set a cached candidate's dormancy (:func:`dormancy`) from c: skipped while the centre is
-    within ``mu`` of c, or, if it may hold a minimum already, asked again after ``retry`` (m)."""
+    within ``mu`` of c, or, if it may hold a minimum already or would wake within about ``retry``
+    (m), taken every time until the centre has moved about that far."""
     mu = dormancy(verts, tris, vertex_faces, cand.t, cx, cy, cz, gap)
-    cand.mu = mu if mu > 0.0 else -retry
+    # Spread over [0.75, 1.25] retry by triangle: candidates dozing off together (a gather) do
+    # not all wake on the same tick.
+    spread = retry * (0.75 + 0.5 * ((cand.t * 40503) & 1023) / 1024.0)
+    cand.mu = mu if mu > spread else -spread
     cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz

@@ -241,7 +241,7 @@ def local_minima(
         if plane > 0.0 and plane * plane >= nearest2 and (plane >= worst or plane * plane >= r2):
             if wake:
                 # This test is cheaper than a dormancy bound: keep taking it until ``retry``.
-                cand.mu = -retry
+                cand.mu = -retry * (0.75 + 0.5 * ((t * 40503) & 1023) / 1024.0)
                 cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz
             continue
         box = tri.box

@@ -207,6 +207,7 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
         tris["box"][fs] = np.column_stack([corners.min(axis=1), corners.max(axis=1)])
         tris["m"][fs] = c.edge_inward
         tris["m_adj"][fs] = c.edge_inward_across
+        tris["len"][fs] = np.linalg.norm(np.roll(corners, -1, axis=1) - corners, axis=2)
         vs = slice(v0[j], v0[j + 1])
         verts["p"][vs] = c.vertices
         verts["pn"][vs] = c.vertex_pn
@@ -234,6 +235,12 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
     keys, grid_tris = keys[order], grid_tris[order]
     unique, first = np.unique(keys, return_index=True)
     around = np.concatenate(vertex_faces) if vertex_faces else np.zeros(0, dtype=np.int64)
+    index = np.arange(len(tris))
+    for k in range(3):
+        fs = edges["faces"][tris["e"][:, k]]
+        other = np.where(fs[:, 0] == index, fs[:, 1], fs[:, 0])
+        tris["own"] |= ((other < 0) | (other > index)).astype(np.int64) << k
+        tris["own"] |= (around[verts["f0"][tris["v"][:, k]]] == index).astype(np.int64) << (3 + k)
     cells = np.zeros(len(unique) + 1, dtype=CELL)
     cells["key"][:-1] = unique
     cells["key"][-1] = np.iinfo(np.int64).max

@@ -41,13 +41,16 @@ it); a wrong shape or a pose that is not a rigid transform raises
 :class:`~app.errors.ContactInputError`.
 
 Speed: every per-tick step runs in one compiled call (:mod:`.step`), entered without numba's
-per-call argument typing. Culling is exact (the distance is 1-Lipschitz in the centre); each
-pair caches the triangles that may hold a local minimum while its centre stays within
-``R = 0.05 r`` of where they were gathered (every triangle within ``r + 2 R`` whose face, edge
-or vertex Voronoi region comes within R, found through a per-object grid, :mod:`.grid`), so a
-tick in steady contact scans a handful of triangles per sphere, even on a million-triangle mesh;
-the scan starts from the pair's last nearest triangle and skips, on lower bounds of their
-distance (plane, edge lines, box), the triangles that cannot change the result.
+per-call argument typing, its arrays bundled as one argument (:mod:`.bundle`). Culling is exact
+(the distance is 1-Lipschitz in the centre); each pair caches the triangles that may hold a local
+minimum while its centre stays within ``R = 0.075 r`` of where they were gathered (every triangle
+within ``r + 2 R`` whose face, edge or vertex Voronoi region, for the features it reports, comes
+within R, found through a per-object grid, :mod:`.grid`). Each cached triangle is dormant while
+the centre stays nearer where it was last looked at than a lower bound of its distance to those
+regions (or of its distance less ``1.05 r``), so a tick in steady contact scans a handful of
+triangles per sphere, even on a million-triangle mesh; the scan starts from the pair's last
+nearest triangle and skips, on lower bounds of their distance (plane, edge lines, box), the
+triangles that cannot change the result.
 
 Limits: a sharp-cornered part hidden behind less than r of material still pushes (as a second
 object would); with the centre inside the solid, a secondary contact can switch on or off where

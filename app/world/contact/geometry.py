@@ -10,10 +10,16 @@ import math
 import numpy as np
 from numba import njit
 
-from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, FEAT_VERTEX, Records
+from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, FEAT_VERTEX, Record, Records
+
+# Rounding allowance (m) of a dormancy bound (:func:`dormancy`).
+_PLANE_ROUNDING = 1e-12
+# A dormancy bound walks the edges around a vertex of at most this many faces (a fan's centre
+# has hundreds).
+_CONE_FACES = 16
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def closest_on_triangle(
     verts: Records, tris: Records, t: int, cx: float, cy: float, cz: float
 ) -> tuple[float, float, float, float, int]:
@@ -67,7 +73,7 @@ def closest_on_triangle(
     return (cx - qx) ** 2 + (cy - qy) ** 2 + (cz - qz) ** 2, qx, qy, qz, feat
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def feature_normal(verts: Records, tris: Records, edges: Records, t: int, feat: int) -> tuple[float, float, float]:
     """Outward pseudonormal of feature ``feat`` of triangle t (face normal, edge or vertex pseudonormal)."""
     if feat == FEAT_FACE:
@@ -79,7 +85,7 @@ def feature_normal(verts: Records, tris: Records, edges: Records, t: int, feat: 
     return n[0], n[1], n[2]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def segment_distance(verts: Records, i0: int, i1: int, qx: float, qy: float, qz: float) -> float:
     """Distance (m) from point q to the segment joining vertices i0 and i1."""
     a, b = verts[i0].p, verts[i1].p
@@ -90,7 +96,7 @@ def segment_distance(verts: Records, i0: int, i1: int, qx: float, qy: float, qz:
     return math.sqrt((px - s * ex) ** 2 + (py - s * ey) ** 2 + (pz - s * ez) ** 2)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def box_distance2(box: np.ndarray, cx: float, cy: float, cz: float) -> float:
     """Squared distance from c to an axis-aligned box (minimum (3), maximum (3)): a lower bound for its triangle."""
     dx = max(box[0] - cx, 0.0, cx - box[3])
@@ -105,13 +111,14 @@ def _in_vertex_cone(
 ) -> bool:
     """Whether c makes no angle below 90 degrees (relaxed by R) with any edge from vertex v."""
     p = verts[v].p
+    ex, ey, ez = cx - p[0], cy - p[1], cz - p[2]
     for s in range(verts[v].f0, verts[v].f1):  # every edge from the vertex, through its faces
-        fv = tris[vertex_faces[s]].v
-        for x in range(3):
-            w = verts[fv[x]].p
-            ex, ey, ez = w[0] - p[0], w[1] - p[1], w[2] - p[2]
-            le = math.sqrt(ex * ex + ey * ey + ez * ez)
-            if le > 0.0 and (cx - p[0]) * ex + (cy - p[1]) * ey + (cz - p[2]) * ez > R * le:
+        f = tris[vertex_faces[s]]
+        x = 0 if f.v[0] == v else (1 if f.v[1] == v else 2)
+        # The edges to the next corner (x) and from the previous one ((x + 2) % 3).
+        for k, w in ((x, f.v[(x + 1) % 3]), ((x + 2) % 3, f.v[(x + 2) % 3])):
+            q = verts[w].p
+            if ex * (q[0] - p[0]) + ey * (q[1] - p[1]) + ez * (q[2] - p[2]) > R * f.len[k]:
                 return False
     return True
 
@@ -120,6 +127,7 @@ def _in_vertex_cone(
 def may_hold_minimum(
     verts: Records,
     tris: Records,
+    edges: Records,
     vertex_faces: np.ndarray,
     t: int,
     cx: float,
@@ -140,10 +148,13 @@ def may_hold_minimum(
     across it, and projects onto the segment), or in a vertex's cone (c makes no acute angle with
     any edge from it). Each test is a set of signed distances to planes, 1-Lipschitz in c, so
     relaxing every one by R covers every centre within R; the test does not depend on which side
-    of the surface c is.
+    of the surface c is. Only the features t reports count (:mod:`app.world.contact.minima`: a
+    shared edge by its lower-numbered face, a vertex by its first face): on a hole's rim, the wall
+    facets below the rim edges are left out.
     """
     tri = tris[t]
     inside_prism = True
+    own = tri.own
     for k in range(3):
         a = verts[tri.v[k]].p
         ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
@@ -151,29 +162,29 @@ def may_hold_minimum(
         s = ex * m[0] + ey * m[1] + ez * m[2]
         if s < -R:
             inside_prism = False
-        if s <= R:
+        if s <= R and own >> k & 1:
             # c may be beyond edge k: in its wedge if it does not project into the face across
             # it either (none on a cut: m_adj is 0), and projects onto the segment.
             ma = tri.m_adj[k]
             if ex * ma[0] + ey * ma[1] + ez * ma[2] <= R:
                 b = verts[tri.v[(k + 1) % 3]].p
-                bx, by, bz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-                le = math.sqrt(bx * bx + by * by + bz * bz)
-                u = (ex * bx + ey * by + ez * bz) / le
+                le = tri.len[k]
+                u = (ex * (b[0] - a[0]) + ey * (b[1] - a[1]) + ez * (b[2] - a[2])) / le
                 if -R <= u <= le + R:
                     return True
     if inside_prism:
         return True
     for k in range(3):
         # A vertex's cone lies within t's own corner region there: test that first (two edges).
+        if not own >> (3 + k) & 1:
+            continue
         v = tri.v[k]
         p = verts[v].p
         ex, ey, ez = cx - p[0], cy - p[1], cz - p[2]
         corner = True
-        for w in (tri.v[(k + 1) % 3], tri.v[(k + 2) % 3]):
+        for w, le in ((tri.v[(k + 1) % 3], tri.len[k]), (tri.v[(k + 2) % 3], tri.len[(k + 2) % 3])):
             q = verts[w].p
-            fx, fy, fz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
-            if ex * fx + ey * fy + ez * fz > R * math.sqrt(fx * fx + fy * fy + fz * fz):
+            if ex * (q[0] - p[0]) + ey * (q[1] - p[1]) + ez * (q[2] - p[2]) > R * le:
                 corner = False
         if corner:
             if cones[v] >> 1 != serial:
@@ -181,3 +192,78 @@ def may_hold_minimum(
             if cones[v] & 1:
                 return True
     return False
+
+
+@njit(cache=True)
+def dormancy(
+    verts: Records, tris: Records, vertex_faces: np.ndarray, t: int, cx: float, cy: float, cz: float, gap: float
+) -> float:
+    """How far (m) c may move before triangle t can hold a local minimum it reports, or one nearer
+    than its distance less ``gap`` (m): a lower bound of the distance from c to the Voronoi regions
+    of t's face and of the edges and vertices it reports (a vertex's cone from every edge around
+    it, or, around more than ``_CONE_FACES`` faces, from t's own two), or ``gap`` if that is
+    larger; at most 0 when c is in one of them.
+
+    Each region is an intersection of half-spaces, and the largest signed distance to their
+    planes bounds the distance to it from below (:func:`may_hold_minimum` relaxes the same planes).
+    """
+    tri = tris[t]
+    own = tri.own
+    p0, p1, p2 = verts[tri.v[0]].p, verts[tri.v[1]].p, verts[tri.v[2]].p
+    face = -math.inf  # the face's prism: inside every edge's plane
+    for k, a in ((0, p0), (1, p1), (2, p2)):
+        m = tri.m[k]
+        face = max(face, (a[0] - cx) * m[0] + (a[1] - cy) * m[1] + (a[2] - cz) * m[2])
+    best = face
+    for k, a, b, w in ((0, p0, p1, p2), (1, p1, p2, p0), (2, p2, p0, p1)):
+        if not own >> k & 1 and not own >> (3 + k) & 1:
+            continue
+        ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
+        along_b = (ex * (b[0] - a[0]) + ey * (b[1] - a[1]) + ez * (b[2] - a[2])) / tri.len[k]
+        if own >> k & 1:
+            # Edge k's wedge: beyond it in both faces' planes, abreast of the segment.
+            m, ma = tri.m[k], tri.m_adj[k]
+            s = ex * m[0] + ey * m[1] + ez * m[2]
+            best = min(best, max(s, ex * ma[0] + ey * ma[1] + ez * ma[2], -along_b, along_b - tri.len[k]))
+        if own >> (3 + k) & 1:
+            # Vertex k's cone: c makes no acute angle with any edge from it (t's own two first).
+            along_w = (ex * (w[0] - a[0]) + ey * (w[1] - a[1]) + ez * (w[2] - a[2])) / tri.len[(k + 2) % 3]
+            cone = max(along_b, along_w)
+            v = tri.v[k]
+            f0, f1 = verts[v].f0, verts[v].f1
+            if cone < best and f1 - f0 <= _CONE_FACES:
+                for e in range(f0, f1):  # every edge from the vertex, through its faces
+                    f = tris[vertex_faces[e]]
+                    x = 0 if f.v[0] == v else (1 if f.v[1] == v else 2)
+                    q = verts[f.v[(x + 1) % 3]].p
+                    cone = max(cone, (ex * (q[0] - a[0]) + ey * (q[1] - a[1]) + ez * (q[2] - a[2])) / f.len[x])
+                    if cone >= best:
+                        break
+            best = min(best, cone)
+    # Less a rounding allowance: the planes of the bound and the nearest-point search round
+    # differently, by far less than this at coordinates under 1 km.
+    mu = max(best, gap) - _PLANE_ROUNDING
+    return mu if mu == mu else -math.inf  # a degenerate triangle (NaN) is never skipped
+
+
+@njit(cache=True)
+def doze(
+    cand: Record,
+    verts: Records,
+    tris: Records,
+    vertex_faces: np.ndarray,
+    cx: float,
+    cy: float,
+    cz: float,
+    gap: float,
+    retry: float,
+) -> None:
+    """Set a cached candidate's dormancy (:func:`dormancy`) from c: skipped while the centre is
+    within ``mu`` of c, or, if it may hold a minimum already or would wake within about ``retry``
+    (m), taken every time until the centre has moved about that far."""
+    mu = dormancy(verts, tris, vertex_faces, cand.t, cx, cy, cz, gap)
+    # Spread over [0.75, 1.25] retry by triangle: candidates dozing off together (a gather) do
+    # not all wake on the same tick.
+    spread = retry * (0.75 + 0.5 * ((cand.t * 40503) & 1023) / 1024.0)
+    cand.mu = mu if mu > spread else -spread
+    cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz

@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from app.world.contact.geometry import box_distance2, closest_on_triangle, may_hold_minimum
+from app.world.contact.geometry import box_distance2, closest_on_triangle, doze, may_hold_minimum
 from app.world.contact.layout import Record, Records
 
 # A gather covering more grid cells than this fails (the sphere is far larger than the cells).
@@ -68,8 +68,11 @@ def gather(
     cz: float,
     reach: float,
     R: float,
+    cap: float,
+    retry: float,
     verts: Records,
     tris: Records,
+    edges: Records,
     cells: Records,
     lists: np.ndarray,
     stamp: np.ndarray,
@@ -80,7 +83,8 @@ def gather(
     may hold a local minimum of the distance for a centre within R of c
     (:func:`~app.world.contact.geometry.may_hold_minimum`, unless ``obj.prune`` is 0); return
     their count. On a finely tessellated surface that leaves a few triangles of the many under
-    the sphere.
+    the sphere. Each gets its dormancy from c (:func:`~app.world.contact.geometry.doze`): how far
+    the centre may move before it can hold a minimum within ``cap`` (<= reach - R), or ``retry``.
 
     ``lists`` holds the grid's triangles (``cells.start``) and the faces around each vertex.
     ``stamp`` (F + V,) marks the triangles this gather (number ``serial``) has seen: a long
@@ -119,13 +123,19 @@ def gather(
                         continue
                     # The exact distance first: the pruning test walks the faces around each
                     # vertex, hundreds at the centre of a fan (a hole's bottom).
-                    if closest_on_triangle(verts, tris, t, cx, cy, cz)[0] > reach2:
+                    d2 = closest_on_triangle(verts, tris, t, cx, cy, cz)[0]
+                    if d2 > reach2:
                         continue
-                    if obj.prune and not may_hold_minimum(verts, tris, lists, t, cx, cy, cz, R, cones, serial):
+                    if obj.prune and not may_hold_minimum(verts, tris, edges, lists, t, cx, cy, cz, R, cones, serial):
                         continue
                     if n == out.shape[0]:
                         return -1
-                    out[n] = t
+                    cand = out[n]
+                    cand.t = t
+                    if obj.prune:
+                        doze(cand, verts, tris, lists, cx, cy, cz, math.sqrt(d2) - cap, retry)
+                    else:
+                        cand.mu = -math.inf  # every candidate scanned every time
                     n += 1
                 s += 1
     return n

@@ -113,9 +113,18 @@ TRIANGLE = np.dtype(
         ("box", "f8", (6,)),  # bounding box: minimum (3), maximum (3)
         ("m", "f8", (3, 3)),  # m[k]: unit vector in the face, normal to edge k, pointing inside
         ("m_adj", "f8", (3, 3)),  # m_adj[k]: the same for the face across edge k (0 on a cut)
+        # The features it reports (minima): bit k edge k (the lower-numbered of its faces reports
+        # a shared edge), bit 3 + k vertex k (its first face reports a vertex).
+        ("own", "i8"),
+        ("len", "f8", (3,)),  # len[k]: length of edge k
     ],
     align=True,
 )
+
+# One cached candidate of a pair (a row of the pool): its triangle, and how far the centre may
+# move from ``ref`` before that triangle can hold a local minimum within ``r + R`` (mu > 0: the
+# scan skips it until then), or, mu <= 0, how far before it is worth asking again (-mu).
+CANDIDATE = np.dtype([("t", "i8"), ("mu", "f8"), ("ref", "f8", (3,))], align=True)
 
 # One vertex: position, angle-weighted pseudonormal, and its faces ``lists[f0:f1]``.
 VERTEX = np.dtype([("p", "f8", (3,)), ("pn", "f8", (3,)), ("f0", "i8"), ("f1", "i8")], align=True)

@@ -28,6 +28,7 @@ from numba import njit
 
 from app.world.contact.geometry import (
     closest_on_triangle,
+    doze,
     feature_normal,
     segment_distance,
 )
@@ -46,12 +47,19 @@ _PLANE_SLACK = 1e-12
 # Edge or vertex minima on neighbouring triangles with normals closer than the cut angle are one
 # contact (cos of 30 degrees, app.world.collision.CUT_ANGLE_DEG).
 _PARTNER_COS = 0.8660254037844387
+# Bits of ``TRIANGLE.own`` for edge k and its two ends (vertex k and k + 1 mod 3).
+_EDGE_AND_ENDS = (0b011001, 0b110010, 0b101100)
 # A pair's cache stays valid while its centre moves less than CACHE_FRAC * r from where it was
-# gathered: larger means fewer gathers on the move but more triangles to scan each tick.
-CACHE_FRAC = 0.05
+# gathered: larger means fewer gathers on the move, each of more triangles (most of them dormant
+# in a scan, so a scan costs little more).
+CACHE_FRAC = 0.075
+# A scan finds the distance to the mesh up to (1 + NEAR_FRAC) r (the culling bound of a pair out
+# of contact: it need not be checked until it has moved NEAR_FRAC r); a candidate that may hold a
+# minimum is asked again after its centre has moved NEAR_FRAC r / 4.
+NEAR_FRAC = 0.05
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _holds(
     verts: Records, tris: Records, f: int, qx: float, qy: float, qz: float, cx: float, cy: float, cz: float
 ) -> bool:
@@ -61,7 +69,7 @@ def _holds(
     return feat != FEAT_FACE and (fx - qx) ** 2 + (fy - qy) ** 2 + (fz - qz) ** 2 <= _SAME_POINT * _SAME_POINT
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _is_local_min(
     verts: Records,
     tris: Records,
@@ -99,7 +107,7 @@ def _is_local_min(
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _crease_weight(
     verts: Records, tris: Records, edges: Records, t: int, d: float, qx: float, qy: float, qz: float
 ) -> float:
@@ -117,7 +125,7 @@ def _crease_weight(
     return w
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _farthest(phi: np.ndarray) -> int:
     """Slot of the largest ``|phi|`` of a full set of minima, (MAX_PER_PAIR,)."""
     slot = 0
@@ -127,14 +135,14 @@ def _farthest(phi: np.ndarray) -> int:
     return slot
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _worst(phi: np.ndarray, n_min: int) -> float:
     """The largest ``|phi|`` of ``n_min`` kept minima if the set is full (inf if one of them is
     marked dropped), else inf."""
     return abs(phi[_farthest(phi)]) if n_min == MAX_PER_PAIR else math.inf
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _share_vertex(tris: Records, a: int, b: int) -> bool:
     """Whether triangles a and b share a vertex (never across a cut: each side has its own copies)."""
     va, vb = tris[a].v, tris[b].v
@@ -153,6 +161,7 @@ def ensure_cache(
     r: float,
     verts: Records,
     tris: Records,
+    edges: Records,
     cells: Records,
     lists: np.ndarray,
     stamp: np.ndarray,
@@ -170,7 +179,10 @@ def ensure_cache(
         if ex * ex + ey * ey + ez * ez <= R * R:
             return 0
     tool.serial += 1
-    n = gather(obj, c[0], c[1], c[2], r + 2.0 * R, R, verts, tris, cells, lists, stamp, tool.serial, pool[k])
+    reach, cap, retry = r + 2.0 * R, r * (1.0 + NEAR_FRAC), 0.25 * NEAR_FRAC * r
+    n = gather(
+        obj, c[0], c[1], c[2], reach, R, cap, retry, verts, tris, edges, cells, lists, stamp, tool.serial, pool[k]
+    )
     pair.cache_n = n
     pair.cache_c[:] = c
     return 1 if n >= 0 else -1
@@ -192,8 +204,10 @@ def local_minima(
     r2 = r * r
     n_min = 0
     # The nearest point is a local minimum: within r + R, it is on a cached triangle (the cache
-    # covers r + 2 R around its centre); otherwise it is farther than that.
-    nearest2 = (r * (1.0 + CACHE_FRAC)) ** 2
+    # covers r + 2 R around its centre), and within the cap, on one awake; otherwise it is
+    # farther than the cap.
+    cap = r * (1.0 + NEAR_FRAC)
+    nearest2 = cap * cap
     # Start from last time's nearest triangle: with the distance to the mesh known from the
     # outset, the lower bounds below skip nearly every other triangle of a pair out of contact.
     near_t = pair.near_t
@@ -205,13 +219,30 @@ def local_minima(
     # finely tessellated concave surface (a hole's wall) every facet under the sphere holds a
     # minimum, and most end at this test or at the plane test below.
     worst = math.inf
+    dropped = False  # whether a kept minimum is marked dropped (|phi| = inf)
+    # A candidate is dormant while the centre is within ``mu`` of its ``ref``: it then holds no
+    # local minimum within the cap (nor is nearer than that), so skipping it changes nothing;
+    # the order of the others is kept. A candidate found idle after it woke (or after the centre
+    # moved ``-mu`` since it was last asked) dozes off again from here.
+    retry = 0.25 * NEAR_FRAC * r
     for s in range(pair.cache_n):
-        t = pool_k[s]
+        cand = pool_k[s]
+        mu = cand.mu
+        ex, ey, ez = cx - cand.ref[0], cy - cand.ref[1], cz - cand.ref[2]
+        far2 = ex * ex + ey * ey + ez * ez
+        if mu > 0.0 and far2 < mu * mu:
+            continue
+        wake = far2 >= mu * mu
+        t = cand.t
         tri = tris[t]
         # The distance to the face's plane bounds the distance to the triangle from below, and
         # is three products away (the slack covers rounding, so a skip is never a change).
         plane = abs(cx * tri.n[0] + cy * tri.n[1] + cz * tri.n[2] - tri.off) - _PLANE_SLACK
         if plane > 0.0 and plane * plane >= nearest2 and (plane >= worst or plane * plane >= r2):
+            if wake:
+                # This test is cheaper than a dormancy bound: keep taking it until ``retry``.
+                cand.mu = -retry * (0.75 + 0.5 * ((t * 40503) & 1023) / 1024.0)
+                cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz
             continue
         box = tri.box
         gx = max(box[0] - cx, 0.0, cx - box[3])  # the gaps to the triangle's box along each axis
@@ -219,6 +250,8 @@ def local_minima(
         gz = max(box[2] - cz, 0.0, cz - box[5])
         box2 = gx * gx + gy * gy + gz * gz
         if box2 >= r2 and box2 >= nearest2:
+            if wake:
+                doze(cand, verts, tris, lists, cx, cy, cz, math.sqrt(box2) - cap, retry)
             continue
         # Where c projects, from the inward edge normals: inside the face, the nearest point is
         # the projection. Beyond exactly one edge and abreast of it, the nearest point is on that
@@ -227,11 +260,14 @@ def local_minima(
         outside = 0
         reject = False
         beyond = 0.0  # how far c is beyond the farthest edge line, in the face's plane
+        near = 0  # the edges c may be beyond and their ends (bits as ``tri.own``)
         for k in range(3):
             a = verts[tri.v[k]].p
             ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
             m = tri.m[k]
             inward = ex * m[0] + ey * m[1] + ez * m[2]
+            if inward < _PLANE_SLACK:
+                near |= _EDGE_AND_ENDS[k]
             if inward < 0.0:
                 outside += 1
                 beyond = max(beyond, -inward)
@@ -241,7 +277,12 @@ def local_minima(
                     bx, by, bz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
                     u = ex * bx + ey * by + ez * bz
                     reject = 0.0 < u < bx * bx + by * by + bz * bz
-        if outside == 1 and reject:
+        # With c clearly beyond an edge line, the nearest point is on an edge c is beyond or at an
+        # end of one: if t reports none of those features, it holds no minimum (on a hole's rim,
+        # most wall facets and top triangles).
+        if (outside == 1 and reject) or (beyond > _PLANE_SLACK and tri.own & near == 0):
+            if wake:
+                doze(cand, verts, tris, lists, cx, cy, cz, plane - cap, retry)
             continue
         if outside > 0:
             # The distance is at least the hypotenuse of the plane distance and of a bound on
@@ -254,6 +295,8 @@ def local_minima(
             aside = max(gx - up * abs(n[0]), gy - up * abs(n[1]), gz - up * abs(n[2]), beyond) - _PLANE_SLACK
             bound2 = max(plane, 0.0) ** 2 + (aside * aside if aside > 0.0 else 0.0)
             if bound2 >= nearest2 and (bound2 >= r2 or math.sqrt(bound2) >= worst):
+                if wake:
+                    doze(cand, verts, tris, lists, cx, cy, cz, math.sqrt(bound2) - cap, retry)
                 continue
         if outside == 0:
             a = verts[tri.v[0]].p
@@ -263,19 +306,16 @@ def local_minima(
             d2, qx, qy, qz, feat = closest_on_triangle(verts, tris, t, cx, cy, cz)
         if d2 < nearest2:
             nearest2, near_t = d2, t
-        if d2 >= r2:
-            continue
         d = math.sqrt(d2)
-        if d >= worst or not _is_local_min(verts, tris, edges, lists, t, feat, qx, qy, qz, cx, cy, cz):
+        if d2 >= r2 or d >= worst or not _is_local_min(verts, tris, edges, lists, t, feat, qx, qy, qz, cx, cy, cz):
+            if wake:
+                doze(cand, verts, tris, lists, cx, cy, cz, d - cap, retry)
             continue
-        w = 1.0
         if d < TOUCH:
             phi = 0.0
             nx, ny, nz = feature_normal(verts, tris, edges, t, feat)
         else:
             ux, uy, uz = (cx - qx) / d, (cy - qy) / d, (cz - qz) / d
-            if feat == FEAT_FACE:
-                w = _crease_weight(verts, tris, edges, t, d, qx, qy, qz)
             # Inside a face c - q is along the face normal; elsewhere only the pseudonormal tells the side.
             px, py, pz = feature_normal(verts, tris, edges, t, feat)
             if ux * px + uy * py + uz * pz >= 0.0:
@@ -301,21 +341,24 @@ def local_minima(
                     skip = True
                 else:
                     pair.min_phi[e] = math.inf  # dropped below
+                    dropped = True
         if skip:
             worst = _worst(pair.min_phi, n_min)
             continue
-        n_kept = 0
-        for e in range(n_min):
-            if pair.min_phi[e] < math.inf:
-                if e != n_kept:
-                    pair.min_q[n_kept] = pair.min_q[e]
-                    pair.min_n[n_kept] = pair.min_n[e]
-                    pair.min_phi[n_kept] = pair.min_phi[e]
-                    pair.min_w[n_kept] = pair.min_w[e]
-                    pair.min_t[n_kept] = pair.min_t[e]
-                    pair.min_f[n_kept] = pair.min_f[e]
-                n_kept += 1
-        n_min = n_kept
+        if dropped:
+            n_kept = 0
+            for e in range(n_min):
+                if pair.min_phi[e] < math.inf:
+                    if e != n_kept:
+                        pair.min_q[n_kept] = pair.min_q[e]
+                        pair.min_n[n_kept] = pair.min_n[e]
+                        pair.min_phi[n_kept] = pair.min_phi[e]
+                        pair.min_w[n_kept] = pair.min_w[e]
+                        pair.min_t[n_kept] = pair.min_t[e]
+                        pair.min_f[n_kept] = pair.min_f[e]
+                    n_kept += 1
+            n_min = n_kept
+            dropped = False
         slot = n_min
         if n_min == MAX_PER_PAIR:
             # Full: replace the farthest if this one is nearer.
@@ -327,6 +370,10 @@ def local_minima(
         pair.min_q[slot, 0], pair.min_q[slot, 1], pair.min_q[slot, 2] = qx, qy, qz
         pair.min_n[slot, 0], pair.min_n[slot, 1], pair.min_n[slot, 2] = nx, ny, nz
         pair.min_phi[slot] = phi
+        # Its weight, once it is kept (a face minimum near a gentle concave crease).
+        w = 1.0
+        if feat == FEAT_FACE and d >= TOUCH:
+            w = _crease_weight(verts, tris, edges, t, d, qx, qy, qz)
         pair.min_w[slot] = w
         pair.min_t[slot] = t
         pair.min_f[slot] = feat

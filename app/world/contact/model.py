@@ -13,7 +13,8 @@ from app.compiled import entry_point
 from app.errors import ContactInputError
 from app.spatial import Array, IntArray, invert_pose
 from app.world.contact import layout
-from app.world.contact.step import contact_step
+from app.world.contact.bundle import bundle
+from app.world.contact.step import contact_step_bundled
 from app.world.scene import Scene
 
 ArrayT = TypeVar("ArrayT", Array, IntArray)
@@ -151,7 +152,7 @@ class ContactModel:
         self._pairs["c_T"] = np.tile(tool.centers_T, (m, 1))  # pair k = object k // n, sphere k % n
         self._pairs["r"] = np.tile(tool.radii, m)
         # Untouched rows of np.empty cost no memory: only pairs that gather ever touch theirs.
-        self._pool = np.empty((m * n, CACHE_MAX), dtype=np.int64)
+        self._pool = np.empty((m * n, CACHE_MAX), dtype=layout.CANDIDATE)
         self._out = out = np.zeros(max(1, m * n * layout.MAX_PER_PAIR), dtype=layout.CONTACT)
         # Views of the outputs, made once: reading fields of record arrays costs microseconds.
         self._out_w = t["out"][0]
@@ -166,22 +167,25 @@ class ContactModel:
         # tests (F + V,).
         stamp = np.zeros(len(geo.tris) + len(geo.verts), dtype=np.int64)
         self._args = (
-            self._tool,
-            objs,
-            self._pairs,
-            self._pool,
-            out,
-            geo.verts,
-            geo.tris,
-            geo.edges,
-            geo.cells,
-            geo.lists,
-            stamp,
+            bundle(
+                self._tool,
+                objs,
+                self._pairs,
+                self._pool,
+                out,
+                geo.verts,
+                geo.tris,
+                geo.edges,
+                geo.cells,
+                geo.lists,
+                stamp,
+            ),
         )
         # ``wrench`` checks the pose and twist (C-contiguous float64 of their shapes) and passes
-        # the model's own arrays for the rest, so the compiled step is called without numba's
-        # typing of its 14 arguments (~1.5 us a call).
-        self._step = entry_point(contact_step, np.eye(4), np.zeros(6), False, *self._args)
+        # the model's own arrays, bundled as one argument, for the rest, so the compiled step is
+        # called without numba's typing of its arguments (~1.5 us a call) and unboxes one object
+        # instead of eleven arrays (~0.45 us).
+        self._step = entry_point(contact_step_bundled, np.eye(4), np.zeros(6), False, *self._args)
         self.reset()
 
     def reset(self) -> None:

@@ -382,7 +382,10 @@ class FRHCController:
         o.tau_G[:] = tau_G
         o.tau[:] = tau_G
         if faults & Fault.OVERSPEED:
-            o.tau[:] -= self._brake_damping * self._rec["qdot"][0]
+            # The brake never asks a joint for more than its torque limit: an encoder glitch of a
+            # turn in one tick must not become an infinite torque, nor scale every joint's down.
+            brake = self._brake_damping * self._rec["qdot"][0]
+            o.tau[:] -= np.clip(brake, -self.joint_limit, self.joint_limit)
         o.scalars[ASSIST_SCALE] = 1.0
         o.scalars[RAMP] = 0.0  # the wrench ramps in again once the fault clears
         o.scalars[PC_CUT] = 0.0

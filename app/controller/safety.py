@@ -9,8 +9,10 @@ refuse a servo period that makes no sense; this controller does the same, in its
   over ``ramp_time``. Gravity compensation is never ramped.
 - **Velocity brake**: joint speeds are estimated from encoder differences. Above
   ``max_joint_speed`` on any joint the controller enters a damping-only state (fault
-  ``OVERSPEED``): gravity compensation plus ``-brake_damping * qdot`` per joint, the slave stopped,
-  until every joint is below ``release_fraction`` of the limit; then the ramp restarts.
+  ``OVERSPEED``): gravity compensation plus ``-brake_damping * qdot`` per joint, clipped to the
+  joint's torque limit (a glitched encoder's jump must not become an infinite torque, nor scale
+  the other joints' torques down), the slave stopped, until every joint is below
+  ``release_fraction`` of the limit; then the ramp restarts.
 - **Periods**: a period outside ``[min_period, max_period]`` is a ``BAD_PERIOD`` fault.
 """
 

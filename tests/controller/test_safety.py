@@ -238,3 +238,25 @@ def test_strided_or_transposed_inputs_give_the_contiguous_answer(kraft: DeviceSp
         got = other.step(strided_q, sw, odd, DT).tau
     np.testing.assert_array_equal(got, expected)
     assert np.abs(expected).max() > 0.0
+
+
+@pytest.mark.parametrize("jump", [1e300, -1e308, 1e6])
+def test_an_encoder_glitch_brakes_within_each_joints_limit(safe, kraft, slave, jump: float) -> None:
+    """One joint's encoder jumps absurdly in one tick (finite, so not a non-finite input): the
+    brake engages, its torque is finite and within that joint's limit (not the full-scale pulse
+    on every joint a 1e302 N m request caused through the uniform saturation), and the joints
+    that did not move get no brake torque."""
+    q = np.array(kraft.data.home)
+    on = Switches(deadman=True, reflection=True)
+    safe.step(q, on, pushed(slave), DT)
+    glitch = q.copy()
+    glitch[2] = jump
+    out = safe.step(glitch, on, pushed(slave), DT)
+    assert out.faults == Fault.OVERSPEED
+    assert np.all(np.isfinite(out.tau))
+    assert abs(out.tau[2] - out.tau_G[2]) == pytest.approx(safe.joint_limit[2])
+    others = [0, 1, 3, 4, 5]
+    np.testing.assert_allclose(out.tau[others], out.tau_G[others])
+    back = safe.step(q, on, pushed(slave), DT)  # and the jump back: the same bound, the other way
+    assert np.all(np.isfinite(back.tau))
+    assert np.all(np.abs(back.tau - back.tau_G) <= safe.joint_limit + 1e-12)

@@ -5,7 +5,6 @@ Speed goals live here, not in timed tests: the figures depend on the machine.
 
 from __future__ import annotations
 
-import math
 import tempfile
 import time
 from collections.abc import Callable
@@ -156,10 +155,11 @@ def _wall_rows(label: str, device: str, multiples: tuple[float, ...]) -> list[st
 
     b = grip_damping(device)
     bound = 2.0 * b / 1e-3
+    per_k_t = design_stiffness(1.0, device=device)
     lines = [f"  {label}: passivity bound 2b/T = {bound:,.0f} N/m (b = {b:.2f} N s/m at the grip)"]
     largest = {"plain": 0.0, "PO/PC": 0.0}
     for multiple in multiples:
-        k_t = multiple * bound / design_stiffness(1.0, device=device)
+        k_t = multiple * bound / per_k_t
         cells = []
         for name, enabled in (("plain", False), ("PO/PC", True)):
             gains = {"k_t": [k_t] * 3 + [1.0] * 3}
@@ -197,20 +197,19 @@ def _delay_lines(quick: bool) -> list[str]:
     (:func:`~app.session.stability.delayed_press`).
     """
     from app.session.spec import load_session
-    from app.session.stability import BAR_DELAY_MS, delayed_press
+    from app.session.stability import BAR_DELAY_MS, delayed_press, design_stiffness
     from app.teleop.channel import ChannelSettings
 
-    session = load_session("probe_rate")
-    kp = session.scene.spec.slave.kp_lin
-    k_series = kp * 1e5 / (kp + 1e5)
-    scale = session.gains.k_t[2] * session.gains.k_p[2]
+    gains = load_session("probe_rate").gains
+    scale = gains.k_t[2] * gains.k_p[2]
+    direct = design_stiffness(gains.k_t[2])  # K_T K_P k_s
     settings = ChannelSettings()
     b = settings.wave_impedance
-    tau = 1.0 / (2.0 * math.pi * settings.wave_cutoff_hz)
+    tau = settings.wave_lag
 
     def line(label: str, coupling: Coupling, delay_ms: float) -> str:
         r = delayed_press(coupling, delay_ms)
-        expected = scale / (1.0 / k_series + (delay_ms * 1e-3 + tau) / b) if coupling == "wave" else scale * k_series
+        expected = scale / (scale / direct + (delay_ms * 1e-3 + tau) / b) if coupling == "wave" else direct
         return (
             f"  {label:<22} force {r.mean_force:6.2f} N, ripple {r.ripple:7.3f} N, "
             f"{'settled' if r.settled else 'OSCILLATES':>10}, felt stiffness {r.felt_stiffness:7,.0f} N/m "

@@ -5,9 +5,10 @@ surface in pose mode (the probe session's push, :func:`~app.session.stability.pr
 stiffness is set by the task-wrench gain K_T (felt ~ K_T K_P k_s, with k_s the slave's tracking
 spring in series with the surface) and the rendered damping by the controller's translational
 K_D. A point is *stable* when the contact force settles: its peak-to-peak over the last 0.6 s
-is below 5 % of its mean (:data:`~app.session.metrics.SETTLE_RIPPLE`) and the motors did not
+is below 5 % of its mean (:data:`~app.session.metrics.SETTLE_RIPPLE`), the motors did not
 saturate while the hand held its pushes (a wall held at the motors' limit settles as a constant
-force would, and renders no stiffness). For each damping value the
+force would, and renders no stiffness) and the slave stayed below its force limit
+(:attr:`~app.session.stability.PressResult.stable`). For each damping value the
 largest stable K_T is found by bisection in log space between ``k_t_low`` (must be stable) and
 ``k_t_high`` (must oscillate).
 

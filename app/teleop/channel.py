@@ -29,6 +29,7 @@ import numpy as np
 
 from app.config import Checked, Range
 from app.spatial import Array
+from app.teleop import wave
 
 Coupling = Literal["direct", "wave"]
 COUPLINGS: tuple[str, ...] = get_args(Coupling)
@@ -84,11 +85,14 @@ class ChannelSettings(Checked):
         """The one-way delay in whole ticks at ``servo_rate`` (Hz)."""
         return round(self.delay_ms * 1e-3 * servo_rate)
 
+    @property
+    def wave_lag(self) -> float:
+        """Time constant (s) of the arriving waves' low-pass, ``1 / (2 pi wave_cutoff_hz)``; 0 for none."""
+        return 1.0 / (2.0 * math.pi * self.wave_cutoff_hz) if self.wave_cutoff_hz > 0.0 else 0.0
+
     def wave_smoothing(self, dt: float) -> float:
         """The gain ``a`` of the arriving waves' low-pass per tick of ``dt`` (s): 1 passes them as they are."""
-        if self.wave_cutoff_hz == 0.0:
-            return 1.0
-        return dt / (1.0 / (2.0 * math.pi * self.wave_cutoff_hz) + dt)
+        return wave.lowpass_gain(dt, self.wave_lag)
 
     def jitter_ticks(self, servo_rate: float) -> int:
         """The most extra delay in whole ticks at ``servo_rate`` (Hz)."""

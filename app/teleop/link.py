@@ -113,8 +113,8 @@ class TeleopLink:
         p = command.T_w_MRF[0:3, 3]
         self._master_waves = waves = self._wave and command.mode == "pose"
         if waves:
-            a = dt / (self.settings.wave_filter_ms * 1e-3 + dt)
-            self._xdot_m += a * ((p - self._p_prev) / dt - self._xdot_m)
+            velocity_gain = wave.lowpass_gain(dt, self.settings.wave_filter_ms * 1e-3)
+            wave.smooth((p - self._p_prev) / dt, velocity_gain, self._xdot_m)
             wave.smooth(self.backward.out[_V], self.settings.wave_smoothing(dt), self._v_m)
             wave.master(self._xdot_m, self._v_m, self._b, self._u_m, self.wave_force)
             row[_U] = self._u_m

@@ -70,6 +70,12 @@ def slave(u_s: Array, F_prev: Array, b: float, c: float, xdot_s: Array, F_s: Arr
         v_s[i] = u_s[i] - 2.0 * F_s[i] / r
 
 
+def lowpass_gain(dt: float, time_constant: float) -> float:
+    """The per-tick gain ``a = dt / (time_constant + dt)`` of a first-order low-pass (:func:`smooth`)
+    of ``time_constant`` (s) sampled every ``dt`` (s); 1 (no filtering) for a zero time constant."""
+    return dt / (time_constant + dt)
+
+
 def smooth(x: Array, a: float, y: Array) -> None:
     """First-order low-pass ``y += a (x - y)`` of an arriving wave, in place on (3,) arrays.
 

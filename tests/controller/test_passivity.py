@@ -123,7 +123,14 @@ def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits
 
 @pytest.mark.parametrize(
     ("field", "value"),
-    [("max_torque_fraction", 0.0), ("energy_cap", -1.0), ("step", float("nan")), ("friction_credit", 1e9)],
+    [
+        ("max_torque_fraction", 0.0),
+        ("energy_cap", -1.0),
+        ("energy_reserve", -0.01),
+        ("energy_reserve", 2.0),
+        ("step", float("nan")),
+        ("friction_credit", 1e9),
+    ],
 )
 def test_settings_outside_their_ranges_are_refused_naming_the_field(field: str, value: float) -> None:
     with pytest.raises(InvalidField) as exc:

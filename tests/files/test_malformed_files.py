@@ -196,6 +196,11 @@ CASES: dict[str, dict[str, Case]] = {
             "accommodation = true\n[passivity]\nfriction_credit = inf",
             "passivity.friction_credit",
         ),
+        "passivity reserve 2 J": P(
+            "accommodation = true",
+            "accommodation = true\n[passivity]\nenergy_reserve = 2.0",
+            "passivity.energy_reserve",
+        ),
         "channel delay -5": P(
             "accommodation = true", "accommodation = true\n[channel]\ndelay_ms = -5.0", "channel.delay_ms"
         ),

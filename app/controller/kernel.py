@@ -30,7 +30,7 @@ from numba import njit
 from app.controller.assist import constant_force_rtc, damping, deadband, hooke_rtc, saturate, uniform_scale
 from app.controller.calibration import curve_counts
 from app.controller.kinematics import RecordArray, gravity_torque, wrist_jacobian
-from app.controller.passivity import filter_velocity, observe_energy, passivity_control
+from app.controller.passivity import observe_energy, passivity_control
 from app.controller.payload import add_inertial_load, remove_weight
 from app.controller.record import (
     ASSIST_SCALE,
@@ -75,6 +75,7 @@ from app.controller.record import (
 )
 from app.controller.safety import velocity_brake
 from app.controller.types import Fault
+from app.filters import lowpass, lowpass_gain
 from app.spatial import Array, IntArray, body_rate_from_euler, move_wrench, tmat_difference, zyx_to_matrix
 
 # What :func:`controller_tick` returns: 0, a combination of these :class:`Fault` bits, or
@@ -191,7 +192,7 @@ def controller_tick(
     out.scalars[PO_ENERGY] = observe_energy(po_energy, r.po_tau[:], qdot, dt if period_ok else 0.0, r.po_cap)
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]
-    filter_velocity(qdot, dt if period_ok else 0.0, r.pc_filter, pc_velocity)
+    lowpass(qdot, lowpass_gain(dt if period_ok else 0.0, r.pc_filter), pc_velocity)
     if not ft_valid:
         faults |= FT_INVALID
     elif not math.isfinite(_total(wrench_S) + _total(R_w_S)):

@@ -110,14 +110,6 @@ def observe_energy(energy: Array, tau_prev: Array, qdot: Array, dt: float, cap: 
 
 
 @njit(cache=True)
-def filter_velocity(qdot: Array, dt: float, time_constant: float, v: Array) -> None:
-    """First-order low-pass ``v += (qdot - v) dt / (time_constant + dt)`` in place, (n,) each."""
-    a = dt / (time_constant + dt) if dt > 0.0 else 0.0
-    for j in range(v.shape[0]):
-        v[j] += a * (qdot[j] - v[j])
-
-
-@njit(cache=True)
 def passivity_control(
     energy: Array,
     tau_r: Array,

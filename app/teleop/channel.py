@@ -28,8 +28,8 @@ from typing import Annotated, Literal, get_args
 import numpy as np
 
 from app.config import Checked, Range
+from app.filters import lowpass_gain
 from app.spatial import Array
-from app.teleop import wave
 
 Coupling = Literal["direct", "wave"]
 COUPLINGS: tuple[str, ...] = get_args(Coupling)
@@ -58,7 +58,7 @@ class ChannelSettings(Checked):
             its velocity.
         wave_cutoff_hz: Cutoff (Hz) of the first-order low-pass each end puts on the wave it
             receives (0 = none): removes wave energy, never adds it, and damps the echoes between
-            the two ends (:func:`app.teleop.wave.smooth`).
+            the two ends (:func:`app.filters.lowpass`).
     """
 
     delay_ms: Annotated[float, Range(0.0, 1000.0, "ms")] = 0.0
@@ -92,7 +92,7 @@ class ChannelSettings(Checked):
 
     def wave_smoothing(self, dt: float) -> float:
         """The gain ``a`` of the arriving waves' low-pass per tick of ``dt`` (s): 1 passes them as they are."""
-        return wave.lowpass_gain(dt, self.wave_lag)
+        return lowpass_gain(dt, self.wave_lag)
 
     def jitter_ticks(self, servo_rate: float) -> int:
         """The most extra delay in whole ticks at ``servo_rate`` (Hz)."""

@@ -35,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
+from app.filters import lowpass, lowpass_gain
 from app.spatial import Array
 from app.teleop import wave
 from app.teleop.channel import ChannelSettings, DelayLine
@@ -113,9 +114,9 @@ class TeleopLink:
         p = command.T_w_MRF[0:3, 3]
         self._master_waves = waves = self._wave and command.mode == "pose"
         if waves:
-            velocity_gain = wave.lowpass_gain(dt, self.settings.wave_filter_ms * 1e-3)
-            wave.smooth((p - self._p_prev) / dt, velocity_gain, self._xdot_m)
-            wave.smooth(self.backward.out[_V], self.settings.wave_smoothing(dt), self._v_m)
+            velocity_gain = lowpass_gain(dt, self.settings.wave_filter_ms * 1e-3)
+            lowpass((p - self._p_prev) / dt, velocity_gain, self._xdot_m)
+            lowpass(self.backward.out[_V], self.settings.wave_smoothing(dt), self._v_m)
             wave.master(self._xdot_m, self._v_m, self._b, self._u_m, self.wave_force)
             row[_U] = self._u_m
         else:
@@ -135,7 +136,7 @@ class TeleopLink:
         """Wave decoder at the slave: integrate the velocity it gives into the position command.
 
         ``u_s`` is the arriving wave (sqrt(W)), (3,); ``dt`` the tick (s)."""
-        wave.smooth(u_s, self.settings.wave_smoothing(dt), self._u_s)
+        lowpass(u_s, self.settings.wave_smoothing(dt), self._u_s)
         if not cmd.active:
             # A held slave does not move: the wave is reflected whole (no power in or out).
             self._v_s[:] = self._u_s

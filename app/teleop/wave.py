@@ -17,8 +17,8 @@ meets its own sampled hardware, and the two corrections below deal with that:
   velocity is last tick's plus the most this tick's move can add (tracking stiffness times the
   tick). Without that, a stiff environment answers with a one-tick-old force, a negative damper
   of half its stiffness times the tick, and every echo comes back larger.
-- Each end low-passes the wave it receives (:func:`smooth`, gain at most 1): the master's
-  velocity filter, the device's zero-order hold and the slave's mass make the ends reflect some
+- Each end low-passes the wave it receives (:func:`app.filters.lowpass`, gain at most 1): the
+  master's velocity filter, the device's zero-order hold and the slave's mass make the ends reflect some
   frequencies with gain above 1; the filters take that energy out of the waves, most of all the
   echoes bouncing between a hand-held grip and a rigid surface (one every round trip).
 
@@ -68,21 +68,3 @@ def slave(u_s: Array, F_prev: Array, b: float, c: float, xdot_s: Array, F_s: Arr
         xdot_s[i] = (r * u_s[i] - F_prev[i]) / (b + c)
         F_s[i] = F_prev[i] + c * xdot_s[i]
         v_s[i] = u_s[i] - 2.0 * F_s[i] / r
-
-
-def lowpass_gain(dt: float, time_constant: float) -> float:
-    """The per-tick gain ``a = dt / (time_constant + dt)`` of a first-order low-pass (:func:`smooth`)
-    of ``time_constant`` (s) sampled every ``dt`` (s); 1 (no filtering) for a zero time constant."""
-    return dt / (time_constant + dt)
-
-
-def smooth(x: Array, a: float, y: Array) -> None:
-    """First-order low-pass ``y += a (x - y)`` of an arriving wave, in place on (3,) arrays.
-
-    With ``0 < a <= 1`` its gain is at most 1 at every frequency and 1 at zero, so it passes steady
-    forces and removes wave energy, never adds it: the sum of ``y^2`` never exceeds that of ``x^2``
-    plus the stored ``(1 - a) / a y^2`` (Niemeyer & Slotine's wave filtering). It damps the echoes
-    between the two ends' reflections, above all those the servo ticks themselves cause.
-    """
-    for i in range(3):
-        y[i] += a * (x[i] - y[i])

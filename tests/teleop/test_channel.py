@@ -10,6 +10,7 @@ from hypothesis.extra.numpy import arrays
 
 from app.controller.types import SlaveCommand
 from app.errors import InvalidField
+from app.filters import lowpass
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.script import OperatorScript
 from app.session.spec import load_session
@@ -99,11 +100,11 @@ def test_the_channel_gives_out_no_more_energy_than_it_took_in_for_random_inputs(
     stored = 0.0  # energy in at the master minus energy out at the slave (J, per unit tick)
     lowest = 0.0
     for xdot_m, F_prev in zip(rng.normal(0.0, 0.5, (400, 3)), rng.normal(0.0, 20.0, (400, 3)), strict=True):
-        wave.smooth(back.out, a, v_m)
+        lowpass(back.out, a, v_m)
         wave.master(xdot_m, v_m, b, u_m, F_m)
         fwd.send()[:] = u_m
         fwd.receive()
-        wave.smooth(fwd.out, a, u_s)
+        lowpass(fwd.out, a, u_s)
         wave.slave(u_s, F_prev, b, c, xdot_s, F_s, v_s)
         back.send()[:] = v_s
         back.receive()
@@ -118,7 +119,7 @@ def test_smoothing_a_wave_never_adds_energy(x: np.ndarray, a: float) -> None:
     y = np.zeros(3)
     energy_in = energy_out = 0.0
     for row in x:
-        wave.smooth(row, a, y)
+        lowpass(row, a, y)
         energy_in += row @ row
         energy_out += y @ y
         assert energy_out <= energy_in * (1.0 + 1e-12) + 1e-12

@@ -196,13 +196,23 @@ def may_hold_minimum(
 
 @njit(cache=True)
 def dormancy(
-    verts: Records, tris: Records, vertex_faces: np.ndarray, t: int, cx: float, cy: float, cz: float, gap: float
+    verts: Records,
+    tris: Records,
+    vertex_faces: np.ndarray,
+    t: int,
+    cx: float,
+    cy: float,
+    cz: float,
+    gap: float,
+    floor: float,
 ) -> float:
     """How far (m) c may move before triangle t can hold a local minimum it reports, or one nearer
     than its distance less ``gap`` (m): a lower bound of the distance from c to the Voronoi regions
     of t's face and of the edges and vertices it reports (a vertex's cone from every edge around
     it, or, around more than ``_CONE_FACES`` faces, from t's own two), or ``gap`` if that is
-    larger; at most 0 when c is in one of them.
+    larger; at most 0 when c is in one of them. Once the result is known to be at most ``floor``
+    (m), a value at most ``floor`` is returned at once: a caller that treats every such result
+    alike (:func:`doze`) need not wait for the exact one.
 
     Each region is an intersection of half-spaces, and the largest signed distance to their
     planes bounds the distance to it from below (:func:`may_hold_minimum` relaxes the same planes).
@@ -215,6 +225,11 @@ def dormancy(
         m = tri.m[k]
         face = max(face, (a[0] - cx) * m[0] + (a[1] - cy) * m[1] + (a[2] - cz) * m[2])
     best = face
+    # The result is max(best, gap) less the rounding allowance, and best only decreases: once
+    # that is at most floor, so is the result (near a hole's axis most candidates stop at their
+    # face's prism or first edge, before any vertex-cone walk).
+    if max(best, gap) - _PLANE_ROUNDING <= floor:
+        return floor
     for k, a, b, w in ((0, p0, p1, p2), (1, p1, p2, p0), (2, p2, p0, p1)):
         if not own >> k & 1 and not own >> (3 + k) & 1:
             continue
@@ -225,6 +240,8 @@ def dormancy(
             m, ma = tri.m[k], tri.m_adj[k]
             s = ex * m[0] + ey * m[1] + ez * m[2]
             best = min(best, max(s, ex * ma[0] + ey * ma[1] + ez * ma[2], -along_b, along_b - tri.len[k]))
+            if max(best, gap) - _PLANE_ROUNDING <= floor:
+                return floor
         if own >> (3 + k) & 1:
             # Vertex k's cone: c makes no acute angle with any edge from it (t's own two first).
             along_w = (ex * (w[0] - a[0]) + ey * (w[1] - a[1]) + ez * (w[2] - a[2])) / tri.len[(k + 2) % 3]
@@ -240,6 +257,8 @@ def dormancy(
                     if cone >= best:
                         break
             best = min(best, cone)
+            if max(best, gap) - _PLANE_ROUNDING <= floor:
+                return floor
     # Less a rounding allowance: the planes of the bound and the nearest-point search round
     # differently, by far less than this at coordinates under 1 km.
     mu = max(best, gap) - _PLANE_ROUNDING
@@ -261,9 +280,9 @@ def doze(
     """Set a cached candidate's dormancy (:func:`dormancy`) from c: skipped while the centre is
     within ``mu`` of c, or, if it may hold a minimum already or would wake within about ``retry``
     (m), taken every time until the centre has moved about that far."""
-    mu = dormancy(verts, tris, vertex_faces, cand.t, cx, cy, cz, gap)
     # Spread over [0.75, 1.25] retry by triangle: candidates dozing off together (a gather) do
     # not all wake on the same tick.
     spread = retry * (0.75 + 0.5 * ((cand.t * 40503) & 1023) / 1024.0)
+    mu = dormancy(verts, tris, vertex_faces, cand.t, cx, cy, cz, gap, spread)
     cand.mu = mu if mu > spread else -spread
     cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz

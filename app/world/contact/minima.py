@@ -378,14 +378,18 @@ def local_minima(
         pair.min_q[slot, 0], pair.min_q[slot, 1], pair.min_q[slot, 2] = qx, qy, qz
         pair.min_n[slot, 0], pair.min_n[slot, 1], pair.min_n[slot, 2] = nx, ny, nz
         pair.min_phi[slot] = phi
-        # Its weight, once it is kept (a face minimum near a gentle concave crease).
-        w = 1.0
-        if feat == FEAT_FACE and d >= TOUCH:
-            w = _crease_weight(verts, tris, edges, t, d, qx, qy, qz)
-        pair.min_w[slot] = w
         pair.min_t[slot] = t
         pair.min_f[slot] = feat
         worst = _worst(pair.min_phi, n_min)
+    # The weights of the minima kept (a face minimum near a gentle concave crease), only now: on
+    # a hole's wall most minima found are displaced by nearer ones later in the scan.
+    for e in range(n_min):
+        w = 1.0
+        d = abs(pair.min_phi[e])
+        if pair.min_f[e] == FEAT_FACE and d >= TOUCH:
+            q = pair.min_q[e]
+            w = _crease_weight(verts, tris, edges, pair.min_t[e], d, q[0], q[1], q[2])
+        pair.min_w[e] = w
     pair.n_min = n_min
     pair.near_t = near_t
     return math.sqrt(max(min(nearest2, floor2), 0.0))

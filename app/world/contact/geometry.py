@@ -115,11 +115,11 @@ def _in_vertex_cone(
     for s in range(verts[v].f0, verts[v].f1):  # every edge from the vertex, through its faces
         f = tris[vertex_faces[s]]
         x = 0 if f.v[0] == v else (1 if f.v[1] == v else 2)
-        # The edges to the next corner (x) and from the previous one ((x + 2) % 3).
-        for k, w in ((x, f.v[(x + 1) % 3]), ((x + 2) % 3, f.v[(x + 2) % 3])):
-            q = verts[w].p
-            if ex * (q[0] - p[0]) + ey * (q[1] - p[1]) + ez * (q[2] - p[2]) > R * f.len[k]:
-                return False
+        # The edges to the next corner (x, leaving the vertex) and from the previous one
+        # ((x + 2) % 3, arriving at it).
+        u, w = f.u[x], f.u[(x + 2) % 3]
+        if ex * u[0] + ey * u[1] + ez * u[2] > R or -(ex * w[0] + ey * w[1] + ez * w[2]) > R:
+            return False
     return True
 
 
@@ -167,10 +167,9 @@ def may_hold_minimum(
             # it either (none on a cut: m_adj is 0), and projects onto the segment.
             ma = tri.m_adj[k]
             if ex * ma[0] + ey * ma[1] + ez * ma[2] <= R:
-                b = verts[tri.v[(k + 1) % 3]].p
-                le = tri.len[k]
-                u = (ex * (b[0] - a[0]) + ey * (b[1] - a[1]) + ez * (b[2] - a[2])) / le
-                if -R <= u <= le + R:
+                u = tri.u[k]
+                along = ex * u[0] + ey * u[1] + ez * u[2]
+                if -R <= along <= tri.len[k] + R:
                     return True
     if inside_prism:
         return True
@@ -181,12 +180,8 @@ def may_hold_minimum(
         v = tri.v[k]
         p = verts[v].p
         ex, ey, ez = cx - p[0], cy - p[1], cz - p[2]
-        corner = True
-        for w, le in ((tri.v[(k + 1) % 3], tri.len[k]), (tri.v[(k + 2) % 3], tri.len[(k + 2) % 3])):
-            q = verts[w].p
-            if ex * (q[0] - p[0]) + ey * (q[1] - p[1]) + ez * (q[2] - p[2]) > R * le:
-                corner = False
-        if corner:
+        u, w = tri.u[k], tri.u[(k + 2) % 3]  # the edges leaving vertex k and arriving at it
+        if ex * u[0] + ey * u[1] + ez * u[2] <= R and -(ex * w[0] + ey * w[1] + ez * w[2]) <= R:
             if cones[v] >> 1 != serial:
                 cones[v] = 2 * serial + _in_vertex_cone(verts, tris, vertex_faces, v, cx, cy, cz, R)
             if cones[v] & 1:
@@ -230,11 +225,12 @@ def dormancy(
     # face's prism or first edge, before any vertex-cone walk).
     if max(best, gap) - _PLANE_ROUNDING <= floor:
         return floor
-    for k, a, b, w in ((0, p0, p1, p2), (1, p1, p2, p0), (2, p2, p0, p1)):
+    u = tri.u
+    for k, a in ((0, p0), (1, p1), (2, p2)):
         if not own >> k & 1 and not own >> (3 + k) & 1:
             continue
         ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
-        along_b = (ex * (b[0] - a[0]) + ey * (b[1] - a[1]) + ez * (b[2] - a[2])) / tri.len[k]
+        along_b = ex * u[k, 0] + ey * u[k, 1] + ez * u[k, 2]  # along edge k, from vertex k
         if own >> k & 1:
             # Edge k's wedge: beyond it in both faces' planes, abreast of the segment.
             m, ma = tri.m[k], tri.m_adj[k]
@@ -243,17 +239,18 @@ def dormancy(
             if max(best, gap) - _PLANE_ROUNDING <= floor:
                 return floor
         if own >> (3 + k) & 1:
-            # Vertex k's cone: c makes no acute angle with any edge from it (t's own two first).
-            along_w = (ex * (w[0] - a[0]) + ey * (w[1] - a[1]) + ez * (w[2] - a[2])) / tri.len[(k + 2) % 3]
-            cone = max(along_b, along_w)
+            # Vertex k's cone: c makes no acute angle with any edge from it (t's own two first;
+            # edge k + 2 ends at vertex k).
+            j = (k + 2) % 3
+            cone = max(along_b, -(ex * u[j, 0] + ey * u[j, 1] + ez * u[j, 2]))
             v = tri.v[k]
             f0, f1 = verts[v].f0, verts[v].f1
             if cone < best and f1 - f0 <= _CONE_FACES:
                 for e in range(f0, f1):  # every edge from the vertex, through its faces
                     f = tris[vertex_faces[e]]
                     x = 0 if f.v[0] == v else (1 if f.v[1] == v else 2)
-                    q = verts[f.v[(x + 1) % 3]].p
-                    cone = max(cone, (ex * (q[0] - a[0]) + ey * (q[1] - a[1]) + ez * (q[2] - a[2])) / f.len[x])
+                    fu = f.u[x]  # f's edge x leaves the vertex
+                    cone = max(cone, ex * fu[0] + ey * fu[1] + ez * fu[2])
                     if cone >= best:
                         break
             best = min(best, cone)

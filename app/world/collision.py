@@ -207,7 +207,9 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
         tris["box"][fs] = np.column_stack([corners.min(axis=1), corners.max(axis=1)])
         tris["m"][fs] = c.edge_inward
         tris["m_adj"][fs] = c.edge_inward_across
-        tris["len"][fs] = np.linalg.norm(np.roll(corners, -1, axis=1) - corners, axis=2)
+        along = np.roll(corners, -1, axis=1) - corners
+        tris["len"][fs] = np.linalg.norm(along, axis=2)
+        tris["u"][fs] = along / tris["len"][fs][:, :, None]
         vs = slice(v0[j], v0[j + 1])
         verts["p"][vs] = c.vertices
         verts["pn"][vs] = c.vertex_pn

@@ -41,7 +41,8 @@ it); a wrong shape or a pose that is not a rigid transform raises
 :class:`~app.errors.ContactInputError`.
 
 Speed: every per-tick step runs in one compiled call (:mod:`.step`), entered without numba's
-per-call argument typing, its arrays bundled as one argument (:mod:`.bundle`). Culling is exact
+per-call argument typing, its arrays bundled as one argument and used as borrowed views, without
+atomic reference counting (:mod:`.bundle`). Culling is exact
 (the distance is 1-Lipschitz in the centre); each pair caches the triangles that may hold a local
 minimum while its centre stays within ``R = 0.075 r`` of where they were gathered (every triangle
 within ``r + 2 R`` whose face, edge or vertex Voronoi region, for the features it reports, comes

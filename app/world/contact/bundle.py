@@ -1,18 +1,29 @@
-"""The contact model's arrays as one compiled argument (:class:`KernelArrays`).
+"""The contact model's arrays as one compiled argument (:class:`KernelArrays`), and
+:func:`borrowed` views of them.
 
 Entering a compiled function costs about 0.04 us per array argument (numba unboxes each one);
 the step takes eleven arrays besides the pose and twist. A numba StructRef holding them is
 unboxed as one object, about 0.45 us less per call. Its type is fixed here from the record
 layouts, so the constructor and the step taking it are cached like every other kernel.
+
+An array handed in from Python carries a reference count (its meminfo), and in compiled code
+every view of it, down to a record's array field (``tris[t].n``, ``cand.ref``), takes and drops
+a reference with two atomic operations: a scan of a pair's cache does that a few times per
+candidate, and on a hole's wall it was a third of the time of a contact evaluation. The step
+therefore works on borrowed views, which the model's own references keep alive throughout.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from typing import Any, cast
 
 import numpy as np
 from numba import njit, typeof, types
+from numba.core import cgutils
 from numba.experimental import structref
+from numba.extending import intrinsic
+from numba.np.arrayobj import populate_array
 
 from app.world.contact import layout
 
@@ -81,3 +92,29 @@ def bundle(
     a.lists = lists
     a.stamp = stamp
     return a
+
+
+@intrinsic
+def _borrowed(typingctx: Any, arr: types.Array) -> tuple:
+    """A view of array ``arr`` (same type, data, shape and strides) without its reference count:
+    views taken from it skip the atomic reference counting. Only for use while ``arr``'s owner
+    keeps the memory alive (the duration of a call that was handed ``arr``)."""
+
+    def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
+        src = context.make_array(sig.args[0])(context, builder, args[0])
+        view = context.make_array(sig.return_type)(context, builder)
+        populate_array(
+            view,
+            data=src.data,
+            shape=cgutils.unpack_tuple(builder, src.shape),
+            strides=cgutils.unpack_tuple(builder, src.strides),
+            itemsize=src.itemsize,
+            meminfo=None,
+        )
+        return view._getvalue()
+
+    return arr(arr), codegen
+
+
+# What compiled code calls: the intrinsic, typed for mypy as the function it is to numba.
+borrowed = cast(Callable[[np.ndarray], np.ndarray], _borrowed)

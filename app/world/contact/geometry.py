@@ -115,11 +115,11 @@ def _in_vertex_cone(
     for s in range(verts[v].f0, verts[v].f1):  # every edge from the vertex, through its faces
         f = tris[vertex_faces[s]]
         x = 0 if f.v[0] == v else (1 if f.v[1] == v else 2)
-        # The edges to the next corner (x) and from the previous one ((x + 2) % 3).
-        for k, w in ((x, f.v[(x + 1) % 3]), ((x + 2) % 3, f.v[(x + 2) % 3])):
-            q = verts[w].p
-            if ex * (q[0] - p[0]) + ey * (q[1] - p[1]) + ez * (q[2] - p[2]) > R * f.len[k]:
-                return False
+        # The edges to the next corner (x, leaving the vertex) and from the previous one
+        # ((x + 2) % 3, arriving at it).
+        u, w = f.u[x], f.u[(x + 2) % 3]
+        if ex * u[0] + ey * u[1] + ez * u[2] > R or -(ex * w[0] + ey * w[1] + ez * w[2]) > R:
+            return False
     return True
 
 
@@ -167,10 +167,9 @@ def may_hold_minimum(
             # it either (none on a cut: m_adj is 0), and projects onto the segment.
             ma = tri.m_adj[k]
             if ex * ma[0] + ey * ma[1] + ez * ma[2] <= R:
-                b = verts[tri.v[(k + 1) % 3]].p
-                le = tri.len[k]
-                u = (ex * (b[0] - a[0]) + ey * (b[1] - a[1]) + ez * (b[2] - a[2])) / le
-                if -R <= u <= le + R:
+                u = tri.u[k]
+                along = ex * u[0] + ey * u[1] + ez * u[2]
+                if -R <= along <= tri.len[k] + R:
                     return True
     if inside_prism:
         return True
@@ -181,12 +180,8 @@ def may_hold_minimum(
         v = tri.v[k]
         p = verts[v].p
         ex, ey, ez = cx - p[0], cy - p[1], cz - p[2]
-        corner = True
-        for w, le in ((tri.v[(k + 1) % 3], tri.len[k]), (tri.v[(k + 2) % 3], tri.len[(k + 2) % 3])):
-            q = verts[w].p
-            if ex * (q[0] - p[0]) + ey * (q[1] - p[1]) + ez * (q[2] - p[2]) > R * le:
-                corner = False
-        if corner:
+        u, w = tri.u[k], tri.u[(k + 2) % 3]  # the edges leaving vertex k and arriving at it
+        if ex * u[0] + ey * u[1] + ez * u[2] <= R and -(ex * w[0] + ey * w[1] + ez * w[2]) <= R:
             if cones[v] >> 1 != serial:
                 cones[v] = 2 * serial + _in_vertex_cone(verts, tris, vertex_faces, v, cx, cy, cz, R)
             if cones[v] & 1:
@@ -196,13 +191,23 @@ def may_hold_minimum(
 
 @njit(cache=True)
 def dormancy(
-    verts: Records, tris: Records, vertex_faces: np.ndarray, t: int, cx: float, cy: float, cz: float, gap: float
+    verts: Records,
+    tris: Records,
+    vertex_faces: np.ndarray,
+    t: int,
+    cx: float,
+    cy: float,
+    cz: float,
+    gap: float,
+    floor: float,
 ) -> float:
     """How far (m) c may move before triangle t can hold a local minimum it reports, or one nearer
     than its distance less ``gap`` (m): a lower bound of the distance from c to the Voronoi regions
     of t's face and of the edges and vertices it reports (a vertex's cone from every edge around
     it, or, around more than ``_CONE_FACES`` faces, from t's own two), or ``gap`` if that is
-    larger; at most 0 when c is in one of them.
+    larger; at most 0 when c is in one of them. Once the result is known to be at most ``floor``
+    (m), a value at most ``floor`` is returned at once: a caller that treats every such result
+    alike (:func:`doze`) need not wait for the exact one.
 
     Each region is an intersection of half-spaces, and the largest signed distance to their
     planes bounds the distance to it from below (:func:`may_hold_minimum` relaxes the same planes).
@@ -215,31 +220,42 @@ def dormancy(
         m = tri.m[k]
         face = max(face, (a[0] - cx) * m[0] + (a[1] - cy) * m[1] + (a[2] - cz) * m[2])
     best = face
-    for k, a, b, w in ((0, p0, p1, p2), (1, p1, p2, p0), (2, p2, p0, p1)):
+    # The result is max(best, gap) less the rounding allowance, and best only decreases: once
+    # that is at most floor, so is the result (near a hole's axis most candidates stop at their
+    # face's prism or first edge, before any vertex-cone walk).
+    if max(best, gap) - _PLANE_ROUNDING <= floor:
+        return floor
+    u = tri.u
+    for k, a in ((0, p0), (1, p1), (2, p2)):
         if not own >> k & 1 and not own >> (3 + k) & 1:
             continue
         ex, ey, ez = cx - a[0], cy - a[1], cz - a[2]
-        along_b = (ex * (b[0] - a[0]) + ey * (b[1] - a[1]) + ez * (b[2] - a[2])) / tri.len[k]
+        along_b = ex * u[k, 0] + ey * u[k, 1] + ez * u[k, 2]  # along edge k, from vertex k
         if own >> k & 1:
             # Edge k's wedge: beyond it in both faces' planes, abreast of the segment.
             m, ma = tri.m[k], tri.m_adj[k]
             s = ex * m[0] + ey * m[1] + ez * m[2]
             best = min(best, max(s, ex * ma[0] + ey * ma[1] + ez * ma[2], -along_b, along_b - tri.len[k]))
+            if max(best, gap) - _PLANE_ROUNDING <= floor:
+                return floor
         if own >> (3 + k) & 1:
-            # Vertex k's cone: c makes no acute angle with any edge from it (t's own two first).
-            along_w = (ex * (w[0] - a[0]) + ey * (w[1] - a[1]) + ez * (w[2] - a[2])) / tri.len[(k + 2) % 3]
-            cone = max(along_b, along_w)
+            # Vertex k's cone: c makes no acute angle with any edge from it (t's own two first;
+            # edge k + 2 ends at vertex k).
+            j = (k + 2) % 3
+            cone = max(along_b, -(ex * u[j, 0] + ey * u[j, 1] + ez * u[j, 2]))
             v = tri.v[k]
             f0, f1 = verts[v].f0, verts[v].f1
             if cone < best and f1 - f0 <= _CONE_FACES:
                 for e in range(f0, f1):  # every edge from the vertex, through its faces
                     f = tris[vertex_faces[e]]
                     x = 0 if f.v[0] == v else (1 if f.v[1] == v else 2)
-                    q = verts[f.v[(x + 1) % 3]].p
-                    cone = max(cone, (ex * (q[0] - a[0]) + ey * (q[1] - a[1]) + ez * (q[2] - a[2])) / f.len[x])
+                    fu = f.u[x]  # f's edge x leaves the vertex
+                    cone = max(cone, ex * fu[0] + ey * fu[1] + ez * fu[2])
                     if cone >= best:
                         break
             best = min(best, cone)
+            if max(best, gap) - _PLANE_ROUNDING <= floor:
+                return floor
     # Less a rounding allowance: the planes of the bound and the nearest-point search round
     # differently, by far less than this at coordinates under 1 km.
     mu = max(best, gap) - _PLANE_ROUNDING
@@ -261,9 +277,9 @@ def doze(
     """Set a cached candidate's dormancy (:func:`dormancy`) from c: skipped while the centre is
     within ``mu`` of c, or, if it may hold a minimum already or would wake within about ``retry``
     (m), taken every time until the centre has moved about that far."""
-    mu = dormancy(verts, tris, vertex_faces, cand.t, cx, cy, cz, gap)
     # Spread over [0.75, 1.25] retry by triangle: candidates dozing off together (a gather) do
     # not all wake on the same tick.
     spread = retry * (0.75 + 0.5 * ((cand.t * 40503) & 1023) / 1024.0)
+    mu = dormancy(verts, tris, vertex_faces, cand.t, cx, cy, cz, gap, spread)
     cand.mu = mu if mu > spread else -spread
     cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz

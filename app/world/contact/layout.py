@@ -117,6 +117,7 @@ TRIANGLE = np.dtype(
         # a shared edge), bit 3 + k vertex k (its first face reports a vertex).
         ("own", "i8"),
         ("len", "f8", (3,)),  # len[k]: length of edge k
+        ("u", "f8", (3, 3)),  # u[k]: unit vector along edge k, from v[k] to v[(k + 1) % 3]
     ],
     align=True,
 )

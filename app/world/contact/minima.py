@@ -219,6 +219,11 @@ def local_minima(
     # finely tessellated concave surface (a hole's wall) every facet under the sphere holds a
     # minimum, and most end at this test or at the plane test below.
     worst = math.inf
+    # Least lower bound of the distance of the candidates skipped as no nearer than r or than
+    # ``worst``: they cannot hold a kept minimum, so their exact distance is not worth a
+    # nearest-point search (above a hole's rim, every rim triangle is a little beyond r), and
+    # the bound returned is the lesser of this and the nearest distance found.
+    floor2 = math.inf
     dropped = False  # whether a kept minimum is marked dropped (|phi| = inf)
     # A candidate is dormant while the centre is within ``mu`` of its ``ref``: it then holds no
     # local minimum within the cap (nor is nearer than that), so skipping it changes nothing;
@@ -238,7 +243,8 @@ def local_minima(
         # The distance to the face's plane bounds the distance to the triangle from below, and
         # is three products away (the slack covers rounding, so a skip is never a change).
         plane = abs(cx * tri.n[0] + cy * tri.n[1] + cz * tri.n[2] - tri.off) - _PLANE_SLACK
-        if plane > 0.0 and plane * plane >= nearest2 and (plane >= worst or plane * plane >= r2):
+        if plane > 0.0 and (plane >= worst or plane * plane >= r2):
+            floor2 = min(floor2, plane * plane)
             if wake:
                 # This test is cheaper than a dormancy bound: keep taking it until ``retry``.
                 cand.mu = -retry * (0.75 + 0.5 * ((t * 40503) & 1023) / 1024.0)
@@ -249,7 +255,8 @@ def local_minima(
         gy = max(box[1] - cy, 0.0, cy - box[4])
         gz = max(box[2] - cz, 0.0, cz - box[5])
         box2 = gx * gx + gy * gy + gz * gz
-        if box2 >= r2 and box2 >= nearest2:
+        if box2 >= r2:
+            floor2 = min(floor2, box2)
             if wake:
                 doze(cand, verts, tris, lists, cx, cy, cz, math.sqrt(box2) - cap, retry)
             continue
@@ -294,7 +301,8 @@ def local_minima(
             n = tri.n
             aside = max(gx - up * abs(n[0]), gy - up * abs(n[1]), gz - up * abs(n[2]), beyond) - _PLANE_SLACK
             bound2 = max(plane, 0.0) ** 2 + (aside * aside if aside > 0.0 else 0.0)
-            if bound2 >= nearest2 and (bound2 >= r2 or math.sqrt(bound2) >= worst):
+            if bound2 >= r2 or math.sqrt(bound2) >= worst:
+                floor2 = min(floor2, bound2)
                 if wake:
                     doze(cand, verts, tris, lists, cx, cy, cz, math.sqrt(bound2) - cap, retry)
                 continue
@@ -370,14 +378,18 @@ def local_minima(
         pair.min_q[slot, 0], pair.min_q[slot, 1], pair.min_q[slot, 2] = qx, qy, qz
         pair.min_n[slot, 0], pair.min_n[slot, 1], pair.min_n[slot, 2] = nx, ny, nz
         pair.min_phi[slot] = phi
-        # Its weight, once it is kept (a face minimum near a gentle concave crease).
-        w = 1.0
-        if feat == FEAT_FACE and d >= TOUCH:
-            w = _crease_weight(verts, tris, edges, t, d, qx, qy, qz)
-        pair.min_w[slot] = w
         pair.min_t[slot] = t
         pair.min_f[slot] = feat
         worst = _worst(pair.min_phi, n_min)
+    # The weights of the minima kept (a face minimum near a gentle concave crease), only now: on
+    # a hole's wall most minima found are displaced by nearer ones later in the scan.
+    for e in range(n_min):
+        w = 1.0
+        d = abs(pair.min_phi[e])
+        if pair.min_f[e] == FEAT_FACE and d >= TOUCH:
+            q = pair.min_q[e]
+            w = _crease_weight(verts, tris, edges, pair.min_t[e], d, q[0], q[1], q[2])
+        pair.min_w[e] = w
     pair.n_min = n_min
     pair.near_t = near_t
-    return math.sqrt(max(nearest2, 0.0))
+    return math.sqrt(max(min(nearest2, floor2), 0.0))

@@ -273,10 +273,10 @@ def spread_retry(t: int, retry: float) -> float:
 def settle(cand: Record, region: float, gap: float, spread: float, cx: float, cy: float, cz: float) -> None:
     """Set a cached candidate's dormancy from c: skipped while the centre is within ``mu`` of c,
     or, if it may hold a minimum already or would wake within ``spread`` (m), taken every time
-    until the centre has moved that far. ``region`` is :func:`dormancy` without a gap (-inf for a
-    degenerate triangle, never skipped; any value at most ``spread`` once known to be so) and
-    ``gap`` (m) that of :func:`dormancy`: mu is what :func:`dormancy` would give with it
-    (subtracting the rounding allowance commutes with the maximum)."""
+    until the centre has moved that far. ``region`` is :func:`dormancy` with a gap known earlier
+    (-inf for a degenerate triangle, never skipped; any value at most ``spread`` once known to be
+    so) and ``gap`` (m) a gap found since: mu is what :func:`dormancy` would give with the larger
+    of the two (subtracting the rounding allowance commutes with the maximum)."""
     mu = max(region, gap - _PLANE_ROUNDING) if region > -math.inf else -math.inf
     cand.mu = mu if mu > spread else -spread
     cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz

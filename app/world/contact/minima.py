@@ -254,11 +254,12 @@ def local_minima(
             continue
         region = spread = 0.0  # used only if it woke
         if wake:
-            # Its dormancy bound next, cheaper than the tests below: on a hole's wall or rim a
-            # step of the centre wakes dozens of candidates at once, and many go straight back to
-            # sleep. Otherwise the bound stands by for the tests' verdict (``settle``).
+            # Its dormancy bound next (with the plane distance for a gap), cheaper than the tests
+            # below: on a hole's wall or rim a step of the centre wakes dozens of candidates at
+            # once, and many go straight back to sleep. Otherwise the bound stands by for the
+            # tests' verdict (``settle``).
             spread = spread_retry(t, retry)
-            region = dormancy(verts, tris, lists, t, cx, cy, cz, -math.inf, spread)
+            region = dormancy(verts, tris, lists, t, cx, cy, cz, plane - cap, spread)
             if region > spread:
                 cand.mu = region
                 cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz

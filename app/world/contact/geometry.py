@@ -262,6 +262,26 @@ def dormancy(
     return mu if mu == mu else -math.inf  # a degenerate triangle (NaN) is never skipped
 
 
+@njit(cache=True, inline="always")
+def spread_retry(t: int, retry: float) -> float:
+    """``retry`` (m) spread over [0.75, 1.25] of itself by triangle t: candidates dozing off
+    together (a gather) do not all wake on the same tick."""
+    return retry * (0.75 + 0.5 * ((t * 40503) & 1023) / 1024.0)
+
+
+@njit(cache=True, inline="always")
+def settle(cand: Record, region: float, gap: float, spread: float, cx: float, cy: float, cz: float) -> None:
+    """Set a cached candidate's dormancy from c: skipped while the centre is within ``mu`` of c,
+    or, if it may hold a minimum already or would wake within ``spread`` (m), taken every time
+    until the centre has moved that far. ``region`` is :func:`dormancy` with a gap known earlier
+    (-inf for a degenerate triangle, never skipped; any value at most ``spread`` once known to be
+    so) and ``gap`` (m) a gap found since: mu is what :func:`dormancy` would give with the larger
+    of the two (subtracting the rounding allowance commutes with the maximum)."""
+    mu = max(region, gap - _PLANE_ROUNDING) if region > -math.inf else -math.inf
+    cand.mu = mu if mu > spread else -spread
+    cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz
+
+
 @njit(cache=True)
 def doze(
     cand: Record,
@@ -274,12 +294,7 @@ def doze(
     gap: float,
     retry: float,
 ) -> None:
-    """Set a cached candidate's dormancy (:func:`dormancy`) from c: skipped while the centre is
-    within ``mu`` of c, or, if it may hold a minimum already or would wake within about ``retry``
-    (m), taken every time until the centre has moved about that far."""
-    # Spread over [0.75, 1.25] retry by triangle: candidates dozing off together (a gather) do
-    # not all wake on the same tick.
-    spread = retry * (0.75 + 0.5 * ((cand.t * 40503) & 1023) / 1024.0)
-    mu = dormancy(verts, tris, vertex_faces, cand.t, cx, cy, cz, gap, spread)
-    cand.mu = mu if mu > spread else -spread
-    cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz
+    """Set a cached candidate's dormancy (:func:`dormancy`, :func:`settle`) from c, with the
+    retry distance ``retry`` (m) spread by triangle."""
+    spread = spread_retry(cand.t, retry)
+    settle(cand, dormancy(verts, tris, vertex_faces, cand.t, cx, cy, cz, -math.inf, spread), gap, spread, cx, cy, cz)

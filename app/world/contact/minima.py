@@ -28,9 +28,11 @@ from numba import njit
 
 from app.world.contact.geometry import (
     closest_on_triangle,
-    doze,
+    dormancy,
     feature_normal,
     segment_distance,
+    settle,
+    spread_retry,
 )
 from app.world.contact.grid import gather
 from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, MAX_PER_PAIR, Record, Records
@@ -246,10 +248,22 @@ def local_minima(
         if plane > 0.0 and (plane >= worst or plane * plane >= r2):
             floor2 = min(floor2, plane * plane)
             if wake:
-                # This test is cheaper than a dormancy bound: keep taking it until ``retry``.
-                cand.mu = -retry * (0.75 + 0.5 * ((t * 40503) & 1023) / 1024.0)
+                # This test is cheaper than a dormancy bound: keep taking it until ``spread``.
+                cand.mu = -spread_retry(t, retry)
                 cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz
             continue
+        region = spread = 0.0  # used only if it woke
+        if wake:
+            # Its dormancy bound next (with the plane distance for a gap), cheaper than the tests
+            # below: on a hole's wall or rim a step of the centre wakes dozens of candidates at
+            # once, and many go straight back to sleep. Otherwise the bound stands by for the
+            # tests' verdict (``settle``).
+            spread = spread_retry(t, retry)
+            region = dormancy(verts, tris, lists, t, cx, cy, cz, plane - cap, spread)
+            if region > spread:
+                cand.mu = region
+                cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz
+                continue
         box = tri.box
         gx = max(box[0] - cx, 0.0, cx - box[3])  # the gaps to the triangle's box along each axis
         gy = max(box[1] - cy, 0.0, cy - box[4])
@@ -258,7 +272,7 @@ def local_minima(
         if box2 >= r2:
             floor2 = min(floor2, box2)
             if wake:
-                doze(cand, verts, tris, lists, cx, cy, cz, math.sqrt(box2) - cap, retry)
+                settle(cand, region, math.sqrt(box2) - cap, spread, cx, cy, cz)
             continue
         # Where c projects, from the inward edge normals: inside the face, the nearest point is
         # the projection. Beyond exactly one edge and abreast of it, the nearest point is on that
@@ -289,7 +303,7 @@ def local_minima(
         # most wall facets and top triangles).
         if (outside == 1 and reject) or (beyond > _PLANE_SLACK and tri.own & near == 0):
             if wake:
-                doze(cand, verts, tris, lists, cx, cy, cz, plane - cap, retry)
+                settle(cand, region, plane - cap, spread, cx, cy, cz)
             continue
         if outside > 0:
             # The distance is at least the hypotenuse of the plane distance and of a bound on
@@ -304,7 +318,7 @@ def local_minima(
             if bound2 >= r2 or math.sqrt(bound2) >= worst:
                 floor2 = min(floor2, bound2)
                 if wake:
-                    doze(cand, verts, tris, lists, cx, cy, cz, math.sqrt(bound2) - cap, retry)
+                    settle(cand, region, math.sqrt(bound2) - cap, spread, cx, cy, cz)
                 continue
         if outside == 0:
             a = verts[tri.v[0]].p
@@ -317,7 +331,7 @@ def local_minima(
         d = math.sqrt(d2)
         if d2 >= r2 or d >= worst or not _is_local_min(verts, tris, edges, lists, t, feat, qx, qy, qz, cx, cy, cz):
             if wake:
-                doze(cand, verts, tris, lists, cx, cy, cz, d - cap, retry)
+                settle(cand, region, d - cap, spread, cx, cy, cz)
             continue
         if d < TOUCH:
             phi = 0.0

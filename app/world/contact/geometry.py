@@ -127,7 +127,6 @@ def _in_vertex_cone(
 def may_hold_minimum(
     verts: Records,
     tris: Records,
-    edges: Records,
     vertex_faces: np.ndarray,
     t: int,
     cx: float,

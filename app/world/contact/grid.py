@@ -72,7 +72,6 @@ def gather(
     retry: float,
     verts: Records,
     tris: Records,
-    edges: Records,
     cells: Records,
     lists: np.ndarray,
     stamp: np.ndarray,
@@ -126,7 +125,7 @@ def gather(
                     d2 = closest_on_triangle(verts, tris, t, cx, cy, cz)[0]
                     if d2 > reach2:
                         continue
-                    if obj.prune and not may_hold_minimum(verts, tris, edges, lists, t, cx, cy, cz, R, cones, serial):
+                    if obj.prune and not may_hold_minimum(verts, tris, lists, t, cx, cy, cz, R, cones, serial):
                         continue
                     if n == out.shape[0]:
                         return -1

@@ -163,7 +163,6 @@ def ensure_cache(
     r: float,
     verts: Records,
     tris: Records,
-    edges: Records,
     cells: Records,
     lists: np.ndarray,
     stamp: np.ndarray,
@@ -182,9 +181,7 @@ def ensure_cache(
             return 0
     tool.serial += 1
     reach, cap, retry = r + 2.0 * R, r * (1.0 + NEAR_FRAC), 0.25 * NEAR_FRAC * r
-    n = gather(
-        obj, c[0], c[1], c[2], reach, R, cap, retry, verts, tris, edges, cells, lists, stamp, tool.serial, pool[k]
-    )
+    n = gather(obj, c[0], c[1], c[2], reach, R, cap, retry, verts, tris, cells, lists, stamp, tool.serial, pool[k])
     pair.cache_n = n
     pair.cache_c[:] = c
     return 1 if n >= 0 else -1

@@ -278,7 +278,7 @@ def contact_step(
                     continue
             r = pair.r
             queries += 1
-            g = ensure_cache(pair, k, o, r, verts, tris, edges, cells, lists, stamp, tool, pool)
+            g = ensure_cache(pair, k, o, r, verts, tris, cells, lists, stamp, tool, pool)
             if g < 0:
                 return ERR_OVERFLOW
             gathers += g

@@ -119,9 +119,9 @@ def bench_stability(quick: bool = False) -> str:
     (:class:`~app.session.stability.FeltStiffness`). *Stable* is settled with the motors and the
     slave within their limits (:attr:`~app.session.stability.PressResult.stable`): SATURATED is a
     wall held at the motors' limit, PUSHED IN one the hand pushed the slave through to its force
-    limit. Each device runs as shipped
-    and with 20-bit encoders (:func:`~app.session.stability.device_with_encoders`), which
-    separates the quantisation limit from the passivity bound.
+    limit. Each device runs as shipped and with 20-bit encoders
+    (:func:`~app.session.stability.device_with_encoders`), which separates the quantisation limit
+    from the passivity bound.
     """
     from app.session.stability import device_with_encoders, press
 

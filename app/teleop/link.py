@@ -22,9 +22,9 @@ wave variables (:mod:`app.teleop.wave`), per axis of the slave world {w}:
 - Slave end (also in :meth:`TeleopLink.to_slave`, before the slave steps): it smooths the
   arriving ``u``; its force on the environment is minus the last F/T reading's force with the
   payload weight removed (for a tool whose whole mass is outboard of {S} that is the force its
-  tracking controller pushes with, inertia included, less what holds the tool's weight up); the velocity its decoder gives is
-  integrated into the position of the pose command, whose orientation passes as commanded. The
-  wave ``v`` it computes goes back with the reading.
+  tracking controller pushes with, inertia included, less what holds the tool's weight up); the
+  velocity its decoder gives is integrated into the position of the pose command, whose
+  orientation passes as commanded. The wave ``v`` it computes goes back with the reading.
 
 The reading the controller gets carries the master's wave force in place of the delayed contact
 force; its moments, and everything in rate mode, are reflected directly (delayed).

@@ -18,9 +18,9 @@ meets its own sampled hardware, and the two corrections below deal with that:
   tick). Without that, a stiff environment answers with a one-tick-old force, a negative damper
   of half its stiffness times the tick, and every echo comes back larger.
 - Each end low-passes the wave it receives (:func:`app.filters.lowpass`, gain at most 1): the
-  master's velocity filter, the device's zero-order hold and the slave's mass make the ends reflect some
-  frequencies with gain above 1; the filters take that energy out of the waves, most of all the
-  echoes bouncing between a hand-held grip and a rigid surface (one every round trip).
+  master's velocity filter, the device's zero-order hold and the slave's mass make the ends
+  reflect some frequencies with gain above 1; the filters take that energy out of the waves, most
+  of all the echoes bouncing between a hand-held grip and a rigid surface (one every round trip).
 
 The master knows its velocity and receives ``v``: it sends ``u`` and feels ``F`` (:func:`master`).
 The slave receives ``u`` and knows its force on the environment: it moves at ``xdot`` and sends

@@ -251,7 +251,7 @@ def controller_tick(
             po_tau,
             pc_velocity,
             dt,
-            r.pc_step,
+            r.pc_step[:],
             r.pc_credit,
             r.pc_reserve,
             r.pc_limit[:],

@@ -21,11 +21,12 @@ starves the giving joint, and the wall collapses.
 rendered torque, ``tau = s tau_r`` with ``0 <= s <= 1`` (uniformly, so the force keeps its
 direction), so that the next step the encoders can show cannot take ``E`` below ``-E_r``:
 
-    s = min(1, (max(E + E_r, 0) + credit sum_j d_j) / sum_j |tau_r,j| d_j),   d_j = max(step, |v_j| T)
+    s = min(1, (max(E + E_r, 0) + credit sum_j d_j) / sum_j |tau_r,j| d_j),   d_j = max(step_j, |v_j| T)
 
-where ``step`` is one encoder count, ``v_j`` the low-passed joint velocity (it predicts steps of
-more than one count) and ``credit`` the torque the joints' own Coulomb friction dissipates over any
-step (Diolaiti et al. 2006: friction absorbs ``f_c d`` per count moved; 0 = no credit).
+where ``step_j`` is the larger of the set ``step`` and one count of joint ``j``'s encoder, ``v_j``
+the low-passed joint velocity (it predicts steps of more than one count) and ``credit`` the torque
+the joints' own Coulomb friction dissipates over any step (Diolaiti et al. 2006: friction absorbs
+``f_c d`` per count moved; 0 = no credit).
 
 ``E_r`` is an energy reserve: the port is passive with respect to an initial storage ``E_r``
 (it never gives out more than ``E_r`` plus what it has absorbed). Without one, the touch itself
@@ -74,7 +75,10 @@ class PassivitySettings(Checked):
             keeps the observed energy at or above ``-energy_reserve`` (0 = strict).
         energy_cap: Largest energy (J) the observer may bank; inf = none. A cap keeps a long
             dissipative stretch from paying for a long active one.
-        step: Smallest joint step the encoders resolve (rad, or m for slides): one count.
+        step: Smallest joint step the PC predicts (rad, or m for slides). A joint whose encoder
+            count is coarser (``plant.encoder_counts_per_rev`` of the device file) predicts at
+            least one count: the smallest step it can show. Under-predicted, a chatter on that
+            joint draws the whole port's energy (the Kraft's 13-bit wrist at 2^-14 rev did).
         friction_credit: Torque (N m, or N for slides) the joints' Coulomb friction surely
             dissipates on every step; 0 = none (strictly model-free).
         velocity_filter: Time constant (s) of the first-order low-pass on the encoder velocity
@@ -115,7 +119,7 @@ def passivity_control(
     tau_r: Array,
     velocity: Array,
     dt: float,
-    step: float,
+    step: Array,
     credit: float,
     reserve: float,
     limit: Array,
@@ -128,7 +132,7 @@ def passivity_control(
         energy: Observed energy (J), (1,).
         tau_r: Rendered torque about to be applied (N m or N), (n,).
         velocity: Low-passed joint velocity (rad/s or m/s), (n,): predicts steps beyond one count.
-        dt: Servo period (s). ``step``: smallest joint step the encoders resolve (rad or m).
+        dt: Servo period (s). ``step``: smallest step predicted for each joint (rad or m), (n,).
         credit: Torque (N m or N) per joint the device's own friction dissipates on any step.
         reserve: Energy (J) the port may give out beyond what it absorbed (``E >= -reserve``).
         limit: Largest ``|tau_j|`` the PC may lead to (N m or N), (n,).
@@ -141,7 +145,7 @@ def passivity_control(
     worst = 0.0
     budget = max(energy[0] + reserve, 0.0)
     for j in range(tau_r.shape[0]):
-        d = max(step, abs(velocity[j]) * dt)
+        d = max(step[j], abs(velocity[j]) * dt)
         worst += abs(tau_r[j]) * d
         budget += credit * d
     s = budget / worst if worst > budget else 1.0

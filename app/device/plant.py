@@ -28,7 +28,6 @@ joint clip to ``gear_ratio * torque_limit`` then cuts it off.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import mujoco
@@ -196,13 +195,8 @@ class DevicePlant:
         self._row_offset = np.arange(n, dtype=np.int64) * (2 * cmax + 1) + cmax
         self._tau_out = self.data.qfrc_applied[dof_slice]
 
-        cpr = self.params.per_joint("encoder_counts_per_rev", n)
-        hinge = int(mujoco.mjtJoint.mjJNT_HINGE)
-        is_hinge = np.array([int(self.model.jnt_type[j]) == hinge for j in spec.joint_ids])
         # Quantise every joint or none (a zero resolution anywhere means ideal encoders).
-        scale = np.where(is_hinge, cpr / (2.0 * math.pi), cpr) if np.all(cpr > 0) else np.zeros(n)
-        inverse = np.divide(1.0, scale, out=np.zeros(n), where=scale > 0)
-        self._encoders = np.concatenate((scale, inverse))
+        self._encoders = np.concatenate((spec.encoder_resolution, spec.encoder_step))
         self._mj = np.array((address("mj_step1"), address("mj_step2"), *pointers(self.model, self.data)))
         self.reading = PlantReading(self)
         # The period's arguments after the counts: the plant's own arrays, the same every call.

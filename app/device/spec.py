@@ -11,6 +11,7 @@ sees every error ``frhc run`` would. Every field has a physical range
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
@@ -240,6 +241,28 @@ class DeviceSpec:
     @property
     def mjcf_path(self) -> Path:
         return self.path.parent / self.data.mjcf
+
+    @property
+    def encoder_resolution(self) -> Array:
+        """Encoder counts per radian of each hinge (per metre of each slide), (n,); all zero for
+        ideal encoders (``plant.encoder_counts_per_rev`` left out, or 0 on any joint)."""
+        n = self.n_joints
+        cpr = self.data.plant.per_joint("encoder_counts_per_rev", n)
+        if not np.all(cpr > 0):
+            return np.zeros(n)
+        hinge = int(mujoco.mjtJoint.mjJNT_HINGE)
+        return np.array(
+            [
+                c / (2.0 * math.pi) if int(self.model.jnt_type[j]) == hinge else c
+                for c, j in zip(cpr, self.joint_ids, strict=True)
+            ]
+        )
+
+    @property
+    def encoder_step(self) -> Array:
+        """One encoder count of each joint (rad, or m for slides), (n,); zero for ideal encoders."""
+        scale = self.encoder_resolution
+        return np.divide(1.0, scale, out=np.zeros_like(scale), where=scale > 0)
 
 
 def resolve_device_path(name_or_path: str | Path) -> Path:

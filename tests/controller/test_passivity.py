@@ -63,7 +63,7 @@ def test_an_active_sampled_wall_is_detected_and_the_pc_keeps_the_bounce_passive(
             lowest = min(lowest, e[0] + (f_c * travel if pc else 0.0))
             tau = np.array([-K * q - B * vel[0]]) if q > 0.0 else np.zeros(1)
             if pc:
-                passivity_control(e, tau.copy(), vel, T, step, f_c, reserve, np.array([1e9]), tau, tau_pc)
+                passivity_control(e, tau.copy(), vel, T, np.array([step]), f_c, reserve, np.array([1e9]), tau, tau_pc)
             tau_prev[:] = tau
             f_max = max(f_max, abs(tau[0]))
             q_prev = q
@@ -98,7 +98,7 @@ def test_an_active_sampled_wall_is_detected_and_the_pc_keeps_the_bounce_passive(
 def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits(
     energy: float, tau_r: np.ndarray, tau_g: np.ndarray, velocity: np.ndarray, credit: float, reserve: float
 ) -> None:
-    step = 4e-4
+    step = np.array([4e-4, 4e-4, 8e-4, 2e-4])  # 14-, 13- and 15-bit encoders
     limit = np.full(4, 6.0)
     tau = tau_r + tau_g
     tau_pc = np.zeros(4)

@@ -149,7 +149,8 @@ def bench_stability(quick: bool = False) -> str:
 
 def _wall_rows(label: str, device: str, multiples: tuple[float, ...]) -> list[str]:
     """Plain and PO/PC pose-mode walls on ``device`` (a name or a device file) at ``multiples`` of
-    its passivity bound, and the largest stable multiple of each."""
+    its passivity bound; for each renderer the multiples it is stable at and the largest up to
+    which it is stable at every multiple (on coarse encoders the stable set has gaps)."""
     from app.controller.passivity import PassivitySettings
     from app.session.stability import design_stiffness, grip_damping, press
 
@@ -157,7 +158,7 @@ def _wall_rows(label: str, device: str, multiples: tuple[float, ...]) -> list[st
     bound = 2.0 * b / 1e-3
     per_k_t = design_stiffness(1.0, device=device)
     lines = [f"  {label}: passivity bound 2b/T = {bound:,.0f} N/m (b = {b:.2f} N s/m at the grip)"]
-    largest = {"plain": 0.0, "PO/PC": 0.0}
+    stable: dict[str, list[float]] = {"plain": [], "PO/PC": []}
     for multiple in multiples:
         k_t = multiple * bound / per_k_t
         cells = []
@@ -165,13 +166,20 @@ def _wall_rows(label: str, device: str, multiples: tuple[float, ...]) -> list[st
             gains = {"k_t": [k_t] * 3 + [1.0] * 3}
             r = press(1e5, "pose", device=device, gains=gains, passivity=PassivitySettings(enabled=enabled))
             if r.stable:
-                largest[name] = max(largest[name], multiple)
+                stable[name].append(multiple)
             state = (
                 "stable" if r.stable else "OSCILLATES" if not r.settled else "SATURATED" if r.saturated else "PUSHED IN"
             )
             cells.append(f"{name} {state:>10} (ripple {r.ripple:6.2f} N, felt {r.felt_stiffness:7,.0f} N/m)")
         lines.append(f"    design {multiple:4.2f} x bound, K_T {k_t:5.2f}: " + " | ".join(cells))
-    lines.append(f"    largest stable multiple: plain {largest['plain']:.2f} x, PO/PC {largest['PO/PC']:.2f} x")
+    for name, good in stable.items():
+        upto = 0.0
+        for multiple in multiples:
+            if multiple not in good:
+                break
+            upto = multiple
+        listed = ", ".join(f"{m:g}" for m in good) or "none"
+        lines.append(f"    {name}: stable at {listed} x bound; at every tested multiple up to {upto:g} x")
     return lines
 
 

@@ -330,6 +330,10 @@ def local_minima(
             if wake:
                 settle(cand, region, d - cap, spread, cx, cy, cz)
             continue
+        if wake:
+            # It holds a minimum: it stays awake, its bound asked again once the centre has moved
+            # ``spread`` from here (left at its old reference, it would be asked every tick).
+            settle(cand, region, d - cap, spread, cx, cy, cz)
         if d < TOUCH:
             phi = 0.0
             nx, ny, nz = feature_normal(verts, tris, edges, t, feat)

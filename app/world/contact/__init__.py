@@ -41,9 +41,9 @@ it); a wrong shape or a pose that is not a rigid transform raises
 :class:`~app.errors.ContactInputError`.
 
 Speed: every per-tick step runs in one compiled call (:mod:`.step`), entered without numba's
-per-call argument typing, its arrays bundled as one argument and used as borrowed views, without
-atomic reference counting (:mod:`.bundle`). Culling is exact
-(the distance is 1-Lipschitz in the centre); each pair caches the triangles that may hold a local
+per-call argument typing, its arrays bundled as one argument and used as borrowed views by
+kernels compiled without numba's runtime, so without any reference counting (:mod:`.bundle`).
+Culling is exact (the distance is 1-Lipschitz in the centre); each pair caches the triangles that may hold a local
 minimum while its centre stays within ``R = 0.075 r`` of where they were gathered (every triangle
 within ``r + 2 R`` whose face, edge or vertex Voronoi region, for the features it reports, comes
 within R, found through a per-object grid, :mod:`.grid`). Each cached triangle is dormant while

@@ -11,15 +11,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from app.world.contact.bundle import tick_kernel
 from app.world.contact.layout import Record
 
 # Tangential speed (m/s) below which friction is viscous (regularised Coulomb).
 V_SLIP = 1e-3
 
 
-@njit(cache=True)
+@tick_kernel
 def contact_force(
     k: float,
     b: float,
@@ -57,7 +57,7 @@ def contact_force(
     return fx, fy, fz
 
 
-@njit(cache=True)
+@tick_kernel
 def write_wrench(tool: Record, T_w_MRF: np.ndarray, F: np.ndarray, M: np.ndarray) -> None:
     """Store the total force F and moment M about the {MRF} origin (both {w}, (3,)) as the tool's
     outputs ``tool.out``: wrench at {S} in {S} (Eq 6 backwards), at {MRF} in {MRF}, force in {w}."""

@@ -10,6 +10,7 @@ import math
 import numpy as np
 from numba import njit
 
+from app.world.contact.bundle import tick_kernel
 from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, FEAT_VERTEX, Record, Records
 
 # Rounding allowance (m) of a dormancy bound (:func:`dormancy`).
@@ -105,7 +106,7 @@ def box_distance2(box: np.ndarray, cx: float, cy: float, cz: float) -> float:
     return dx * dx + dy * dy + dz * dz
 
 
-@njit(cache=True)
+@tick_kernel
 def _in_vertex_cone(
     verts: Records, tris: Records, vertex_faces: np.ndarray, v: int, cx: float, cy: float, cz: float, R: float
 ) -> bool:
@@ -123,7 +124,7 @@ def _in_vertex_cone(
     return True
 
 
-@njit(cache=True)
+@tick_kernel
 def may_hold_minimum(
     verts: Records,
     tris: Records,
@@ -188,7 +189,7 @@ def may_hold_minimum(
     return False
 
 
-@njit(cache=True)
+@tick_kernel
 def dormancy(
     verts: Records,
     tris: Records,
@@ -281,7 +282,7 @@ def settle(cand: Record, region: float, gap: float, spread: float, cx: float, cy
     cand.ref[0], cand.ref[1], cand.ref[2] = cx, cy, cz
 
 
-@njit(cache=True)
+@tick_kernel
 def doze(
     cand: Record,
     verts: Records,

@@ -13,6 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
+from app.world.contact.bundle import tick_kernel
 from app.world.contact.geometry import box_distance2, closest_on_triangle, doze, may_hold_minimum
 from app.world.contact.layout import Record, Records
 
@@ -20,7 +21,7 @@ from app.world.contact.layout import Record, Records
 MAX_CELLS = 1 << 16
 
 
-@njit(cache=True)
+@tick_kernel
 def cell_index(x: float, origin: float, h: float, n: int) -> int:
     """Grid cell index of coordinate x, clamped to [0, n - 1] (monotone in x)."""
     # Clamp before the integer conversion: a far coordinate must not overflow it.
@@ -60,7 +61,7 @@ def grid_entries(verts: Records, tris: Records, face0: np.ndarray, objs: Records
     return keys, out
 
 
-@njit(cache=True)
+@tick_kernel
 def gather(
     obj: Record,
     cx: float,
@@ -92,16 +93,21 @@ def gather(
     Returns -1 if they do not fit in ``out`` or the search box covers more than ``MAX_CELLS`` cells.
     """
     h = obj.grid_h
-    lo = np.empty(3, dtype=np.int64)
-    hi = np.empty(3, dtype=np.int64)
-    n_cells = 1
-    for a, x in enumerate((cx, cy, cz)):
-        lo[a] = cell_index(x - reach, obj.grid_origin[a], h, obj.grid_dims[a])
-        hi[a] = cell_index(x + reach, obj.grid_origin[a], h, obj.grid_dims[a])
-        n_cells *= hi[a] - lo[a] + 1
-    if n_cells > MAX_CELLS:
+    g, dims = obj.grid_origin, obj.grid_dims
+    # The cells the search box covers, from lo to hi along each axis.
+    lo = (
+        cell_index(cx - reach, g[0], h, dims[0]),
+        cell_index(cy - reach, g[1], h, dims[1]),
+        cell_index(cz - reach, g[2], h, dims[2]),
+    )
+    hi = (
+        cell_index(cx + reach, g[0], h, dims[0]),
+        cell_index(cy + reach, g[1], h, dims[1]),
+        cell_index(cz + reach, g[2], h, dims[2]),
+    )
+    if (hi[0] - lo[0] + 1) * (hi[1] - lo[1] + 1) * (hi[2] - lo[2] + 1) > MAX_CELLS:
         return -1
-    ny, nz, base = obj.grid_dims[1], obj.grid_dims[2], obj.grid_base
+    ny, nz, base = dims[1], dims[2], obj.grid_base
     cones = stamp[tris.shape[0] :]
     n = 0
     n_keys = cells.shape[0] - 1  # the last row is a sentinel

@@ -26,6 +26,7 @@ import math
 import numpy as np
 from numba import njit
 
+from app.world.contact.bundle import tick_kernel
 from app.world.contact.geometry import (
     closest_on_triangle,
     dormancy,
@@ -155,7 +156,7 @@ def _share_vertex(tris: Records, a: int, b: int) -> bool:
     return False
 
 
-@njit(cache=True)
+@tick_kernel
 def ensure_cache(
     pair: Record,
     k: int,
@@ -183,11 +184,12 @@ def ensure_cache(
     reach, cap, retry = r + 2.0 * R, r * (1.0 + NEAR_FRAC), 0.25 * NEAR_FRAC * r
     n = gather(obj, c[0], c[1], c[2], reach, R, cap, retry, verts, tris, cells, lists, stamp, tool.serial, pool[k])
     pair.cache_n = n
-    pair.cache_c[:] = c
+    for a in range(3):
+        pair.cache_c[a] = c[a]
     return 1 if n >= 0 else -1
 
 
-@njit(cache=True)
+@tick_kernel
 def local_minima(
     pair: Record,
     pool_k: np.ndarray,
@@ -330,6 +332,10 @@ def local_minima(
             if wake:
                 settle(cand, region, d - cap, spread, cx, cy, cz)
             continue
+        if wake:
+            # It holds a minimum: it stays awake, its bound asked again once the centre has moved
+            # ``spread`` from here (left at its old reference, it would be asked every tick).
+            settle(cand, region, d - cap, spread, cx, cy, cz)
         if d < TOUCH:
             phi = 0.0
             nx, ny, nz = feature_normal(verts, tris, edges, t, feat)
@@ -369,8 +375,9 @@ def local_minima(
             for e in range(n_min):
                 if pair.min_phi[e] < math.inf:
                     if e != n_kept:
-                        pair.min_q[n_kept] = pair.min_q[e]
-                        pair.min_n[n_kept] = pair.min_n[e]
+                        for a in range(3):
+                            pair.min_q[n_kept, a] = pair.min_q[e, a]
+                            pair.min_n[n_kept, a] = pair.min_n[e, a]
                         pair.min_phi[n_kept] = pair.min_phi[e]
                         pair.min_w[n_kept] = pair.min_w[e]
                         pair.min_t[n_kept] = pair.min_t[e]

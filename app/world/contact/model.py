@@ -9,7 +9,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from app.compiled import entry_point
+from app.compiled import F8, entry_point
 from app.errors import ContactInputError
 from app.spatial import Array, IntArray, invert_pose
 from app.world.contact import layout
@@ -28,9 +28,10 @@ _INVALID = {
     layout.ERR_WRENCH: "non-finite contact wrench",
     layout.ERR_OVERFLOW: f"more than {CACHE_MAX} candidate triangles within a sphere's reach (mesh far finer than the tool)",
 }
-_F64 = np.dtype(np.float64)
 _SHAPE_T = (4, 4)
 _SHAPE_V = (6,)
+# Contact counts below which a result's rows are copied from views made once.
+_FIRST_VIEWS = 32
 
 
 def _frozen(a: ArrayT) -> ArrayT:
@@ -160,32 +161,23 @@ class ContactModel:
         # The contact records as rows of 9 floats (p, n, depth, sphere, object): one contiguous
         # copy per result instead of one strided copy per field.
         assert layout.CONTACT.itemsize == 72
-        self._out_f = out.view(np.float64).reshape(len(out), 9)
+        self._out_f = out_f = out.view(np.float64).reshape(len(out), 9)
+        # Its first k rows for the usual counts, as views made once: slicing costs more than
+        # copying a few rows.
+        self._first = [out_f[:k] for k in range(min(len(out_f), _FIRST_VIEWS) + 1)]
         self._no_twist = np.zeros(6)
-        # The kernel's arguments after the pose and twist, bound once.
         # Gather scratch: which triangles the current gather has seen, then its vertex-cone
         # tests (F + V,).
         stamp = np.zeros(len(geo.tris) + len(geo.verts), dtype=np.int64)
-        self._args = (
-            bundle(
-                self._tool,
-                objs,
-                self._pairs,
-                self._pool,
-                out,
-                geo.verts,
-                geo.tris,
-                geo.edges,
-                geo.cells,
-                geo.lists,
-                stamp,
-            ),
+        # The kernel's arguments after the pose and twist, bound once.
+        self._arrays = bundle(
+            self._tool, objs, self._pairs, self._pool, out, geo.verts, geo.tris, geo.edges, geo.cells, geo.lists, stamp
         )
         # ``wrench`` checks the pose and twist (C-contiguous float64 of their shapes) and passes
         # the model's own arrays, bundled as one argument, for the rest, so the compiled step is
         # called without numba's typing of its arguments (~1.5 us a call) and unboxes one object
         # instead of eleven arrays (~0.45 us).
-        self._step = entry_point(contact_step_bundled, np.eye(4), np.zeros(6), False, *self._args)
+        self._step = entry_point(contact_step_bundled, np.eye(4), np.zeros(6), False, self._arrays)
         self.reset()
 
     def reset(self) -> None:
@@ -224,18 +216,18 @@ class ContactModel:
             ContactInputError: The pose or twist has the wrong shape or type, or the pose is not
                 a rigid transform (a reflection, a scaled or sheared rotation): misuse, not data.
         """
-        if T_w_MRF.__class__ is not np.ndarray or T_w_MRF.dtype != _F64 or not T_w_MRF.flags.c_contiguous:
+        if T_w_MRF.__class__ is not np.ndarray or T_w_MRF.dtype is not F8 or not T_w_MRF.flags.c_contiguous:
             T_w_MRF = _as_array(T_w_MRF, "T_w_MRF")
         if T_w_MRF.shape != _SHAPE_T:
             raise ContactInputError(f"T_w_MRF must have shape (4, 4), got {T_w_MRF.shape}")
         if V_w_MRF is None:
-            code = self._step(T_w_MRF, self._no_twist, False, *self._args)
+            code = self._step(T_w_MRF, self._no_twist, False, self._arrays)
         else:
-            if V_w_MRF.__class__ is not np.ndarray or V_w_MRF.dtype != _F64 or not V_w_MRF.flags.c_contiguous:
+            if V_w_MRF.__class__ is not np.ndarray or V_w_MRF.dtype is not F8 or not V_w_MRF.flags.c_contiguous:
                 V_w_MRF = _as_array(V_w_MRF, "V_w_MRF")
             if V_w_MRF.shape != _SHAPE_V:
                 raise ContactInputError(f"V_w_MRF must have shape (6,), got {V_w_MRF.shape}")
-            code = self._step(T_w_MRF, V_w_MRF, True, *self._args)
+            code = self._step(T_w_MRF, V_w_MRF, True, self._arrays)
         if code < 0:
             self.reset()
             if code == layout.ERR_ROTATION:
@@ -249,7 +241,8 @@ class ContactModel:
         if code == 0:
             # Every field positional: the default factories cost microseconds on this path.
             return ContactResult(True, w, _NO_CONTACTS, queries, gathers, None)
-        return ContactResult(True, w, self._out_f[:code].copy(), queries, gathers, None)
+        rows = self._first[code] if code < _FIRST_VIEWS else self._out_f[:code]
+        return ContactResult(True, w, rows.copy(), queries, gathers, None)
 
 
 def _as_array(x: object, name: str) -> Array:

@@ -17,7 +17,7 @@ import math
 import numpy as np
 from numba import njit
 
-from app.world.contact.bundle import borrowed
+from app.world.contact.bundle import borrowed, tick_kernel
 from app.world.contact.force import contact_force, write_wrench
 from app.world.contact.geometry import box_distance2, closest_on_triangle
 from app.world.contact.layout import ERR_OVERFLOW, ERR_POSE, ERR_ROTATION, ERR_TWIST, ERR_WRENCH, Record, Records
@@ -31,7 +31,7 @@ ROTATION_TOL = 1e-6
 MEMORY_ALLOWANCE = 1e-9
 
 
-@njit(cache=True)
+@tick_kernel
 def _rigid(T: np.ndarray) -> int:
     """0 for a finite rigid pose (4, 4), ERR_POSE if non-finite, ERR_ROTATION if not rigid."""
     for a in range(4):
@@ -53,7 +53,7 @@ def _rigid(T: np.ndarray) -> int:
     return 0 if det > 0.0 else ERR_ROTATION
 
 
-@njit(cache=True)
+@tick_kernel
 def _emit(
     out: Records,
     n_c: int,
@@ -90,7 +90,7 @@ def _emit(
     return n_c + 1
 
 
-@njit(cache=True)
+@tick_kernel
 def _pair_contacts(
     pair: Record,
     i: int,
@@ -140,7 +140,8 @@ def _pair_contacts(
         pair.mem = 0
     elif not from_mem:
         pair.mem = 1
-        pair.mem_q[:] = pair.min_q[prim]
+        for a in range(3):
+            pair.mem_q[a] = pair.min_q[prim, a]
         pair.mem_n[0], pair.mem_n[1], pair.mem_n[2] = nx, ny, nz
         pair.mem_t = pair.min_t[prim]
     # Weighted minima (crease bands) are one contact: their weighted mean of depth * normal and
@@ -183,7 +184,7 @@ def _pair_contacts(
     return n_c
 
 
-@njit(cache=True)
+@tick_kernel
 def contact_step(
     T: np.ndarray,
     V: np.ndarray,
@@ -243,7 +244,8 @@ def contact_step(
             for i in range(n):
                 if pairs[j * n + i].mem:
                     o.near = 1
-        tool.near_c0[:] = c0
+        for a in range(3):
+            tool.near_c0[a] = c0[a]
         tool.near_slack = near_slack
 
     FM = tool.FM  # force on the tool and moment about the {MRF} origin, {w}
@@ -284,7 +286,8 @@ def contact_step(
             gathers += g
             bound = local_minima(pair, pool[k], r, verts, tris, edges, lists)
             bound = max(bound, math.sqrt(box_distance2(o.box, pair.c[0], pair.c[1], pair.c[2])))
-            pair.last[:] = pair.c
+            for a in range(3):
+                pair.last[a] = pair.c[a]
             before = n_c
             n_c = _pair_contacts(pair, i, j, r, o, verts, tris, out, n_c, T, has_twist, V, FM)
             gap = bound - r - tool.margin
@@ -300,8 +303,10 @@ def contact_step(
                     ex, ey, ez = pair.c[0] - pair.last[0], pair.c[1] - pair.last[1], pair.c[2] - pair.last[2]
                     remaining = min(remaining, pair.slack - math.sqrt(ex * ex + ey * ey + ez * ez))
             o.slack = remaining
-            o.base_c0[:] = c0
-            o.base_R[:, :] = R
+            for a in range(3):
+                o.base_c0[a] = c0[a]
+                for b in range(3):
+                    o.base_R[a, b] = R[a, b]
     tool.counts[0] = queries
     tool.counts[1] = gathers
     if not math.isfinite(FM[0] + FM[1] + FM[2] + FM[3] + FM[4] + FM[5]):

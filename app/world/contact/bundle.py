@@ -14,7 +14,8 @@ therefore works on borrowed views, which the model's own references keep alive t
 every kernel it calls is compiled without numba's runtime (:data:`tick_kernel`), so no view
 refers to the reference count at all: with the runtime, each view still called its functions
 (never inlined) to find that there was none to count, and every such call spilled the
-floating-point values live across it, 1.7 us of 10.9 per evaluation on peg_in_hole's walk.
+floating-point values live across it: on peg_in_hole's walk, 1.2 us of a median evaluation of
+10.3 us, and 2.3 us of its 99th percentile.
 """
 
 from __future__ import annotations

@@ -151,13 +151,12 @@ def passivity_control(
     s = budget / worst if worst > budget else 1.0
     for j in range(tau_r.shape[0]):
         t = (s - 1.0) * tau_r[j]
-        # Keep the total within the limit; a clip that would reverse the PC's sign gives 0.
-        hi = limit[j] - tau[j]
-        lo = -limit[j] - tau[j]
-        if t > hi:
-            t = max(hi, 0.0)
-        elif t < lo:
-            t = min(lo, 0.0)
+        # The PC may not push the total out past the limit (a clip that would reverse its sign
+        # gives 0); a correction toward a total still beyond the limit stays whole.
+        if t > 0.0 and tau[j] + t > limit[j]:
+            t = max(limit[j] - tau[j], 0.0)
+        elif t < 0.0 and tau[j] + t < -limit[j]:
+            t = min(-limit[j] - tau[j], 0.0)
         tau_pc[j] = t
         tau[j] += t
     return 1.0 - s

@@ -89,7 +89,7 @@ def test_an_active_sampled_wall_is_detected_and_the_pc_keeps_the_bounce_passive(
 @settings(max_examples=200, deadline=None)
 @given(
     energy=st.floats(-10.0, 10.0),
-    tau_r=arrays(np.float64, 4, elements=st.floats(-5.0, 5.0)),
+    tau_r=arrays(np.float64, 4, elements=st.floats(-20.0, 20.0)),
     tau_g=arrays(np.float64, 4, elements=st.floats(-2.0, 2.0)),
     velocity=arrays(np.float64, 4, elements=st.floats(-20.0, 20.0)),
     credit=st.floats(0.0, 1.0),
@@ -107,15 +107,15 @@ def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits
     rendered = tau_r + tau_pc
     assert np.all(rendered * tau_r >= -1e-15)  # never reverses a torque
     assert np.all(np.abs(rendered) <= np.abs(tau_r) + 1e-12)  # never adds: only scales down
-    within = np.abs(tau_r + tau_g) <= limit
-    assert np.all(np.abs(tau[within]) <= limit[within] + 1e-12)
+    # The PC never pushes a total out past the limit, nor further out where it was already beyond.
+    assert np.all(np.abs(tau) <= np.maximum(limit, np.abs(tau_r + tau_g)) + 1e-12)
     assert 0.0 <= cut <= 1.0
     # Whatever step the joints take next (up to the predicted one each), the energy stays at or
-    # above -reserve, once the friction credit is paid: the bound the PC promises.
+    # above -reserve, once the friction credit is paid: the bound the PC promises, also where the
+    # rendered torque asks for more than the motors have (gravity alone is within the limits).
     d = np.maximum(step, np.abs(velocity) * T)
-    if np.all(np.abs(tau) < limit):
-        worst = np.abs(rendered) @ d
-        assert worst <= max(energy + reserve, 0.0) + credit * d.sum() + 1e-12
+    worst = np.abs(rendered) @ d
+    assert worst <= max(energy + reserve, 0.0) + credit * d.sum() + 1e-12
     if np.abs(tau_r) @ d <= max(energy + reserve, 0.0) + credit * d.sum():
         assert cut == 0.0  # enough energy: the PC does not act
         assert np.all(tau_pc == 0.0)

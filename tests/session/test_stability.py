@@ -88,7 +88,8 @@ def test_a_saturated_plateau_is_not_a_stable_wall() -> None:
 def test_where_plain_holds_the_wall_the_pc_leaves_it_alone_and_without_a_reserve_it_gives_way() -> None:
     """Kraft as shipped, a wall at half the bound: plain rendering holds it. PO/PC with its energy
     reserve renders the same wall (the touch's ~3 mJ comes out of the reserve); with no reserve
-    the touch leaves no energy to hold the force with, and the hand pushes the slave in far deeper."""
+    the touch leaves no energy to hold the force with: the wall is felt far softer and the hand
+    pushes the slave in far deeper."""
     k_t = 0.5 * passivity_bound("kraft") / design_stiffness(1.0)
     gains = {"k_t": [k_t] * 3 + [1.0] * 3}
     plain = press(1e5, "pose", gains=gains)
@@ -97,7 +98,7 @@ def test_where_plain_holds_the_wall_the_pc_leaves_it_alone_and_without_a_reserve
     assert pc.stable
     assert pc.felt_stiffness == pytest.approx(plain.felt_stiffness, rel=0.05)
     strict = press(1e5, "pose", gains=gains, passivity=PassivitySettings(enabled=True, energy_reserve=0.0))
-    assert not strict.stable
+    assert strict.felt_stiffness < 0.5 * plain.felt_stiffness
     assert strict.mean_force > 3.0 * plain.mean_force
 
 

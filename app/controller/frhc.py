@@ -259,7 +259,7 @@ class FRHCController:
         rec["pc_limit"] = settings.max_torque_fraction * self.joint_limit
         rec["po_cap"] = settings.energy_cap
         rec["pc_reserve"] = settings.energy_reserve
-        rec["pc_step"] = np.maximum(settings.step, self.device.encoder_step)
+        rec["pc_step"] = np.maximum(settings.step, settings.step_counts * self.device.encoder_step)
         rec["pc_credit"] = settings.friction_credit
         rec["pc_filter"] = settings.velocity_filter
 

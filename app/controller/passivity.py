@@ -23,7 +23,7 @@ direction), so that the next step the encoders can show cannot take ``E`` below 
 
     s = min(1, (max(E + E_r, 0) + credit sum_j d_j) / sum_j |tau_r,j| d_j),   d_j = max(step_j, |v_j| T)
 
-where ``step_j`` is the larger of the set ``step`` and one count of joint ``j``'s encoder, ``v_j``
+where ``step_j`` is the larger of the set ``step`` and ``step_counts`` counts of joint ``j``'s encoder, ``v_j``
 the low-passed joint velocity (it predicts steps of more than one count) and ``credit`` the torque
 the joints' own Coulomb friction dissipates over any step (Diolaiti et al. 2006: friction absorbs
 ``f_c d`` per count moved; 0 = no credit).
@@ -35,6 +35,19 @@ came in: ~3 mJ on the Kraft) leaves ``E`` near zero, and an energy bound then ho
 wall's force to what one count of travel could pay for; the hand pushes through a wall that plain
 rendering holds. With 20 mJ the PC leaves such a wall alone (measured: the same force and felt
 stiffness as plain where plain is stable) and still stops a limit cycle once it has drawn 20 mJ.
+
+Why predict several counts (``step_counts``, 3): once a limit cycle has spent the energy, the
+force the PC lets through is what the budget pays for over the predicted step,
+``|F| ~ (E + E_r) / d``, and one count of travel moves ``E`` by ``|F|`` times a count. The PC's own
+force law then has a local stiffness of about ``|F| / d`` per count: predicting one count makes it
+change by the whole force per count, far above what the joints' friction holds (Abbott & Okamura
+2005: about ``2 f_c`` per count), and it chatters at the energy floor while the hand pushes the
+slave in (measured on the JPL: +-3 N per count at 7 N, the slave at 25 N). Predicting ``N`` counts
+divides that slope by ``N``. Measured as shipped (``frhc bench stability``): with one count the
+Kraft settled at 4 of 6 tested multiples of the bound, freflex at 4, the JPL at 1; with three,
+every multiple from 0.25x to 4x settles on all three. More counts cost felt stiffness (four: about
+5 kN/m against 6-7 with three) and are not more robust (four oscillated on the JPL at 2-3x).
+Encoders much finer than ``step`` (20-bit copies) are unaffected: there ``step`` is the larger.
 
 Why not the textbook series damper ``tau_PC = -alpha qdot`` with ``alpha = -E/(T qdot^2)``: on
 this device the joint velocity is an encoder difference, so near contact it is 0 or +-1 count a
@@ -75,10 +88,12 @@ class PassivitySettings(Checked):
             keeps the observed energy at or above ``-energy_reserve`` (0 = strict).
         energy_cap: Largest energy (J) the observer may bank; inf = none. A cap keeps a long
             dissipative stretch from paying for a long active one.
-        step: Smallest joint step the PC predicts (rad, or m for slides). A joint whose encoder
-            count is coarser (``plant.encoder_counts_per_rev`` of the device file) predicts at
-            least one count: the smallest step it can show. Under-predicted, a chatter on that
-            joint draws the whole port's energy (the Kraft's 13-bit wrist at 2^-14 rev did).
+        step: Smallest joint step the PC predicts (rad, or m for slides).
+        step_counts: Each joint predicts at least this many counts of its own encoder
+            (``plant.encoder_counts_per_rev`` of the device file). One count is the least a
+            joint can show (under-predicted, a chatter on it draws the whole port's energy: the
+            Kraft's 13-bit wrist at 2^-14 rev did); several keep the PC's own force law soft
+            enough not to chatter once the energy is spent (see the module docstring).
         friction_credit: Torque (N m, or N for slides) the joints' Coulomb friction surely
             dissipates on every step; 0 = none (strictly model-free).
         velocity_filter: Time constant (s) of the first-order low-pass on the encoder velocity
@@ -91,6 +106,7 @@ class PassivitySettings(Checked):
     energy_reserve: Annotated[float, Range(0.0, 1.0, "J")] = 0.02
     energy_cap: Annotated[float, Range(0.0, 1e3, "J", inf_ok=True)] = math.inf
     step: Annotated[float, Range(0.0, 0.1, "rad", lo_open=True)] = 2.0 * math.pi / 16384
+    step_counts: Annotated[int, Range(1, 64)] = 3
     friction_credit: Annotated[float, Range(0.0, 10.0, "N m")] = 0.03
     velocity_filter: Annotated[float, Range(0.0, 0.1, "s")] = 0.003
 

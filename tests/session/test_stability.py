@@ -60,6 +60,21 @@ def test_the_bound_counts_the_hand_damping_once_and_the_device_damping_at_the_gr
         assert passivity_bound(device, 2000.0, HandParams(damping_trans=0.0)) == pytest.approx(4000.0 * bare)
 
 
+@pytest.mark.parametrize("device", ["kraft", "jpl", "freflex"])
+def test_as_shipped_at_3x_the_bound_plain_oscillates_and_the_pc_settles(device: str) -> None:
+    """The shipped 13/14-bit encoders, pose mode, a wall designed at 3x 2b/T: plain rendering
+    oscillates on every device; PO/PC settles, with the slave well inside its force limit, felt
+    at the quantisation limit rather than the bound (one count ~0.1 mm at the grip: 4-8 kN/m)."""
+    bound = passivity_bound(device)
+    gains = {"k_t": [3.0 * bound / design_stiffness(1.0, device=device)] * 3 + [1.0] * 3}
+    plain = press(1e5, "pose", device=device, gains=gains)
+    assert not plain.stable
+    pc = press(1e5, "pose", device=device, gains=gains, passivity=PassivitySettings(enabled=True))
+    assert pc.stable, pc
+    assert 2.0 < pc.mean_force < 20.0
+    assert 0.15 * bound < pc.felt_stiffness < 0.5 * bound
+
+
 def test_at_3x_the_passivity_bound_plain_oscillates_and_the_pc_settles_at_the_bound(tmp_path: Path) -> None:
     """Kraft with 20-bit encoders (so quantisation does not bind first), pose mode, a wall designed
     at 3x 2b/T: plain rendering oscillates; with PO/PC it settles, felt about as stiff as the bound
@@ -98,8 +113,8 @@ def test_where_plain_holds_the_wall_the_pc_leaves_it_alone_and_without_a_reserve
     assert pc.stable
     assert pc.felt_stiffness == pytest.approx(plain.felt_stiffness, rel=0.05)
     strict = press(1e5, "pose", gains=gains, passivity=PassivitySettings(enabled=True, energy_reserve=0.0))
-    assert strict.felt_stiffness < 0.5 * plain.felt_stiffness
-    assert strict.mean_force > 3.0 * plain.mean_force
+    assert strict.felt_stiffness < 0.7 * plain.felt_stiffness
+    assert strict.mean_force > 2.0 * plain.mean_force
 
 
 def test_a_wall_the_hand_pushed_through_is_not_stable(tmp_path: Path) -> None:
@@ -110,7 +125,7 @@ def test_a_wall_the_hand_pushed_through_is_not_stable(tmp_path: Path) -> None:
     device = str(device_with_encoders("freflex", 2**20, tmp_path))
     bound = passivity_bound(device)
     k_t = 3.0 * bound / design_stiffness(1.0, device=device)
-    settings = PassivitySettings(enabled=True, step=2.0 * math.pi / 2**20)
+    settings = PassivitySettings(enabled=True, step=2.0 * math.pi / 2**20, step_counts=1)
     r = press(1e5, "pose", device=device, gains={"k_t": [k_t] * 3 + [1.0] * 3}, passivity=settings)
     assert r.settled
     assert r.pushed_through

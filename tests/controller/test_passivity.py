@@ -130,6 +130,7 @@ def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits
         ("energy_reserve", 2.0),
         ("step", float("nan")),
         ("friction_credit", 1e9),
+        ("step_counts", 0),
     ],
 )
 def test_settings_outside_their_ranges_are_refused_naming_the_field(field: str, value: float) -> None:

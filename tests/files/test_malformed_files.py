@@ -196,6 +196,16 @@ CASES: dict[str, dict[str, Case]] = {
             "accommodation = true\n[passivity]\nfriction_credit = inf",
             "passivity.friction_credit",
         ),
+        "passivity step_counts 0": P(
+            "accommodation = true",
+            "accommodation = true\n[passivity]\nstep_counts = 0",
+            "passivity.step_counts",
+        ),
+        "passivity step_counts 2.5": P(
+            "accommodation = true",
+            "accommodation = true\n[passivity]\nstep_counts = 2.5",
+            "passivity.step_counts",
+        ),
         "passivity reserve 2 J": P(
             "accommodation = true",
             "accommodation = true\n[passivity]\nenergy_reserve = 2.0",

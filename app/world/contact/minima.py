@@ -334,14 +334,12 @@ def local_minima(
         if d2 < nearest2:
             nearest2, near_t = d2, t
         d = math.sqrt(d2)
-        if d2 >= r2 or d >= worst or not _is_local_min(verts, tris, edges, lists, t, feat, qx, qy, qz, cx, cy, cz):
-            if wake:
-                settle(cand, region, d - cap, spread, cx, cy, cz)
-            continue
         if wake:
-            # It holds a minimum: it stays awake, its bound asked again once the centre has moved
-            # ``spread`` from here (left at its old reference, it would be asked every tick).
+            # Whether or not it holds a minimum, its bound is asked again once the centre has moved
+            # ``spread`` from here (one that does, left at its old reference, was asked every tick).
             settle(cand, region, d - cap, spread, cx, cy, cz)
+        if d2 >= r2 or d >= worst or not _is_local_min(verts, tris, edges, lists, t, feat, qx, qy, qz, cx, cy, cz):
+            continue
         if d < TOUCH:
             phi = 0.0
             nx, ny, nz = feature_normal(verts, tris, edges, t, feat)

@@ -322,19 +322,26 @@ def test_culling_agrees_with_fresh_queries_along_a_random_walk() -> None:
         spheres=(SphereSpec((0.0, 0.0, 0.02), 0.004),),
     )
     scene = make_scene(objects, tool)
-    model = ContactModel(scene)
+    r_max = float(scene.tool.radii.max())
+    model, scratch = ContactModel(scene), ContactModel(scene)
     rng = np.random.default_rng(1)
     p = np.array([0.0, 0.03, 0.01])
     angles = np.zeros(3)
     queries = []
-    # Steps of ~0.5 mm and ~0.6 deg (a fast hand at 1 kHz); the tool grazes the block and the ball.
+    behind = 0
+    # Steps of ~0.5 mm and ~0.6 deg (a fast hand at 1 kHz); the tool grazes the block and the ball
+    # and is pushed deep into them. ``scratch`` has the same history (remembered surfaces) but
+    # evaluates every pair from scratch.
     for _ in range(400):
         p = np.clip(p + rng.normal(0.0, 0.0005, 3), [-0.05, -0.02, 0.002], [0.05, 0.08, 0.03])
         angles = np.clip(angles + rng.normal(0.0, 0.01, 3), -0.2, 0.2)
         T = pose(tuple(p), tuple(angles))
-        culled, fresh = model.wrench(T), contact_wrench(scene, T)
+        scratch.forget_caches()
+        culled, fresh = model.wrench(T), scratch.wrench(T)
         np.testing.assert_allclose(culled.wrench_S, fresh.wrench_S, atol=1e-9)
         queries.append(culled.queries)
+        behind += bool(np.any(culled.depths > r_max))
+    assert behind > 10  # the walk does push centres behind surfaces
     assert fresh.queries == len(scene.tool.radii) * 2
     assert np.mean(queries) < 0.5 * fresh.queries
 

@@ -25,12 +25,18 @@ The model, per (sphere of radius r, object) pair, with c the sphere centre:
    pushes only from in front: a face seen from behind while the centre is outside is the far
    side of material (the underside of a plate being pressed from above). At most four contacts
    per pair, the nearest.
-5. **Pop-through memory** (per pair): the last primary contact plane (point, normal, triangle).
-   If the primary's normal turns against it while the centre is behind that plane, the centre
-   crossed the middle of a thin part and the remembered plane keeps pushing back (a 1 mm plate
-   pushed 10 mm never flips the force). It lasts only while its triangle is within r (plus 1 nm
-   of rounding) of the centre and while it pushes: **a non-zero force on a sphere always implies
-   mesh geometry within its radius.**
+5. **The surface entered is held however deep** (per pair, :mod:`.track`): the pair remembers its
+   primary contact's feature and, at every evaluation, slides it over the mesh (across shared
+   edges and vertices, never a cut) to the nearest surface point it reaches first from the
+   centre, as a god-object constrained to the surface would (Zilles & Salisbury 1995). While
+   the centre is behind that surface it is the primary, with depth ``r - phi`` growing without
+   limit, and the other minima push only from in front of both themselves and its plane. So the
+   force along a push never falls (a plate pushed 10 mm past its far face still pushes back out
+   of its top), a fast stroke never pops through a thin part, and a tool let go deep inside
+   comes back out where it went in. **Invariant: a non-zero force on a sphere implies mesh
+   geometry within its radius, or a surface it entered from in front and has stayed behind
+   since** (only the stateless :func:`contact_wrench`, with no history, reads a centre deeper
+   than r inside a solid as free).
 6. **Degenerate positions** (a centre exactly on a face, an edge, a vertex, the corner of a
    pocket) push along the pseudonormal of each feature touched with depth r.
 7. **Force law** (:mod:`.force`): ``k depth - b u_n`` clamped at 0, and regularised Coulomb
@@ -56,7 +62,8 @@ triangles that cannot change the result.
 Limits: a sharp-cornered part hidden behind less than r of material still pushes (as a second
 object would); with the centre inside the solid, a secondary contact can switch on or off where
 the plane of a cut face extends into the material (the force is continuous outside the solid,
-away from the medial axis); edge or vertex minima on neighbouring triangles less than 30 degrees
+away from the medial axis); one surface per pair is held behind (deep in an inside corner, the
+other face pushes only while the centre is in front of it); edge or vertex minima on neighbouring triangles less than 30 degrees
 apart count as one (the nearer); at most four contacts per pair; more than 4096 cached
 triangles within a sphere's reach is an invalid reading.
 """

@@ -75,8 +75,8 @@ OBJECT = np.dtype(
     align=True,
 )
 
-# One (sphere, object) pair, k = object * spheres + sphere: culling, candidate cache, pop-through
-# memory, and the local minima found by the current evaluation.
+# One (sphere, object) pair, k = object * spheres + sphere: culling, candidate cache, the
+# remembered surface, and the local minima found by the current evaluation.
 PAIR = np.dtype(
     [
         ("c_T", "f8", (3,)),  # the sphere: centre in {T}
@@ -88,10 +88,10 @@ PAIR = np.dtype(
         ("cache_c", "f8", (3,)),  # centre the candidate cache was gathered at
         ("cache_n", "i8"),  # candidates in the pool row; -1: no cache
         ("near_t", "i8"),  # nearest triangle at the last evaluation (-1: none): checked first
-        ("mem", "i8"),  # 1 while a pop-through plane is remembered
+        ("mem", "i8"),  # 1 while a surface is remembered (app.world.contact.track)
         ("mem_q", "f8", (3,)),  # its point and outward normal
         ("mem_n", "f8", (3,)),
-        ("mem_t", "i8"),  # its triangle: the memory lasts while it is within the sphere's reach
+        ("mem_t", "i8"),  # its triangle, from which the next evaluation follows the surface
         ("n_min", "i8"),  # local minima of the distance within reach, this evaluation
         ("min_q", "f8", (MAX_PER_PAIR, 3)),  # their points,
         ("min_n", "f8", (MAX_PER_PAIR, 3)),  # outward normals,

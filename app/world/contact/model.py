@@ -122,7 +122,7 @@ class ContactResult:
 class ContactModel:
     """Contact wrench of the scene's tool against its objects, with per-pair memory.
 
-    Stateful (pop-through memory, culling state, candidate caches): use one instance per
+    Stateful (remembered surfaces, culling state, candidate caches): use one instance per
     simulated tool and call :meth:`reset` when the tool jumps. :func:`contact_wrench` is the
     stateless convenience.
 
@@ -181,21 +181,27 @@ class ContactModel:
         self.reset()
 
     def reset(self) -> None:
-        """Forget contact memory, culling state and caches (e.g. after the tool was teleported)."""
+        """Forget the remembered surfaces, culling state and caches (e.g. after the tool was teleported)."""
+        self._pairs["mem"] = 0
+        self.forget_caches()
+
+    def forget_caches(self) -> None:
+        """Forget culling state and candidate caches but keep the remembered surfaces: the next
+        evaluation is computed from scratch with the same history (a check of the culling's
+        exactness)."""
         p = self._pairs
         p["last"] = np.inf
         p["slack"] = -1.0
         p["hot"] = 0
         p["cache_n"] = -1
         p["near_t"] = -1
-        p["mem"] = 0
         self._objs["slack"] = -1.0
         self._objs["near"] = 0
         self._tool["near_slack"] = -1.0
 
     @property
     def remembered(self) -> int:
-        """Number of (sphere, object) pairs holding a pop-through memory plane."""
+        """Number of (sphere, object) pairs holding a remembered surface (:mod:`.track`)."""
         return int(self._pairs["mem"].sum())
 
     def wrench(self, T_w_MRF: Array, V_w_MRF: Array | None = None) -> ContactResult:
@@ -259,7 +265,7 @@ def _as_array(x: object, name: str) -> Array:
 def contact_wrench(scene: Scene, T_w_MRF: Array, V_w_MRF: Array | None = None) -> ContactResult:
     """Stateless contact wrench of ``scene``'s tool at ``T_w_MRF`` (4, 4); see :meth:`ContactModel.wrench`.
 
-    Builds a fresh :class:`ContactModel` (so no pop-through memory) on each call; for a sequence
-    of poses keep one model instead.
+    Builds a fresh :class:`ContactModel` on each call, so nothing is remembered: a centre deeper
+    than r inside a solid is free. For a sequence of poses (a push, a stroke) keep one model.
     """
     return ContactModel(scene).wrench(T_w_MRF, V_w_MRF)

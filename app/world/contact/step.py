@@ -1,5 +1,5 @@
 """One contact evaluation (:func:`contact_step`), compiled with numba: culling, the local minima
-of each remaining (sphere, object) pair, which of them push, pop-through memory, and the wrench.
+of each remaining (sphere, object) pair, which of them push, the surfaces held behind (:mod:`.track`), and the wrench.
 
 Culling, exact (no margin needed): the distance to a mesh is 1-Lipschitz in the centre, so a pair
 whose distance is at least d > r cannot touch until its centre has moved ``d - r``. Per object,
@@ -19,16 +19,17 @@ from numba import njit
 
 from app.world.contact.bundle import borrowed, tick_kernel
 from app.world.contact.force import contact_force, write_wrench
-from app.world.contact.geometry import box_distance2, closest_on_triangle
+from app.world.contact.geometry import box_distance2
 from app.world.contact.layout import ERR_OVERFLOW, ERR_POSE, ERR_ROTATION, ERR_TWIST, ERR_WRENCH, Record, Records
 from app.world.contact.minima import ensure_cache, local_minima
+from app.world.contact.track import follow
 
 # Largest deviation of R^T R from the identity (and of the last row from [0 0 0 1]) accepted as a
 # rigid pose: double-precision rotations from quaternions or products stay far below it.
 ROTATION_TOL = 1e-6
-# The pop-through memory lasts while its triangle is within r + MEMORY_ALLOWANCE (m) of the centre:
-# only rounding, so a force always implies mesh geometry within the sphere's radius.
-MEMORY_ALLOWANCE = 1e-9
+# A secondary minimum whose point is this far (m) behind the plane of a remembered surface the
+# centre is behind is beyond that surface (rounding allowance of points on a shared edge).
+_BEYOND = 1e-9
 
 
 @tick_kernel
@@ -99,6 +100,8 @@ def _pair_contacts(
     obj: Record,
     verts: Records,
     tris: Records,
+    edges: Records,
+    lists: np.ndarray,
     out: Records,
     n_c: int,
     T: np.ndarray,
@@ -106,44 +109,49 @@ def _pair_contacts(
     V: np.ndarray,
     FM: np.ndarray,
 ) -> int:
-    """The contacts of a pair from its local minima; updates its memory; returns the new count.
+    """The contacts of a pair from its local minima and its remembered surface; updates the
+    memory; returns the new count.
 
-    The nearest minimum is the *primary*: if its centre is behind it (phi < 0, inside the solid)
-    it pushes with depth ``r - phi``; every other minimum pushes only from in front (phi >= 0): a
-    face seen from behind with the centre outside is the far side of material. Pop-through: if
-    the primary's normal opposes the remembered plane's while the centre is behind that plane
-    and its triangle is within reach, the remembered plane replaces the primary. Weighted minima
+    The remembered surface is followed first (:func:`~app.world.contact.track.follow`): while
+    the centre is behind it (phi < 0) it is the primary contact, with depth ``r - phi`` however
+    deep, and the other minima push only from in front and from in front of its plane (a face
+    beyond it is the far side of the material: the underside of a plate pushed through).
+    Otherwise the nearest minimum is the primary: it pushes from in front (phi >= 0) or from
+    behind (phi < 0, a centre found inside the solid with nothing remembered); every other
+    minimum pushes only from in front, and the primary becomes the memory. Weighted minima
     (crease bands) are merged into one contact.
     """
     n_min = pair.n_min
-    if n_min == 0:
-        pair.mem = 0
-        return n_c
     c = pair.c
-    prim = 0
-    for e in range(1, n_min):
-        if abs(pair.min_phi[e]) < abs(pair.min_phi[prim]):
-            prim = e
-    phi = pair.min_phi[prim]
-    nx, ny, nz = pair.min_n[prim, 0], pair.min_n[prim, 1], pair.min_n[prim, 2]
-    from_mem = False
+    behind = False
     if pair.mem == 1:
-        m = pair.mem_n
-        s0 = (c[0] - pair.mem_q[0]) * m[0] + (c[1] - pair.mem_q[1]) * m[1] + (c[2] - pair.mem_q[2]) * m[2]
-        if nx * m[0] + ny * m[1] + nz * m[2] < 0.0 and s0 < 0.0:
-            reach = r + MEMORY_ALLOWANCE
-            if closest_on_triangle(verts, tris, pair.mem_t, c[0], c[1], c[2])[0] <= reach * reach:
-                # The centre crossed the middle of a thin part: keep pushing back out of the plane.
-                phi, nx, ny, nz = s0, m[0], m[1], m[2]
-                from_mem = True
-    if r - phi <= 0.0:
-        pair.mem = 0
-    elif not from_mem:
-        pair.mem = 1
-        for a in range(3):
-            pair.mem_q[a] = pair.min_q[prim, a]
-        pair.mem_n[0], pair.mem_n[1], pair.mem_n[2] = nx, ny, nz
-        pair.mem_t = pair.min_t[prim]
+        t, phi, qx, qy, qz, nx, ny, nz = follow(verts, tris, edges, lists, pair.mem_t, c[0], c[1], c[2])
+        if phi < 0.0:
+            behind = True
+            pair.mem_t = t
+            pair.mem_q[0], pair.mem_q[1], pair.mem_q[2] = qx, qy, qz
+            pair.mem_n[0], pair.mem_n[1], pair.mem_n[2] = nx, ny, nz
+    if not behind:
+        if n_min == 0:
+            pair.mem = 0
+            return n_c
+        prim = 0
+        for e in range(1, n_min):
+            if abs(pair.min_phi[e]) < abs(pair.min_phi[prim]):
+                prim = e
+        phi = pair.min_phi[prim]
+        nx, ny, nz = pair.min_n[prim, 0], pair.min_n[prim, 1], pair.min_n[prim, 2]
+        qx, qy, qz = pair.min_q[prim, 0], pair.min_q[prim, 1], pair.min_q[prim, 2]
+        if r - phi <= 0.0:
+            pair.mem = 0
+        else:
+            pair.mem = 1
+            pair.mem_q[0], pair.mem_q[1], pair.mem_q[2] = qx, qy, qz
+            pair.mem_n[0], pair.mem_n[1], pair.mem_n[2] = nx, ny, nz
+            pair.mem_t = pair.min_t[prim]
+    else:
+        prim = -1
+        n_c = _emit(out, n_c, i, j, obj, r - phi, qx, qy, qz, nx, ny, nz, T, has_twist, V, FM)
     # Weighted minima (crease bands) are one contact: their weighted mean of depth * normal and
     # of point, the weights normalised (near a vertex of a tessellated curved surface several
     # faces hold a minimum at once, and their raw weights add up to more than one).
@@ -152,11 +160,14 @@ def _pair_contacts(
         w = pair.min_w[e]
         if e == prim:
             depth = r - phi
-            if phi < 0.0 or from_mem:
+            if phi < 0.0:
                 w = 1.0
             mx, my, mz = nx, ny, nz
         else:
             if pair.min_phi[e] < 0.0:
+                continue
+            mq = pair.min_q[e]
+            if behind and (mq[0] - qx) * nx + (mq[1] - qy) * ny + (mq[2] - qz) * nz < -_BEYOND:
                 continue
             depth = r - pair.min_phi[e]
             mx, my, mz = pair.min_n[e, 0], pair.min_n[e, 1], pair.min_n[e, 2]
@@ -231,7 +242,7 @@ def contact_step(
     for a in range(3):
         c0[a] = R[a, 0] * tool.c0[0] + R[a, 1] * tool.c0[1] + R[a, 2] * tool.c0[2] + p[a]
 
-    # Objects within reach of the tool's bounding sphere (or holding a pop-through memory).
+    # Objects within reach of the tool's bounding sphere (or holding a remembered surface).
     dx, dy, dz = c0[0] - tool.near_c0[0], c0[1] - tool.near_c0[1], c0[2] - tool.near_c0[2]
     if not (tool.near_slack > 0.0 and dx * dx + dy * dy + dz * dz < tool.near_slack**2):
         near_slack = math.inf
@@ -289,7 +300,7 @@ def contact_step(
             for a in range(3):
                 pair.last[a] = pair.c[a]
             before = n_c
-            n_c = _pair_contacts(pair, i, j, r, o, verts, tris, out, n_c, T, has_twist, V, FM)
+            n_c = _pair_contacts(pair, i, j, r, o, verts, tris, edges, lists, out, n_c, T, has_twist, V, FM)
             gap = bound - r - tool.margin
             pair.slack = gap if (n_c == before and pair.mem == 0 and gap > 0.0) else -1.0
         if full:

@@ -1,0 +1,214 @@
+"""Issue 25: a wall that holds under any push. Depth ramps never lose force, fast strokes never pop
+through a thin part, and the tool pushed in always comes back out on the side it entered.
+
+Each ramp moves the tool a small step per call into a surface, along the surface's normal, until
+the force against the push reaches the slave's force limit (40 N in every shipped scene): the
+force along the push must never decrease on the way (a penalty model with a depth horizon drops
+from ``2 k r`` to 0 there). Then the tool is pulled back along the same line: the force must stay
+against the push until it is out of contact, which it is only on the near side.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from world_helpers import make_scene, pose, sphere_tool
+
+from app.world import ContactModel, load_scene
+from app.world.scene import ObjectSpec, Pose, Scene
+
+K = 3000.0  # N/m, the shipped scenes' stiffness
+r = 0.005  # m, the shipped stylus tip
+LIMIT = 40.0  # N, the shipped slave force limit
+STEP = 1e-4  # m per call: 0.1 m/s at 1 kHz
+
+
+def _ramp(scene: Scene, start: np.ndarray, direction: np.ndarray, step: float = STEP) -> tuple[np.ndarray, float]:
+    """Push {MRF} from ``start`` (4, 4) along ``direction`` until the force against it reaches LIMIT,
+    then pull back to the start. Returns the force against the push at each call in, (n,), and the
+    largest force pushing the tool *further* along the push met on the way back (N, 0 if none)."""
+    model = ContactModel(scene)
+    u = direction / np.linalg.norm(direction)
+    T = start.copy()
+    pushed: list[float] = []
+    for _ in range(int(0.1 / step)):  # at most 10 cm of push
+        res = model.wrench(T)
+        assert res.valid
+        pushed.append(-float(res.force_w @ u))
+        if pushed[-1] >= LIMIT:
+            break
+        T[0:3, 3] += step * u
+    else:
+        pytest.fail(f"the force never reached {LIMIT} N: last {pushed[-1]:.2f} N")
+    worst = 0.0
+    for _ in range(len(pushed) - 1):
+        T[0:3, 3] -= step * u
+        worst = max(worst, float(model.wrench(T).force_w @ u))
+    assert np.allclose(model.wrench(T).force_w, 0.0), "still in contact back at the start"
+    return np.array(pushed), worst
+
+
+def _assert_holds(forces: np.ndarray, worst_back: float) -> None:
+    drops = np.diff(forces)
+    assert drops.min() >= -1e-9, f"force dropped by {-drops.min():.3f} N at {forces[np.argmin(drops)]:.2f} N"
+    assert forces[-1] >= LIMIT
+    assert worst_back <= 1e-9, f"pulled through: {worst_back:.3f} N along the push on the way back"
+
+
+# --- Every shipped scene, with its own tool, pushed straight down and, in the bowl, sideways. ---
+
+SHIPPED = [
+    ("probe", (0.0, 0.0, 0.0), (0.0, 0.0, -1.0)),
+    ("peg_in_hole", (0.012, 0.0, 0.0), (0.0, 0.0, -1.0)),  # pegs beside the holes: on the top face
+    ("peg_in_hole", (0.0, 0.0, 0.0), (0.0, 0.0, -1.0)),  # pegs into the holes: the crossbar lands
+    ("bowl", (0.0, 0.0, 0.0), (0.0, 0.0, -1.0)),
+    ("bowl", (0.0, 0.0, -0.03), (1.0, 0.0, 0.0)),  # into the cavity's wall
+    ("large_mesh", (0.01, -0.02, 0.0), (0.0, 0.0, -1.0)),
+]
+
+
+@pytest.mark.parametrize(("name", "offset", "direction"), SHIPPED)
+def test_shipped_scenes_hold_a_push_to_the_force_limit(
+    name: str, offset: tuple[float, float, float], direction: tuple[float, float, float]
+) -> None:
+    scene = load_scene(name)
+    start = scene.spec.tool.home.matrix()
+    start[0:3, 3] += offset
+    forces, back = _ramp(scene, start, np.array(direction))
+    _assert_holds(forces, back)
+    assert forces[0] == 0.0  # it starts out of contact
+
+
+# --- Meshes not shipped: a torus (saddle), a gear prism, a thin fin, a U channel, two boxes. ---
+
+
+def _gear(teeth: int = 24, r_root: float = 0.03, r_tip: float = 0.036, height: float = 0.02) -> trimesh.Trimesh:
+    """A spur-gear prism: a star polygon of trapezoidal teeth, fanned from its axis and extruded."""
+    ring = []
+    for k in range(teeth):
+        a = 2 * math.pi * k / teeth
+        da = 2 * math.pi / teeth
+        ring += [
+            (r_root, a),
+            (r_root, a + 0.25 * da),
+            (r_tip, a + 0.35 * da),
+            (r_tip, a + 0.65 * da),
+            (r_root, a + 0.75 * da),
+        ]
+    xy = np.array([(rr * math.cos(a), rr * math.sin(a)) for rr, a in ring])
+    n = len(xy)
+    verts = np.vstack([np.c_[xy, np.zeros(n)], np.c_[xy, np.full(n, height)], [[0, 0, 0], [0, 0, height]]])
+    faces = []
+    for i in range(n):
+        j = (i + 1) % n
+        faces += [[2 * n, j, i], [2 * n + 1, n + i, n + j], [i, j, n + j], [i, n + j, n + i]]
+    mesh = trimesh.Trimesh(verts, np.array(faces), process=True)
+    assert mesh.is_watertight
+    assert mesh.volume > 0
+    return mesh
+
+
+def _box(lo: tuple[float, float, float], hi: tuple[float, float, float]) -> trimesh.Trimesh:
+    box = trimesh.creation.box(extents=np.subtract(hi, lo))
+    box.apply_translation(np.add(lo, hi) / 2)
+    return box
+
+
+def _u_channel() -> trimesh.Trimesh:
+    """A 30 mm block with an 8 mm wide, 10 mm deep channel along y (floor z = 0, walls x = +-4 mm)."""
+    block = _box((-0.015, -0.03, -0.01), (0.015, 0.03, 0.01))
+    return trimesh.boolean.difference([block, _box((-0.004, -0.04, 0.0), (0.004, 0.04, 0.02))], engine="manifold")
+
+
+def _mesh_scene(tmp: Path, meshes: dict[str, trimesh.Trimesh], radius: float = r) -> Scene:
+    objects = []
+    for name, mesh in meshes.items():
+        path = tmp / f"{name}.ply"
+        mesh.export(path)
+        objects.append(ObjectSpec(name=name, mesh=str(path), stiffness=K))
+    return make_scene(objects, sphere_tool(radius))
+
+
+# (name, meshes, start of the sphere centre, push direction, sphere radius)
+BUILT = [
+    # The torus's inner side is a saddle: pushed outwards from the hole, and down onto its top.
+    ("torus_saddle", {"torus": trimesh.creation.torus(0.03, 0.01)}, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), r),
+    ("torus_top", {"torus": trimesh.creation.torus(0.03, 0.01)}, (0.03, 0.0, 0.02), (0.0, 0.0, -1.0), r),
+    # Into a tooth's tip and into the notch between two teeth.
+    ("gear_tooth", {"gear": _gear()}, (0.05 * math.cos(0.5 * math.pi / 12), 0.05 * math.sin(0.5 * math.pi / 12), 0.01), (-1, -0.13165, 0), r),
+    ("gear_notch", {"gear": _gear()}, (0.05, 0.0, 0.01), (-1.0, 0.0, 0.0), 0.002),
+    # A 0.5 mm fin across the push: the centre passes its far face long before the limit.
+    ("fin", {"fin": _box((-0.00025, -0.02, -0.02), (0.00025, 0.02, 0.02))}, (-0.01, 0.0, 0.0), (1.0, 0.0, 0.0), r),
+    # A U channel: down onto its floor with a 3 mm sphere, and sideways into a wall.
+    ("channel_floor", {"channel": _u_channel()}, (0.0, 0.0, 0.006), (0.0, 0.0, -1.0), 0.003),
+    ("channel_wall", {"channel": _u_channel()}, (0.0, 0.0, 0.005), (1.0, 0.0, 0.0), 0.003),
+    # Two overlapping boxes (tops 2 mm apart), pushed down through the overlap.
+    (
+        "overlap",
+        {"a": _box((-0.02, -0.02, -0.02), (0.01, 0.02, 0.0)), "b": _box((-0.01, -0.02, -0.03), (0.02, 0.02, -0.002))},
+        (0.0, 0.0, 0.01),
+        (0.0, 0.0, -1.0),
+        r,
+    ),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("name", "meshes", "centre", "direction", "radius"), BUILT, ids=[b[0] for b in BUILT])
+def test_built_meshes_hold_a_push_to_the_force_limit(
+    tmp_path: Path,
+    name: str,
+    meshes: dict[str, trimesh.Trimesh],
+    centre: tuple[float, float, float],
+    direction: tuple[float, float, float],
+    radius: float,
+) -> None:
+    scene = _mesh_scene(tmp_path, meshes, radius)
+    forces, back = _ramp(scene, pose(centre), np.array(direction, dtype=float))
+    _assert_holds(forces, back)
+
+
+# --- Fast strokes: 1 m/s at 1 kHz (1 mm a tick) into a 0.5 mm fin and a 2 mm plate. ---
+
+
+@pytest.mark.parametrize("thickness", [0.0005, 0.002])
+@pytest.mark.parametrize("angle_deg", [0.0, 30.0, 60.0])
+def test_a_fast_stroke_never_pops_through_a_thin_part(tmp_path: Path, thickness: float, angle_deg: float) -> None:
+    """A stroke 20 mm past the part's mid-plane, at any angle to it, and back: the force normal to
+    the part never points along the stroke (the far side never pushes the sphere through)."""
+    h = thickness / 2
+    scene = make_scene(
+        [ObjectSpec(name="plate", box=(0.08, 0.08, thickness), pose=Pose((0.0, 0.0, 0.0)), stiffness=K)],
+        sphere_tool(r),
+    )
+    model = ContactModel(scene)
+    a = math.radians(angle_deg)
+    u = np.array([math.sin(a), 0.0, -math.cos(a)])  # down onto the plate's top face, at angle a
+    start = np.array([0.0, 0.0, h + r + 0.003]) - 0.01 * math.tan(a) * np.array([1.0, 0.0, 0.0])
+    path = [start + s * 1e-3 * u for s in range(30)]
+    normal_forces = []
+    for c in path + path[::-1]:
+        res = model.wrench(pose(tuple(c)))
+        normal_forces.append(float(res.force_w[2]))
+    assert min(normal_forces) >= 0.0  # never pulled down through the plate
+    deepest = normal_forces[len(path) - 1]
+    assert deepest == pytest.approx(K * (r + h - path[-1][2]), rel=1e-9)  # the top face, however deep
+    assert normal_forces[-1] == 0.0  # and out again on top
+
+
+def test_a_tool_released_deep_inside_comes_back_out_on_the_near_side(tmp_path: Path) -> None:
+    """A sphere pushed 12 mm into a 2 mm plate and let go moves along its contact force (a
+    first-order follower, as a light tool would) and ends above the plate, not below it."""
+    scene = make_scene([ObjectSpec(name="plate", box=(0.08, 0.08, 0.002), stiffness=K)], sphere_tool(r))
+    model = ContactModel(scene)
+    c = np.array([0.0, 0.0, 0.001 + r])
+    for _ in range(120):  # in at 0.1 mm a call
+        c[2] -= 1e-4
+        model.wrench(pose(tuple(c)))
+    assert c[2] < -0.001  # the centre is beyond the plate's far face
+    for _ in range(2000):  # released: drift along the force, 1 mm per 30 N
+        c = c + model.wrench(pose(tuple(c))).force_w / 30000.0
+    assert c[2] == pytest.approx(0.001 + r, abs=1e-4)

@@ -1,7 +1,8 @@
 """Contact-wrench and slave-step timing: median and p99 per case, as a text table.
 
 Cases: the default tool of each shipped scene held in contact (``static``: the same pose every
-call; ``moving``: a random walk of 20 um / 0.01 deg steps, as a hand moves at 1 kHz); the probe
+call; ``moving``: a random walk of 20 um / 0.01 deg steps, as a hand moves at 1 kHz), and stroked
+at 1 m/s (``1 m/s``: moving is 1 mm a call back and forth over 20 mm in contact); the probe
 tool pressed into icospheres of about 1k, 10k, 100k and 1M triangles; the probe scene with 1, 10
 and 100 objects (all but the surface far away); and one :meth:`VirtualSlave.step` in contact.
 
@@ -32,6 +33,15 @@ CONTACT_POSES: dict[str, tuple[tuple[float, float, float], tuple[float, float, f
     "bowl": ((0.02, 0.0, -0.0535), (0.0, 0.0, 0.0)),  # tip 2 mm into the cavity wall
     "large_mesh": ((0.03, 0.02, 0.002), (0.0, 0.0, 0.0)),  # tip on the terrain's bumps
 }
+# The 1 m/s strokes: {MRF} pose in contact and the stroke's direction, back and forth +-10 mm at
+# 1 mm per call (a hand's speed at 1 kHz).
+STROKES: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
+    "probe": ((0.0, 0.0, 0.004), (1.0, 0.0, 0.0)),  # tip 1 mm into the surface
+    "peg_in_hole": ((0.015, 0.0, -0.001), (0.0, 1.0, 0.0)),  # both peg tips 1 mm into the top face
+    "bowl": ((0.0, 0.0, -0.056), (1.0, 0.0, 0.0)),  # tip 1 mm into the cavity's floor, across it
+    "large_mesh": ((0.03, 0.02, 0.002), (1.0, 0.0, 0.0)),  # across the terrain's bumps
+}
+STROKE_STEP = 1e-3  # m per call
 
 
 def _time(fn: Callable[[int], object], n: int) -> tuple[float, float]:
@@ -60,13 +70,29 @@ def _walk(T0: Array, n: int, seed: int = 0) -> list[Array]:
     return poses
 
 
-def _contact_row(label: str, scene: Scene, T: Array, n: int, mujoco: bool = False) -> list[str]:
+def _stroke(T0: Array, direction: tuple[float, float, float], n: int) -> list[Array]:
+    """``n`` poses of a stroke back and forth along ``direction`` through ``T0``: +-10 mm, 1 mm a call."""
+    period = 40  # calls per round trip of 2 x 20 mm
+    u = np.array(direction)
+    poses = []
+    for k in range(n):
+        phase = k % period
+        s = STROKE_STEP * (phase if phase <= period // 2 else period - phase) - 0.01
+        T = T0.copy()
+        T[0:3, 3] += s * u
+        poses.append(T)
+    return poses
+
+
+def _contact_row(
+    label: str, scene: Scene, T: Array, n: int, mujoco: bool = False, stroke: tuple[float, float, float] | None = None
+) -> list[str]:
     model = ContactModel(scene)
     res = model.wrench(T)
     if not res.valid or res.count == 0:
         raise RuntimeError(f"benchmark pose for {label} is not in contact")
     static = _time(lambda _k: model.wrench(T), n)
-    poses = _walk(T, n + 50)
+    poses = _walk(T, n + 50) if stroke is None else _stroke(T, stroke, n + 50)
     model.reset()
     tris = sum(len(o.mesh.faces) for o in scene.objects)
     row = [label, f"{tris}", f"{len(scene.tool.radii)}", f"{res.count}", *(f"{v:.1f}" for v in static)]
@@ -164,6 +190,9 @@ def run(quick: bool = False) -> str:
     for name, (p, a) in CONTACT_POSES.items():
         T = make_pose(zyx_to_matrix(*a), np.array(p))
         rows.append(_contact_row(f"scene {name}", load_scene(name), T, n, mujoco=True))
+    for name, (p, u) in STROKES.items():
+        T = make_pose(np.eye(3), np.array(p))
+        rows.append(_contact_row(f"scene {name} 1 m/s", load_scene(name), T, n, mujoco=True, stroke=u))
     T_probe = make_pose(np.eye(3), np.array(CONTACT_POSES["probe"][0]))
     with tempfile.TemporaryDirectory() as tmp:
         for sub in (3, 5, 6) if quick else (3, 5, 6, 8):

@@ -6,6 +6,9 @@ every mesh whatever its orientation in space:
 
 - non-finite vertices are refused (before any processing: trimesh would silently drop them and
   leave a hole);
+- a zero-area sliver whose middle vertex lies on its long edge (a T-junction closed by a sliver,
+  as mesh exporters leave them) is repaired by splitting the triangle across that long edge at
+  the middle vertex; dropping the sliver alone would open the surface;
 - an open surface (a boundary edge: a single triangle, a box without its top, a terrain without
   sides) is refused with the count of boundary edges, as is a surface whose triangles are not
   consistently wound or that has no volume;
@@ -42,6 +45,7 @@ def checked_mesh(mesh: trimesh.Trimesh, source: str | Path, field: str) -> trime
         raise ConfigError(source, field, f"{int(bad.sum())} non-finite vertices (first at index {int(np.argmax(bad))})")
     mesh = trimesh.Trimesh(vertices, np.asarray(mesh.faces), process=True)
     mesh.remove_unreferenced_vertices()
+    mesh = _split_slivers(mesh)
     mesh.update_faces(mesh.nondegenerate_faces())
     if len(mesh.faces) == 0 or float(mesh.area) <= 1e-12:
         raise ConfigError(source, field, "degenerate mesh: no faces or zero area")
@@ -63,3 +67,44 @@ def checked_mesh(mesh: trimesh.Trimesh, source: str | Path, field: str) -> trime
     if mesh.volume < 0:
         mesh.invert()  # wound inside out: outward normals are what contact signs with
     return mesh
+
+
+def _split_slivers(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """``mesh`` with each zero-area sliver of three distinct vertices removed and the triangle
+    across its long edge split at its middle vertex, so that every edge keeps its two faces.
+
+    The sliver (a, b, c) with c on edge ab closes a T-junction: the face across ab, (b, a, d) in
+    its winding, becomes (b, c, d) and (c, a, d). Slivers with a repeated vertex (collapsed to a
+    segment by the vertex merge) use each of their edges both ways and are dropped as they are.
+    """
+    degenerate = ~mesh.nondegenerate_faces()
+    if not degenerate.any():
+        return mesh
+    faces = [list(f) for f in mesh.faces]
+    v = np.asarray(mesh.vertices)
+    dropped: set[int] = set()
+    for i in np.flatnonzero(degenerate):
+        f = faces[i]
+        if len(set(f)) < 3:
+            continue
+        # The long edge (a, b) in the sliver's winding, and its middle vertex c.
+        k = int(np.argmax([np.linalg.norm(v[f[(j + 1) % 3]] - v[f[j]]) for j in range(3)]))
+        a, b, c = f[k], f[(k + 1) % 3], f[(k + 2) % 3]
+        across = next(
+            (
+                j
+                for j, g in enumerate(faces)
+                if j != i and j not in dropped and any(g[m] == b and g[(m + 1) % 3] == a for m in range(3))
+            ),
+            None,
+        )
+        if across is None:
+            continue  # nothing to split: left to the closedness check, which reports it
+        g = faces[across]
+        m = next(m for m in range(3) if g[m] == b)
+        d = g[(m + 2) % 3]
+        faces[across] = [b, c, d]
+        faces.append([c, a, d])
+        dropped.add(int(i))
+    keep = [f for j, f in enumerate(faces) if j not in dropped]
+    return trimesh.Trimesh(v, np.array(keep, dtype=np.int64), process=False)

@@ -126,6 +126,37 @@ def test_missing_scene_file_names_the_file(tmp_path: Path) -> None:
     assert info.value.field == "<file>"
 
 
+def test_a_closed_mesh_with_a_sliver_triangle_loads_closed(tmp_path: Path) -> None:
+    """A T-junction closed by a zero-area sliver (issue 25): the file is closed, and the loader's
+    repair keeps it closed instead of refusing it as open once the sliver is gone."""
+    corners = [(x, y, z) for z in (-1, 1) for (x, y) in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    vertices = np.array([*corners, (0, 0, 1)]) * (0.1, 0.1, 0.01)  # 8: the middle of the top diagonal 4-6
+    sides = [
+        [0, 2, 1],
+        [0, 3, 2],
+        [0, 1, 5],
+        [0, 5, 4],
+        [2, 3, 7],
+        [2, 7, 6],
+        [0, 4, 7],
+        [0, 7, 3],
+        [1, 2, 6],
+        [1, 6, 5],
+    ]
+    # The top: one triangle whole, the other split at 8, and the sliver 4-6-8 closing the T-junction.
+    faces = [*sides, [4, 5, 6], [4, 8, 7], [8, 6, 7], [4, 6, 8]]
+    sliver = trimesh.Trimesh(vertices, np.array(faces), process=False)
+    assert sliver.is_watertight  # closed as written, with one zero-area face
+    assert np.min(sliver.area_faces) == 0.0
+    path_mesh = tmp_path / "sliver.ply"
+    sliver.export(path_mesh)
+    scene = load_scene(write_scene(tmp_path, mesh_line=f'mesh = "{path_mesh}"'))
+    mesh = scene.objects[0].mesh
+    assert mesh.is_watertight
+    assert mesh.volume == pytest.approx(0.2 * 0.2 * 0.02)
+    assert np.min(mesh.area_faces) > 0.0
+
+
 def test_open_mesh_is_refused_naming_the_field(tmp_path: Path) -> None:
     # Contact signs distances by the side of the surface: an open one has no inside (issue 12:
     # a box without its bottom pushed the tool sideways in free space).

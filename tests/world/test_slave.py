@@ -203,3 +203,31 @@ def test_command_arrays_of_other_types_and_layouts_step_like_float64() -> None:
         other.step(SlaveCommand(active=True, mode="rate", twist=np.zeros(3)))
     with pytest.raises(InputError, match=r"SlaveCommand.T_w_MRF"):
         other.step(SlaveCommand(active=True, mode="pose", T_w_MRF=np.eye(3)))
+
+
+def test_a_hard_push_through_a_thin_plate_never_pops_through() -> None:
+    """Issue 25 in the servo loop: the probe's stylus pushed at the slave's force limit (40 N, far
+    beyond 2 k r = 30 N) into a 2 mm plate, its tip centre past the far face, holds the force there
+    and comes back out on top when the command is pulled back."""
+    import dataclasses
+
+    from app.world.scene import ObjectSpec, build_scene
+
+    probe = scene("probe").spec
+    plate = ObjectSpec(name="plate", plane=(0.1, 0.1), plane_thickness=0.002, stiffness=3000.0, damping=3.0)
+    slave = VirtualSlave(build_scene(dataclasses.replace(probe, objects=(plate,))), accommodation=False)
+    deep = slave.T_w_MRF
+    deep[2, 3] = -0.03  # the command 3 cm below the plate's top
+    push = SlaveCommand(active=True, mode="pose", T_w_MRF=deep)
+    forces = []
+    for _ in range(3000):
+        slave.step(push)
+        forces.append(slave.wrench_MRF_contact[2])
+    assert slave.T_w_MRF[2, 3] < -0.002  # the tip's centre is past the plate's far face
+    assert forces[-1] == pytest.approx(probe.slave.force_limit, rel=2e-2)
+    assert min(forces) >= 0.0  # never pulled down through the plate
+    up = slave.T_w_MRF
+    up[2, 3] = 0.02
+    run(slave, SlaveCommand(active=True, mode="pose", T_w_MRF=up), 3000)
+    assert slave.T_w_MRF[2, 3] == pytest.approx(0.02, abs=1e-4)
+    assert slave.contact.count == 0

@@ -21,7 +21,7 @@ import scipy.sparse.csgraph
 import trimesh
 
 from app.spatial import Array, IntArray
-from app.world.contact.grid import grid_entries
+from app.world.contact.grid import crease_lists, grid_entries
 from app.world.contact.layout import CELL, EDGE, OBJECT, TRIANGLE, VERTEX
 
 # Concave edges whose face normals differ by more than this are cut (two contacts); gentler ones
@@ -243,6 +243,12 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
         other = np.where(fs[:, 0] == index, fs[:, 1], fs[:, 0])
         tris["own"] |= ((other < 0) | (other > index)).astype(np.int64) << k
         tris["own"] |= (around[verts["f0"][tris["v"][:, k]]] == index).astype(np.int64) << (3 + k)
+    # Each vertex's gentle concave edges (as a compressed row list), then each triangle's.
+    gentle = edges["tan"][tris["e"]] > 0.0  # (F, 3)
+    ends = np.stack([tris["v"], np.roll(tris["v"], -1, axis=1)], axis=2)[gentle]  # (G, 2)
+    pairs = np.unique(np.column_stack([ends.ravel(), np.repeat(tris["e"][gentle], 2)]), axis=0).reshape(-1, 2)
+    v_start = np.searchsorted(pairs[:, 0], np.arange(len(verts) + 1)).astype(np.int64)
+    crease_lists(tris, edges, v_start, np.ascontiguousarray(pairs[:, 1], dtype=np.int64), tris["creases"])
     cells = np.zeros(len(unique) + 1, dtype=CELL)
     cells["key"][:-1] = unique
     cells["key"][-1] = np.iinfo(np.int64).max

@@ -212,3 +212,50 @@ def test_a_tool_released_deep_inside_comes_back_out_on_the_near_side(tmp_path: P
     for _ in range(2000):  # released: drift along the force, 1 mm per 30 N
         c = c + model.wrench(pose(tuple(c))).force_w / 30000.0
     assert c[2] == pytest.approx(0.001 + r, abs=1e-4)
+
+
+# --- The elastic field is conservative: no work around closed paths in contact. ---
+
+
+def _loop_work(scene: Scene, centre: np.ndarray, e1: np.ndarray, e2: np.ndarray, radius: float, n: int) -> float:
+    """Work (J) of the elastic contact force on the sphere around a circle (trapezoid rule)."""
+    model = ContactModel(scene)
+    points = [
+        centre + radius * (math.cos(2 * math.pi * k / n) * e1 + math.sin(2 * math.pi * k / n) * e2)
+        for k in range(n + 1)
+    ]
+    forces = [model.wrench(pose(tuple(p))).force_w.copy() for p in points]
+    assert all(np.linalg.norm(f) > 0.0 for f in forces)  # in contact all the way round
+    return sum(0.5 * (forces[k] + forces[k + 1]) @ (points[k + 1] - points[k]) for k in range(n))
+
+
+X, Y, Z = np.eye(3)
+LOOPS = [
+    # A 3 mm circle 1.5 mm deep on the torus's inner (saddle) side: 2.8e-5 J a loop before the
+    # crease blend was made the gradient of a potential (and its weights crease-wide, smooth).
+    ("torus_saddle", {"torus": trimesh.creation.torus(0.03, 0.01, major_sections=64, minor_sections=32)}, (0.02 - r + 0.0015, 0.0, 0.0), Y, Z),
+    ("torus_saddle_fine", {"torus": trimesh.creation.torus(0.03, 0.01, major_sections=96, minor_sections=48)}, (0.02 - r + 0.0015, 0.0, 0.0), Y, Z),
+    ("plane", {"slab": _box((-0.05, -0.05, -0.02), (0.05, 0.05, 0.0))}, (0.0, 0.0, r - 0.002), X, Z),
+    ("l_corner", {"floor": _box((-0.05, -0.05, -0.02), (0.02, 0.05, 0.0)), "wall": _box((0.0, -0.05, -0.02), (0.02, 0.05, 0.05))}, (-0.003, 0.0, 0.003), X, Z),
+    ("channel", {"channel": _u_channel()}, (-0.002, 0.0, 0.002), X, Z),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("name", "meshes", "centre", "e1", "e2"), LOOPS, ids=[b[0] for b in LOOPS])
+def test_no_work_around_a_closed_path_in_contact(
+    tmp_path: Path, name: str, meshes: dict[str, trimesh.Trimesh], centre: tuple, e1: np.ndarray, e2: np.ndarray
+) -> None:
+    scene = _mesh_scene(tmp_path, meshes)
+    for sense in (e2, -e2):  # both ways round
+        work = _loop_work(scene, np.array(centre), e1, sense, 0.0015, 800)
+        assert abs(work) < 1e-8, f"{work:.3g} J around the loop"
+
+
+def test_no_work_around_a_closed_path_in_the_bowl() -> None:
+    """The shipped bowl: a tessellated hemispherical cavity of radius 6 cm centred at the origin,
+    every facet edge a gentle concave crease. Circles 2 mm deep at its bottom and half-way up."""
+    scene = make_scene([load_scene("bowl").spec.objects[0]], sphere_tool(r))
+    s = math.sqrt(0.5)
+    for u, e1, e2 in ((-Z, X, Y), (np.array([s, 0.0, -s]), Y, np.array([s, 0.0, s]))):
+        work = _loop_work(scene, (0.06 - r + 0.002) * u, e1, e2, 0.0015, 800)
+        assert abs(work) < 1e-8, f"{work:.3g} J around the loop"

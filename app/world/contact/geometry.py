@@ -87,14 +87,14 @@ def feature_normal(verts: Records, tris: Records, edges: Records, t: int, feat: 
 
 
 @njit(cache=True, inline="always")
-def segment_distance(verts: Records, i0: int, i1: int, qx: float, qy: float, qz: float) -> float:
-    """Distance (m) from point q to the segment joining vertices i0 and i1."""
+def segment_offset(verts: Records, i0: int, i1: int, qx: float, qy: float, qz: float) -> tuple[float, float, float]:
+    """Vector (m) from the nearest point of the segment joining vertices i0 and i1 to point q."""
     a, b = verts[i0].p, verts[i1].p
     ex, ey, ez = b[0] - a[0], b[1] - a[1], b[2] - a[2]
     px, py, pz = qx - a[0], qy - a[1], qz - a[2]
     ee = ex * ex + ey * ey + ez * ez
     s = min(max((px * ex + py * ey + pz * ez) / ee, 0.0), 1.0) if ee > 0.0 else 0.0
-    return math.sqrt((px - s * ex) ** 2 + (py - s * ey) ** 2 + (pz - s * ez) ** 2)
+    return px - s * ex, py - s * ey, pz - s * ez
 
 
 @njit(cache=True, inline="always")

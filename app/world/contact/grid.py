@@ -61,6 +61,33 @@ def grid_entries(verts: Records, tris: Records, face0: np.ndarray, objs: Records
     return keys, out
 
 
+@njit(cache=True)
+def crease_lists(tris: Records, edges: Records, v_start: np.ndarray, v_edges: np.ndarray, creases: np.ndarray) -> None:
+    """Fill ``creases`` (F, MAX_CREASES) with each triangle's gentle concave edges (``tan`` > 0)
+    that have an end at one of its vertices: its own first, then the others, -1 after the last.
+    Vertex v's gentle edges are ``v_edges[v_start[v]:v_start[v + 1]]``."""
+    cap = creases.shape[1]
+    for t in range(tris.shape[0]):
+        n = 0
+        for k in range(3):
+            e = tris[t].e[k]
+            if edges[e].tan > 0.0 and n < cap:
+                creases[t, n] = e
+                n += 1
+        for k in range(3):
+            v = tris[t].v[k]
+            for s in range(v_start[v], v_start[v + 1]):
+                e = v_edges[s]
+                seen = False
+                for m in range(n):
+                    seen = seen or creases[t, m] == e
+                if not seen and n < cap:
+                    creases[t, n] = e
+                    n += 1
+        for m in range(n, cap):
+            creases[t, m] = -1
+
+
 @tick_kernel
 def gather(
     obj: Record,

@@ -23,6 +23,10 @@ Records = Any
 # a box pocket touches three faces.
 MAX_PER_PAIR = 4
 
+# Gentle concave creases listed per triangle at most (a vertex of valence 6 on a tessellated
+# surface gives a triangle 12 edges from its vertices); more are dropped, its own edges kept.
+MAX_CREASES = 16
+
 # Feature codes of a triangle's nearest point: its face, a vertex (slot 0..2) or an edge (slot
 # 0..2: edge k joins vertex k and vertex k + 1 mod 3).
 FEAT_FACE = 0
@@ -97,6 +101,7 @@ PAIR = np.dtype(
         ("min_n", "f8", (MAX_PER_PAIR, 3)),  # outward normals,
         ("min_phi", "f8", (MAX_PER_PAIR,)),  # signed distances of the centre (> 0 outside),
         ("min_w", "f8", (MAX_PER_PAIR,)),  # weights (< 1 only in the band of a gentle concave crease)
+        ("min_g", "f8", (MAX_PER_PAIR, 3)),  # gradients of the weights in the centre (1/m)
         ("min_t", "i8", (MAX_PER_PAIR,)),  # triangles,
         ("min_f", "i8", (MAX_PER_PAIR,)),  # and features (FEAT_*)
     ],
@@ -118,6 +123,9 @@ TRIANGLE = np.dtype(
         ("own", "i8"),
         ("len", "f8", (3,)),  # len[k]: length of edge k
         ("u", "f8", (3, 3)),  # u[k]: unit vector along edge k, from v[k] to v[(k + 1) % 3]
+        # The gentle concave creases with an end at one of its vertices (edge indices, its own
+        # first, -1 after the last): the bands a face minimum's weight is taken across.
+        ("creases", "i8", (MAX_CREASES,)),
     ],
     align=True,
 )

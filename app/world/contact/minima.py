@@ -31,12 +31,12 @@ from app.world.contact.geometry import (
     closest_on_triangle,
     dormancy,
     feature_normal,
-    segment_distance,
+    segment_offset,
     settle,
     spread_retry,
 )
 from app.world.contact.grid import gather
-from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, MAX_PER_PAIR, Record, Records
+from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, MAX_CREASES, MAX_PER_PAIR, Record, Records
 
 # Below this distance (m) the direction c - q is meaningless: the centre is on the surface and
 # the feature's pseudonormal gives the direction.
@@ -119,19 +119,50 @@ def _is_local_min(
 @njit(cache=True, inline="always")
 def _crease_weight(
     verts: Records, tris: Records, edges: Records, t: int, d: float, qx: float, qy: float, qz: float
-) -> float:
-    """Weight of a minimum inside face t at distance d: how far q is across the band of each of
-    t's gentle concave creases (1 outside every band)."""
-    w = 1.0
+) -> tuple[float, float, float, float]:
+    """Weight of a minimum inside face t at distance d (in front): how far q is across the band
+    of each gentle concave crease at t's vertices (1 outside every band), and its gradient with
+    respect to the centre (1/m, {w}): ``(w, gx, gy, gz)``.
+
+    The creases are every gentle concave edge from one of t's vertices (``tri.creases``), not only
+    t's own edges: the other half of a quad split along a diagonal touches its neighbour's crease
+    at a vertex, and a minimum crossing the diagonal must keep its weight (a jump in it would make
+    the field create energy around a loop). In a band ``w = x^2 (3 - 2 x)`` with
+    ``x = s / (d tan)``, s the distance of q from the crease edge: the two sides' weights still
+    add up to one across a band (``w(x) + w(1 - x) = 1``), and w is flat at both edges of the
+    band, so the contact's force (which has a ``grad w`` term,
+    :func:`~app.world.contact.step._pair_contacts`) is continuous where a minimum enters or leaves.
+    q moves with the centre within the face's plane and d along its normal n, so
+    ``grad x = P u / (d tan) - x n / d``, u the unit vector from the edge to q and P the projection
+    on the plane.
+    """
+    w, gx, gy, gz = 1.0, 0.0, 0.0, 0.0
     tri = tris[t]
-    for k in range(3):
-        tan = edges[tri.e[k]].tan
-        if tan > 0.0:
-            band = d * tan
-            dist = segment_distance(verts, tri.v[k], tri.v[(k + 1) % 3], qx, qy, qz)
-            if dist < band:
-                w = min(w, dist / band)
-    return w
+    n = tri.n
+    for m in range(MAX_CREASES):
+        e = tri.creases[m]
+        if e < 0:
+            break
+        band = d * edges[e].tan
+        f = edges[e].faces[0]
+        k = 0
+        while tris[f].e[k] != e:
+            k += 1
+        a, b = tris[f].v[k], tris[f].v[(k + 1) % 3]
+        ox, oy, oz = segment_offset(verts, a, b, qx, qy, qz)
+        dist = math.sqrt(ox * ox + oy * oy + oz * oz)
+        x = dist / band
+        if x < 1.0 and x * x * (3.0 - 2.0 * x) < w:
+            w = x * x * (3.0 - 2.0 * x)
+            gx = gy = gz = 0.0  # on the crease (x = 0) w is flat
+            if dist > TOUCH:
+                ux, uy, uz = ox / dist, oy / dist, oz / dist
+                un = ux * n[0] + uy * n[1] + uz * n[2]
+                slope = 6.0 * x * (1.0 - x)  # dw/dx
+                gx = slope * ((ux - un * n[0]) / band - x * n[0] / d)
+                gy = slope * ((uy - un * n[1]) / band - x * n[1] / d)
+                gz = slope * ((uz - un * n[2]) / band - x * n[2] / d)
+    return w, gx, gy, gz
 
 
 @njit(cache=True, inline="always")
@@ -152,7 +183,7 @@ def _worst(phi: np.ndarray, n_min: int) -> float:
 
 
 @njit(cache=True, inline="always")
-def _share_vertex(tris: Records, a: int, b: int) -> bool:
+def share_vertex(tris: Records, a: int, b: int) -> bool:
     """Whether triangles a and b share a vertex (never across a cut: each side has its own copies)."""
     va, vb = tris[a].v, tris[b].v
     for x in range(3):
@@ -364,7 +395,7 @@ def local_minima(
                 feat != FEAT_FACE
                 and pair.min_f[e] != FEAT_FACE
                 and aligned > _PARTNER_COS
-                and _share_vertex(tris, t, pair.min_t[e])
+                and share_vertex(tris, t, pair.min_t[e])
             ):
                 if abs(pair.min_phi[e]) <= d:
                     skip = True
@@ -406,12 +437,13 @@ def local_minima(
     # The weights of the minima kept (a face minimum near a gentle concave crease), only now: on
     # a hole's wall most minima found are displaced by nearer ones later in the scan.
     for e in range(n_min):
-        w = 1.0
+        w, gx, gy, gz = 1.0, 0.0, 0.0, 0.0
         d = abs(pair.min_phi[e])
         if pair.min_f[e] == FEAT_FACE and d >= TOUCH:
             q = pair.min_q[e]
-            w = _crease_weight(verts, tris, edges, pair.min_t[e], d, q[0], q[1], q[2])
+            w, gx, gy, gz = _crease_weight(verts, tris, edges, pair.min_t[e], d, q[0], q[1], q[2])
         pair.min_w[e] = w
+        pair.min_g[e, 0], pair.min_g[e, 1], pair.min_g[e, 2] = gx, gy, gz
     pair.n_min = n_min
     pair.near_t = near_t
     return math.sqrt(max(min(nearest2, floor2), 0.0))

@@ -20,8 +20,17 @@ from numba import njit
 from app.world.contact.bundle import borrowed, tick_kernel
 from app.world.contact.force import contact_force, write_wrench
 from app.world.contact.geometry import box_distance2
-from app.world.contact.layout import ERR_OVERFLOW, ERR_POSE, ERR_ROTATION, ERR_TWIST, ERR_WRENCH, Record, Records
-from app.world.contact.minima import ensure_cache, local_minima
+from app.world.contact.layout import (
+    ERR_OVERFLOW,
+    ERR_POSE,
+    ERR_ROTATION,
+    ERR_TWIST,
+    ERR_WRENCH,
+    FEAT_FACE,
+    Record,
+    Records,
+)
+from app.world.contact.minima import ensure_cache, local_minima, share_vertex
 from app.world.contact.track import follow
 
 # Largest deviation of R^T R from the identity (and of the last row from [0 0 0 1]) accepted as a
@@ -152,44 +161,78 @@ def _pair_contacts(
     else:
         prim = -1
         n_c = _emit(out, n_c, i, j, obj, r - phi, qx, qy, qz, nx, ny, nz, T, has_twist, V, FM)
-    # Weighted minima (crease bands) are one contact: their weighted mean of depth * normal and
-    # of point, the weights normalised (near a vertex of a tessellated curved surface several
-    # faces hold a minimum at once, and their raw weights add up to more than one).
-    sx = sy = sz = spx = spy = spz = sw = 0.0
+    # Which minima push (bit e of ``pushes``), and which of them are in a crease band (``soft``,
+    # 0 < w < 1). A band's minima, with every other face minimum sharing a vertex with one of them
+    # (a partner past its band's far edge, w = 1), are one contact: the force of the potential
+    # ``U = k/2 sum(w_i depth_i^2) / W`` (W = sum w_i, the weights normalised: near a vertex of a
+    # tessellated curved surface several faces hold a minimum at once, and their raw weights add
+    # up to more than one), so that the field is conservative across the band and continuous at
+    # its edges: the weighted mean of depth * normal, ``s / W``, plus
+    # ``-(1 / 2W) sum (depth_i^2 - D2) grad w_i``, D2 the weighted mean of depth^2; the point is
+    # the weighted mean of the points.
+    pushes = soft = 0
     for e in range(n_min):
-        w = pair.min_w[e]
-        if e == prim:
-            depth = r - phi
-            if phi < 0.0:
-                w = 1.0
-            mx, my, mz = nx, ny, nz
-        else:
-            if pair.min_phi[e] < 0.0:
-                continue
+        if e != prim:
             mq = pair.min_q[e]
+            if pair.min_phi[e] < 0.0 or r - pair.min_phi[e] <= 0.0:
+                continue
             if behind and (mq[0] - qx) * nx + (mq[1] - qy) * ny + (mq[2] - qz) * nz < -_BEYOND:
                 continue
+        elif r - phi <= 0.0:
+            continue
+        pushes |= 1 << e
+        if 0.0 < pair.min_w[e] < 1.0 and not (e == prim and phi < 0.0):
+            soft |= 1 << e
+    blend = soft
+    if soft:
+        for e in range(n_min):
+            if pushes & (1 << e) and not soft & (1 << e) and pair.min_f[e] == FEAT_FACE and phi >= 0.0:
+                for f in range(n_min):
+                    if soft & (1 << f) and share_vertex(tris, pair.min_t[e], pair.min_t[f]):
+                        blend |= 1 << e
+    sx = sy = sz = spx = spy = spz = sw = 0.0
+    sd2 = gx = gy = gz = hx = hy = hz = 0.0  # sum w depth^2, sum grad w, sum depth^2 grad w
+    for e in range(n_min):
+        if not pushes & (1 << e):
+            continue
+        if e == prim:
+            depth = r - phi
+            mx, my, mz = nx, ny, nz
+        else:
             depth = r - pair.min_phi[e]
             mx, my, mz = pair.min_n[e, 0], pair.min_n[e, 1], pair.min_n[e, 2]
-        if depth <= 0.0:
-            continue
         back = r - depth  # the contact point: the centre moved back along n to the surface
         px, py, pz = c[0] - back * mx, c[1] - back * my, c[2] - back * mz
-        if w >= 1.0:
+        if not blend & (1 << e):
             n_c = _emit(out, n_c, i, j, obj, depth, px, py, pz, mx, my, mz, T, has_twist, V, FM)
-        elif w > 0.0:
-            sx += w * depth * mx
-            sy += w * depth * my
-            sz += w * depth * mz
-            spx += w * px
-            spy += w * py
-            spz += w * pz
-            sw += w
+            continue
+        w = pair.min_w[e]
+        sx += w * depth * mx
+        sy += w * depth * my
+        sz += w * depth * mz
+        spx += w * px
+        spy += w * py
+        spz += w * pz
+        sw += w
+        g = pair.min_g[e]
+        d2 = depth * depth
+        sd2 += w * d2
+        gx += g[0]
+        gy += g[1]
+        gz += g[2]
+        hx += d2 * g[0]
+        hy += d2 * g[1]
+        hz += d2 * g[2]
     if sw > 0.0:
-        depth = math.sqrt(sx * sx + sy * sy + sz * sz)
+        mean2 = sd2 / sw
+        half = 0.5 / sw
+        vx = sx / sw - half * (hx - mean2 * gx)
+        vy = sy / sw - half * (hy - mean2 * gy)
+        vz = sz / sw - half * (hz - mean2 * gz)
+        depth = math.sqrt(vx * vx + vy * vy + vz * vz)
         if depth > 0.0:
             n_c = _emit(
-                out, n_c, i, j, obj, depth / sw, spx / sw, spy / sw, spz / sw, sx / depth, sy / depth, sz / depth,
+                out, n_c, i, j, obj, depth, spx / sw, spy / sw, spz / sw, vx / depth, vy / depth, vz / depth,
                 T, has_twist, V, FM,
             )  # fmt: skip
     return n_c

@@ -174,7 +174,8 @@ class PackedMeshes:
             a template each contact model copies.
         cells: The occupied grid cells (CELL, with a sentinel row).
         lists: Triangle lists: the faces around each vertex (``verts.f0:f1``), then each grid
-            cell's triangles (``cells.start``), (L,).
+            cell's triangles (``cells.start``), then each object's column table
+            (``objs.grid_cols``), (L,).
     """
 
     tris: np.ndarray
@@ -253,6 +254,16 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
     cells["key"][:-1] = unique
     cells["key"][-1] = np.iinfo(np.int64).max
     cells["start"] = np.append(first, len(keys)) + len(around)
+    # Each object's column table after the grid's triangle lists: the first occupied cell of each
+    # (x, y) column or beyond.
+    tables = []
+    at = len(around) + len(keys)
+    for o in objs:
+        nx, ny, nz = o["grid_dims"]
+        columns = o["grid_base"] + np.arange(nx * ny, dtype=np.int64) * nz
+        o["grid_cols"] = at
+        tables.append(np.searchsorted(unique, columns).astype(np.int64))
+        at += nx * ny
     return PackedMeshes(
         tris=tris,
         verts=verts,
@@ -260,5 +271,5 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
         face0=face0,
         objs=objs,
         cells=cells,
-        lists=np.ascontiguousarray(np.concatenate([around, grid_tris]), dtype=np.int64),
+        lists=np.ascontiguousarray(np.concatenate([around, grid_tris, *tables]), dtype=np.int64),
     )

@@ -3,7 +3,9 @@ candidate cache from it.
 
 Object j's grid has origin ``objs[j].grid_origin``, cell size ``grid_h`` (m) and ``grid_dims``
 cells per axis; cell (x, y, z) has key ``grid_base + (x ny + y) nz + z``. ``cells`` lists the
-occupied keys in increasing order, each with the start of its triangles in ``lists``.
+occupied keys in increasing order, each with the start of its triangles in ``lists``. The
+object's column table, ``lists[grid_cols + x ny + y]``, is the row of ``cells`` of the first
+occupied cell of column (x, y) or beyond: a gather finds a column's cells without a search.
 """
 
 from __future__ import annotations
@@ -134,17 +136,19 @@ def gather(
     )
     if (hi[0] - lo[0] + 1) * (hi[1] - lo[1] + 1) * (hi[2] - lo[2] + 1) > MAX_CELLS:
         return -1
-    ny, nz, base = dims[1], dims[2], obj.grid_base
+    ny, nz, base, cols = dims[1], dims[2], obj.grid_base, obj.grid_cols
     cones = stamp[tris.shape[0] :]
     n = 0
     n_keys = cells.shape[0] - 1  # the last row is a sentinel
     reach2 = reach * reach
     for x in range(lo[0], hi[0] + 1):
         for y in range(lo[1], hi[1] + 1):
-            # The column's cells have consecutive keys: one search finds its first occupied cell.
+            # The column's cells have consecutive keys, from its first occupied one (the table).
             first = base + (x * ny + y) * nz + lo[2]
             last = first + hi[2] - lo[2]
-            s = np.searchsorted(cells.key[:n_keys], first)
+            s = lists[cols + x * ny + y]
+            while s < n_keys and cells[s].key < first:
+                s += 1
             while s < n_keys and cells[s].key <= last:
                 for e in range(cells[s].start, cells[s + 1].start):
                     t = lists[e]

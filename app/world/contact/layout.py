@@ -70,6 +70,7 @@ OBJECT = np.dtype(
         ("grid_h", "f8"),
         ("grid_dims", "i8", (3,)),
         ("grid_base", "i8"),  # key of its first cell in the shared sorted key list
+        ("grid_cols", "i8"),  # where its column table starts in ``lists`` (see app.world.contact.grid)
         ("prune", "i8"),  # 1: cache only triangles that may hold a local minimum; 0: every one in reach
         ("near", "i8"),  # 1 while the tool's bounding sphere may reach the bounding box
         ("base_c0", "f8", (3,)),  # tool bounding-sphere centre at the last per-sphere check

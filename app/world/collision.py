@@ -244,6 +244,7 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
         other = np.where(fs[:, 0] == index, fs[:, 1], fs[:, 0])
         tris["own"] |= ((other < 0) | (other > index)).astype(np.int64) << k
         tris["own"] |= (around[verts["f0"][tris["v"][:, k]]] == index).astype(np.int64) << (3 + k)
+    edges["v"][tris["e"].ravel()] = np.column_stack([tris["v"].ravel(), np.roll(tris["v"], -1, axis=1).ravel()])
     # Each vertex's gentle concave edges (as a compressed row list), then each triangle's.
     gentle = edges["tan"][tris["e"]] > 0.0  # (F, 3)
     ends = np.stack([tris["v"], np.roll(tris["v"], -1, axis=1)], axis=2)[gentle]  # (G, 2)

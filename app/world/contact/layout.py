@@ -139,9 +139,9 @@ CANDIDATE = np.dtype([("t", "i8"), ("mu", "f8"), ("ref", "f8", (3,))], align=Tru
 # One vertex: position, angle-weighted pseudonormal, and its faces ``lists[f0:f1]``.
 VERTEX = np.dtype([("p", "f8", (3,)), ("pn", "f8", (3,)), ("f0", "i8"), ("f1", "i8")], align=True)
 
-# One edge: pseudonormal, its faces (-1: none, a boundary where the mesh was cut), and
-# ``tan`` > 0 for a gentle concave crease (tan of the angle between its faces' normals).
-EDGE = np.dtype([("pn", "f8", (3,)), ("faces", "i8", (2,)), ("tan", "f8")], align=True)
+# One edge: pseudonormal, its faces (-1: none, a boundary where the mesh was cut), ``tan`` > 0
+# for a gentle concave crease (tan of the angle between its faces' normals), and its two ends.
+EDGE = np.dtype([("pn", "f8", (3,)), ("faces", "i8", (2,)), ("tan", "f8"), ("v", "i8", (2,))], align=True)
 
 # One occupied grid cell: key and where its triangles start in ``lists`` (a last sentinel row
 # closes the list).

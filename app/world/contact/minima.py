@@ -143,16 +143,15 @@ def _crease_weight(
         e = tri.creases[m]
         if e < 0:
             break
-        band = d * edges[e].tan
-        f = edges[e].faces[0]
-        k = 0
-        while tris[f].e[k] != e:
-            k += 1
-        a, b = tris[f].v[k], tris[f].v[(k + 1) % 3]
-        ox, oy, oz = segment_offset(verts, a, b, qx, qy, qz)
-        dist = math.sqrt(ox * ox + oy * oy + oz * oz)
+        edge = edges[e]
+        band = d * edge.tan
+        ox, oy, oz = segment_offset(verts, edge.v[0], edge.v[1], qx, qy, qz)
+        dist2 = ox * ox + oy * oy + oz * oz
+        if dist2 >= band * band:
+            continue
+        dist = math.sqrt(dist2)
         x = dist / band
-        if x < 1.0 and x * x * (3.0 - 2.0 * x) < w:
+        if x * x * (3.0 - 2.0 * x) < w:
             w = x * x * (3.0 - 2.0 * x)
             gx = gy = gz = 0.0  # on the crease (x = 0) w is flat
             if dist > TOUCH:

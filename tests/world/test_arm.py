@@ -187,13 +187,16 @@ def test_random_scripts_never_exceed_the_joint_limits(kind: str, seed: int) -> N
     arm = ArmSlave(arm_scene(kind))
     rng = np.random.default_rng(seed)
     lo, hi = arm.joint_limits.T
+    # The stops are stiff springs (solreflimit at two servo periods): a tool pushed into the
+    # surface at the arm's torque limits (40 N) drives a wrist 0.4 mrad into one.
+    stop = 1e-3
     for _ in range(6):
         v = np.concatenate((rng.uniform(-0.6, 0.6, 3), rng.uniform(-3.0, 3.0, 3)))
         for _ in range(150):
             arm.step(rate(tuple(v)))
             q = arm.q
-            assert np.all(q >= lo), (q, lo)
-            assert np.all(q <= hi), (q, hi)
+            assert np.all(q >= lo - stop), (q, lo)
+            assert np.all(q <= hi + stop), (q, hi)
 
 
 @pytest.mark.parametrize("kind", ARMS)

@@ -30,9 +30,19 @@ def cell_index(x: float, origin: float, h: float, n: int) -> int:
     return math.floor(min(max((x - origin) / h, 0.0), n - 1.0))
 
 
+@njit(cache=True, inline="always")
+def _touches(verts: Records, tris: Records, t: int, o: Record, x: int, y: int, z: int) -> bool:
+    """Whether triangle t may meet grid cell (x, y, z) of object o: it comes within the cell's
+    circumscribed sphere (conservative: a long sliver's bounding box covers many cells it misses)."""
+    h = o.grid_h
+    g = o.grid_origin
+    d2 = closest_on_triangle(verts, tris, t, g[0] + (x + 0.5) * h, g[1] + (y + 0.5) * h, g[2] + (z + 0.5) * h)[0]
+    return d2 <= 0.75 * h * h * (1.0 + 1e-9)
+
+
 @njit(cache=True)
 def grid_entries(verts: Records, tris: Records, face0: np.ndarray, objs: Records) -> tuple:
-    """(cell key, triangle) for every grid cell each triangle's bounding box overlaps, as two int arrays."""
+    """(cell key, triangle) for every grid cell each triangle may meet, as two int arrays."""
     m = face0.shape[0] - 1
     nf = tris.shape[0]
     counts = np.zeros(nf, dtype=np.int64)
@@ -41,12 +51,13 @@ def grid_entries(verts: Records, tris: Records, face0: np.ndarray, objs: Records
     for j in range(m):
         o = objs[j]
         for t in range(face0[j], face0[j + 1]):
-            n = 1
             for a in range(3):
                 lo_c[t, a] = cell_index(tris[t].box[a], o.grid_origin[a], o.grid_h, o.grid_dims[a])
                 hi_c[t, a] = cell_index(tris[t].box[3 + a], o.grid_origin[a], o.grid_h, o.grid_dims[a])
-                n *= hi_c[t, a] - lo_c[t, a] + 1
-            counts[t] = n
+            for x in range(lo_c[t, 0], hi_c[t, 0] + 1):
+                for y in range(lo_c[t, 1], hi_c[t, 1] + 1):
+                    for z in range(lo_c[t, 2], hi_c[t, 2] + 1):
+                        counts[t] += _touches(verts, tris, t, o, x, y, z)
     keys = np.empty(counts.sum(), dtype=np.int64)
     out = np.empty(keys.shape[0], dtype=np.int64)
     e = 0
@@ -57,9 +68,10 @@ def grid_entries(verts: Records, tris: Records, face0: np.ndarray, objs: Records
             for x in range(lo_c[t, 0], hi_c[t, 0] + 1):
                 for y in range(lo_c[t, 1], hi_c[t, 1] + 1):
                     for z in range(lo_c[t, 2], hi_c[t, 2] + 1):
-                        keys[e] = base + (x * ny + y) * nz + z
-                        out[e] = t
-                        e += 1
+                        if _touches(verts, tris, t, o, x, y, z):
+                            keys[e] = base + (x * ny + y) * nz + z
+                            out[e] = t
+                            e += 1
     return keys, out
 
 

@@ -50,6 +50,8 @@ TOOL = np.dtype(
         ("near_c0", "f8", (3,)),  # bounding-sphere centre at the last near-object test, {w}
         ("near_slack", "f8"),  # how far it may move before the next test; -1: test now
         ("serial", "i8"),  # number of the last candidate gather (see ``stamp`` in the step)
+        ("prev_c0", "f8", (3,)),  # bounding-sphere centre and rotation at the previous call,
+        ("prev_R", "f8", (3, 3)),  # for the speed of the tool (pair evaluations spread ahead)
         # Outputs: the contact wrench on the tool at {S} in {S} (0:6), the same at {MRF} in {MRF}
         # (6:12), the total contact force in {w} (12:15); pair evaluations of the last call and
         # how many of them refilled their candidate cache.
@@ -76,6 +78,7 @@ OBJECT = np.dtype(
         ("base_c0", "f8", (3,)),  # tool bounding-sphere centre at the last per-sphere check
         ("base_R", "f8", (3, 3)),  # tool rotation R_w_T there
         ("slack", "f8"),  # how far any sphere centre may move from there before a full check
+        ("ahead", "f8"),  # at the last call, a lower bound of how far its pairs out of contact may move
     ],
     align=True,
 )

@@ -36,6 +36,10 @@ from app.world.contact.track import follow
 # Largest deviation of R^T R from the identity (and of the last row from [0 0 0 1]) accepted as a
 # rigid pose: double-precision rotations from quaternions or products stay far below it.
 ROTATION_TOL = 1e-6
+# A fast stroke's pair evaluations are spread: at most PREFETCH pairs a call are evaluated ahead
+# of time when their slack would run out within PREFETCH_TICKS ticks at the current speed.
+PREFETCH = 2
+PREFETCH_TICKS = 4.0
 # A secondary minimum whose point is this far (m) behind the plane of a remembered surface the
 # centre is behind is beyond that surface (rounding allowance of points on a shared edge).
 _BEYOND = 1e-9
@@ -239,6 +243,47 @@ def _pair_contacts(
 
 
 @tick_kernel
+def _evaluate(
+    pair: Record,
+    k: int,
+    i: int,
+    j: int,
+    o: Record,
+    tool: Record,
+    verts: Records,
+    tris: Records,
+    edges: Records,
+    cells: Records,
+    lists: np.ndarray,
+    stamp: np.ndarray,
+    pool: np.ndarray,
+    out: Records,
+    n_c: int,
+    T: np.ndarray,
+    has_twist: bool,
+    V: np.ndarray,
+    FM: np.ndarray,
+) -> tuple[int, int]:
+    """Evaluate pair k (sphere i, object j) at its centre ``pair.c``: refill its cache if needed,
+    find its minima, add its contacts, and set its slack (how far it may move before it can
+    touch; -1 while in contact). Returns the new contact count (ERR_OVERFLOW if the cache
+    overflowed) and whether it gathered (0 or 1)."""
+    r = pair.r
+    g = ensure_cache(pair, k, o, r, verts, tris, cells, lists, stamp, tool, pool)
+    if g < 0:
+        return ERR_OVERFLOW, 0
+    bound = local_minima(pair, pool[k], r, verts, tris, edges, lists)
+    bound = max(bound, math.sqrt(box_distance2(o.box, pair.c[0], pair.c[1], pair.c[2])))
+    for a in range(3):
+        pair.last[a] = pair.c[a]
+    before = n_c
+    n_c = _pair_contacts(pair, i, j, r, o, verts, tris, edges, lists, out, n_c, T, has_twist, V, FM)
+    gap = bound - r - tool.margin
+    pair.slack = gap if (n_c == before and pair.mem == 0 and gap > 0.0) else -1.0
+    return n_c, g
+
+
+@tick_kernel
 def contact_step(
     T: np.ndarray,
     V: np.ndarray,
@@ -320,6 +365,7 @@ def contact_step(
         # plus the rotation about it (|(R - R0) y| = 2 sin(theta/2) |y|).
         moved = math.sqrt(dx * dx + dy * dy + dz * dz) + rho * math.sqrt(max(0.0, 3.0 - cos_sum))
         full = moved >= o.slack
+        o.ahead = o.slack - moved  # a lower bound of what its pairs out of contact may still move
         for i in range(n):
             k = j * n + i
             pair = pairs[k]
@@ -332,20 +378,12 @@ def contact_step(
                 ex, ey, ez = pair.c[0] - pair.last[0], pair.c[1] - pair.last[1], pair.c[2] - pair.last[2]
                 if math.sqrt(ex * ex + ey * ey + ez * ez) < pair.slack:
                     continue
-            r = pair.r
             queries += 1
-            g = ensure_cache(pair, k, o, r, verts, tris, cells, lists, stamp, tool, pool)
-            if g < 0:
-                return ERR_OVERFLOW
+            n_c, g = _evaluate(pair, k, i, j, o, tool, verts, tris, edges, cells, lists, stamp, pool, out, n_c, T,
+                               has_twist, V, FM)  # fmt: skip
+            if n_c < 0:
+                return n_c
             gathers += g
-            bound = local_minima(pair, pool[k], r, verts, tris, edges, lists)
-            bound = max(bound, math.sqrt(box_distance2(o.box, pair.c[0], pair.c[1], pair.c[2])))
-            for a in range(3):
-                pair.last[a] = pair.c[a]
-            before = n_c
-            n_c = _pair_contacts(pair, i, j, r, o, verts, tris, edges, lists, out, n_c, T, has_twist, V, FM)
-            gap = bound - r - tool.margin
-            pair.slack = gap if (n_c == before and pair.mem == 0 and gap > 0.0) else -1.0
         if full:
             # Rebase: the spheres in contact (slack < 0) become hot; the others may move their
             # remaining slack from here before the next full check.
@@ -356,11 +394,57 @@ def contact_step(
                 if not pair.hot:
                     ex, ey, ez = pair.c[0] - pair.last[0], pair.c[1] - pair.last[1], pair.c[2] - pair.last[2]
                     remaining = min(remaining, pair.slack - math.sqrt(ex * ex + ey * ey + ez * ez))
-            o.slack = remaining
+            o.slack = o.ahead = remaining
             for a in range(3):
                 o.base_c0[a] = c0[a]
                 for b in range(3):
                     o.base_R[a, b] = R[a, b]
+    # Spread the work of a fast stroke: evaluate now the pairs whose slack runs out within
+    # PREFETCH_TICKS ticks at the last tick's speed (PREFETCH at most, the soonest first), so
+    # that a rigid tool's spheres do not all come due on one tick. Evaluating a pair early is
+    # exact, like any evaluation.
+    dx, dy, dz = c0[0] - tool.prev_c0[0], c0[1] - tool.prev_c0[1], c0[2] - tool.prev_c0[2]
+    cos_sum = 0.0
+    for a in range(3):
+        for b in range(3):
+            cos_sum += R[a, b] * tool.prev_R[a, b]
+            tool.prev_R[a, b] = R[a, b]
+        tool.prev_c0[a] = c0[a]
+    horizon = PREFETCH_TICKS * (math.sqrt(dx * dx + dy * dy + dz * dz) + rho * math.sqrt(max(0.0, 3.0 - cos_sum)))
+    for _ in range(PREFETCH):
+        best, best_rem = -1, horizon
+        for j in range(m):
+            o = objs[j]
+            if not o.near or o.ahead >= best_rem:
+                continue
+            for i in range(n):
+                pair = pairs[j * n + i]
+                if pair.hot or pair.slack <= 0.0:
+                    continue
+                s = pair.c_T
+                cx = R[0, 0] * s[0] + R[0, 1] * s[1] + R[0, 2] * s[2] + p[0]
+                cy = R[1, 0] * s[0] + R[1, 1] * s[1] + R[1, 2] * s[2] + p[1]
+                cz = R[2, 0] * s[0] + R[2, 1] * s[1] + R[2, 2] * s[2] + p[2]
+                moved2 = (cx - pair.last[0]) ** 2 + (cy - pair.last[1]) ** 2 + (cz - pair.last[2]) ** 2
+                if moved2 == 0.0:
+                    continue  # evaluated on this call
+                rem = pair.slack - math.sqrt(moved2)
+                if rem < best_rem:
+                    best, best_rem = j * n + i, rem
+        if best < 0:
+            break
+        j, i = best // n, best % n
+        pair = pairs[best]
+        s = pair.c_T
+        for a in range(3):
+            pair.c[a] = R[a, 0] * s[0] + R[a, 1] * s[1] + R[a, 2] * s[2] + p[a]
+        queries += 1
+        n_c, g = _evaluate(pair, best, i, j, objs[j], tool, verts, tris, edges, cells, lists, stamp, pool, out, n_c, T,
+                           has_twist, V, FM)  # fmt: skip
+        if n_c < 0:
+            return n_c
+        gathers += g
+        pair.hot = 1 if pair.slack < 0.0 else 0
     tool.counts[0] = queries
     tool.counts[1] = gathers
     if not math.isfinite(FM[0] + FM[1] + FM[2] + FM[3] + FM[4] + FM[5]):

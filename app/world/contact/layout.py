@@ -39,6 +39,7 @@ TOOL = np.dtype(
         ("c0", "f8", (3,)),  # centre of the tool's bounding sphere, in {T}
         ("rho", "f8"),  # largest distance of a sphere centre from c0
         ("reach", "f8"),  # bounding radius of the spheres themselves plus the margin
+        ("r_min", "f8"),  # the smallest sphere radius
         ("margin", "f8"),  # extra culling distance (0 is exact)
         ("T_MRF_T", "f8", (4, 4)),  # pose of {T} in {MRF}
         ("p_MRF_S", "f8", (3,)),  # origin of {S} in {MRF}

@@ -144,6 +144,7 @@ class ContactModel:
         T_MRF_S = tool.T_MRF_S
         self._tool = t = np.zeros(1, dtype=layout.TOOL)
         t["c0"], t["rho"], t["reach"], t["margin"] = c0_T, spread.max(), np.max(spread + tool.radii) + margin, margin
+        t["r_min"] = tool.radii.min()
         t["T_MRF_T"] = invert_pose(tool.T_T_MRF)
         t["p_MRF_S"], t["R_MRF_S"] = T_MRF_S[0:3, 3], T_MRF_S[0:3, 0:3]
         self._objs = objs = geo.objs.copy()

@@ -56,7 +56,10 @@ kernels compiled without numba's runtime, so without any reference counting (:mo
 Culling is exact (the distance is 1-Lipschitz in the centre); each pair caches the triangles that may hold a local
 minimum while its centre stays within ``R = 0.075 r`` of where they were gathered (every triangle
 within ``r + 2 R`` whose face, edge or vertex Voronoi region, for the features it reports, comes
-within R, found through a per-object grid, :mod:`.grid`). Each cached triangle is dormant while
+within R, found through a per-object grid, :mod:`.grid`, in which a triangle is filed only in the
+cells it may meet and each column's first cell is indexed). On a fast stroke (more than
+``NEAR_FRAC r`` a tick) the pairs whose slack would run out within four ticks are evaluated a few
+at a time ahead of it, so that a rigid tool's spheres do not all come due on one tick. Each cached triangle is dormant while
 the centre stays nearer where it was last looked at than a lower bound of its distance to those
 regions (or of its distance less ``1.05 r``), so a tick in steady contact scans a handful of
 triangles per sphere, even on a million-triangle mesh; the scan starts from the pair's last

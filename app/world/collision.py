@@ -231,6 +231,7 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
         o = objs[j]
         o["box"] = np.concatenate([c.lo, c.hi])
         o["prune"] = 1
+        o["faces"] = face0[j], face0[j + 1]
         o["grid_origin"], o["grid_h"], o["grid_dims"], o["grid_base"] = c.lo, h, dims, base
         base += int(np.prod(dims))
     keys, grid_tris = grid_entries(verts, tris, face0, objs)

@@ -200,10 +200,12 @@ def test_the_bowls_convex_hull_would_give_a_wrong_contact(tmp_path) -> None:
     scene.objects[0].mesh.convex_hull.export(hull_path)
     hull_scene = make_scene([ObjectSpec(name="hull", mesh=str(hull_path), stiffness=K)], sphere_tool(0.005))
     hull_res = contact_wrench(hull_scene, T)
-    # The hull is solid there: the sphere is buried 29 mm deep, out of reach of any surface, so it
-    # feels nothing (a force needs mesh geometry within the sphere's radius) instead of 3 N.
+    # The hull is solid there: the sphere's centre is buried 24 mm above the hull's bottom face
+    # (z = -0.08), its nearest surface, and with no history it is pushed out through it: 87 N
+    # down instead of 3 N up.
     assert hull_res.valid
-    assert hull_res.count == 0
+    hull_bottom = float(scene.objects[0].mesh.bounds[0, 2])
+    np.testing.assert_allclose(hull_res.force_w, [0, 0, -K * (0.005 + T[2, 3] - hull_bottom)], atol=1e-9)
 
 
 def test_force_is_continuous_across_edges_and_vertices(tmp_path) -> None:

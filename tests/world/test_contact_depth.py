@@ -259,3 +259,18 @@ def test_no_work_around_a_closed_path_in_the_bowl() -> None:
     for u, e1, e2 in ((-Z, X, Y), (np.array([s, 0.0, -s]), Y, np.array([s, 0.0, s]))):
         work = _loop_work(scene, (0.06 - r + 0.002) * u, e1, e2, 0.0015, 800)
         assert abs(work) < 1e-8, f"{work:.3g} J around the loop"
+
+
+def test_a_pose_without_history_deep_inside_is_pushed_out_of_the_nearest_surface() -> None:
+    """The stateless contact_wrench (and a model just reset) at a centre 8 mm inside the probe's
+    20 mm slab, beyond any face within the 5 mm tip's radius: the top face is nearest, so the tip
+    pushes up with k (r + 8 mm); 12 mm inside, the bottom face is nearest and it pushes down."""
+    from app.world import contact_wrench
+
+    scene = make_scene([ObjectSpec(name="slab", plane=(0.2, 0.2), plane_thickness=0.02, stiffness=K)], sphere_tool(r))
+    assert contact_wrench(scene, pose((0.0, 0.0, -0.008))).force_w[2] == pytest.approx(K * (r + 0.008))
+    assert contact_wrench(scene, pose((0.0, 0.0, -0.012))).force_w[2] == pytest.approx(-K * (r + 0.008))
+    model = ContactModel(scene)  # with history, the top face holds all the way through
+    for z in np.arange(0.004, -0.03, -0.0005):
+        res = model.wrench(pose((0.0, 0.0, float(z))))
+    assert res.force_w[2] == pytest.approx(K * (r - z))

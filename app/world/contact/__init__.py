@@ -39,8 +39,11 @@ The model, per (sphere of radius r, object) pair, with c the sphere centre:
    of its top), a fast stroke never pops through a thin part, and a tool let go deep inside
    comes back out where it went in. **Invariant: a non-zero force on a sphere implies mesh
    geometry within its radius, or a surface it entered from in front and has stayed behind
-   since** (only the stateless :func:`contact_wrench`, with no history, reads a centre deeper
-   than r inside a solid as free).
+   since**. A pair with no history (a model just reset, or the stateless :func:`contact_wrench`)
+   whose centre is more than r inside a solid takes the solid's nearest surface as the one it
+   entered (a search over the object's triangles, once per reset): a tool teleported inside is
+   pushed out by the nearest way, and a stateless deep pose is read past the middle of a part
+   as pushed in from the far side (only a sequence of poses knows better).
 6. **Degenerate positions** (a centre exactly on a face, an edge, a vertex, the corner of a
    pocket) push along the pseudonormal of each feature touched with depth r.
 7. **Force law** (:mod:`.force`): ``k depth - b u_n`` clamped at 0, and regularised Coulomb

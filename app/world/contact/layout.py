@@ -75,6 +75,7 @@ OBJECT = np.dtype(
         ("grid_base", "i8"),  # key of its first cell in the shared sorted key list
         ("grid_cols", "i8"),  # where its column table starts in ``lists`` (see app.world.contact.grid)
         ("prune", "i8"),  # 1: cache only triangles that may hold a local minimum; 0: every one in reach
+        ("faces", "i8", (2,)),  # its triangles: faces[0]:faces[1]
         ("near", "i8"),  # 1 while the tool's bounding sphere may reach the bounding box
         ("base_c0", "f8", (3,)),  # tool bounding-sphere centre at the last per-sphere check
         ("base_R", "f8", (3, 3)),  # tool rotation R_w_T there
@@ -97,6 +98,7 @@ PAIR = np.dtype(
         ("cache_c", "f8", (3,)),  # centre the candidate cache was gathered at
         ("cache_n", "i8"),  # candidates in the pool row; -1: no cache
         ("near_t", "i8"),  # nearest triangle at the last evaluation (-1: none): checked first
+        ("fresh", "i8"),  # 1 until its first evaluation after a reset (no history yet)
         ("mem", "i8"),  # 1 while a surface is remembered (app.world.contact.track)
         ("mem_q", "f8", (3,)),  # its point and outward normal
         ("mem_n", "f8", (3,)),

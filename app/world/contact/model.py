@@ -184,6 +184,7 @@ class ContactModel:
     def reset(self) -> None:
         """Forget the remembered surfaces, culling state and caches (e.g. after the tool was teleported)."""
         self._pairs["mem"] = 0
+        self._pairs["fresh"] = 1
         self.forget_caches()
 
     def forget_caches(self) -> None:
@@ -266,7 +267,8 @@ def _as_array(x: object, name: str) -> Array:
 def contact_wrench(scene: Scene, T_w_MRF: Array, V_w_MRF: Array | None = None) -> ContactResult:
     """Stateless contact wrench of ``scene``'s tool at ``T_w_MRF`` (4, 4); see :meth:`ContactModel.wrench`.
 
-    Builds a fresh :class:`ContactModel` on each call, so nothing is remembered: a centre deeper
-    than r inside a solid is free. For a sequence of poses (a push, a stroke) keep one model.
+    Builds a fresh :class:`ContactModel` on each call, so nothing is remembered: a centre more
+    than r inside a solid is pushed out of its nearest surface, which past the middle of a thin
+    part is the far one. For a sequence of poses (a push, a stroke) keep one model.
     """
     return ContactModel(scene).wrench(T_w_MRF, V_w_MRF)

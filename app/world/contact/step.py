@@ -19,7 +19,7 @@ from numba import njit
 
 from app.world.contact.bundle import borrowed, tick_kernel
 from app.world.contact.force import contact_force, write_wrench
-from app.world.contact.geometry import box_distance2
+from app.world.contact.geometry import box_distance2, closest_on_triangle
 from app.world.contact.layout import (
     ERR_OVERFLOW,
     ERR_POSE,
@@ -245,6 +245,30 @@ def _pair_contacts(
 
 
 @tick_kernel
+def _enter_from_nearest(
+    pair: Record, o: Record, verts: Records, tris: Records, edges: Records, lists: np.ndarray
+) -> None:
+    """A pair with no history whose centre is more than r from every surface of object ``o``
+    (a model just reset, or the stateless :func:`~app.world.contact.model.contact_wrench`) and
+    inside the object's box: if the centre is inside the solid, remember its nearest surface, as
+    if the tool had entered there (the nearest point over every triangle: once per reset)."""
+    c = pair.c
+    best, best2 = -1, math.inf
+    for t in range(o.faces[0], o.faces[1]):
+        d2 = closest_on_triangle(verts, tris, t, c[0], c[1], c[2])[0]
+        if d2 < best2:
+            best, best2 = t, d2
+    if best < 0:
+        return
+    t, phi, qx, qy, qz, nx, ny, nz = follow(verts, tris, edges, lists, best, c[0], c[1], c[2])
+    if phi < 0.0:
+        pair.mem = 1
+        pair.mem_t = t
+        pair.mem_q[0], pair.mem_q[1], pair.mem_q[2] = qx, qy, qz
+        pair.mem_n[0], pair.mem_n[1], pair.mem_n[2] = nx, ny, nz
+
+
+@tick_kernel
 def _evaluate(
     pair: Record,
     k: int,
@@ -275,7 +299,12 @@ def _evaluate(
     if g < 0:
         return ERR_OVERFLOW, 0
     bound = local_minima(pair, pool[k], r, verts, tris, edges, lists)
-    bound = max(bound, math.sqrt(box_distance2(o.box, pair.c[0], pair.c[1], pair.c[2])))
+    box = box_distance2(o.box, pair.c[0], pair.c[1], pair.c[2])
+    if pair.fresh:
+        pair.fresh = 0
+        if pair.mem == 0 and pair.n_min == 0 and box == 0.0:
+            _enter_from_nearest(pair, o, verts, tris, edges, lists)
+    bound = max(bound, math.sqrt(box))
     for a in range(3):
         pair.last[a] = pair.c[a]
     before = n_c

@@ -161,22 +161,32 @@ def quat_to_matrix(q_wxyz: Array) -> Array:
 
 def matrix_to_quat(R: Array) -> Array:
     """Unit quaternion ``[w, x, y, z]`` (w >= 0) of rotation ``R`` (3, 3)."""
-    tr = float(R[0, 0] + R[1, 1] + R[2, 2])
+    out = np.empty(4)
+    quat_into(np.ascontiguousarray(R, dtype=float), out)
+    return out
+
+
+@njit(cache=True)
+def quat_into(R: Array, out: Array) -> None:
+    """Write the unit quaternion ``[w, x, y, z]`` (w >= 0) of rotation ``R`` (3, 3) into ``out`` (4,)
+    (Shepperd's method: the largest of the four squared components is taken from the diagonal)."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
     if tr > 0:
         s = 2.0 * math.sqrt(tr + 1.0)
-        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+        w, x, y, z = 0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s
     elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
         s = 2.0 * math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
+        w, x, y, z = (R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s
     elif R[1, 1] > R[2, 2]:
         s = 2.0 * math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
+        w, x, y, z = (R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s
     else:
         s = 2.0 * math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
-    out = np.array(q, dtype=float)
-    out /= np.linalg.norm(out)
-    return out if out[0] >= 0 else -out
+        w, x, y, z = (R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    if w < 0:
+        norm = -norm
+    out[0], out[1], out[2], out[3] = w / norm, x / norm, y / norm, z / norm
 
 
 @njit(cache=True)

@@ -26,14 +26,38 @@ from typing import Annotated
 
 import mujoco
 import numpy as np
+from numba import njit
 
 from app.config import Checked, Range
-from app.spatial import Array
+from app.mjcall import address, call_model_data, pointers
+from app.spatial import Array, quat_into
 
 #: MuJoCo actuator group of the hand's actuators; disabled (``opt.disableactuator``) when released.
 HAND_GROUP = 5
 HAND_BODY = "operator_hand"
 HAND_SITE = "operator_hand_site"
+
+
+@njit(cache=True)
+def _pull(
+    T_0_H: Array, T: Array, mocap_pos: Array, mocap_quat: Array, kinematics: int, transmission: int, m: int, d: int
+) -> bool:
+    """Copy a finite ``T_0_H`` (4, 4) to ``T`` and to the hand's mocap pose, then run MuJoCo's
+    kinematics and transmissions (functions at ``kinematics``, ``transmission``; model and data
+    at ``m``, ``d``); False, with nothing written, if ``T_0_H`` is not finite."""
+    for a in range(4):
+        for b in range(4):
+            if not math.isfinite(T_0_H[a, b]):
+                return False
+    for a in range(4):
+        for b in range(4):
+            T[a, b] = T_0_H[a, b]
+    for a in range(3):
+        mocap_pos[a] = T[a, 3]
+    quat_into(T[0:3, 0:3], mocap_quat)
+    call_model_data(kinematics, m, d)
+    call_model_data(transmission, m, d)
+    return True
 
 
 @dataclass(frozen=True)
@@ -96,9 +120,11 @@ class OperatorHand:
         self._force_H = data.actuator_force[first : first + 6]
         self._wrench_G = np.zeros(6)
         self._T = np.eye(4)
-        self._R9 = np.zeros(9)
         self._mocap_pos = data.mocap_pos[self._mocap]
         self._mocap_quat = data.mocap_quat[self._mocap]
+        self._opt = model.opt
+        self._pointers = pointers(model, data)
+        self._kinematics, self._transmission = address("mj_kinematics"), address("mj_transmission")
         #: Hand target pose T_0_H (4, 4), or None when the operator has let go.
         self.T_0_H: Array | None = None
         self.set_target(None)
@@ -106,24 +132,28 @@ class OperatorHand:
     def set_target(self, T_0_H: Array | None) -> None:
         """Grab the grip and pull it toward ``T_0_H`` (4, 4, base frame), or let go with None.
 
-        The pose is copied (callers may reuse their array). Scripts and the UI call this every
-        servo tick, so it only writes the mocap target, with no allocation.
+        The pose is copied (callers may reuse their array), and the hand actuators' lengths are
+        brought up to date (MuJoCo's kinematics and transmissions, the only part of the next
+        step's spring lengths the target changes). Scripts and the UI call this every servo
+        tick: one compiled call, with no allocation.
         """
-        m = self._model
+        opt = self._opt
         if T_0_H is None:
             self.T_0_H = None
-            m.opt.disableactuator |= 1 << HAND_GROUP
+            opt.disableactuator |= 1 << HAND_GROUP
+            mujoco.mj_kinematics(self._model, self._data)
+            mujoco.mj_transmission(self._model, self._data)
             return
-        if T_0_H.shape != (4, 4) or not math.isfinite(float(T_0_H.sum())):
+        if T_0_H.__class__ is not np.ndarray or T_0_H.shape != (4, 4):
             raise ValueError("T_0_H must be a finite 4x4 pose")
-        T = self._T
-        T[:] = T_0_H
-        self.T_0_H = T
-        self._mocap_pos[:] = T[:3, 3]
-        self._R9[:] = T[:3, :3].ravel()
-        mujoco.mju_mat2Quat(self._mocap_quat, self._R9)
-        if m.opt.disableactuator & (1 << HAND_GROUP):
-            m.opt.disableactuator &= ~(1 << HAND_GROUP)
+        if not _pull(
+            np.ascontiguousarray(T_0_H, dtype=float), self._T, self._mocap_pos, self._mocap_quat,
+            self._kinematics, self._transmission, *self._pointers,
+        ):  # fmt: skip
+            raise ValueError("T_0_H must be a finite 4x4 pose")
+        self.T_0_H = self._T
+        if opt.disableactuator & (1 << HAND_GROUP):
+            opt.disableactuator &= ~(1 << HAND_GROUP)
 
     def wrench_G(self) -> Array:
         """The hand's wrench on the grip in the last physics step.

@@ -6,6 +6,7 @@ import math
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from app.controller.types import Fault
 from app.session.tick import STAGES, TickRecord
@@ -29,9 +30,55 @@ def work_increment(T_prev: Array, T: Array, F_prev: Array, F: Array) -> Array:
     ``T_prev``: translation, and the rotation increment as a rotation vector. ``F_prev`` and ``F``
     are the contact wrenches at {MRF} in {MRF} (N, N m), (6,).
     """
+    work = np.zeros(6)
+    _add_work(T_prev, T, F_prev, F, work)
+    return work
+
+
+@njit(cache=True)
+def _add_work(T_prev: Array, T: Array, F_prev: Array, F: Array, work: Array) -> None:
+    """Add :func:`work_increment` to ``work`` (6,)."""
     R_prev = T_prev[0:3, 0:3]
-    dxi = np.concatenate((R_prev.T @ (T[0:3, 3] - T_prev[0:3, 3]), rotation_log(R_prev.T @ T[0:3, 0:3])))
-    return 0.5 * (F + F_prev) * dxi
+    dxi = np.empty(6)
+    for a in range(3):
+        dxi[a] = (
+            R_prev[0, a] * (T[0, 3] - T_prev[0, 3])
+            + R_prev[1, a] * (T[1, 3] - T_prev[1, 3])
+            + R_prev[2, a] * (T[2, 3] - T_prev[2, 3])
+        )
+    R_rel = np.empty((3, 3))  # R_prev^T R
+    for a in range(3):
+        for b in range(3):
+            R_rel[a, b] = R_prev[0, a] * T[0, b] + R_prev[1, a] * T[1, b] + R_prev[2, a] * T[2, b]
+    dxi[3:6] = rotation_log(R_rel)
+    for a in range(6):
+        work[a] += 0.5 * (F[a] + F_prev[a]) * dxi[a]
+
+
+@njit(cache=True)
+def _accumulate(
+    acc: Array, tail: Array, T_prev: Array, F_prev: Array, T: Array, F: Array, tick: int, po_energy: float, pc: float
+) -> None:
+    """One tick of :class:`SessionMetrics`' sums, in ``acc`` (slots ``_WORK`` ... ``_PC_TICKS``);
+    the contact force magnitude into the ring ``tail``; ``T_prev``, ``F_prev`` become ``T``, ``F``."""
+    _add_work(T_prev, T, F_prev, F, acc[_WORK : _WORK + 6])
+    T_prev[:] = T
+    F_prev[:] = F
+    f = math.sqrt(F[0] * F[0] + F[1] * F[1] + F[2] * F[2])
+    m = math.sqrt(F[3] * F[3] + F[4] * F[4] + F[5] * F[5])
+    acc[_PEAK_F] = max(acc[_PEAK_F], f)
+    acc[_PEAK_M] = max(acc[_PEAK_M], m)
+    acc[_SUM_F2] += f * f
+    acc[_SUM_M2] += m * m
+    tail[tick % tail.shape[0]] = f
+    acc[_MIN_ENERGY] = min(acc[_MIN_ENERGY], po_energy)
+    acc[_MAX_PC] = max(acc[_MAX_PC], pc)
+    if pc > 0.0:
+        acc[_PC_TICKS] += 1.0
+
+
+# Slots of SessionMetrics' accumulator (see _accumulate).
+_WORK, _PEAK_F, _PEAK_M, _SUM_F2, _SUM_M2, _MIN_ENERGY, _MAX_PC, _PC_TICKS = 0, 6, 7, 8, 9, 10, 11, 12
 
 
 def _count_bits(flags: type[Fault] | type[ArmStatus], value: int, counts: dict[str, int]) -> None:
@@ -65,13 +112,9 @@ class SessionMetrics:
     def __init__(self, start: TickRecord, task: TaskSpec | None, n_ticks: int, dt: float) -> None:
         self._dt = dt
         self._time = start.time
-        self._work = np.zeros(6)
+        self._acc = np.zeros(_PC_TICKS + 1)
         self._T_prev = start.T_w_MRF.copy()
         self._F_prev = start.contact_wrench_MRF.copy()
-        self._peak_force = 0.0
-        self._peak_moment = 0.0
-        self._sum_f2 = 0.0
-        self._sum_m2 = 0.0
         self._contact_ticks = 0
         self._ticks = 0
         self._fault_ticks: dict[str, int] = {}
@@ -82,26 +125,18 @@ class SessionMetrics:
         self._stage_ns = np.zeros((n_ticks, len(STAGES)), dtype=np.int64)
         # The contact force of the last SETTLE_WINDOW of ticks (a ring).
         self._tail = np.full(max(1, round(SETTLE_WINDOW / dt)), np.nan)
-        self._min_energy = 0.0
-        self._max_pc = 0.0
-        self._pc_ticks = 0
         self.task_done_at: float | None = None
         self._task = task
+        self._T_goal = None if task is None else task.goal.matrix()
 
     def on_tick(self, tick: TickRecord) -> None:
         out = tick.out
         T = tick.T_w_MRF
-        F = tick.contact_wrench_MRF
         self._time = tick.time
-        self._work += work_increment(self._T_prev, T, self._F_prev, F)
-        self._T_prev[:] = T
-        self._F_prev[:] = F
-        f = math.sqrt(float(F[0:3] @ F[0:3]))
-        m = math.sqrt(float(F[3:6] @ F[3:6]))
-        self._peak_force = max(self._peak_force, f)
-        self._peak_moment = max(self._peak_moment, m)
-        self._sum_f2 += f * f
-        self._sum_m2 += m * m
+        _accumulate(
+            self._acc, self._tail, self._T_prev, self._F_prev, T, tick.contact_wrench_MRF, self._ticks,
+            out.po_energy, out.pc_cut,
+        )  # fmt: skip
         self._contact_ticks += tick.contact.count > 0
         if out.faults:
             _count_bits(Fault, int(out.faults), self._fault_ticks)
@@ -112,20 +147,15 @@ class SessionMetrics:
             _count_bits(ArmStatus, tick.slave_status, self._slave_ticks)
         if self._ticks < len(self._stage_ns):
             self._stage_ns[self._ticks] = tick.stage_ns
-        self._tail[self._ticks % len(self._tail)] = f
-        self._min_energy = min(self._min_energy, out.po_energy)
-        pc = out.pc_cut
-        self._max_pc = max(self._max_pc, pc)
-        self._pc_ticks += pc > 0.0
-
         self._ticks += 1
-        if self._task is not None and self.task_done_at is None and self._task.done(T):
+        task = self._task
+        if task is not None and self.task_done_at is None and task.done(T, self._T_goal):
             self.task_done_at = tick.time
 
     @property
     def work_per_axis(self) -> Array:
         """``|integral F_MRF,i d xi_i|`` per axis (J for forces, J = N m rad for moments), (6,)."""
-        return np.abs(self._work)
+        return np.abs(self._acc[_WORK : _WORK + 6])
 
     def settling(self) -> dict[str, Any]:
         """Contact force over the last :data:`SETTLE_WINDOW` s, and the passivity trace."""
@@ -137,9 +167,9 @@ class SessionMetrics:
             "mean_force_N": mean,
             "ripple_N": ripple,
             "settled": bool(math.isfinite(ripple) and mean >= SETTLE_MIN_FORCE and ripple < SETTLE_RIPPLE * mean),
-            "min_energy_J": self._min_energy,
-            "max_pc_cut": self._max_pc,
-            "pc_active_ticks": self._pc_ticks,
+            "min_energy_J": float(self._acc[_MIN_ENERGY]),
+            "max_pc_cut": float(self._acc[_MAX_PC]),
+            "pc_active_ticks": int(self._acc[_PC_TICKS]),
         }
 
     def summary(self) -> dict[str, Any]:
@@ -158,10 +188,10 @@ class SessionMetrics:
         return {
             "work_eq13": float(self.work_per_axis.sum()),
             "work_per_axis": self.work_per_axis.tolist(),
-            "peak_contact_force_N": self._peak_force,
-            "peak_contact_moment_Nm": self._peak_moment,
-            "rms_contact_force_N": math.sqrt(self._sum_f2 / n),
-            "rms_contact_moment_Nm": math.sqrt(self._sum_m2 / n),
+            "peak_contact_force_N": float(self._acc[_PEAK_F]),
+            "peak_contact_moment_Nm": float(self._acc[_PEAK_M]),
+            "rms_contact_force_N": math.sqrt(self._acc[_SUM_F2] / n),
+            "rms_contact_moment_Nm": math.sqrt(self._acc[_SUM_M2] / n),
             "contact_fraction": self._contact_ticks / n,
             "task": None
             if self._task is None

@@ -12,6 +12,7 @@ import math
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+from numba import njit
 
 from app.controller.types import Switches
 from app.session.spec import SessionFile, SwitchEvent
@@ -62,22 +63,19 @@ class OperatorScript:
         self._rate = data.servo_rate
         self._tremor = _tremor(data.n_ticks, data.tremor, data.seed, data.servo_rate, self.TREMOR_CUTOFF_HZ)
         self._T = np.eye(4)
+        # The waypoint poses stacked, with the last repeated: the blend from it to itself holds it.
+        self._stack = np.stack([*self._poses, self._poses[-1]])
 
     def hand_target(self, t: float, tick: int) -> Array:
         """Hand-target pose ``T_0_H`` (4, 4) at time ``t`` (s); ``tick`` indexes the tremor."""
         times = self._times
         i = bisect.bisect_right(times, t)
-        T = self._T
         if i == 0 or i == len(times):
-            T[:] = self._poses[0 if i == 0 else -1]
+            k, s = (0, 0.0) if i == 0 else (len(times) - 1, 0.0)
         else:
-            a, b = self._poses[i - 1], self._poses[i]
-            s = (t - times[i - 1]) / (times[i] - times[i - 1])
-            s = s * s * (3.0 - 2.0 * s)
-            T[0:3, 3] = a[0:3, 3] + s * (b[0:3, 3] - a[0:3, 3])
-            T[0:3, 0:3] = a[0:3, 0:3] @ rotation_exp(s * rotation_log(a[0:3, 0:3].T @ b[0:3, 0:3]))
-        T[0:3, 3] += self._tremor[min(tick, len(self._tremor) - 1)]
-        return T
+            k, s = i - 1, (t - times[i - 1]) / (times[i] - times[i - 1])
+        _blend(self._stack, k, s * s * (3.0 - 2.0 * s), self._tremor[min(tick, len(self._tremor) - 1)], self._T)
+        return self._T
 
     @staticmethod
     def for_loop(data: SessionFile, loop: ServoLoop) -> OperatorScript:
@@ -109,6 +107,21 @@ class OperatorScript:
             self.hand_on = e.hand
         if e.reference:
             sw.reference = True
+
+
+@njit(cache=True)
+def _blend(poses: Array, k: int, s: float, tremor: Array, T: Array) -> None:
+    """``T`` (4, 4) = waypoint pose k blended a fraction ``s`` toward pose k + 1 (position on the
+    straight line, rotation along the geodesic), plus the ``tremor`` offset (3,) (m)."""
+    a, b = poses[k], poses[k + 1]
+    R_a = np.ascontiguousarray(a[0:3, 0:3])
+    R = R_a @ rotation_exp(s * rotation_log(R_a.T @ np.ascontiguousarray(b[0:3, 0:3])))
+    for i in range(3):
+        for j in range(3):
+            T[i, j] = R[i, j]
+        T[i, 3] = a[i, 3] + s * (b[i, 3] - a[i, 3]) + tremor[i]
+        T[3, i] = 0.0
+    T[3, 3] = 1.0
 
 
 def _tremor(n: int, sigma: float, seed: int, rate: float, cutoff_hz: float) -> Array:

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Annotated
 
 import numpy as np
+from numba import njit
 
 from app.config import Checked, Count, Range
 from app.errors import InvalidField
@@ -303,13 +304,24 @@ class TaskSpec(Checked):
     angle_tolerance_deg: Annotated[float, Range(1e-3, 180.0, "deg")] = 3.0
     description: str = ""
 
-    def done(self, T_w_MRF: Array) -> bool:
-        """True when the pose ``T_w_MRF`` (4, 4) is within tolerance of the goal."""
-        T_goal = self.goal.matrix()
-        dp = float(np.linalg.norm(T_w_MRF[0:3, 3] - T_goal[0:3, 3]))
-        cos_a = (float(np.trace(T_goal[0:3, 0:3].T @ T_w_MRF[0:3, 0:3])) - 1.0) * 0.5
-        angle = math.degrees(math.acos(max(-1.0, min(1.0, cos_a))))
-        return dp <= self.position_tolerance and angle <= self.angle_tolerance_deg
+    def done(self, T_w_MRF: Array, T_goal: Array | None = None) -> bool:
+        """True when the pose ``T_w_MRF`` (4, 4) is within tolerance of the goal (``T_goal``, the
+        goal's matrix if the caller keeps it, is computed otherwise)."""
+        T_goal = self.goal.matrix() if T_goal is None else T_goal
+        return _within(T_w_MRF, T_goal, self.position_tolerance, math.radians(self.angle_tolerance_deg))
+
+
+@njit(cache=True)
+def _within(T: Array, T_goal: Array, position_tolerance: float, angle_tolerance: float) -> bool:
+    """Whether pose ``T`` is within ``position_tolerance`` (m) and ``angle_tolerance`` (rad) of
+    ``T_goal`` (both (4, 4))."""
+    dp2 = (T[0, 3] - T_goal[0, 3]) ** 2 + (T[1, 3] - T_goal[1, 3]) ** 2 + (T[2, 3] - T_goal[2, 3]) ** 2
+    trace = 0.0  # trace(R_goal^T R)
+    for a in range(3):
+        for b in range(3):
+            trace += T_goal[b, a] * T[b, a]
+    angle = math.acos(max(-1.0, min(1.0, (trace - 1.0) * 0.5)))
+    return math.sqrt(dp2) <= position_tolerance and angle <= angle_tolerance
 
 
 @dataclass(frozen=True)

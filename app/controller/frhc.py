@@ -153,6 +153,23 @@ class ControllerOutput:
         return float(self.scalars[PC_CUT])
 
 
+def fill_record(rec: RecordArray, slave: SlaveModel, safety: SafetyLimits) -> None:
+    """The record's poses, scale factors, safety limits and slave model (either kind of device)."""
+    for name in ("T_0_G", "T_0_G0", "T_w_MRF", "T_w_MRF0"):
+        rec[name] = np.eye(4)
+    rec["scalars"] = 1.0
+    rec["min_period"] = safety.min_period
+    rec["ramp_rate"] = safety.ramp_rate
+    rec["max_joint_speed"] = safety.max_joint_speed
+    rec["release_speed"] = safety.release_fraction * safety.max_joint_speed
+    rec["payload_mass"] = slave.payload_mass
+    rec["payload_com_S"] = slave.payload_com_S
+    rec["payload_inertia_S"] = slave.payload_inertia_S
+    rec["gravity_w"] = slave.gravity_w
+    T_MRF_S = np.asarray(slave.T_MRF_S, dtype=float)
+    rec["X_MRF_S"] = wrench_transform(T_MRF_S[0:3, 0:3], T_MRF_S[0:3, 3])
+
+
 class FRHCController:
     """Cartesian controller of one force-reflecting hand controller (paper Sec 3-4).
 
@@ -189,13 +206,7 @@ class FRHCController:
         )
         for name, *_ in topology_fields(device.n_joints, kin.model.nbody):
             rec[name] = getattr(kin, name)
-        for name in ("T_0_G", "T_0_G0", "T_w_MRF", "T_w_MRF0"):
-            rec[name] = np.eye(4)
-        rec["scalars"] = 1.0
-        rec["min_period"] = safety.min_period
-        rec["ramp_rate"] = safety.ramp_rate
-        rec["max_joint_speed"] = safety.max_joint_speed
-        rec["release_speed"] = safety.release_fraction * safety.max_joint_speed
+        fill_record(rec, slave, safety)
         self._brake_damping = safety.brake_damping
         self._shape_q = (device.n_joints,)
         rec["gear_ratio"] = motors.gear_ratio
@@ -203,12 +214,6 @@ class FRHCController:
         rec["horner_pos"] = self.curve.horner_pos
         rec["horner_neg"] = self.curve.horner_neg
         rec["counts_max"] = self.curve.counts_max
-        rec["payload_mass"] = slave.payload_mass
-        rec["payload_com_S"] = slave.payload_com_S
-        rec["payload_inertia_S"] = slave.payload_inertia_S
-        rec["gravity_w"] = slave.gravity_w
-        T_MRF_S = np.asarray(slave.T_MRF_S, dtype=float)
-        rec["X_MRF_S"] = wrench_transform(T_MRF_S[0:3, 0:3], T_MRF_S[0:3, 3])
         self.gear_ratio: Array = rec["gear_ratio"][0]
         self.joint_limit: Array = rec["joint_limit"][0]
         self.out = ControllerOutput(rec)

@@ -65,6 +65,9 @@ class LoopConfig:
         passivity: The passivity controller on the device port (:mod:`app.controller.passivity`).
         channel: The master-slave channel: delay, jitter, loss, wave variables
             (:mod:`app.teleop`); the default is none.
+        device_url: A Cartesian device served over the Haply Inverse Service protocol
+            (``ws://host:port``, :mod:`app.device.haply`) instead of the simulated ``device``;
+            ``device`` then gives its limits and gains.
     """
 
     device: DeviceSpec
@@ -77,6 +80,12 @@ class LoopConfig:
     watchdog: float = WATCHDOG
     passivity: PassivitySettings = field(default_factory=PassivitySettings)
     channel: ChannelSettings = field(default_factory=ChannelSettings)
+    device_url: str | None = None
+
+    @property
+    def cartesian(self) -> bool:
+        """The loop drives the device through its Cartesian interface (``docs/conventions.md``)."""
+        return self.device_url is not None or self.device.data.interface == "cartesian"
 
     @staticmethod
     def from_session(
@@ -114,6 +123,7 @@ class LoopConfig:
             self.watchdog,
             self.passivity,
             self.channel,
+            self.device_url,
         )
         return (_rebuild_config, (self.scene.path, self.scene.spec.slave.kind, self.device.path, *values))
 
@@ -138,23 +148,37 @@ class ServoLoop:
             are joined directly (no delay: the default).
     """
 
+    def __new__(cls, config: LoopConfig) -> ServoLoop:
+        """The loop for the device's kind: a :class:`CartesianServoLoop` for a Cartesian device."""
+        if cls is ServoLoop and config.cartesian:
+            from app.session.cartesian_loop import CartesianServoLoop
+
+            return super().__new__(CartesianServoLoop)
+        return super().__new__(cls)
+
     def __init__(self, config: LoopConfig) -> None:
         self.config = config
         self.dt = 1.0 / config.servo_rate
-        self.plant = DevicePlant(config.device, config.hand, config.watchdog)
         self.slave = make_slave(config.scene, accommodation=config.accommodation, period=self.dt)
-        self.controller = FRHCController(
-            config.device, config.gains, self.slave.slave_model(), safety=config.safety, passivity=config.passivity
-        )
+        self._open_device()
         self.channel = config.channel
         self.link: TeleopLink | None = None
         self.switches = Switches()
         self.observers: list[TickObserver] = []
         self._hand = np.eye(4)
         self.record = TickRecord(
-            self.plant.reading, self.controller.out, self.slave, self._hand, np.zeros(len(STAGES), dtype=np.int64)
+            self.reading, self.controller.out, self.slave, self._hand, np.zeros(len(STAGES), dtype=np.int64)
         )
         self.reset()
+
+    def _open_device(self) -> None:
+        """The joint-space device (the simulated plant) and its controller."""
+        config = self.config
+        self.plant = DevicePlant(config.device, config.hand, config.watchdog)
+        self.reading = self.plant.reading
+        self.controller = FRHCController(
+            config.device, config.gains, self.slave.slave_model(), safety=config.safety, passivity=config.passivity
+        )
 
     @property
     def stage_ns(self) -> IntArray:
@@ -179,10 +203,14 @@ class ServoLoop:
         self.reading = self.plant.reset(home)
         self.slave.reset()
         self.controller.reset(self.reading.q)
+        self.counts = np.zeros(self.config.device.n_joints, dtype=np.int64)
+        self._restart()
+
+    def _restart(self) -> None:
+        """The reset of everything but the device and the controller."""
         # The sensor already reads the payload's weight at rest: start from that, not from zero,
         # or the first tick's payload removal would reflect a false +m g.
         self.ft = self.slave.reading()
-        self.counts = np.zeros(self.config.device.n_joints, dtype=np.int64)
         self.switches.deadman = self.switches.reference = self.switches.reflection = False
         self.time = 0.0
         self.ticks = 0

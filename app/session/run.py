@@ -96,7 +96,7 @@ def run_session(
     log = None
     if out_dir is not None:
         meta = loop_meta(loop.config, session.path)
-        log = loop.observe(TickLog(out_dir / "log", session.device.n_joints, loop.dt, flush_interval, meta))
+        log = loop.observe(TickLog(out_dir / "log", loop.controller.out.n, loop.dt, flush_interval, meta))
     for observer in observers:
         loop.observe(observer)
     pacer = Pacer(loop.dt) if realtime else None

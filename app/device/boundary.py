@@ -44,6 +44,7 @@ class CartesianReading:
         T_0_G: Grip pose in the device base {0} (4, 4; m).
         q: The pose as six coordinates ``[x, y, z, gamma, beta, alpha]`` (m, rad; Z-Y-X angles of
             ``T_0_G``): the device's coordinates in the log's ``q_*`` columns.
+        twist_0_G: Grip twist ``[v; w]`` in {0} (m/s, rad/s), (6,); NaN where the device gives none.
         buttons: The grip's buttons ``(deadman, reference, reflection)`` as the backend maps them,
             or None for a device without buttons (the switches then come from the page or script).
         wrench_G: The simulated operator's hand on the grip (N, N m, {0}); zero for real devices.
@@ -66,6 +67,7 @@ class CartesianReading:
         "q",
         "status",
         "time",
+        "twist_0_G",
         "watchdog_trips",
         "wrench_G",
     )
@@ -73,6 +75,7 @@ class CartesianReading:
     def __init__(self) -> None:
         self.T_0_G = np.eye(4)
         self.q = np.zeros(6)
+        self.twist_0_G = np.full(6, np.nan)
         self.buttons: tuple[bool, bool, bool] | None = None
         self.wrench_G = np.zeros(6)
         self.geom_xpos = np.zeros((0, 3))

@@ -184,15 +184,11 @@ class CartesianSpec(Checked):
         torque_limit: Largest moment magnitude sent (N m); 0 for a 3-dof-force device, whose
             moments are then never sent.
         ramp_time: Time (s) the force limit takes to ramp from 0 to full after a connect or a gap.
-        orientation: The device senses its grip's orientation; False for a position-only device
-            (a Falcon, or an Inverse3 without its grip), whose reported orientation is then the
-            identity, so it commands no rotation.
     """
 
     force_limit: Annotated[float, Range(0.0, 1e3, "N", lo_open=True)]
     torque_limit: Annotated[float, Range(0.0, 1e2, "N m")] = 0.0
     ramp_time: Annotated[float, Range(0.0, 10.0, "s")] = 0.5
-    orientation: bool = True
 
 
 @dataclass(frozen=True)

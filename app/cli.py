@@ -30,6 +30,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         progress=True,
         realtime=args.realtime,
         flush_interval=args.flush_interval,
+        device_url=args.device,
     )
     s = result.summary
     print(f"log:      {result.log_dir}/ (Parquet)")
@@ -119,6 +120,35 @@ def _engine_arguments(p: argparse.ArgumentParser) -> None:
         help="parallel workers (default: every core; 1 = serially without Ray; 0 = every CPU of a cluster)",
     )
     p.add_argument("--address", default=None, help="join this Ray cluster (default: RAY_ADDRESS, else local)")
+
+
+def _cmd_device_serve(args: argparse.Namespace) -> int:
+    from app.device.cartesian_sim import SimCartesianDevice
+    from app.device.haply import DeviceServer
+    from app.device.spec import load_device
+
+    if not 10.0 <= args.rate <= 20000.0:
+        raise FrhcError(f"--rate must be in [10, 20000] Hz, got {args.rate:g}")
+    spec = load_device(args.device)
+    if spec.data.cartesian is None:
+        raise ConfigError(spec.path, "cartesian", "serving a device needs its [cartesian] table (force limit)")
+    try:
+        server = DeviceServer(SimCartesianDevice(spec), args.host, args.port, period=1.0 / args.rate)
+    except OSError as exc:
+        raise FrhcError(f"cannot listen on {args.host}:{args.port}: {exc.strerror or exc}") from None
+    print(f"serving {spec.name} (simulated, {args.rate:g} Hz) at ws://{args.host}:{server.port}  (Ctrl-C stops)")
+    try:
+        server.serve_forever()
+    finally:
+        server.shutdown()
+    return 0
+
+
+def _device_url(text: str) -> str:
+    """An argparse type: a ``ws://host:port`` address."""
+    if not text.startswith(("ws://", "wss://")):
+        raise argparse.ArgumentTypeError(f"expected ws://host:port, got {text!r}")
+    return text
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -232,6 +262,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.1,
         help="simulated seconds of ticks per log part: the most a crash can lose (default 0.1)",
     )
+    p.add_argument(
+        "--device",
+        type=_device_url,
+        default=None,
+        help="drive the device served at ws://host:port (frhc device serve, or Haply's Inverse Service)",
+    )
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser(
@@ -289,6 +325,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("device", help="device name or path")
     p.add_argument("--write", action="store_true", help="write the fitted curves into the device folder")
     p.set_defaults(func=_cmd_calibrate)
+
+    p = sub.add_parser("device", help="serve a simulated device", description="Device tools.")
+    dsub = p.add_subparsers(dest="device_command", required=True)
+    p = dsub.add_parser(
+        "serve",
+        help="serve a simulated device over Haply's Inverse Service protocol (WebSocket)",
+        description="Serve a simulated device as a Cartesian device (grip pose out, force in) over the "
+        "Inverse Service JSON protocol, for frhc run/web --device ws://host:port (app/device/haply.py).",
+    )
+    p.add_argument("--device", default="kraft", help="device name or path with a [cartesian] table (default: kraft)")
+    p.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=10001, help="port (default 10001, as Haply's service)")
+    p.add_argument("--rate", type=float, default=1000.0, help="simulation rate (Hz, default 1000)")
+    p.set_defaults(func=_cmd_device_serve)
 
     p = sub.add_parser("web", help="the browser demo (viser)", description="Serve the haptic demo in the browser.")
     p.add_argument("--scene", default="probe", help="scene name or path (default: probe)")

@@ -5,8 +5,9 @@ Every wrench the servo loop sends to a Cartesian device passes :meth:`ForceGuard
 - **force limit**: the force is scaled (direction kept) to at most the device's ``force_limit``
   (N), the moment to ``torque_limit`` (N m); a 3-dof-force device gets no moment at all;
 - **ramp**: after a connect, and after any gap in the device's stream, the wrench is scaled by a
-  level rising linearly from 0 to 1 over ``ramp_time`` (s), so contact the operator drifted into
-  while the link was down does not kick;
+  level rising linearly from 0 to 1 over ``ramp_time`` (s; ``gap_ramp_time`` after a gap in
+  the stream of a device that stayed connected), so contact the operator drifted into while the
+  link was down does not kick;
 - **watchdog**: in a period in which no new sample arrived, the wrench sent is zero, and the next
   sample starts a new ramp. The command of that same period is the zero: the force goes to zero
   within one servo period of the stream stopping.
@@ -41,16 +42,19 @@ class ForceGuard:
         self.level = 0.0
         self.sent = np.zeros(6)
         self.watchdog_trips = 0
+        self._ramp_time = spec.ramp_time
 
     def reset(self) -> None:
         """A new connection: zero force, the ramp starts again."""
         self.level = 0.0
         self.sent[:] = 0.0
         self.watchdog_trips = 0
+        self._ramp_time = self.spec.ramp_time
 
     def gap(self) -> None:
         """The loop skipped periods: the force ramps in again from zero."""
         self.level = 0.0
+        self._ramp_time = self.spec.gap_ramp_time
 
     def apply(self, wrench_0: Array, reading: CartesianReading, dt: float) -> Array:
         """The wrench to send this period for the controller's ``wrench_0`` (6,), given the
@@ -58,8 +62,12 @@ class ForceGuard:
         ``watchdog_trips``. Returns :attr:`sent` (reused)."""
         out = self.sent
         if reading.status == LinkStatus.DISCONNECTED or not reading.fresh:
-            if reading.status != LinkStatus.DISCONNECTED:
+            if reading.status == LinkStatus.DISCONNECTED:
+                self._ramp_time = self.spec.ramp_time
+            else:
                 reading.status = LinkStatus.STALLED
+                if self.level >= 1.0:  # a stall during the connect ramp keeps that ramp
+                    self._ramp_time = self.spec.gap_ramp_time
             if self.level > 0.0 or not reading.motors_off:
                 self.watchdog_trips += 1
             self.level = 0.0
@@ -67,7 +75,7 @@ class ForceGuard:
             reading.motors_off = True
             reading.watchdog_trips = self.watchdog_trips
             return out
-        ramp = self.spec.ramp_time
+        ramp = self._ramp_time
         self.level = 1.0 if ramp <= 0.0 else min(1.0, self.level + dt / ramp)
         reading.status = LinkStatus.OK if self.level >= 1.0 else LinkStatus.RAMPING
         reading.motors_off = False

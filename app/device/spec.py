@@ -183,12 +183,15 @@ class CartesianSpec(Checked):
         force_limit: Largest force magnitude sent to the device (N).
         torque_limit: Largest moment magnitude sent (N m); 0 for a 3-dof-force device, whose
             moments are then never sent.
-        ramp_time: Time (s) the force limit takes to ramp from 0 to full after a connect or a gap.
+        ramp_time: Time (s) the wrench takes to ramp from 0 to full after a (re)connect.
+        gap_ramp_time: The same after a gap in the stream of a device that stayed connected (s):
+            a missed sample or a stalled stream.
     """
 
     force_limit: Annotated[float, Range(0.0, 1e3, "N", lo_open=True)]
     torque_limit: Annotated[float, Range(0.0, 1e2, "N m")] = 0.0
     ramp_time: Annotated[float, Range(0.0, 10.0, "s")] = 0.5
+    gap_ramp_time: Annotated[float, Range(0.0, 10.0, "s")] = 0.05
 
 
 @dataclass(frozen=True)

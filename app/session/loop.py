@@ -93,11 +93,13 @@ class LoopConfig:
         scene: Scene | None = None,
         device: DeviceSpec | None = None,
         gains: ControllerGains | None = None,
+        device_url: str | None = None,
     ) -> LoopConfig:
         """The loop a session runs: its scene, device, gains, hand, accommodation, rate, passivity
         controller and channel.
 
-        ``scene``, ``device`` and ``gains`` replace the session's own when given.
+        ``scene``, ``device`` and ``gains`` replace the session's own when given; ``device_url``
+        drives a served device (:attr:`device_url`).
         """
         d = session.data
         return LoopConfig(
@@ -109,6 +111,7 @@ class LoopConfig:
             d.servo_rate,
             passivity=d.passivity,
             channel=d.channel,
+            device_url=device_url,
         )
 
     def __reduce__(self) -> tuple[Any, ...]:
@@ -220,6 +223,9 @@ class ServoLoop:
         rec.slave_status = 0
         rec.deadman = rec.reference = rec.reflection = False
         rec.stage_ns[:] = 0
+
+    def close(self) -> None:
+        """Release the device: nothing to release for a plant simulated in this process."""
 
     def set_hand_target(self, T_0_H: Array | None) -> None:
         """Where the operator's hand pulls the grip (4, 4, device base); None lets go.

@@ -145,9 +145,11 @@ def _cmd_device_serve(args: argparse.Namespace) -> int:
 
 
 def _device_url(text: str) -> str:
-    """An argparse type: a ``ws://host:port`` address."""
-    if not text.startswith(("ws://", "wss://")):
-        raise argparse.ArgumentTypeError(f"expected ws://host:port, got {text!r}")
+    """An argparse type: a device outside this process (ws://host:port, fd:N, openhaptics:NAME)."""
+    from app.device.vendors import is_device_url
+
+    if not is_device_url(text):
+        raise argparse.ArgumentTypeError(f"expected ws://host:port, fd:N or openhaptics:NAME, got {text!r}")
     return text
 
 
@@ -266,7 +268,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--device",
         type=_device_url,
         default=None,
-        help="drive the device served at ws://host:port (frhc device serve, or Haply's Inverse Service)",
+        help="drive a device outside this process: ws://host:port (frhc device serve, Haply's Inverse "
+        "Service), fd:N (Force Dimension), openhaptics:NAME (Touch); the session's device file gives its limits",
     )
     p.set_defaults(func=_cmd_run)
 

@@ -93,7 +93,7 @@ class CartesianController(FRHCController):
         self.passivity = settings
         self._rec["pc_on"] = False
 
-    def reset(self, T_0_G: Array, T_w_MRF_home: Array | None = None) -> None:  # type: ignore[override]
+    def reset(self, T_0_G: Array, T_w_MRF_home: Array | None = None) -> None:
         """Start over at grip pose ``T_0_G`` (4, 4, {0}): reference {G0} := it, slave at home."""
         self.out.command.T_w_MRF[:] = self.slave.T_w_MRF_home if T_w_MRF_home is None else T_w_MRF_home
         self.out.T_0_G[:] = T_0_G
@@ -106,7 +106,7 @@ class CartesianController(FRHCController):
         """After a gap in the servo ticks: the wrench ramps in again."""
         self.out.scalars[RAMP] = 0.0
 
-    def step(self, T_0_G: Array, switches: Switches, ft: FTReading, dt: float) -> ControllerOutput:  # type: ignore[override]
+    def step(self, T_0_G: Array, switches: Switches, ft: FTReading, dt: float) -> ControllerOutput:
         """Run one servo tick on the device's grip pose ``T_0_G`` (4, 4, {0}).
 
         Returns the (reused) output; ``out.tau_sat`` is the wrench for the device (N, N m at the

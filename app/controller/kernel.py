@@ -281,7 +281,9 @@ def cartesian_device_tick(
         faults |= NONFINITE_INPUT
     if faults:
         return faults
-    if not render(rec, T_0_G, T_0_G[0:3, 3], r.J_W[:], wrench_S, R_w_S, acc_w, omega_w, dt, deadman, reference, reflection, out):
+    if not render(
+        rec, T_0_G, T_0_G[0:3, 3], r.J_W[:], wrench_S, R_w_S, acc_w, omega_w, dt, deadman, reference, reflection, out
+    ):
         return NONFINITE_OUTPUT
     out.scalars[SATURATION_SCALE] = saturate(torques[TAU], r.joint_limit[:], torques[TAU_SAT])
     if deadman and not r.rate_mode:

@@ -53,7 +53,9 @@ class SimCartesianDevice:
         curve = TorqueCurve.for_device(spec)
         motors = spec.data.motors
         gear = np.asarray(motors.gear_ratio, dtype=float)
-        self._motors = Motors(gear * np.asarray(motors.torque_limit), gear, curve.horner_pos, curve.horner_neg, curve.counts_max)
+        self._motors = Motors(
+            gear * np.asarray(motors.torque_limit), gear, curve.horner_pos, curve.horner_neg, curve.counts_max
+        )
         n = spec.n_joints
         self._torques = np.zeros((len(TORQUE_ROWS), n))
         self._counts = np.zeros(n, dtype=np.int64)

@@ -29,6 +29,7 @@ check them against ``docs/conventions.md`` before the first contact).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -63,18 +64,11 @@ class DeviceUnreachable(FrhcError):
     """No device answered at a ``--device ws://...`` address."""
 
 
-def is_device_url(name: str) -> bool:
-    """Whether a ``--device`` value names a served device (``ws://``) rather than a device file."""
-    return name.startswith(("ws://", "wss://"))
-
-
 def _xyz(v: Array) -> dict[str, float]:
     return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
 
 
-def state_message(
-    device_id: str, T_0_G: Array, buttons: tuple[bool, bool, bool], sim: dict[str, Any] | None
-) -> str:
+def state_message(device_id: str, T_0_G: Array, buttons: tuple[bool, bool, bool], sim: dict[str, Any] | None) -> str:
     """A state message: the grip position (m) and orientation in {0}, and the buttons (a, b, c)."""
     w, x, y, z = matrix_to_quat(T_0_G[:3, :3])
     msg: dict[str, Any] = {
@@ -132,7 +126,11 @@ def parse_state(text: str | bytes) -> ParsedState:
         state = grips[0].get("state", {})
         o = state.get("orientation")
         if o:
-            R = quat_to_matrix(np.array([float(o.get("w", 1.0)), float(o.get("x", 0.0)), float(o.get("y", 0.0)), float(o.get("z", 0.0))]))
+            R = quat_to_matrix(
+                np.array(
+                    [float(o.get("w", 1.0)), float(o.get("x", 0.0)), float(o.get("y", 0.0)), float(o.get("z", 0.0))]
+                )
+            )
         b = state.get("buttons", {})
         buttons = (bool(b.get("a", False)), bool(b.get("b", False)), bool(b.get("c", False)))
     return ParsedState(device_id, position, R, buttons, data.get("frhc_sim"))
@@ -155,19 +153,22 @@ def parse_command(text: str | bytes) -> tuple[Array, Array | None, bool]:
 
 
 def served_device(url: str, fallback: DeviceSpec) -> DeviceSpec:
-    """The device file for the device at ``url``: the served simulation's own (it names it), or
-    ``fallback`` for a real Inverse Service, which must have a ``[cartesian]`` table.
+    """The device file for the device at ``url``: for ``frhc device serve``, the served
+    simulation's own (it names it); otherwise (a real Inverse Service, ``fd:``, ``openhaptics:``)
+    ``fallback``, which must have a ``[cartesian]`` table for the limits.
 
     Raises:
-        DeviceUnreachable: nothing answers at ``url``, or ``fallback`` has no ``[cartesian]`` table.
+        DeviceUnreachable: nothing answers at a ``ws://`` address, or ``fallback`` has no
+            ``[cartesian]`` table.
     """
-    client = HaplyClient(url, period=CONNECT_TIMEOUT)
-    served = client.served
-    client.close()
-    if served is not None:
-        return load_device(str(served["device"]))
+    if url.startswith(("ws://", "wss://")):
+        client = HaplyClient(url, period=CONNECT_TIMEOUT)
+        served = client.served
+        client.close()
+        if served is not None:
+            return load_device(str(served["device"]))
     if fallback.data.cartesian is None:
-        raise DeviceUnreachable(f"{url} is a real Inverse Service, and device {fallback.name} has no [cartesian] table")
+        raise DeviceUnreachable(f"{url}: device {fallback.name} has no [cartesian] table to give its limits")
     return fallback
 
 
@@ -200,7 +201,9 @@ class HaplyClient:
         self._hand: Array | None = None
         self._last_attempt = -math.inf
         if not self.connect():
-            raise DeviceUnreachable(f"no Inverse Service answers at {url} (is `frhc device serve` or Haply's service running?)")
+            raise DeviceUnreachable(
+                f"no Inverse Service answers at {url} (is `frhc device serve` or Haply's service running?)"
+            )
 
     def connect(self) -> bool:
         """(Re)connect and read the first state; False (status DISCONNECTED) if it failed."""
@@ -294,10 +297,8 @@ class HaplyClient:
     def close(self) -> None:
         """Send zero force, then close the connection."""
         if self._ws is not None:
-            try:
+            with contextlib.suppress(ConnectionClosed, OSError):
                 self._ws.send(force_command(self.device_id, np.zeros(3), self._hand, self.served is not None))
-            except (ConnectionClosed, OSError):
-                pass
         self._drop()
 
 

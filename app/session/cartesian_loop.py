@@ -25,6 +25,7 @@ from app.controller.types import Switches
 from app.device.boundary import CartesianDevice, CartesianReading, LinkStatus
 from app.device.cartesian_sim import SimCartesianDevice
 from app.device.guard import ForceGuard
+from app.device.vendors import open_device_url
 from app.session.loop import ServoLoop
 from app.session.tick import TickRecord
 from app.spatial import Array
@@ -45,7 +46,7 @@ class CartesianServoLoop(ServoLoop):
 
     device: CartesianDevice
     reading: CartesianReading  # type: ignore[assignment]
-    controller: CartesianController  # type: ignore[assignment]
+    controller: CartesianController
 
     def _open_device(self) -> None:
         config = self.config
@@ -53,9 +54,7 @@ class CartesianServoLoop(ServoLoop):
         if spec is None:
             raise ValueError(f"device {config.device.name} has no [cartesian] table")
         if config.device_url is not None:
-            from app.device.haply import HaplyClient
-
-            self.device = HaplyClient(config.device_url, period=self.dt)
+            self.device = open_device_url(config.device_url, self.dt)
             self.plant = None  # type: ignore[assignment]
         else:
             sim = SimCartesianDevice(config.device, config.hand, config.watchdog)
@@ -155,4 +154,3 @@ class CartesianServoLoop(ServoLoop):
         for observer in self.observers:
             observer.on_tick(rec)
         return rec
-

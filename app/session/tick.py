@@ -69,7 +69,12 @@ class TickRecord:
     )
 
     def __init__(
-        self, reading: PlantReading | CartesianReading, out: ControllerOutput, slave: Slave, hand: Array, stage_ns: IntArray
+        self,
+        reading: PlantReading | CartesianReading,
+        out: ControllerOutput,
+        slave: Slave,
+        hand: Array,
+        stage_ns: IntArray,
     ) -> None:
         self.index = 0
         self.time = 0.0

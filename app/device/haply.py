@@ -164,7 +164,7 @@ def served_device(url: str, fallback: DeviceSpec) -> DeviceSpec:
     if url.startswith(("ws://", "wss://")):
         client = HaplyClient(url, period=CONNECT_TIMEOUT)
         served = client.served
-        client.close()
+        client.disconnect()  # it sent no force: nothing to zero, and a served simulation stays put
         if served is not None:
             return load_device(str(served["device"]))
     if fallback.data.cartesian is None:
@@ -226,6 +226,10 @@ class HaplyClient:
         self.name = f"{first.sim['device']} at {self.url}" if first.sim else f"Inverse3 {first.device_id}"
         self._take(first)
         return True
+
+    def disconnect(self) -> None:
+        """Close the connection without a last command (:meth:`close` sends zero force first)."""
+        self._drop()
 
     def _drop(self) -> None:
         if self._ws is not None:
@@ -354,6 +358,9 @@ class DeviceServer:
         self.log = ServerLog()
         self._busy = threading.Lock()
         self._paused = threading.Event()
+        #: Set whenever the force is zeroed (tests wait on it).
+        self.zeroed = threading.Event()
+        self._conn: ServerConnection | None = None
         self._server: Server = serve(self._handle, host, port, ping_interval=None, compression=None)
         self.port: int = self._server.socket.getsockname()[1]
         self._thread: threading.Thread | None = None
@@ -372,6 +379,12 @@ class DeviceServer:
         self._server.shutdown()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
+
+    def drop_client(self) -> None:
+        """Close the controlling client's connection, as a pulled cable would (tests)."""
+        conn = self._conn
+        if conn is not None:
+            conn.close(1001, "dropped")
 
     def pause_stream(self, paused: bool) -> None:
         """Stop (or resume) answering commands, as a stalled device stream would (tests)."""
@@ -395,12 +408,14 @@ class DeviceServer:
             self.log.commanded[:] = 0.0
             self.log.events.append(ServerEvent(reason, time.perf_counter()))
             log.info("device %s: force zeroed (%s)", self.device.name, reason)
+        self.zeroed.set()
 
     def _handle(self, ws: ServerConnection) -> None:
         if not self._busy.acquire(blocking=False):
             ws.close(1013, "another client controls the device")
             return
         try:
+            self._conn = ws
             self.log.connections += 1
             wrench = np.zeros(6)
             ws.send(self._state())
@@ -430,5 +445,6 @@ class DeviceServer:
         except ValueError as exc:
             ws.close(1003, str(exc)[:120])
         finally:
+            self._conn = None
             self._zero("disconnect")
             self._busy.release()

@@ -109,7 +109,9 @@ def test_state_and_command_messages_have_the_fields_isaac_labs_haply_client_read
     assert "frhc_sim" not in msg
     cmd = json.loads(force_command("inv3-1", np.array([1.5, 0.0, -2.0]), None, sim=False))
     assert cmd == {
-        "inverse3": [{"device_id": "inv3-1", "commands": {"set_cursor_force": {"values": {"x": 1.5, "y": 0.0, "z": -2.0}}}}]
+        "inverse3": [
+            {"device_id": "inv3-1", "commands": {"set_cursor_force": {"values": {"x": 1.5, "y": 0.0, "z": -2.0}}}}
+        ]
     }
 
 
@@ -229,7 +231,8 @@ def press_into_contact(loop: CartesianServoLoop) -> None:
         loop.set_hand_target(target)
         loop.tick()
     assert loop.slave.contact.count > 0
-    assert loop.guard.level == 1.0 and abs(loop.wrench[2]) > 0.3
+    assert loop.guard.level == 1.0
+    assert abs(loop.wrench[2]) > 0.3
 
 
 def test_dropped_connection_zeroes_the_force_the_next_period_and_ramps_back_on_reconnect(served: DeviceServer) -> None:

@@ -308,7 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
         "what",
         nargs="?",
         default="all",
-        choices=["all", "controller", "plant", "contact", "tick", "arm", "stability", "sweep"],
+        choices=["all", "controller", "plant", "contact", "tick", "arm", "stability", "sweep", "device"],
         help="what to time",
     )
     p.add_argument("--quick", action="store_true", help="fewer iterations")

@@ -291,7 +291,7 @@ def cartesian_device_tick(
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def render(
     rec: RecordArray,
     T_0_G: Array,

@@ -20,11 +20,10 @@ from app.compiled import entry_point
 from app.controller import kernel
 from app.controller.frhc import ControllerOutput, FRHCController, fill_record
 from app.controller.gains import ControllerGains
-from app.controller.inputs import SHAPE_3, SHAPE_6, SHAPE_33, checked_arrays, checked_float
 from app.controller.passivity import PassivitySettings
 from app.controller.record import RAMP, record_dtype
 from app.controller.safety import SafetyLimits
-from app.controller.types import Fault, FTReading, SlaveModel, Switches
+from app.controller.types import SlaveModel
 from app.device.spec import CartesianSpec, DeviceSpec
 from app.spatial import Array
 
@@ -34,6 +33,10 @@ _SHAPE_44 = (4, 4)
 #: Saturation limit (N m) of the moment axes of a 3-dof-force device, whose moment rows of J are
 #: zero: any positive value (their wrench is always 0), kept to avoid dividing by zero.
 _NO_MOMENT_LIMIT = 1.0
+
+
+def _pose_from_device(T_0_G: Array) -> None:
+    """Eq 1 on a Cartesian device: the device's SDK did it."""
 
 
 class CartesianController(FRHCController):
@@ -81,6 +84,12 @@ class CartesianController(FRHCController):
         self._motors = kernel.record_motors(rec)
         example = (np.eye(4), np.zeros(6), np.eye(3), np.zeros(6), np.zeros(3), 1e-3)
         self._tick = entry_point(kernel.cartesian_device_tick, *example, True, True, True, True, rec)
+        # ``step`` is the joint-space controller's: its "q" is the grip pose, and Eq 1 is the SDK's.
+        self._fixed_args = (rec,)
+        self._shape_q = (4, 4)
+        self._fk = _pose_from_device
+        self._q_name = "T_0_G"
+        self._nonfinite_q = "non-finite grip pose from the device"
         self.set_gains(gains)
         self.set_passivity(passivity if passivity is not None else PassivitySettings())
         self.reset(np.eye(4))
@@ -105,65 +114,3 @@ class CartesianController(FRHCController):
     def resume(self) -> None:
         """After a gap in the servo ticks: the wrench ramps in again."""
         self.out.scalars[RAMP] = 0.0
-
-    def step(self, T_0_G: Array, switches: Switches, ft: FTReading, dt: float) -> ControllerOutput:
-        """Run one servo tick on the device's grip pose ``T_0_G`` (4, 4, {0}).
-
-        Returns the (reused) output; ``out.tau_sat`` is the wrench for the device (N, N m at the
-        grip in {0}). On a non-finite pose, a bad period or an invalid F/T reading it is zero,
-        the slave stops and the fault is named, as for a joint-space device.
-        """
-        w, R, acc, omega = ft.wrench_S, ft.R_w_S, ft.acc_w, ft.omega_w
-        if not (
-            type(T_0_G) is np.ndarray
-            and T_0_G.dtype == np.float64
-            and T_0_G.shape == _SHAPE_44
-            and T_0_G.flags.c_contiguous
-            and type(w) is np.ndarray
-            and type(R) is np.ndarray
-            and type(acc) is np.ndarray
-            and type(omega) is np.ndarray
-            and w.dtype == np.float64
-            and R.dtype == np.float64
-            and acc.dtype == np.float64
-            and omega.dtype == np.float64
-            and w.shape == SHAPE_6
-            and R.shape == SHAPE_33
-            and acc.shape == SHAPE_6
-            and omega.shape == SHAPE_3
-            and w.flags.c_contiguous
-            and R.flags.c_contiguous
-            and acc.flags.c_contiguous
-            and omega.flags.c_contiguous
-        ):
-            T_0_G, w, R, acc, omega = checked_arrays(
-                (T_0_G, w, R, acc, omega),
-                (_SHAPE_44, SHAPE_6, SHAPE_33, SHAPE_6, SHAPE_3),
-                ("T_0_G", "ft.wrench_S", "ft.R_w_S", "ft.acc_w", "ft.omega_w"),
-            )
-        if type(dt) is not float:
-            dt = checked_float(dt, "dt")
-        self.out.slave_status = ft.slave_status
-        code = self._tick(
-            T_0_G,
-            w,
-            R,
-            acc,
-            omega,
-            dt,
-            bool(ft.valid),
-            bool(switches.deadman),
-            bool(switches.reference),
-            bool(switches.reflection),
-            self._rec,
-        )
-        if code:
-            if code == kernel.JOINTS_NONFINITE:
-                return self._safe_output(Fault.NONFINITE_INPUT, "non-finite grip pose from the device", gravity=False)
-            return self._fault(code)
-        o = self.out
-        o.command.active = switches.deadman
-        o.reflecting = switches.deadman and switches.reflection
-        o.faults = Fault.NONE
-        o.fault_message = ""
-        return o

@@ -5,10 +5,10 @@ Cartesian interface (``interface = "cartesian"`` in its file, or a ``device_url`
 
 1. The device renders the wrench the guard let through last tick for one period and reports its
    grip pose (its SDK did Eq 1, Eq 7 and its gravity compensation).
-2. The controller runs Eq 2-12 on that pose (:class:`~app.controller.cartesian.CartesianController`).
+2. The controller runs Eq 2-12 on that pose (:class:`~app.controller.cartesian.CartesianController`),
+   and the guard (:class:`~app.device.guard.ForceGuard`) turns its wrench into the one sent next
+   tick: force limit, ramp, and zero if this tick's sample did not arrive.
 3. The slave moves and its F/T sensor reads, as in the joint-space loop.
-4. The guard (:class:`~app.device.guard.ForceGuard`) turns the controller's wrench into the one
-   sent next tick: force limit, ramp, and zero if this tick's sample did not arrive.
 
 The device's buttons, when it has them, act with the page's or the script's switches: button 0
 holds the deadman, a press of button 1 is a reference press, a press of button 2 toggles
@@ -125,32 +125,8 @@ class CartesianServoLoop(ServoLoop):
         sw = self._switches()
         out = self.controller.step(reading.T_0_G, sw, self.ft, self.dt)
         t2 = time.perf_counter_ns()
-        link = self.link
-        if link is None:
-            ft = self.ft = self.slave.step(out.command, self.dt)
-        else:
-            ft = self.slave.step(link.to_slave(out.command, self.dt), self.dt)
-            self.ft = link.to_master(ft)
-        t3 = time.perf_counter_ns()
         self.guard.apply(out.tau_sat, reading, self.dt)
         if reading.status != self._status:
             log.info("device %s: link %s at t = %.3f s", self.device.name, reading.status.name, self.time + self.dt)
             self._status = reading.status
-        self.time += self.dt
-        self.ticks += 1
-        rec = self.record
-        ns = rec.stage_ns
-        ns[0] = t1 - t0
-        ns[1] = t2 - t1
-        ns[2] = t3 - t2
-        ns[3] = t3 - t0
-        rec.index = self.ticks
-        rec.time = self.time
-        rec.ft = ft
-        rec.contact = self.slave.contact
-        rec.slave_status = self.slave.status
-        rec.deadman, rec.reference, rec.reflection = sw.deadman, sw.reference, sw.reflection
-        self.switches.reference = False
-        for observer in self.observers:
-            observer.on_tick(rec)
-        return rec
+        return self._slave_tick(sw, out, t0, t1, t2)

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
-from app.controller.frhc import FRHCController
+from app.controller.frhc import ControllerOutput, FRHCController
 from app.controller.gains import ControllerGains
 from app.controller.passivity import PassivitySettings
 from app.controller.safety import SafetyLimits
@@ -292,6 +292,12 @@ class ServoLoop:
         t1 = time.perf_counter_ns()
         out = self.controller.step(self.reading.q, sw, self.ft, self.dt)
         t2 = time.perf_counter_ns()
+        self.counts[:] = out.counts
+        return self._slave_tick(sw, out, t0, t1, t2)
+
+    def _slave_tick(self, sw: Switches, out: ControllerOutput, t0: int, t1: int, t2: int) -> TickRecord:
+        """The rest of a tick once the controller ran (tick from ``t0``, controller from ``t1`` to
+        ``t2``, ns): the slave and its sensor, the record, the observers."""
         link = self.link
         if link is None:
             ft = self.ft = self.slave.step(out.command, self.dt)
@@ -299,7 +305,6 @@ class ServoLoop:
             ft = self.slave.step(link.to_slave(out.command, self.dt), self.dt)
             self.ft = link.to_master(ft)
         t3 = time.perf_counter_ns()
-        self.counts[:] = out.counts
         self.time += self.dt
         self.ticks += 1
         rec = self.record
@@ -314,7 +319,7 @@ class ServoLoop:
         rec.contact = self.slave.contact
         rec.slave_status = self.slave.status
         rec.deadman, rec.reference, rec.reflection = sw.deadman, sw.reference, sw.reflection
-        sw.reference = False
+        self.switches.reference = False
         for observer in self.observers:
             observer.on_tick(rec)
         return rec

@@ -179,8 +179,9 @@ def is_device_url(name: str) -> bool:
 
 
 def open_device_url(url: str, period: float) -> CartesianDevice:
-    """The Cartesian device behind ``url``: a served one (``ws://host:port``), a Force Dimension
-    device (``fd:`` or ``fd:N``) or an OpenHaptics device (``openhaptics:`` or ``openhaptics:NAME``).
+    """The Cartesian device behind ``url``: a served one (``ws://host:port``, whose samples are
+    waited for up to ``period`` s), a Force Dimension device (``fd:`` or ``fd:N``) or an
+    OpenHaptics device (``openhaptics:`` or ``openhaptics:NAME``).
 
     Raises:
         DeviceUnavailable: its runtime or the device is not here (one line naming which).

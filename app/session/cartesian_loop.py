@@ -54,7 +54,8 @@ class CartesianServoLoop(ServoLoop):
         if spec is None:
             raise ValueError(f"device {config.device.name} has no [cartesian] table")
         if config.device_url is not None:
-            self.device = open_device_url(config.device_url, self.dt)
+            wait = config.sample_wait if config.sample_wait is not None else self.dt
+            self.device = open_device_url(config.device_url, wait)
             self.plant = None  # type: ignore[assignment]
         else:
             sim = SimCartesianDevice(config.device, config.hand, config.watchdog)

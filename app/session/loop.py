@@ -65,9 +65,11 @@ class LoopConfig:
         passivity: The passivity controller on the device port (:mod:`app.controller.passivity`).
         channel: The master-slave channel: delay, jitter, loss, wave variables
             (:mod:`app.teleop`); the default is none.
-        device_url: A Cartesian device served over the Haply Inverse Service protocol
-            (``ws://host:port``, :mod:`app.device.haply`) instead of the simulated ``device``;
-            ``device`` then gives its limits and gains.
+        device_url: A Cartesian device outside this process (``ws://host:port``, ``fd:N``,
+            ``openhaptics:NAME``: :func:`app.device.vendors.open_device_url`) instead of the
+            simulated ``device``; ``device`` then gives its limits and gains.
+        sample_wait: How long (s) the loop waits for a served device's sample before its
+            watchdog zeroes the force; None: one servo period.
     """
 
     device: DeviceSpec
@@ -81,6 +83,7 @@ class LoopConfig:
     passivity: PassivitySettings = field(default_factory=PassivitySettings)
     channel: ChannelSettings = field(default_factory=ChannelSettings)
     device_url: str | None = None
+    sample_wait: float | None = None
 
     @property
     def cartesian(self) -> bool:
@@ -94,12 +97,13 @@ class LoopConfig:
         device: DeviceSpec | None = None,
         gains: ControllerGains | None = None,
         device_url: str | None = None,
+        sample_wait: float | None = None,
     ) -> LoopConfig:
         """The loop a session runs: its scene, device, gains, hand, accommodation, rate, passivity
         controller and channel.
 
         ``scene``, ``device`` and ``gains`` replace the session's own when given; ``device_url``
-        drives a served device (:attr:`device_url`).
+        and ``sample_wait`` drive a device outside this process (:attr:`device_url`).
         """
         d = session.data
         return LoopConfig(
@@ -112,6 +116,7 @@ class LoopConfig:
             passivity=d.passivity,
             channel=d.channel,
             device_url=device_url,
+            sample_wait=sample_wait,
         )
 
     def __reduce__(self) -> tuple[Any, ...]:
@@ -127,6 +132,7 @@ class LoopConfig:
             self.passivity,
             self.channel,
             self.device_url,
+            self.sample_wait,
         )
         return (_rebuild_config, (self.scene.path, self.scene.spec.slave.kind, self.device.path, *values))
 

@@ -75,6 +75,7 @@ def run_session(
     operator: Callable[[ServoLoop], Operator] | None = None,
     observers: Sequence[TickObserver] = (),
     device_url: str | None = None,
+    sample_wait: float | None = None,
 ) -> SessionResult:
     """Run ``session`` to its duration.
 
@@ -91,13 +92,15 @@ def run_session(
         observers: Further tick observers, added after the metrics and the log.
         device_url: Drive the device served at this ``ws://`` address (:mod:`app.device.haply`)
             instead of simulating it here; its device file is the one the server names.
+        sample_wait: How long (s) to wait for that device's sample before the watchdog zeroes
+            the force (default one servo period).
     """
     device = None
     if device_url is not None:
         from app.device.haply import served_device
 
         device = served_device(device_url, session.device)
-    loop = ServoLoop(LoopConfig.from_session(session, device=device, device_url=device_url))
+    loop = ServoLoop(LoopConfig.from_session(session, device=device, device_url=device_url, sample_wait=sample_wait))
     d = session.data
     n_ticks = d.n_ticks
     metrics = loop.observe(SessionMetrics(loop.record, session.scene.spec.task, n_ticks, loop.dt))

@@ -139,3 +139,7 @@ class CartesianDevice(Protocol):
 
     def close(self) -> None:
         """Zero the force and release the device or connection."""
+
+
+#: A device behind the boundary, of either kind (``ServoLoop.device``).
+Device = JointDevice | CartesianDevice

@@ -253,7 +253,8 @@ class HaplyClient:
             r.status = LinkStatus.RAMPING
 
     def reset(self) -> CartesianReading:
-        """Zero force; a simulated server is asked for nothing more (its device stays where it is)."""
+        """Reconnect if the connection is down; the device stays where it is (a served simulation
+        is not sent home: it is a device like any other). The loop's guard zeroes the force."""
         if self._ws is None:
             self.connect()
         return self.reading

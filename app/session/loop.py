@@ -29,6 +29,7 @@ from app.controller.gains import ControllerGains
 from app.controller.passivity import PassivitySettings
 from app.controller.safety import SafetyLimits
 from app.controller.types import Switches
+from app.device.boundary import Device
 from app.device.hand import HandParams
 from app.device.plant import WATCHDOG, DevicePlant
 from app.device.spec import DeviceSpec, load_device
@@ -145,6 +146,9 @@ class ServoLoop:
     """Plant, controller and slave joined into one servo tick.
 
     Attributes:
+        device: The hand controller behind the device boundary (:mod:`app.device.boundary`): here
+            the simulated plant; a :class:`~app.session.cartesian_loop.CartesianServoLoop`'s is
+            a Cartesian device.
         plant, controller, slave: The three rooms (the slave is the ideal tool or an arm, as the
             scene's ``[slave] kind`` says: :func:`~app.world.slave_api.make_slave`).
         switches: The switch state the next tick uses (set by a script or the UI). The
@@ -184,6 +188,7 @@ class ServoLoop:
         """The joint-space device (the simulated plant) and its controller."""
         config = self.config
         self.plant = DevicePlant(config.device, config.hand, config.watchdog)
+        self.device: Device = self.plant
         self.reading = self.plant.reading
         self.controller = FRHCController(
             config.device, config.gains, self.slave.slave_model(), safety=config.safety, passivity=config.passivity

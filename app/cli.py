@@ -7,6 +7,7 @@ stderr as one line naming the file and field, with exit code 2 and no traceback.
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -22,6 +23,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from app.session.spec import load_session
 
     session = load_session(args.session)
+    if args.device is not None:  # the device link's changes (connect, stall, loss) on stderr
+        logging.basicConfig(level=logging.INFO, format="%(message)s")
+        logging.getLogger("websockets").setLevel(logging.WARNING)
     out_dir = Path(args.out) if args.out else Path("runs") / Path(args.session).stem
     result = run_session(
         session,
@@ -136,7 +140,12 @@ def _cmd_device_serve(args: argparse.Namespace) -> int:
         server = DeviceServer(SimCartesianDevice(spec), args.host, args.port, period=1.0 / args.rate)
     except OSError as exc:
         raise FrhcError(f"cannot listen on {args.host}:{args.port}: {exc.strerror or exc}") from None
-    print(f"serving {spec.name} (simulated, {args.rate:g} Hz) at ws://{args.host}:{server.port}  (Ctrl-C stops)")
+    print(
+        f"serving {spec.name} (simulated, {args.rate:g} Hz) at ws://{args.host}:{server.port}  (Ctrl-C stops)",
+        flush=True,
+    )
+    logging.basicConfig(level=logging.INFO, format="%(message)s")  # connects and force zeroing
+    logging.getLogger("websockets").setLevel(logging.WARNING)
     try:
         server.serve_forever()
     finally:

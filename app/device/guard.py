@@ -80,16 +80,16 @@ class ForceGuard:
         reading.status = LinkStatus.OK if self.level >= 1.0 else LinkStatus.RAMPING
         reading.motors_off = False
         reading.watchdog_trips = self.watchdog_trips
-        _limited(wrench_0[:3], self.spec.force_limit, self.level, out[:3])
-        _limited(wrench_0[3:], self.torque_limit, self.level, out[3:])
+        limited(wrench_0[:3], self.spec.force_limit, self.level, out[:3])
+        limited(wrench_0[3:], self.torque_limit, self.level, out[3:])
         return out
 
 
-def _limited(v: Array, limit: float, level: float, out: Array) -> None:
+def limited(v: Array, limit: float, level: float, out: Array) -> Array:
     """``level * v`` with ``|v|`` first scaled (direction kept) to at most ``limit``, into ``out``
-    (3,); zero for a non-finite ``v`` or a zero limit."""
+    (3,), returned; zero for a non-finite ``v`` or a zero limit."""
     norm = math.sqrt(float(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
     if not math.isfinite(norm) or limit <= 0.0:
         out[:] = 0.0
-        return
-    np.multiply(v, level * (1.0 if norm <= limit else limit / norm), out=out)
+        return out
+    return np.multiply(v, level * (1.0 if norm <= limit else limit / norm), out=out)

@@ -45,6 +45,7 @@ from websockets.sync.server import Server, ServerConnection, serve
 
 from app.device.boundary import CartesianReading, LinkStatus
 from app.device.cartesian_sim import SimCartesianDevice
+from app.device.guard import limited
 from app.device.plant import WATCHDOG
 from app.device.spec import DeviceSpec, load_device
 from app.errors import FrhcError
@@ -357,6 +358,9 @@ class DeviceServer:
         self.period = period
         self.watchdog = watchdog
         self.log = ServerLog()
+        spec = device.spec.data.cartesian
+        assert spec is not None  # SimCartesianDevice refuses a device without the table
+        self._force_limit = spec.force_limit
         self._busy = threading.Lock()
         self._paused = threading.Event()
         #: Set whenever the force is zeroed (tests wait on it).
@@ -418,6 +422,7 @@ class DeviceServer:
         try:
             self._conn = ws
             self.log.connections += 1
+            log.info("device %s: client connected from %s", self.device.name, ws.remote_address)
             wrench = np.zeros(6)
             ws.send(self._state())
             silent = 0.0
@@ -437,8 +442,9 @@ class DeviceServer:
                 silent = 0.0
                 self.log.commands += 1
                 self.device.set_hand_target(target)
-                self.log.commanded[:] = force
-                wrench[:3] = force
+                # The device's own limit, whatever the client sent (as a vendor's firmware does).
+                limited(force, self._force_limit, 1.0, self.log.commanded)
+                wrench[:3] = self.log.commanded
                 self.device.step(wrench, self.period)
                 ws.send(self._state())
         except ConnectionClosed:

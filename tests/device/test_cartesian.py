@@ -217,6 +217,28 @@ def test_session_over_loopback_reaches_the_in_process_contact_force(tmp_path: Pa
     assert served.log.commands == 2500 + 1  # every tick's, and the zero force sent on closing
 
 
+def test_served_device_holds_its_own_force_limit_and_answers_each_command_once(served: DeviceServer) -> None:
+    """A client that is not frhc (no guard, no ``frhc_sim``): the served device clips 10 N to its
+    3.3 N, keeps the direction, and steps one period per command."""
+    from websockets.sync.client import connect
+
+    with connect(f"ws://127.0.0.1:{served.port}", ping_interval=None) as ws:
+        first = parse_state(ws.recv(timeout=5.0))
+        assert first.device_id == "sim-touch3"
+        t0 = first.sim["time"] if first.sim else None
+        ws.send(force_command(first.device_id, np.array([6.0, 0.0, -8.0]), None, sim=False))
+        second = parse_state(ws.recv(timeout=5.0))
+    np.testing.assert_allclose(served.device.applied[:3], [3.3 * 0.6, 0.0, -3.3 * 0.8])
+    for _ in range(500):  # the server's thread sees the close (bounded wait)
+        if served.log.events and served.log.events[-1].reason == "disconnect":
+            break
+        time.sleep(0.01)
+    assert served.log.events[-1].reason == "disconnect"
+    np.testing.assert_array_equal(served.log.commanded, 0.0)  # zeroed when the client left
+    assert second.sim is not None
+    assert second.sim["time"] == pytest.approx(t0 + DT)
+
+
 def make_served_loop(port: int) -> CartesianServoLoop:
     spec = load_device("touch3")
     loop = ServoLoop(LoopConfig(spec, load_scene("probe"), spec.data.gains, device_url=f"ws://127.0.0.1:{port}"))

@@ -225,7 +225,8 @@ def test_served_device_holds_its_own_force_limit_and_answers_each_command_once(s
     with connect(f"ws://127.0.0.1:{served.port}", ping_interval=None) as ws:
         first = parse_state(ws.recv(timeout=5.0))
         assert first.device_id == "sim-touch3"
-        t0 = first.sim["time"] if first.sim else None
+        assert first.sim is not None
+        t0 = first.sim["time"]
         ws.send(force_command(first.device_id, np.array([6.0, 0.0, -8.0]), None, sim=False))
         second = parse_state(ws.recv(timeout=5.0))
     np.testing.assert_allclose(served.device.applied[:3], [3.3 * 0.6, 0.0, -3.3 * 0.8])

@@ -255,6 +255,85 @@ def _contact(quick: bool) -> str:
     return run(quick=quick)
 
 
+def bench_device(quick: bool = False) -> str:
+    """The device boundary over loopback: a client paced at 1 kHz against ``frhc device serve``
+    (touch3, in its own process), and connection loss to zero force (server in this process).
+
+    Rate and jitter are the pacer's (period start to start); the added latency is each round trip
+    (command sent to state received) less the median cost of the same device step in process.
+    """
+    import re
+    import subprocess
+    import sys
+
+    from app.device.cartesian_sim import SimCartesianDevice
+    from app.device.haply import DeviceServer, HaplyClient
+    from app.device.spec import load_device
+    from app.session.pacer import Pacer
+
+    spec = load_device("touch3")
+    local = SimCartesianDevice(spec)
+    push = np.array([0.0, 0.0, 0.5, 0.0, 0.0, 0.0])
+    step_ns = np.empty(2000, dtype=np.int64)
+    for i in range(len(step_ns)):
+        t0 = time.perf_counter_ns()
+        local.step(push, 1e-3)
+        step_ns[i] = time.perf_counter_ns() - t0
+    step_us = float(np.median(step_ns)) / 1e3
+
+    cmd = [sys.executable, "-m", "app.cli", "device", "serve", "--device", "touch3", "--port", "0"]
+    server = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        assert server.stdout is not None
+        found = re.search(r"ws://[\d.]+:(\d+)", server.stdout.readline())
+        if found is None:
+            raise RuntimeError("frhc device serve did not print its address")
+        client = HaplyClient(f"ws://127.0.0.1:{found.group(1)}", period=1e-3)
+        n = 2000 if quick else 10000
+        rtt = np.empty(n, dtype=np.int64)
+        stalls = 0
+        pacer = Pacer(1e-3)
+        for i in range(n):
+            pacer.wait()
+            t0 = time.perf_counter_ns()
+            stalls += not client.step(push, 1e-3).fresh
+            rtt[i] = time.perf_counter_ns() - t0
+            pacer.done()
+        client.close()
+    finally:
+        server.terminate()
+        server.wait(timeout=10)
+    stats = pacer.stats()
+    added = rtt / 1e3 - step_us
+
+    served = DeviceServer(SimCartesianDevice(spec), port=0).start()
+    loss_us = []
+    try:
+        for _ in range(5 if quick else 20):
+            served.zeroed.clear()
+            client = HaplyClient(f"ws://127.0.0.1:{served.port}", period=1e-3)
+            for _ in range(20):
+                client.step(push, 1e-3)
+            t_loss = time.perf_counter()
+            client.disconnect()
+            served.zeroed.wait(1.0)
+            loss_us.append((served.log.events[-1].at - t_loss) * 1e6)
+    finally:
+        served.shutdown()
+    return "\n".join(
+        [
+            "device boundary over loopback (touch3 served by `frhc device serve`, client paced at 1 kHz):",
+            f"  rate {stats.rate_hz:8.1f} Hz ({100 * (stats.rate_hz / 1000 - 1):+.2f} %)   "
+            f"jitter p99 {stats.jitter_p99_us:7.1f} us   slips {stats.slips}   late replies (watchdog) {stalls}/{n}",
+            f"  round trip   median {np.median(rtt) / 1e3:7.1f} us   p99 {np.percentile(rtt, 99) / 1e3:7.1f} us",
+            f"  added latency (round trip - {step_us:.1f} us device step): median {np.median(added):7.1f} us"
+            f"   p99 {np.percentile(added, 99):7.1f} us",
+            f"  connection loss to zero force (server in this process, n={len(loss_us)}): "
+            f"median {np.median(loss_us):7.1f} us   max {np.max(loss_us):7.1f} us",
+        ]
+    )
+
+
 BENCHES: dict[str, Callable[[bool], str]] = {
     "controller": bench_controller,
     "plant": _plant,
@@ -263,6 +342,7 @@ BENCHES: dict[str, Callable[[bool], str]] = {
     "arm": bench_arm,
     "stability": bench_stability,
     "sweep": _sweep,
+    "device": bench_device,
 }
 
 

@@ -7,6 +7,7 @@ stderr as one line naming the file and field, with exit code 2 and no traceback.
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -22,6 +23,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from app.session.spec import load_session
 
     session = load_session(args.session)
+    if args.device is not None:  # the device link's changes (connect, stall, loss) on stderr
+        logging.basicConfig(level=logging.INFO, format="%(message)s")
+        logging.getLogger("websockets").setLevel(logging.WARNING)
     out_dir = Path(args.out) if args.out else Path("runs") / Path(args.session).stem
     result = run_session(
         session,
@@ -30,6 +34,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         progress=True,
         realtime=args.realtime,
         flush_interval=args.flush_interval,
+        device_url=args.device,
     )
     s = result.summary
     print(f"log:      {result.log_dir}/ (Parquet)")
@@ -119,6 +124,42 @@ def _engine_arguments(p: argparse.ArgumentParser) -> None:
         help="parallel workers (default: every core; 1 = serially without Ray; 0 = every CPU of a cluster)",
     )
     p.add_argument("--address", default=None, help="join this Ray cluster (default: RAY_ADDRESS, else local)")
+
+
+def _cmd_device_serve(args: argparse.Namespace) -> int:
+    from app.device.cartesian_sim import SimCartesianDevice
+    from app.device.haply import DeviceServer
+    from app.device.spec import load_device
+
+    if not 10.0 <= args.rate <= 20000.0:
+        raise FrhcError(f"--rate must be in [10, 20000] Hz, got {args.rate:g}")
+    spec = load_device(args.device)
+    if spec.data.cartesian is None:
+        raise ConfigError(spec.path, "cartesian", "serving a device needs its [cartesian] table (force limit)")
+    try:
+        server = DeviceServer(SimCartesianDevice(spec), args.host, args.port, period=1.0 / args.rate)
+    except OSError as exc:
+        raise FrhcError(f"cannot listen on {args.host}:{args.port}: {exc.strerror or exc}") from None
+    print(
+        f"serving {spec.name} (simulated, {args.rate:g} Hz) at ws://{args.host}:{server.port}  (Ctrl-C stops)",
+        flush=True,
+    )
+    logging.basicConfig(level=logging.INFO, format="%(message)s")  # connects and force zeroing
+    logging.getLogger("websockets").setLevel(logging.WARNING)
+    try:
+        server.serve_forever()
+    finally:
+        server.shutdown()
+    return 0
+
+
+def _device_url(text: str) -> str:
+    """An argparse type: a device outside this process (ws://host:port, fd:N, openhaptics:NAME)."""
+    from app.device.vendors import is_device_url
+
+    if not is_device_url(text):
+        raise argparse.ArgumentTypeError(f"expected ws://host:port, fd:N or openhaptics:NAME, got {text!r}")
+    return text
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -232,6 +273,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.1,
         help="simulated seconds of ticks per log part: the most a crash can lose (default 0.1)",
     )
+    p.add_argument(
+        "--device",
+        type=_device_url,
+        default=None,
+        help="drive a device outside this process: ws://host:port (frhc device serve, Haply's Inverse "
+        "Service), fd:N (Force Dimension), openhaptics:NAME (Touch); the session's device file gives its limits",
+    )
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser(
@@ -269,7 +317,7 @@ def build_parser() -> argparse.ArgumentParser:
         "what",
         nargs="?",
         default="all",
-        choices=["all", "controller", "plant", "contact", "tick", "arm", "stability", "sweep"],
+        choices=["all", "controller", "plant", "contact", "tick", "arm", "stability", "sweep", "device"],
         help="what to time",
     )
     p.add_argument("--quick", action="store_true", help="fewer iterations")
@@ -289,6 +337,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("device", help="device name or path")
     p.add_argument("--write", action="store_true", help="write the fitted curves into the device folder")
     p.set_defaults(func=_cmd_calibrate)
+
+    p = sub.add_parser("device", help="serve a simulated device", description="Device tools.")
+    dsub = p.add_subparsers(dest="device_command", required=True)
+    p = dsub.add_parser(
+        "serve",
+        help="serve a simulated device over Haply's Inverse Service protocol (WebSocket)",
+        description="Serve a simulated device as a Cartesian device (grip pose out, force in) over the "
+        "Inverse Service JSON protocol, for frhc run/web --device ws://host:port (app/device/haply.py).",
+    )
+    p.add_argument("--device", default="kraft", help="device name or path with a [cartesian] table (default: kraft)")
+    p.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=10001, help="port (default 10001, as Haply's service)")
+    p.add_argument("--rate", type=float, default=1000.0, help="simulation rate (Hz, default 1000)")
+    p.set_defaults(func=_cmd_device_serve)
 
     p = sub.add_parser("web", help="the browser demo (viser)", description="Serve the haptic demo in the browser.")
     p.add_argument("--scene", default="probe", help="scene name or path (default: probe)")

@@ -16,6 +16,7 @@ class keeps what needs Python: configuration, the fault messages and the safe ou
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -153,6 +154,23 @@ class ControllerOutput:
         return float(self.scalars[PC_CUT])
 
 
+def fill_record(rec: RecordArray, slave: SlaveModel, safety: SafetyLimits) -> None:
+    """The record's poses, scale factors, safety limits and slave model (either kind of device)."""
+    for name in ("T_0_G", "T_0_G0", "T_w_MRF", "T_w_MRF0"):
+        rec[name] = np.eye(4)
+    rec["scalars"] = 1.0
+    rec["min_period"] = safety.min_period
+    rec["ramp_rate"] = safety.ramp_rate
+    rec["max_joint_speed"] = safety.max_joint_speed
+    rec["release_speed"] = safety.release_fraction * safety.max_joint_speed
+    rec["payload_mass"] = slave.payload_mass
+    rec["payload_com_S"] = slave.payload_com_S
+    rec["payload_inertia_S"] = slave.payload_inertia_S
+    rec["gravity_w"] = slave.gravity_w
+    T_MRF_S = np.asarray(slave.T_MRF_S, dtype=float)
+    rec["X_MRF_S"] = wrench_transform(T_MRF_S[0:3, 0:3], T_MRF_S[0:3, 3])
+
+
 class FRHCController:
     """Cartesian controller of one force-reflecting hand controller (paper Sec 3-4).
 
@@ -189,26 +207,14 @@ class FRHCController:
         )
         for name, *_ in topology_fields(device.n_joints, kin.model.nbody):
             rec[name] = getattr(kin, name)
-        for name in ("T_0_G", "T_0_G0", "T_w_MRF", "T_w_MRF0"):
-            rec[name] = np.eye(4)
-        rec["scalars"] = 1.0
-        rec["min_period"] = safety.min_period
-        rec["ramp_rate"] = safety.ramp_rate
-        rec["max_joint_speed"] = safety.max_joint_speed
-        rec["release_speed"] = safety.release_fraction * safety.max_joint_speed
+        fill_record(rec, slave, safety)
         self._brake_damping = safety.brake_damping
-        self._shape_q = (device.n_joints,)
+        self._shape_q: tuple[int, ...] = (device.n_joints,)
         rec["gear_ratio"] = motors.gear_ratio
         rec["joint_limit"] = rec["gear_ratio"] * np.array(motors.torque_limit)
         rec["horner_pos"] = self.curve.horner_pos
         rec["horner_neg"] = self.curve.horner_neg
         rec["counts_max"] = self.curve.counts_max
-        rec["payload_mass"] = slave.payload_mass
-        rec["payload_com_S"] = slave.payload_com_S
-        rec["payload_inertia_S"] = slave.payload_inertia_S
-        rec["gravity_w"] = slave.gravity_w
-        T_MRF_S = np.asarray(slave.T_MRF_S, dtype=float)
-        rec["X_MRF_S"] = wrench_transform(T_MRF_S[0:3, 0:3], T_MRF_S[0:3, 3])
         self.gear_ratio: Array = rec["gear_ratio"][0]
         self.joint_limit: Array = rec["joint_limit"][0]
         self.out = ControllerOutput(rec)
@@ -219,7 +225,11 @@ class FRHCController:
         rec["R_W_G"] = R_0_W.T @ kin.R_0_G
         rec["p_W_G"] = R_0_W.T @ (kin.p_0_G - kin.p_0_W)
         # The compiled tick's arguments that stay the same objects for this controller's life.
-        self._fixed_args = (*kin.fk_arrays, rec)
+        self._fixed_args: tuple[object, ...] = (*kin.fk_arrays, rec)
+        # Eq 1 before the compiled tick, and what the device's coordinates are called in errors.
+        self._fk: Callable[[Array], None] = kin.update
+        self._q_name = "q"
+        self._nonfinite_q = "non-finite joint angles"
         # ``step`` checks the reading and the angles (type, dtype, shape, layout) and passes its
         # own arrays for the rest, so the compiled tick is called without numba's typing.
         example = (np.zeros(device.n_joints), np.zeros(6), np.eye(3), np.zeros(6), np.zeros(3), 1e-3)
@@ -328,14 +338,14 @@ class FRHCController:
             q, w, R, acc, omega = checked_arrays(
                 (q, w, R, acc, omega),
                 (self._shape_q, SHAPE_6, SHAPE_33, SHAPE_6, SHAPE_3),
-                ("q", "ft.wrench_S", "ft.R_w_S", "ft.acc_w", "ft.omega_w"),
+                (self._q_name, "ft.wrench_S", "ft.R_w_S", "ft.acc_w", "ft.omega_w"),
             )
         if type(dt) is not float:
             dt = checked_float(dt, "dt")
         self.out.slave_status = ft.slave_status
         # FK runs even on unusable angles (MuJoCo just computes NaN poses): the kernel checks q
         # before it reads them, for a fraction of what a numpy check here would cost.
-        self.kin.update(q)
+        self._fk(q)
         code = self._tick(
             q,
             w,
@@ -361,7 +371,7 @@ class FRHCController:
     def _fault(self, code: int) -> ControllerOutput:
         """The safe output for a non-zero :func:`kernel.controller_tick` result."""
         if code == kernel.JOINTS_NONFINITE:
-            return self._safe_output(Fault.NONFINITE_INPUT, "non-finite joint angles", gravity=False)
+            return self._safe_output(Fault.NONFINITE_INPUT, self._nonfinite_q, gravity=False)
         faults = Fault(code)
         if faults == Fault.NONFINITE_OUTPUT:
             return self._safe_output(faults, "non-finite torque (singular pose?)", gravity=True)

@@ -200,44 +200,10 @@ def controller_tick(
     if faults:
         return faults
 
-    # Switches (Sec 4.1). A deadman press in pose mode is a clutch: re-reference, no jump.
-    reference_edge = reference and not r.prev_reference
-    deadman_edge = deadman and not r.prev_deadman
-    r.prev_reference = reference
-    r.prev_deadman = deadman
-    if reference_edge or (deadman_edge and not r.rate_mode):
-        set_reference(rec)
-
-    F_S = out.vectors[F_S_TASK]
-    for i in range(6):
-        F_S[i] = wrench_S[i]
-    if r.remove_inertia:
-        add_inertial_load(R_w_S, acc_w, omega_w, r.payload_mass, r.payload_com_S[:], r.payload_inertia_S[:], F_S)
     p_0_W = site_xpos[r.wrist_site]
     J_W = r.J_W[:]
     wrist_jacobian(xaxis, xanchor, p_0_W, joint_ids, slide, r.moves_wrist[:], J_W)
-    grip = Grip(r.T_0_G0[:], T_0_G[0:3, 0:3], T_0_G[0:3, 3], p_0_W, J_W, r.R_W_G[:], r.p_W_G[:])
-    payload = Payload(r.remove_payload, r.payload_mass, r.payload_com_S[:], r.gravity_w[:], r.X_MRF_S[:])
-    laws = Laws(r.gains[:], r.rate_mode, r.rtc_kind, r.taper[:], r.assist_limit[:])
-    reflecting = deadman and reflection
-    if reflecting and not r.prev_reflecting:
-        out.scalars[RAMP] = 0.0  # rendering starts: ramp the wrench in
-    r.prev_reflecting = reflecting
-    out.scalars[RAMP] = min(1.0, out.scalars[RAMP] + r.ramp_rate * dt)
-    ok = cartesian_tick(
-        grip,
-        R_w_S,
-        payload,
-        laws,
-        deadman,
-        deadman and reflection,
-        dt,
-        r.dx_prev[:],
-        r.restart_damping,
-        out,
-    )
-    r.restart_damping = False
-    if not ok:
+    if not render(rec, T_0_G, p_0_W, J_W, wrench_S, R_w_S, acc_w, omega_w, dt, deadman, reference, reflection, out):
         return NONFINITE_OUTPUT
     # Passivity controller (app.controller.passivity) on the rendered torque, then Sec 3.4.
     n = torques.shape[1]
@@ -264,8 +230,131 @@ def controller_tick(
     for j in range(n):
         po_tau[j] = s * (torques[TAU, j] - torques[TAU_G, j])
     if deadman and not r.rate_mode:
-        pose_command(r.T_w_MRF0[:], laws.gains[K_P], out.vectors[DELTA_X_CMD], r.T_w_MRF[:])
+        pose_command(r.T_w_MRF0[:], r.gains[:][K_P], out.vectors[DELTA_X_CMD], r.T_w_MRF[:])
     return 0
+
+
+@njit(cache=True)
+def cartesian_device_tick(
+    T_dev: Array,
+    wrench_S: Array,
+    R_w_S: Array,
+    acc_w: Array,
+    omega_w: Array,
+    dt: float,
+    ft_valid: bool,
+    deadman: bool,
+    reference: bool,
+    reflection: bool,
+    rec: RecordArray,
+) -> int:
+    """One tick for a Cartesian device: the grip pose ``T_dev`` (4, 4, {0}) comes from the device's
+    SDK (its Eq 1), and the output is the grip wrench for its SDK's J^T (its Eq 7).
+
+    The record has six "joints", the wrench axes ``[fx, fy, fz, mx, my, mz]`` at the grip in {0},
+    and ``J_W`` is the identity (zero moment rows for a 3-dof-force device), so :func:`render`
+    runs Eq 2-12 unchanged and ``torques[TAU_SAT]`` is the wrench after the uniform saturation to
+    the device's limits (Sec 3.4). No gravity torques (the device compensates its own), no
+    velocity brake and no passivity controller (they act on joint ports); ``counts`` stay zero.
+    Returns 0 or fault bits as :func:`controller_tick` does.
+    """
+    r = rec[0]
+    if not math.isfinite(_total(T_dev)):
+        return JOINTS_NONFINITE
+    T_0_G = r.T_0_G[:]
+    for i in range(4):
+        for k in range(4):
+            T_0_G[i, k] = T_dev[i, k]
+    out = Outputs(r.vectors[:], r.torques[:], r.counts[:], r.twist[:], r.scalars[:])
+    torques = out.torques
+    for j in range(torques.shape[1]):
+        torques[TAU_G, j] = 0.0
+        torques[TAU_PC, j] = 0.0
+    out.scalars[PO_ENERGY] = 0.0
+    out.scalars[PC_CUT] = 0.0
+    faults = 0
+    if not r.min_period <= dt <= r.max_period:
+        faults |= BAD_PERIOD
+    if not ft_valid:
+        faults |= FT_INVALID
+    elif not math.isfinite(_total(wrench_S) + _total(R_w_S)):
+        faults |= NONFINITE_INPUT
+    if faults:
+        return faults
+    if not render(
+        rec, T_0_G, T_0_G[0:3, 3], r.J_W[:], wrench_S, R_w_S, acc_w, omega_w, dt, deadman, reference, reflection, out
+    ):
+        return NONFINITE_OUTPUT
+    out.scalars[SATURATION_SCALE] = saturate(torques[TAU], r.joint_limit[:], torques[TAU_SAT])
+    if deadman and not r.rate_mode:
+        pose_command(r.T_w_MRF0[:], r.gains[:][K_P], out.vectors[DELTA_X_CMD], r.T_w_MRF[:])
+    return 0
+
+
+@njit(cache=True, inline="always")
+def render(
+    rec: RecordArray,
+    T_0_G: Array,
+    p_0_W: Array,
+    J_W: Array,
+    wrench_S: Array,
+    R_w_S: Array,
+    acc_w: Array,
+    omega_w: Array,
+    dt: float,
+    deadman: bool,
+    reference: bool,
+    reflection: bool,
+    out: Outputs,
+) -> bool:
+    """Switch edges and reference (Sec 4.1), the F/T reading's loads, the safety ramp and Eq 2-12
+    (:func:`cartesian_tick`), for either kind of device. Returns False if the torques came out
+    non-finite.
+
+    Args:
+        rec: The controller's record. T_0_G: this tick's grip pose in {0} (4, 4). p_0_W, J_W: the
+            wrist's position (3,) and Jacobian in {0} (6, n): the device's own for a joint-space
+            device; for a Cartesian device {W} = {G} and J_W is the identity, so the ``torques``
+            rows are the wrench at the grip in {0} (Eq 7 is the device SDK's).
+        wrench_S, R_w_S, acc_w, omega_w: The F/T reading. dt: servo period (s).
+        deadman, reference, reflection: The switches. out: The outputs (``torques[TAU_G]`` set).
+    """
+    r = rec[0]
+    # Switches (Sec 4.1). A deadman press in pose mode is a clutch: re-reference, no jump.
+    reference_edge = reference and not r.prev_reference
+    deadman_edge = deadman and not r.prev_deadman
+    r.prev_reference = reference
+    r.prev_deadman = deadman
+    if reference_edge or (deadman_edge and not r.rate_mode):
+        set_reference(rec)
+
+    F_S = out.vectors[F_S_TASK]
+    for i in range(6):
+        F_S[i] = wrench_S[i]
+    if r.remove_inertia:
+        add_inertial_load(R_w_S, acc_w, omega_w, r.payload_mass, r.payload_com_S[:], r.payload_inertia_S[:], F_S)
+    grip = Grip(r.T_0_G0[:], T_0_G[0:3, 0:3], T_0_G[0:3, 3], p_0_W, J_W, r.R_W_G[:], r.p_W_G[:])
+    payload = Payload(r.remove_payload, r.payload_mass, r.payload_com_S[:], r.gravity_w[:], r.X_MRF_S[:])
+    laws = Laws(r.gains[:], r.rate_mode, r.rtc_kind, r.taper[:], r.assist_limit[:])
+    reflecting = deadman and reflection
+    if reflecting and not r.prev_reflecting:
+        out.scalars[RAMP] = 0.0  # rendering starts: ramp the wrench in
+    r.prev_reflecting = reflecting
+    out.scalars[RAMP] = min(1.0, out.scalars[RAMP] + r.ramp_rate * dt)
+    ok = cartesian_tick(
+        grip,
+        R_w_S,
+        payload,
+        laws,
+        deadman,
+        deadman and reflection,
+        dt,
+        r.dx_prev[:],
+        r.restart_damping,
+        out,
+    )
+    r.restart_damping = False
+    return ok
 
 
 @njit(cache=True)

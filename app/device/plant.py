@@ -28,7 +28,7 @@ joint clip to ``gear_ratio * torque_limit`` then cuts it off.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 import mujoco
 import numpy as np
@@ -160,6 +160,9 @@ class DevicePlant:
         ConfigError: for joints without consecutive qpos/dof slots (the ``[plant]`` table itself,
             :class:`~app.device.spec.PlantParams`, was checked by :func:`~app.device.spec.load_device`).
     """
+
+    #: A joint-space device (:class:`~app.device.boundary.JointDevice`): encoder angles in, counts out.
+    kind: Literal["joint"] = "joint"
 
     def __init__(self, spec: DeviceSpec, hand: HandParams | None = None, watchdog: float = WATCHDOG) -> None:
         if not 0.0 < watchdog <= 1.0:

@@ -171,6 +171,30 @@ class PlantParams(Checked):
 
 
 @dataclass(frozen=True)
+class CartesianSpec(Checked):
+    """The ``[cartesian]`` table: the device as its vendor's SDK presents it (``docs/conventions.md``).
+
+    Through this interface the device reports its grip pose {G} in its base {0} and takes a
+    wrench at the grip in {0}; its SDK does the kinematics (Eq 1), J^T (Eq 7) and its own gravity
+    compensation. The limits are the boundary's (:mod:`app.device.guard`), applied to every
+    wrench sent, whatever the controller asked.
+
+    Attributes:
+        force_limit: Largest force magnitude sent to the device (N).
+        torque_limit: Largest moment magnitude sent (N m); 0 for a 3-dof-force device, whose
+            moments are then never sent.
+        ramp_time: Time (s) the wrench takes to ramp from 0 to full after a (re)connect.
+        gap_ramp_time: The same after a gap in the stream of a device that stayed connected (s):
+            a missed sample or a stalled stream.
+    """
+
+    force_limit: Annotated[float, Range(0.0, 1e3, "N", lo_open=True)]
+    torque_limit: Annotated[float, Range(0.0, 1e2, "N m")] = 0.0
+    ramp_time: Annotated[float, Range(0.0, 10.0, "s")] = 0.5
+    gap_ramp_time: Annotated[float, Range(0.0, 10.0, "s")] = 0.05
+
+
+@dataclass(frozen=True)
 class DeviceFile(Checked):
     """The schema of ``device.toml``; see ``devices/kraft/device.toml`` for a commented example.
 
@@ -187,6 +211,11 @@ class DeviceFile(Checked):
         torque_curve: ``"manufacturer"`` (linear) or ``"calibrated"`` (needs ``calibration``).
         gains: Default controller gains for this device.
         plant: How the simulated hardware differs from the model; read by the plant.
+        interface: How the servo loop drives the device: ``"joint"`` (encoder angles in, motor
+            counts out; the controller does Eq 1 and Eq 7) or ``"cartesian"`` (grip pose in, grip
+            wrench out, through the ``cartesian`` table).
+        cartesian: The device's Cartesian interface, needed to serve it (``frhc device serve``)
+            or to drive it as ``interface = "cartesian"``.
     """
 
     name: str
@@ -201,8 +230,12 @@ class DeviceFile(Checked):
     torque_curve: Literal["manufacturer", "calibrated"] = "manufacturer"
     gains: ControllerGains = field(default_factory=ControllerGains)
     plant: PlantParams = field(default_factory=PlantParams)
+    interface: Literal["joint", "cartesian"] = "joint"
+    cartesian: CartesianSpec | None = None
 
     def validate(self) -> None:
+        if self.interface == "cartesian" and self.cartesian is None:
+            raise InvalidField("interface", 'a "cartesian" interface needs a [cartesian] table')
         for i, jname in enumerate(self.joints):
             if jname in self.joints[:i]:
                 raise InvalidField(f"joints[{i}]", f"duplicate joint name {jname!r}")

@@ -24,11 +24,12 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
-from app.controller.frhc import FRHCController
+from app.controller.frhc import ControllerOutput, FRHCController
 from app.controller.gains import ControllerGains
 from app.controller.passivity import PassivitySettings
 from app.controller.safety import SafetyLimits
 from app.controller.types import Switches
+from app.device.boundary import Device
 from app.device.hand import HandParams
 from app.device.plant import WATCHDOG, DevicePlant
 from app.device.spec import DeviceSpec, load_device
@@ -65,6 +66,11 @@ class LoopConfig:
         passivity: The passivity controller on the device port (:mod:`app.controller.passivity`).
         channel: The master-slave channel: delay, jitter, loss, wave variables
             (:mod:`app.teleop`); the default is none.
+        device_url: A Cartesian device outside this process (``ws://host:port``, ``fd:N``,
+            ``openhaptics:NAME``: :func:`app.device.vendors.open_device_url`) instead of the
+            simulated ``device``; ``device`` then gives its limits and gains.
+        sample_wait: How long (s) the loop waits for a served device's sample before its
+            watchdog zeroes the force; None: one servo period.
     """
 
     device: DeviceSpec
@@ -77,6 +83,13 @@ class LoopConfig:
     watchdog: float = WATCHDOG
     passivity: PassivitySettings = field(default_factory=PassivitySettings)
     channel: ChannelSettings = field(default_factory=ChannelSettings)
+    device_url: str | None = None
+    sample_wait: float | None = None
+
+    @property
+    def cartesian(self) -> bool:
+        """The loop drives the device through its Cartesian interface (``docs/conventions.md``)."""
+        return self.device_url is not None or self.device.data.interface == "cartesian"
 
     @staticmethod
     def from_session(
@@ -84,11 +97,14 @@ class LoopConfig:
         scene: Scene | None = None,
         device: DeviceSpec | None = None,
         gains: ControllerGains | None = None,
+        device_url: str | None = None,
+        sample_wait: float | None = None,
     ) -> LoopConfig:
         """The loop a session runs: its scene, device, gains, hand, accommodation, rate, passivity
         controller and channel.
 
-        ``scene``, ``device`` and ``gains`` replace the session's own when given.
+        ``scene``, ``device`` and ``gains`` replace the session's own when given; ``device_url``
+        and ``sample_wait`` drive a device outside this process (:attr:`device_url`).
         """
         d = session.data
         return LoopConfig(
@@ -100,6 +116,8 @@ class LoopConfig:
             d.servo_rate,
             passivity=d.passivity,
             channel=d.channel,
+            device_url=device_url,
+            sample_wait=sample_wait,
         )
 
     def __reduce__(self) -> tuple[Any, ...]:
@@ -114,6 +132,8 @@ class LoopConfig:
             self.watchdog,
             self.passivity,
             self.channel,
+            self.device_url,
+            self.sample_wait,
         )
         return (_rebuild_config, (self.scene.path, self.scene.spec.slave.kind, self.device.path, *values))
 
@@ -126,6 +146,9 @@ class ServoLoop:
     """Plant, controller and slave joined into one servo tick.
 
     Attributes:
+        device: The hand controller behind the device boundary (:mod:`app.device.boundary`): here
+            the simulated plant; a :class:`~app.session.cartesian_loop.CartesianServoLoop`'s is
+            a Cartesian device.
         plant, controller, slave: The three rooms (the slave is the ideal tool or an arm, as the
             scene's ``[slave] kind`` says: :func:`~app.world.slave_api.make_slave`).
         switches: The switch state the next tick uses (set by a script or the UI). The
@@ -138,23 +161,38 @@ class ServoLoop:
             are joined directly (no delay: the default).
     """
 
+    def __new__(cls, config: LoopConfig) -> ServoLoop:
+        """The loop for the device's kind: a :class:`CartesianServoLoop` for a Cartesian device."""
+        if cls is ServoLoop and config.cartesian:
+            from app.session.cartesian_loop import CartesianServoLoop
+
+            return super().__new__(CartesianServoLoop)
+        return super().__new__(cls)
+
     def __init__(self, config: LoopConfig) -> None:
         self.config = config
         self.dt = 1.0 / config.servo_rate
-        self.plant = DevicePlant(config.device, config.hand, config.watchdog)
         self.slave = make_slave(config.scene, accommodation=config.accommodation, period=self.dt)
-        self.controller = FRHCController(
-            config.device, config.gains, self.slave.slave_model(), safety=config.safety, passivity=config.passivity
-        )
+        self._open_device()
         self.channel = config.channel
         self.link: TeleopLink | None = None
         self.switches = Switches()
         self.observers: list[TickObserver] = []
         self._hand = np.eye(4)
         self.record = TickRecord(
-            self.plant.reading, self.controller.out, self.slave, self._hand, np.zeros(len(STAGES), dtype=np.int64)
+            self.reading, self.controller.out, self.slave, self._hand, np.zeros(len(STAGES), dtype=np.int64)
         )
         self.reset()
+
+    def _open_device(self) -> None:
+        """The joint-space device (the simulated plant) and its controller."""
+        config = self.config
+        self.plant = DevicePlant(config.device, config.hand, config.watchdog)
+        self.device: Device = self.plant
+        self.reading = self.plant.reading
+        self.controller = FRHCController(
+            config.device, config.gains, self.slave.slave_model(), safety=config.safety, passivity=config.passivity
+        )
 
     @property
     def stage_ns(self) -> IntArray:
@@ -179,10 +217,14 @@ class ServoLoop:
         self.reading = self.plant.reset(home)
         self.slave.reset()
         self.controller.reset(self.reading.q)
+        self.counts = np.zeros(self.config.device.n_joints, dtype=np.int64)
+        self._restart()
+
+    def _restart(self) -> None:
+        """The reset of everything but the device and the controller."""
         # The sensor already reads the payload's weight at rest: start from that, not from zero,
         # or the first tick's payload removal would reflect a false +m g.
         self.ft = self.slave.reading()
-        self.counts = np.zeros(self.config.device.n_joints, dtype=np.int64)
         self.switches.deadman = self.switches.reference = self.switches.reflection = False
         self.time = 0.0
         self.ticks = 0
@@ -192,6 +234,9 @@ class ServoLoop:
         rec.slave_status = 0
         rec.deadman = rec.reference = rec.reflection = False
         rec.stage_ns[:] = 0
+
+    def close(self) -> None:
+        """Release the device: nothing to release for a plant simulated in this process."""
 
     def set_hand_target(self, T_0_H: Array | None) -> None:
         """Where the operator's hand pulls the grip (4, 4, device base); None lets go.
@@ -258,6 +303,12 @@ class ServoLoop:
         t1 = time.perf_counter_ns()
         out = self.controller.step(self.reading.q, sw, self.ft, self.dt)
         t2 = time.perf_counter_ns()
+        self.counts[:] = out.counts
+        return self._slave_tick(sw, out, t0, t1, t2)
+
+    def _slave_tick(self, sw: Switches, out: ControllerOutput, t0: int, t1: int, t2: int) -> TickRecord:
+        """The rest of a tick once the controller ran (tick from ``t0``, controller from ``t1`` to
+        ``t2``, ns): the slave and its sensor, the record, the observers."""
         link = self.link
         if link is None:
             ft = self.ft = self.slave.step(out.command, self.dt)
@@ -265,7 +316,6 @@ class ServoLoop:
             ft = self.slave.step(link.to_slave(out.command, self.dt), self.dt)
             self.ft = link.to_master(ft)
         t3 = time.perf_counter_ns()
-        self.counts[:] = out.counts
         self.time += self.dt
         self.ticks += 1
         rec = self.record
@@ -280,7 +330,7 @@ class ServoLoop:
         rec.contact = self.slave.contact
         rec.slave_status = self.slave.status
         rec.deadman, rec.reference, rec.reflection = sw.deadman, sw.reference, sw.reflection
-        sw.reference = False
+        self.switches.reference = False
         for observer in self.observers:
             observer.on_tick(rec)
         return rec

@@ -74,6 +74,8 @@ def run_session(
     flush_interval: float = 0.1,
     operator: Callable[[ServoLoop], Operator] | None = None,
     observers: Sequence[TickObserver] = (),
+    device_url: str | None = None,
+    sample_wait: float | None = None,
 ) -> SessionResult:
     """Run ``session`` to its duration.
 
@@ -88,15 +90,24 @@ def run_session(
         operator: Makes the operator from the new loop (default: the session's script). An
             operator whose ``finished`` attribute turns true ends the session before its duration.
         observers: Further tick observers, added after the metrics and the log.
+        device_url: Drive the device served at this ``ws://`` address (:mod:`app.device.haply`)
+            instead of simulating it here; its device file is the one the server names.
+        sample_wait: How long (s) to wait for that device's sample before the watchdog zeroes
+            the force (default one servo period).
     """
-    loop = ServoLoop(LoopConfig.from_session(session))
+    device = None
+    if device_url is not None:
+        from app.device.haply import served_device
+
+        device = served_device(device_url, session.device)
+    loop = ServoLoop(LoopConfig.from_session(session, device=device, device_url=device_url, sample_wait=sample_wait))
     d = session.data
     n_ticks = d.n_ticks
     metrics = loop.observe(SessionMetrics(loop.record, session.scene.spec.task, n_ticks, loop.dt))
     log = None
     if out_dir is not None:
         meta = loop_meta(loop.config, session.path)
-        log = loop.observe(TickLog(out_dir / "log", session.device.n_joints, loop.dt, flush_interval, meta))
+        log = loop.observe(TickLog(out_dir / "log", loop.controller.out.n, loop.dt, flush_interval, meta))
     for observer in observers:
         loop.observe(observer)
     pacer = Pacer(loop.dt) if realtime else None
@@ -109,12 +120,13 @@ def run_session(
                 break
     finally:
         bar.close()
+        loop.close()
         if log is not None:
             log.close()
     summary = metrics.summary()
     summary["session"] = str(session.path) if session.path else None
     summary["scene"] = session.scene.spec.name
-    summary["device"] = session.device.name
+    summary["device"] = loop.config.device.name
     summary["mode"] = d.mode
     summary["accommodation"] = d.accommodation
     if pacer is not None:

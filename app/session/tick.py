@@ -14,6 +14,7 @@ from typing import Protocol
 
 from app.controller.frhc import ControllerOutput
 from app.controller.types import FTReading, SlaveCommand
+from app.device.boundary import CartesianReading
 from app.device.plant import PlantReading
 from app.spatial import Array, IntArray
 from app.world.contact import ContactResult
@@ -31,8 +32,10 @@ class TickRecord:
     Attributes:
         index: Ticks run since the last reset (0 for the state right after a reset).
         time: Simulated time at the end of the tick (s).
-        reading: The device plant's reading: encoder angles ``q`` (n,), true angles and
-            velocities, the grip pose ``T_0_G`` (4, 4, base {0}) and the hand's wrench ``wrench_G``.
+        reading: The device's reading: the grip pose ``T_0_G`` (4, 4, base {0}), the device
+            coordinates ``q`` (encoder angles (n,) of a joint-space device, the pose's six
+            coordinates of a Cartesian one) and the simulated hand's wrench ``wrench_G``
+            (:class:`~app.device.plant.PlantReading`, :class:`~app.device.boundary.CartesianReading`).
         hand_target: Where the operator's hand pulled the grip, ``T_0_H`` (4, 4, {0}), or None
             while the hand is off the grip.
         deadman, reference, reflection: The switches as this tick used them (a reference press
@@ -66,7 +69,12 @@ class TickRecord:
     )
 
     def __init__(
-        self, reading: PlantReading, out: ControllerOutput, slave: Slave, hand: Array, stage_ns: IntArray
+        self,
+        reading: PlantReading | CartesianReading,
+        out: ControllerOutput,
+        slave: Slave,
+        hand: Array,
+        stage_ns: IntArray,
     ) -> None:
         self.index = 0
         self.time = 0.0

@@ -317,7 +317,9 @@ class Controls:
             f"servo rate **{timing.rate_hz:.1f} Hz** · tick {timing.tick_p50_us:.0f} us "
             f"(p99 {timing.tick_p99_us:.0f}) · jitter p99 {timing.jitter_p99_us:.0f} us · slips {timing.slips} · {scheduling}\n\n"
             f"saturation scale {snap.saturation_scale:.3f} · force ramp {snap.ramp:.2f} · "
-            f"contacts {len(snap.contact_points_w)} · amplifier watchdog trips {snap.watchdog_trips} · "
+            f"contacts {len(snap.contact_points_w)} · "
+            + (f"device link **{snap.device_link}** · " if snap.device_link else "")
+            + f"amplifier watchdog trips {snap.watchdog_trips} · "
             f"PO energy {snap.po_energy:+.3f} J · PC cut {snap.pc_cut:.0%} · "
             f"slave {slave_text} · faults: {fault_text}"
         )

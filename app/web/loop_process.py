@@ -174,7 +174,7 @@ class LoopHost:
         if directory is not None:
             config = dataclasses.replace(self.loop.config, gains=self.loop.controller.gains)
             meta = loop_meta(config, self.publisher.playing)
-            self.log = self.loop.observe(TickLog(directory, config.device.n_joints, self.loop.dt, meta=meta))
+            self.log = self.loop.observe(TickLog(directory, self.loop.controller.out.n, self.loop.dt, meta=meta))
         self.publisher.recording = directory
         self._log_ends_with_play = False
 

@@ -81,6 +81,12 @@ class LogReplay:
         if not meta.get("scene"):
             raise ConfigError(meta_path, "scene", "the log's scene was not loaded from a file")
         device, scene = load_device(meta["device"]), load_scene(meta["scene"])
+        if device.data.interface == "cartesian":
+            # Its log's q_* columns are the grip pose's coordinates, not the joint angles the
+            # replay poses the device model with.
+            raise ConfigError(
+                meta_path, "device", f"{device.name} is a Cartesian device: its logs cannot be replayed yet"
+            )
         self.directory = directory
         self.mode = str(meta.get("mode", "rate"))
         self.loop = ServoLoop(LoopConfig(device, scene, device.data.gains))

@@ -15,6 +15,7 @@ import pickle
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from app.device.boundary import CartesianReading
 from app.session.tick import TickRecord
 from app.spatial import Array
 
@@ -53,7 +54,10 @@ class Snapshot:
         ramp: Safety ramp level of the rendered wrench in [0, 1] (:mod:`app.controller.safety`).
         po_energy: Energy the passivity observer saw enter the device port, summed over joints (J).
         pc_cut: Share of the rendered torque the passivity controller removed this tick (0..1).
-        watchdog_trips: Times the amplifier's watchdog switched the motors off since the reset.
+        watchdog_trips: Times the amplifier's watchdog switched the motors off since the reset (for
+            a Cartesian device: times the boundary's watchdog zeroed the force).
+        device_link: A Cartesian device's link state (:class:`~app.device.boundary.LinkStatus`
+            name: OK, RAMPING, STALLED, DISCONNECTED); empty for a joint-space device.
         slave_status: Why the slave did not follow the command exactly this tick
             (:class:`~app.world.arm.ArmStatus` bits; 0 = it did, always for the ideal tool).
         slave_geom_xpos, slave_geom_xmat: The slave's own geoms (an arm's links) in {w}, (k, 3)
@@ -94,6 +98,7 @@ class Snapshot:
     slave_geom_xpos: Array
     slave_geom_xmat: Array
     slave_status: int = 0
+    device_link: str = ""
     recording: Path | None = None
     playing: Path | None = None
     play_left: float = 0.0
@@ -138,6 +143,7 @@ def take_snapshot(
         pc_cut=out.pc_cut,
         watchdog_trips=reading.watchdog_trips,
         slave_status=tick.slave_status,
+        device_link=reading.status.name if isinstance(reading, CartesianReading) else "",
         slave_geom_xpos=slave_xpos.copy(),
         slave_geom_xmat=slave_xmat.reshape(-1, 3, 3).copy(),
         recording=recording,

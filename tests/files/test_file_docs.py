@@ -12,7 +12,7 @@ from app.config import MAX_FILE_BYTES, field_range
 from app.controller.gains import ControllerGains
 from app.controller.passivity import PassivitySettings
 from app.device.hand import HandParams
-from app.device.spec import CalibrationSpec, DeviceFile, MotorSpec, PlantParams
+from app.device.spec import CalibrationSpec, CartesianSpec, DeviceFile, MotorSpec, PlantParams
 from app.session.spec import MAX_TICKS, SessionFile, SwitchEvent, Waypoint
 from app.sweep.spec import SweepFile, Vary
 from app.teleop.channel import ChannelSettings
@@ -47,6 +47,7 @@ SECTIONS = [
     ("devices/README.md", "## `[motors]`", MotorSpec),
     ("devices/README.md", "## `[gains]`", ControllerGains),
     ("devices/README.md", "## `[plant]`", PlantParams),
+    ("devices/README.md", "## `[cartesian]`", CartesianSpec),
     ("devices/README.md", "## Calibration file", CalibrationSpec),
     ("sessions/README.md", "## Top level", SessionFile),
     ("sessions/README.md", "## `[[waypoints]]`", Waypoint),

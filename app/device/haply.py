@@ -1,0 +1,457 @@
+"""Haply's Inverse Service protocol: a client backend, and a server for simulated devices.
+
+Haply's Inverse Service is a local WebSocket server (default ``ws://localhost:10001``) that streams
+JSON device state and takes JSON commands. The fields used here are those of Isaac Lab's open
+client (``isaaclab/devices/haply/se3_haply.py``):
+
+- state: ``inverse3[i].device_id``, ``inverse3[i].state.cursor_position.{x,y,z}`` (m);
+  ``wireless_verse_grip[i].state.orientation.{x,y,z,w}`` (quaternion) and ``.buttons.{a,b,c}``;
+- command: ``{"inverse3": [{"device_id": ..., "commands": {"set_cursor_force": {"values":
+  {"x", "y", "z"}}}}]}`` (N).
+
+The exchange is the same as Isaac Lab's: every state message is answered by one command.
+
+:class:`DeviceServer` (``frhc device serve``) serves a simulated device over this protocol, with
+one extension that a real Inverse Service neither sends nor needs: a top-level ``"frhc_sim"``
+object. In the state it names the device and its period (``{"device", "period", "time"}``); in a
+command it carries the simulated operator's hand target (``{"hand_target": 16 numbers, row-major
+4x4 in {0}, or null}``), so that scripted sessions drive a served device as they drive one in
+process. A served simulation is **synchronous**: it advances one period per command, so a loop
+over loopback reproduces the in-process run. With no command for ``watchdog`` seconds, or as soon
+as the connection closes, it sets the commanded force to zero (and with a client connected but
+silent, it runs on in real time under zero force).
+
+:class:`HaplyClient` is a :class:`~app.device.boundary.CartesianDevice` talking to either: a real
+Inverse Service (Inverse3 + VerseGrip) or ``frhc device serve``. Frames: positions and forces are
+taken in the device base {0} as the service reports them (for a real Inverse3, its own base axes:
+check them against ``docs/conventions.md`` before the first contact).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
+from websockets.sync.client import ClientConnection, connect
+from websockets.sync.server import Server, ServerConnection, serve
+
+from app.device.boundary import CartesianReading, LinkStatus
+from app.device.cartesian_sim import SimCartesianDevice
+from app.device.guard import limited
+from app.device.plant import WATCHDOG
+from app.device.spec import DeviceSpec, load_device
+from app.errors import FrhcError
+from app.spatial import Array, matrix_to_quat, quat_to_matrix
+
+log = logging.getLogger(__name__)
+
+#: Haply's Inverse Service default address.
+DEFAULT_URL = "ws://localhost:10001"
+#: How long a connect (handshake and first state) may take before it counts as failed (s).
+CONNECT_TIMEOUT = 1.0
+#: Time between reconnection attempts while disconnected (s).
+RETRY_INTERVAL = 0.1
+
+
+class DeviceUnreachable(FrhcError):
+    """No device answered at a ``--device ws://...`` address."""
+
+
+def _xyz(v: Array) -> dict[str, float]:
+    return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
+
+
+def state_message(device_id: str, T_0_G: Array, buttons: tuple[bool, bool, bool], sim: dict[str, Any] | None) -> str:
+    """A state message: the grip position (m) and orientation in {0}, and the buttons (a, b, c)."""
+    w, x, y, z = matrix_to_quat(T_0_G[:3, :3])
+    msg: dict[str, Any] = {
+        "inverse3": [{"device_id": device_id, "state": {"cursor_position": _xyz(T_0_G[:3, 3])}}],
+        "wireless_verse_grip": [
+            {
+                "device_id": f"{device_id}-grip",
+                "state": {
+                    "orientation": {"x": float(x), "y": float(y), "z": float(z), "w": float(w)},
+                    "buttons": {"a": buttons[0], "b": buttons[1], "c": buttons[2]},
+                },
+            }
+        ],
+    }
+    if sim is not None:
+        msg["frhc_sim"] = sim
+    return json.dumps(msg)
+
+
+def force_command(device_id: str, force: Array, hand_target: Array | None, sim: bool) -> str:
+    """A command message setting the cursor force (N, {0}); with ``sim``, the hand target too."""
+    msg: dict[str, Any] = {
+        "inverse3": [{"device_id": device_id, "commands": {"set_cursor_force": {"values": _xyz(force)}}}]
+    }
+    if sim:
+        msg["frhc_sim"] = {"hand_target": None if hand_target is None else hand_target.ravel().tolist()}
+    return json.dumps(msg)
+
+
+@dataclass
+class ParsedState:
+    """What a state message said. Position in m, orientation as a rotation matrix, both in {0}."""
+
+    device_id: str
+    position: Array
+    R: Array
+    buttons: tuple[bool, bool, bool] | None
+    sim: dict[str, Any] | None = None
+
+
+def parse_state(text: str | bytes) -> ParsedState:
+    """Read a state message; raises ValueError naming the missing field."""
+    data = json.loads(text)
+    try:
+        inv = data["inverse3"][0]
+        pos = inv["state"]["cursor_position"]
+        position = np.array([float(pos[k]) for k in "xyz"])
+        device_id = str(inv["device_id"])
+    except (KeyError, IndexError, TypeError) as exc:
+        raise ValueError(f"state message without inverse3[0].state.cursor_position / device_id ({exc})") from None
+    R = np.eye(3)
+    buttons = None
+    grips = data.get("wireless_verse_grip") or []
+    if grips:
+        state = grips[0].get("state", {})
+        o = state.get("orientation")
+        if o:
+            R = quat_to_matrix(
+                np.array(
+                    [float(o.get("w", 1.0)), float(o.get("x", 0.0)), float(o.get("y", 0.0)), float(o.get("z", 0.0))]
+                )
+            )
+        b = state.get("buttons", {})
+        buttons = (bool(b.get("a", False)), bool(b.get("b", False)), bool(b.get("c", False)))
+    return ParsedState(device_id, position, R, buttons, data.get("frhc_sim"))
+
+
+def parse_command(text: str | bytes) -> tuple[Array, Array | None, bool]:
+    """Read a command: the force (N, (3,)), the simulated hand target ((4, 4) or None) and
+    whether the message carried the ``frhc_sim`` extension. Raises ValueError."""
+    data = json.loads(text)
+    try:
+        values = data["inverse3"][0]["commands"]["set_cursor_force"]["values"]
+        force = np.array([float(values[k]) for k in "xyz"])
+    except (KeyError, IndexError, TypeError) as exc:
+        raise ValueError(f"command without inverse3[0].commands.set_cursor_force.values ({exc})") from None
+    sim = data.get("frhc_sim")
+    target = None
+    if sim is not None and sim.get("hand_target") is not None:
+        target = np.array(sim["hand_target"], dtype=float).reshape(4, 4)
+    return force, target, sim is not None
+
+
+def served_device(url: str, fallback: DeviceSpec) -> DeviceSpec:
+    """The device file for the device at ``url``: for ``frhc device serve``, the served
+    simulation's own (it names it); otherwise (a real Inverse Service, ``fd:``, ``openhaptics:``)
+    ``fallback``, which must have a ``[cartesian]`` table for the limits.
+
+    Raises:
+        DeviceUnreachable: nothing answers at a ``ws://`` address, or ``fallback`` has no
+            ``[cartesian]`` table.
+    """
+    if url.startswith(("ws://", "wss://")):
+        client = HaplyClient(url, period=CONNECT_TIMEOUT)
+        served = client.served
+        client.disconnect()  # it sent no force: nothing to zero, and a served simulation stays put
+        if served is not None:
+            return load_device(str(served["device"]))
+    if fallback.data.cartesian is None:
+        raise DeviceUnreachable(f"{url}: device {fallback.name} has no [cartesian] table to give its limits")
+    return fallback
+
+
+class HaplyClient:
+    """A Cartesian device reached over the Inverse Service protocol (a real one, or ``frhc device serve``).
+
+    Args:
+        url: ``ws://host:port``.
+        period: The servo period (s): a state not received within it is a missed sample (the
+            guard then sends zero).
+
+    Attributes:
+        device_id: The Inverse3's id, as the service named it.
+        served: What ``frhc device serve`` said of itself (``{"device", "period", ...}``), or None
+            for a real Inverse Service.
+    """
+
+    kind: Literal["cartesian"] = "cartesian"
+    #: The Inverse3 renders forces only.
+    torque_capable = False
+
+    def __init__(self, url: str, period: float) -> None:
+        self.url = url
+        self.period = period
+        self.reading = CartesianReading()
+        self.name = url
+        self.device_id = ""
+        self.served: dict[str, Any] | None = None
+        self._ws: ClientConnection | None = None
+        self._hand: Array | None = None
+        self._last_attempt = -math.inf
+        if not self.connect():
+            raise DeviceUnreachable(
+                f"no Inverse Service answers at {url} (is `frhc device serve` or Haply's service running?)"
+            )
+
+    def connect(self) -> bool:
+        """(Re)connect and read the first state; False (status DISCONNECTED) if it failed."""
+        self._last_attempt = time.monotonic()
+        self._drop()
+        try:
+            ws = connect(self.url, open_timeout=CONNECT_TIMEOUT, ping_interval=None, compression=None)
+        except (OSError, TimeoutError, InvalidHandshake, InvalidURI) as exc:
+            log.info("device %s: cannot connect (%s)", self.url, exc)
+            return False
+        try:
+            first = parse_state(ws.recv(timeout=CONNECT_TIMEOUT))
+        except (TimeoutError, ConnectionClosed, ValueError) as exc:
+            log.info("device %s: no usable first state (%s)", self.url, exc)
+            ws.close()
+            return False
+        self._ws = ws
+        self.device_id = first.device_id
+        self.served = first.sim
+        self.name = f"{first.sim['device']} at {self.url}" if first.sim else f"Inverse3 {first.device_id}"
+        self._take(first)
+        return True
+
+    def disconnect(self) -> None:
+        """Close the connection without a last command (:meth:`close` sends zero force first)."""
+        self._drop()
+
+    def _drop(self) -> None:
+        if self._ws is not None:
+            self._ws.close()
+            self._ws = None
+        r = self.reading
+        r.fresh = False
+        r.status = LinkStatus.DISCONNECTED
+
+    def _take(self, state: ParsedState) -> None:
+        r = self.reading
+        r.set_pose(state.R, state.position)
+        r.buttons = state.buttons
+        if state.sim is not None:
+            r.time = float(state.sim.get("time", r.time))
+            hand = state.sim.get("hand_wrench")
+            if hand is not None:
+                r.wrench_G[:] = hand
+        r.fresh = True
+        if r.status == LinkStatus.DISCONNECTED:
+            r.status = LinkStatus.RAMPING
+
+    def reset(self) -> CartesianReading:
+        """Reconnect if the connection is down; the device stays where it is (a served simulation
+        is not sent home: it is a device like any other). The loop's guard zeroes the force."""
+        if self._ws is None:
+            self.connect()
+        return self.reading
+
+    def set_hand_target(self, T_0_H: Array | None) -> None:
+        """Sent to a served simulation with the next command; a real device ignores it."""
+        if T_0_H is None:
+            self._hand = None
+        else:
+            if self._hand is None:
+                self._hand = np.eye(4)
+            self._hand[:] = T_0_H
+
+    def step(self, wrench_0: Array, dt: float) -> CartesianReading:
+        """Send the force ``wrench_0[:3]`` (N, {0}; moments are not sent to an Inverse3) and wait
+        up to one period for the next state."""
+        r = self.reading
+        ws = self._ws
+        if ws is None:
+            if time.monotonic() - self._last_attempt >= RETRY_INTERVAL:
+                self.connect()
+            else:
+                r.fresh = False
+            return r
+        try:
+            ws.send(force_command(self.device_id, wrench_0[:3], self._hand, self.served is not None))
+            text = ws.recv(timeout=self.period)
+            # A late state may sit behind this one: keep the newest.
+            while True:
+                try:
+                    text = ws.recv(timeout=0)
+                except TimeoutError:
+                    break
+            self._take(parse_state(text))
+        except TimeoutError:
+            r.fresh = False
+        except (ConnectionClosed, OSError) as exc:
+            log.info("device %s: connection lost (%s)", self.url, exc)
+            self._drop()
+        except ValueError as exc:
+            log.warning("device %s: bad state message (%s)", self.url, exc)
+            r.fresh = False
+        return r
+
+    def close(self) -> None:
+        """Send zero force, then close the connection."""
+        if self._ws is not None:
+            with contextlib.suppress(ConnectionClosed, OSError):
+                self._ws.send(force_command(self.device_id, np.zeros(3), self._hand, self.served is not None))
+        self._drop()
+
+
+@dataclass
+class ServerEvent:
+    """Something the server did to the force: ``reason`` is "disconnect" or "watchdog";
+    ``at`` its time on ``time.perf_counter`` (s)."""
+
+    reason: str
+    at: float
+
+
+@dataclass
+class ServerLog:
+    """What :class:`DeviceServer` did, for tests and the benchmark (times on ``time.perf_counter``).
+
+    Attributes:
+        commanded: The force the device renders now (N, {0}), (3,).
+        events: Every zeroing of the force, in order.
+        commands: Commands received.
+        connections: Clients accepted.
+    """
+
+    commanded: Array = field(default_factory=lambda: np.zeros(3))
+    events: list[ServerEvent] = field(default_factory=list)
+    commands: int = 0
+    connections: int = 0
+
+
+class DeviceServer:
+    """Serve a simulated device over the Inverse Service protocol (``frhc device serve``).
+
+    Args:
+        device: The simulated device (:class:`SimCartesianDevice`).
+        host, port: Where to listen (port 0: any free port; see :attr:`port`).
+        period: The simulation's period (s).
+        watchdog: Silence (s) after which the force is zeroed and the device runs on without it.
+
+    One client controls the device at a time; a second connection is closed with code 1013.
+    """
+
+    def __init__(
+        self,
+        device: SimCartesianDevice,
+        host: str = "127.0.0.1",
+        port: int = 10001,
+        period: float = 1e-3,
+        watchdog: float = WATCHDOG,
+    ) -> None:
+        self.device = device
+        self.period = period
+        self.watchdog = watchdog
+        self.log = ServerLog()
+        spec = device.spec.data.cartesian
+        assert spec is not None  # SimCartesianDevice refuses a device without the table
+        self._force_limit = spec.force_limit
+        self._busy = threading.Lock()
+        self._paused = threading.Event()
+        #: Set whenever the force is zeroed (tests wait on it).
+        self.zeroed = threading.Event()
+        self._conn: ServerConnection | None = None
+        self._server: Server = serve(self._handle, host, port, ping_interval=None, compression=None)
+        self.port: int = self._server.socket.getsockname()[1]
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> DeviceServer:
+        """Serve in a background thread (for tests and benchmarks); returns self."""
+        self._thread = threading.Thread(target=self._server.serve_forever, name="device-serve", daemon=True)
+        self._thread.start()
+        return self
+
+    def serve_forever(self) -> None:
+        """Serve in this thread until :meth:`shutdown` (or Ctrl-C)."""
+        self._server.serve_forever()
+
+    def shutdown(self) -> None:
+        self._server.shutdown()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+
+    def drop_client(self) -> None:
+        """Close the controlling client's connection, as a pulled cable would (tests)."""
+        conn = self._conn
+        if conn is not None:
+            conn.close(1001, "dropped")
+
+    def pause_stream(self, paused: bool) -> None:
+        """Stop (or resume) answering commands, as a stalled device stream would (tests)."""
+        if paused:
+            self._paused.set()
+        else:
+            self._paused.clear()
+
+    def _state(self) -> str:
+        r = self.device.reading
+        sim = {
+            "device": self.device.name,
+            "period": self.period,
+            "time": r.time,
+            "hand_wrench": r.wrench_G.tolist(),
+        }
+        return state_message(f"sim-{self.device.name}", r.T_0_G, (False, False, False), sim)
+
+    def _zero(self, reason: str) -> None:
+        if np.any(self.log.commanded):
+            self.log.commanded[:] = 0.0
+            self.log.events.append(ServerEvent(reason, time.perf_counter()))
+            log.info("device %s: force zeroed (%s)", self.device.name, reason)
+        self.zeroed.set()
+
+    def _handle(self, ws: ServerConnection) -> None:
+        if not self._busy.acquire(blocking=False):
+            ws.close(1013, "another client controls the device")
+            return
+        try:
+            self._conn = ws
+            self.log.connections += 1
+            log.info("device %s: client connected from %s", self.device.name, ws.remote_address)
+            wrench = np.zeros(6)
+            ws.send(self._state())
+            silent = 0.0
+            while True:
+                try:
+                    text = ws.recv(timeout=self.period)
+                except TimeoutError:
+                    silent += self.period
+                    if silent >= self.watchdog:
+                        self._zero("watchdog")
+                        wrench[:] = 0.0
+                        self.device.step(wrench, self.period)
+                    continue
+                if self._paused.is_set():
+                    continue
+                force, target, _ = parse_command(text)
+                silent = 0.0
+                self.log.commands += 1
+                self.device.set_hand_target(target)
+                # The device's own limit, whatever the client sent (as a vendor's firmware does).
+                limited(force, self._force_limit, 1.0, self.log.commanded)
+                wrench[:3] = self.log.commanded
+                self.device.step(wrench, self.period)
+                ws.send(self._state())
+        except ConnectionClosed:
+            pass
+        except ValueError as exc:
+            ws.close(1003, str(exc)[:120])
+        finally:
+            self._conn = None
+            self._zero("disconnect")
+            self._busy.release()

@@ -1,0 +1,201 @@
+"""Real Cartesian devices through their vendors' Python bindings (optional extras).
+
+- **Force Dimension** (omega, delta, sigma, lambda; Novint Falcon through the same SDK) via
+  ``forcedimension-core`` (``pip install 'frhc[fd]'``), ctypes bindings of the Force Dimension
+  SDK's ``libdhd``: ``dhd.open``, ``dhd.getPosition`` (m), ``dhd.getOrientationFrame``,
+  ``dhd.getButton``, ``dhd.setForceAndTorque`` (N, N m), ``dhd.close``. The SDK's frame is the
+  device base with z up; it is taken as {0} as it is.
+- **3D Systems Touch** (and other OpenHaptics devices) via ``pyOpenHaptics``
+  (``pip install 'frhc[openhaptics]'``), ctypes bindings of OpenHaptics' ``libHD``:
+  ``hd.init_device``, ``hd.get_transform`` (HD_CURRENT_TRANSFORM: column-major 4x4, mm),
+  ``hd.get_buttons`` (HD_CURRENT_BUTTONS bits), ``hd.set_force`` (HD_CURRENT_FORCE, N). OpenHaptics'
+  frame has y up and z toward the user; {0} has z up: ``p_0 = (x, -z, y)``, and forces map back
+  the same way.
+
+Each refuses in one line, naming what is missing, when the Python package or its native library
+is absent (:class:`DeviceUnavailable`); nothing here pretends a device is attached. Buttons:
+button 0 (FD) / button 1 (Touch) is the deadman, the next one the reference switch, a third (FD)
+toggles reflection (``docs/conventions.md``, "Devices"); the gravity compensation is the SDK's.
+
+The devices are selected with ``--device fd:`` (``fd:N`` for the N-th device) or
+``--device openhaptics:`` (``openhaptics:NAME`` for a named device), next to the session's device
+file, whose ``[cartesian]`` table gives the limits.
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+from typing import Any, Literal
+
+import numpy as np
+
+from app.device.boundary import CartesianDevice, CartesianReading, LinkStatus
+from app.errors import FrhcError, InputError
+from app.spatial import Array
+
+#: OpenHaptics' axes in {0}: column i is OpenHaptics' axis i (x right, y up, z toward the user)
+#: in {0} (x right, y away from the user, z up).
+C_0_HD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+#: OpenHaptics' lengths are millimetres.
+MM = 1e-3
+#: Bits of HD_CURRENT_BUTTONS (HD_DEVICE_BUTTON_1, _2).
+HD_BUTTON_1, HD_BUTTON_2 = 1, 2
+
+
+class DeviceUnavailable(FrhcError):
+    """A vendor backend's package, native library or device is not here."""
+
+
+def _load(module: str, package: str, extra: str, native: str) -> ModuleType:
+    """Import a vendor binding, or refuse in one line naming what is missing."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise DeviceUnavailable(
+            f"{package} is not installed (pip install 'frhc[{extra}]'), and it needs {native}"
+        ) from None
+    except OSError as exc:  # the ctypes bindings load the native library at import
+        raise DeviceUnavailable(f"{package} cannot load {native}: {exc}") from None
+
+
+class ForceDimensionDevice:
+    """A Force Dimension device through ``forcedimension_core.dhd``.
+
+    Args:
+        index: Which device (0: the first); its dhd id is what ``dhd.openID`` returns.
+    """
+
+    kind: Literal["cartesian"] = "cartesian"
+
+    def __init__(self, index: int = 0) -> None:
+        self.dhd: Any = _load(
+            "forcedimension_core.dhd", "forcedimension-core", "fd", "the Force Dimension SDK's libdhd"
+        )
+        dhd = self.dhd
+        self.id = dhd.openID(index)
+        if self.id < 0:
+            raise DeviceUnavailable(f"Force Dimension: no device {index} ({dhd.errorGetLastStr()})")
+        self.name = f"Force Dimension {dhd.getSystemName(ID=self.id)}"
+        self.torque_capable = bool(dhd.hasActiveWrist(ID=self.id))
+        dhd.enableForce(True, ID=self.id)
+        self.reading = CartesianReading()
+        self._pos = [0.0, 0.0, 0.0]
+        self._R = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+        self.step(np.zeros(6), 0.0)
+
+    def reset(self) -> CartesianReading:
+        return self.step(np.zeros(6), 0.0)
+
+    def set_hand_target(self, T_0_H: Array | None) -> None:
+        """A real hand holds a real device: nothing to do."""
+
+    def step(self, wrench_0: Array, dt: float) -> CartesianReading:
+        """Set the force (and moment, with an active wrist) in N and N m, then read the pose."""
+        dhd, ID, r = self.dhd, self.id, self.reading
+        torque = wrench_0[3:6] if self.torque_capable else (0.0, 0.0, 0.0)
+        ok = dhd.setForceAndTorque(list(wrench_0[0:3]), list(torque), ID=ID) >= 0
+        ok = ok and dhd.getPosition(out=self._pos, ID=ID) >= 0
+        ok = ok and dhd.getOrientationFrame(out=self._R, ID=ID) >= 0
+        if not ok:
+            r.fresh = False
+            r.status = LinkStatus.DISCONNECTED
+            return r
+        r.set_pose(np.array(self._R, dtype=float), np.array(self._pos, dtype=float))
+        r.buttons = tuple(bool(dhd.getButton(i, ID=ID)) for i in range(3))  # type: ignore[assignment]
+        r.fresh = True
+        if r.status == LinkStatus.DISCONNECTED:
+            r.status = LinkStatus.RAMPING
+        return r
+
+    def close(self) -> None:
+        self.dhd.setForceAndTorque([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], ID=self.id)
+        self.dhd.close(ID=self.id)
+
+
+class TouchDevice:
+    """A 3D Systems Touch (or another OpenHaptics device) through ``pyOpenHaptics.hd``.
+
+    Args:
+        name: The OpenHaptics device name ("Default Device").
+    """
+
+    kind: Literal["cartesian"] = "cartesian"
+    #: The Touch renders forces only (its gimbal is sensed, not actuated).
+    torque_capable = False
+
+    def __init__(self, name: str = "Default Device") -> None:
+        self.hd: Any = _load("pyOpenHaptics.hd", "pyOpenHaptics", "openhaptics", "OpenHaptics' libHD")
+        self.handle = self.hd.init_device(name)
+        if self.handle is None:
+            raise DeviceUnavailable(f"OpenHaptics: cannot initialise device {name!r}")
+        self.name = f"OpenHaptics {self.hd.get_model()}"
+        self.hd.enable_force()
+        self.hd.start_scheduler()
+        self.reading = CartesianReading()
+        self.step(np.zeros(6), 0.0)
+
+    def reset(self) -> CartesianReading:
+        return self.step(np.zeros(6), 0.0)
+
+    def set_hand_target(self, T_0_H: Array | None) -> None:
+        """A real hand holds a real device: nothing to do."""
+
+    def step(self, wrench_0: Array, dt: float) -> CartesianReading:
+        """One haptic frame: read the transform and buttons, set the force (N, in HD's axes)."""
+        hd, r = self.hd, self.reading
+        hd.begin_frame(self.handle)
+        T = np.array(hd.get_transform(), dtype=float).reshape(4, 4).T  # column-major -> row-major
+        buttons = int(hd.get_buttons())
+        hd.set_force(list(C_0_HD.T @ wrench_0[0:3]))
+        hd.end_frame(self.handle)
+        if hd.get_error():
+            r.fresh = False
+            r.status = LinkStatus.DISCONNECTED
+            return r
+        r.set_pose(C_0_HD @ T[:3, :3] @ C_0_HD.T, C_0_HD @ T[:3, 3] * MM)
+        r.buttons = (bool(buttons & HD_BUTTON_1), bool(buttons & HD_BUTTON_2), False)
+        r.fresh = True
+        if r.status == LinkStatus.DISCONNECTED:
+            r.status = LinkStatus.RAMPING
+        return r
+
+    def close(self) -> None:
+        self.hd.begin_frame(self.handle)
+        self.hd.set_force([0.0, 0.0, 0.0])
+        self.hd.end_frame(self.handle)
+        self.hd.stop_scheduler()
+        self.hd.close_device(self.handle)
+
+
+#: The ``--device`` prefixes of devices that are not simulated here.
+URL_PREFIXES = ("ws://", "wss://", "fd:", "openhaptics:")
+
+
+def is_device_url(name: str) -> bool:
+    """Whether a ``--device`` value names a device outside this process (``ws://``, ``fd:``,
+    ``openhaptics:``) rather than a device file."""
+    return name.startswith(URL_PREFIXES)
+
+
+def open_device_url(url: str, period: float) -> CartesianDevice:
+    """The Cartesian device behind ``url``: a served one (``ws://host:port``, whose samples are
+    waited for up to ``period`` s), a Force Dimension device (``fd:`` or ``fd:N``) or an
+    OpenHaptics device (``openhaptics:`` or ``openhaptics:NAME``).
+
+    Raises:
+        DeviceUnavailable: its runtime or the device is not here (one line naming which).
+        InputError: ``url`` is none of these.
+    """
+    if url.startswith(("ws://", "wss://")):
+        from app.device.haply import HaplyClient
+
+        return HaplyClient(url, period)
+    if url.startswith("fd:"):
+        index = url[3:] or "0"
+        if not index.isdigit():
+            raise InputError(f"fd:N needs a device number, got {url!r}")
+        return ForceDimensionDevice(int(index))
+    if url.startswith("openhaptics:"):
+        return TouchDevice(url[len("openhaptics:") :] or "Default Device")
+    raise InputError(f"not a device address: {url!r} (ws://host:port, fd:N, openhaptics:NAME)")

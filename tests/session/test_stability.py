@@ -9,10 +9,13 @@ import pytest
 
 from app.controller.passivity import PassivitySettings
 from app.device.hand import HandParams
+from app.device.variants import DeviceVariant, write_variant
 from app.session.run import run_session
 from app.session.spec import load_session
-from app.session.stability import design_stiffness, device_with_encoders, grip_damping, passivity_bound, press
+from app.session.stability import design_stiffness, grip_damping, passivity_bound, press
 from app.world.scene import available_scenes, load_scene
+
+ENC20 = DeviceVariant("enc20", encoder_bits=20)
 
 STIFFEST_SHIPPED = max(o.stiffness for name in available_scenes() for o in load_scene(name).objects)
 
@@ -79,7 +82,7 @@ def test_at_3x_the_passivity_bound_plain_oscillates_and_the_pc_settles_at_the_bo
     """Kraft with 20-bit encoders (so quantisation does not bind first), pose mode, a wall designed
     at 3x 2b/T: plain rendering oscillates; with PO/PC it settles, felt about as stiff as the bound
     (the PC removes exactly the energy the sampled wall would add, no more)."""
-    device = str(device_with_encoders("kraft", 2**20, tmp_path))
+    device = str(write_variant("kraft", ENC20, tmp_path))
     bound = passivity_bound(device)
     k_t = 3.0 * bound / design_stiffness(1.0, device=device)
     gains = {"k_t": [k_t] * 3 + [1.0] * 3}
@@ -122,7 +125,7 @@ def test_a_wall_the_hand_pushed_through_is_not_stable(tmp_path: Path) -> None:
     so short a step buys so little force per joule that once the touch has drawn the reserve the
     energy bound holds the force down, and the hand pushes the slave to its 40 N limit. The force
     is steady there, but that is the slave's limit, not a wall."""
-    device = str(device_with_encoders("freflex", 2**20, tmp_path))
+    device = str(write_variant("freflex", ENC20, tmp_path))
     bound = passivity_bound(device)
     k_t = 3.0 * bound / design_stiffness(1.0, device=device)
     settings = PassivitySettings(enabled=True, step=2.0 * math.pi / 2**20, step_counts=1)

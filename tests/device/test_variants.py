@@ -28,7 +28,9 @@ def test_every_variant_changes_only_what_it_names(device: str, tmp_path: Path) -
         friction = plant.per_joint("frictionloss", n) if variant.friction else np.zeros(n)
         np.testing.assert_allclose(vp.per_joint("frictionloss", n), friction)
         np.testing.assert_allclose(vp.per_joint("mass_scale", n), plant.per_joint("mass_scale", n) * variant.mass_scale)
-        np.testing.assert_allclose(v.data.motors.gear_ratio, np.array(shipped.data.motors.gear_ratio) * variant.gear_scale)
+        np.testing.assert_allclose(
+            v.data.motors.gear_ratio, np.array(shipped.data.motors.gear_ratio) * variant.gear_scale
+        )
         # Everything else is the shipped device's.
         assert v.data.motors.torque_limit == shipped.data.motors.torque_limit
         assert vp.motor_deadzone == plant.motor_deadzone

@@ -12,7 +12,7 @@ from app.device.hand import HandParams
 from app.device.variants import DeviceVariant, write_variant
 from app.session.run import run_session
 from app.session.spec import load_session
-from app.session.stability import design_stiffness, grip_damping, passivity_bound, press
+from app.session.stability import design_stiffness, device_bound, grip_damping, passivity_bound, press
 from app.world.scene import available_scenes, load_scene
 
 ENC20 = DeviceVariant("enc20", encoder_bits=20)
@@ -134,3 +134,29 @@ def test_a_wall_the_hand_pushed_through_is_not_stable(tmp_path: Path) -> None:
     assert r.pushed_through
     assert r.felt_stiffness < 0.05 * bound
     assert not r.stable
+
+
+def test_the_device_only_bound_is_the_joints_damping_alone() -> None:
+    """With the hand let go ``b`` is the joints' damping at the grip only: 0.40 / 0.17 / 1.88 N s/m,
+    a bound of ~803 / 343 / 3,755 N/m on kraft / jpl / freflex, against ~20-24 kN/m with the
+    default hand's 10 N s/m."""
+    for device, expected in (("kraft", 803.0), ("jpl", 343.0), ("freflex", 3755.0)):
+        assert device_bound(device) == pytest.approx(expected, rel=0.01)
+        assert device_bound(device) == pytest.approx(passivity_bound(device, hand=HandParams(damping_trans=0.0)))
+
+
+def test_a_released_press_is_judged_after_the_hand_lets_go(tmp_path: Path) -> None:
+    """Pose mode, the hand holds the first push and lets go: on the Kraft at a quarter of the
+    with-hand bound the rendering pushes the grip back off the surface and everything comes to
+    rest; without the joints' Coulomb friction the same wall keeps bouncing the released tool
+    (ripple of several newtons against the ~5 N the hand held)."""
+    k_t = 0.25 * passivity_bound("kraft") / design_stiffness(1.0)
+    gains = {"k_t": [k_t] * 3 + [1.0] * 3}
+    held = press(1e5, "pose", gains=gains, released=True)
+    assert held.stable
+    assert math.isnan(held.felt_stiffness)
+    assert held.summary["settling"]["ripple_N"] < 0.05
+    no_friction = str(write_variant("kraft", DeviceVariant("nofric", friction=False), tmp_path))
+    bouncing = press(1e5, "pose", device=no_friction, gains=gains, released=True)
+    assert bouncing.ripple > 1.0
+    assert not bouncing.stable

@@ -141,8 +141,9 @@ def design_stiffness(k_t: float, surface: float = 1e5, device: str | Path = "kra
 #: Hand-target depths (m) below the grip's start of a pose-mode press: it holds the first, then
 #: the second, so the felt stiffness is a secant between two pushes (~2.5 N and ~8 N at the grip
 #: with the default hand and K_P; both within every device's motors and the slave's force limit).
-#: Another hand pushes to depths scaled by the default hand's stiffness over its own, so that it
-#: pushes about as hard (a 1000 N/m hand at 3-4.5 cm would push the slave to its 40 N limit).
+#: A stiffer hand pushes to depths scaled by the default hand's stiffness over its own, so that
+#: it pushes about as hard (a 1000 N/m hand at 3-4.5 cm would push the slave to its 40 N limit);
+#: a softer one to the same depths (deeper targets made its fast approach saturate the motors).
 PUSH_DEPTHS = (0.03, 0.045)
 #: Simulated time (s) of a press: rate mode holds the probe session's push to the end; pose mode
 #: reaches the first depth at 1.0 s, the second at ``POSE_SECONDS - 2 SETTLE_WINDOW + 0.2``.
@@ -242,7 +243,7 @@ def press_session(
     if mode == "pose":
         seconds = seconds or POSE_SECONDS + hold - HOLD_SECONDS
         hand = changes.get("hand", base.data.hand)
-        scale = base.data.hand.stiffness_trans / hand.stiffness_trans if hand.stiffness_trans > 0.0 else 1.0
+        scale = min(1.0, base.data.hand.stiffness_trans / hand.stiffness_trans) if hand.stiffness_trans > 0.0 else 1.0
         changes.setdefault("waypoints", _pose_push(seconds, hold, released, scale)[0])
         if released:
             let_go = SwitchEvent(release_time(seconds, hold), hand=False)

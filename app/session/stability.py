@@ -141,9 +141,9 @@ def design_stiffness(k_t: float, surface: float = 1e5, device: str | Path = "kra
 #: Hand-target depths (m) below the grip's start of a pose-mode press: it holds the first, then
 #: the second, so the felt stiffness is a secant between two pushes (~2.5 N and ~8 N at the grip
 #: with the default hand and K_P; both within every device's motors and the slave's force limit).
-#: A stiffer hand pushes to depths scaled by the default hand's stiffness over its own, so that
-#: it pushes about as hard (a 1000 N/m hand at 3-4.5 cm would push the slave to its 40 N limit);
-#: a softer one to the same depths (deeper targets made its fast approach saturate the motors).
+#: Every hand pushes to these depths: a 1000 N/m hand then pushes the slave to its 40 N limit
+#: (scaling the depths down by the hand's stiffness left it short of the surface: a depth has to
+#: cover the ~2.4 cm gap to the surface first).
 PUSH_DEPTHS = (0.03, 0.045)
 #: Simulated time (s) of a press: rate mode holds the probe session's push to the end; pose mode
 #: reaches the first depth at 1.0 s, the second at ``POSE_SECONDS - 2 SETTLE_WINDOW + 0.2``.
@@ -203,14 +203,11 @@ class FeltStiffness:
 HOLD_SECONDS = 0.2
 
 
-def _pose_push(
-    seconds: float, hold: float, released: bool = False, depth_scale: float = 1.0
-) -> tuple[tuple[Waypoint, ...], tuple[float, float]]:
+def _pose_push(seconds: float, hold: float, released: bool = False) -> tuple[tuple[Waypoint, ...], tuple[float, float]]:
     """The hand's waypoints of a pose-mode press lasting ``seconds`` that holds its second push
     ``hold`` (s) before the judged window, and its plateaus' window ends. ``released``: the hand
-    holds only the first push, and lets go where the second would start (:func:`release_time`).
-    ``depth_scale``: factor on :data:`PUSH_DEPTHS`."""
-    first, second = (Waypoint(0.0, (0.0, 0.0, -d * depth_scale)) for d in PUSH_DEPTHS)
+    holds only the first push, and lets go where the second would start (:func:`release_time`)."""
+    first, second = (Waypoint(0.0, (0.0, 0.0, -d)) for d in PUSH_DEPTHS)
     end_1 = release_time(seconds, hold)  # the second push starts here, reached 0.2 s later
     waypoints: tuple[Waypoint, ...] = (Waypoint(0.3), replace(first, t=1.0), replace(first, t=end_1))
     if not released:
@@ -236,15 +233,13 @@ def press_session(
     ``mode``, for ``seconds`` of simulated time (default :data:`RATE_SECONDS`, or
     :data:`POSE_SECONDS` lengthened by the ``hold`` beyond :data:`HOLD_SECONDS`); in pose mode the
     hand pushes in two steps (:data:`PUSH_DEPTHS`) and holds the second ``hold`` (s) before the
-    judged window (to depths scaled for the session's hand, see :data:`PUSH_DEPTHS`); ``released`` (pose mode): it holds the first push, then lets go of the grip
+    judged window; ``released`` (pose mode): it holds the first push, then lets go of the grip
     with the tool on the surface and the judged window comes ``hold`` + 0.2 s later.
     ``changes`` are further session-file fields."""
     base = load_session("probe_rate")
     if mode == "pose":
         seconds = seconds or POSE_SECONDS + hold - HOLD_SECONDS
-        hand = changes.get("hand", base.data.hand)
-        scale = min(1.0, base.data.hand.stiffness_trans / hand.stiffness_trans) if hand.stiffness_trans > 0.0 else 1.0
-        changes.setdefault("waypoints", _pose_push(seconds, hold, released, scale)[0])
+        changes.setdefault("waypoints", _pose_push(seconds, hold, released)[0])
         if released:
             let_go = SwitchEvent(release_time(seconds, hold), hand=False)
             changes.setdefault("events", (*base.data.events, let_go))

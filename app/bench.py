@@ -12,9 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
+from app.device.hand import HandParams
 from app.session.loop import STAGES
 from app.session.tick import TickRecord
 from app.teleop.channel import Coupling
+
+#: The hand of a stability row unless another is given.
+DEFAULT_HAND = HandParams()
 
 
 def _stats(ns: np.ndarray) -> str:
@@ -149,11 +153,12 @@ def bench_stability(quick: bool = False) -> str:
     (:class:`~app.session.stability.FeltStiffness`). *Stable* is settled with the motors and the
     slave within their limits (:attr:`~app.session.stability.PressResult.stable`): SATURATED is a
     wall held at the motors' limit, PUSHED IN one the hand pushed the slave through to its force
-    limit. Each device runs as shipped and with 20-bit encoders
-    (:func:`~app.session.stability.device_with_encoders`), which separates the quantisation limit
-    from the passivity bound.
+    limit. Each device runs as shipped with each hand of :data:`~app.session.stability.HANDS`
+    and with the hand let go, and as each variant of :data:`~app.device.variants.VARIANTS` (20-bit
+    encoders separate the quantisation limit from the passivity bound).
     """
-    from app.session.stability import device_with_encoders, press
+    from app.device.variants import VARIANTS, DeviceVariant, write_variant
+    from app.session.stability import HANDS, press
 
     lines = ["contact stability, probe pushed by the hand, reflection on (settled: ripple < 5 % of mean)"]
     stiffnesses = (3e3, 3e4, 3e5) if quick else (3e3, 1e4, 3e4, 1e5, 3e5, 1e6)
@@ -166,35 +171,50 @@ def bench_stability(quick: bool = False) -> str:
     multiples = (1.0, 3.0) if quick else (0.25, 0.5, 1.0, 2.0, 3.0, 4.0)
     lines.append(
         "  pose mode, two pushes (~2.5 N, ~8 N at the grip); stable: settled, motors and slave within limits; "
-        "felt: secant between the pushes"
+        "felt: secant between the pushes; released: the hand lets go after the first push"
     )
+    hands = HANDS[:2] if quick else HANDS
+    variants = (DeviceVariant("enc20", encoder_bits=20),) if quick else VARIANTS
     with tempfile.TemporaryDirectory() as tmp:
         for device in ("kraft",) if quick else ("kraft", "jpl", "freflex"):
-            fine = device_with_encoders(device, 2**20, Path(tmp))
-            for label, variant in ((device, device), (f"{device}, 20-bit encoders", str(fine))):
-                lines.extend(_wall_rows(label, variant, multiples))
+            for hand_label, hand in hands:
+                lines.extend(_wall_rows(f"{device}, hand {hand_label}", device, multiples, hand))
+            lines.extend(_wall_rows(f"{device}, hand released", device, multiples, None))
+            for variant in variants:
+                lines.extend(
+                    _wall_rows(f"{device}_{variant.label}", str(write_variant(device, variant, Path(tmp))), multiples)
+                )
     lines.extend(_delay_lines(quick))
     return "\n".join(lines)
 
 
-def _wall_rows(label: str, device: str, multiples: tuple[float, ...]) -> list[str]:
+def _wall_rows(
+    label: str, device: str, multiples: tuple[float, ...], hand: HandParams | None = DEFAULT_HAND
+) -> list[str]:
     """Plain and PO/PC pose-mode walls on ``device`` (a name or a device file) at ``multiples`` of
-    its passivity bound; for each renderer the multiples it is stable at and the largest up to
-    which it is stable at every multiple (on coarse encoders the stable set has gaps)."""
+    its passivity bound with ``hand`` (None: the default hand, let go after the first push); for
+    each renderer the multiples it is stable at and the largest up to which it is stable at every
+    multiple (on coarse encoders the stable set has gaps). The bound with the hand and the
+    device-only one (the hand let go) are printed side by side; multiples are of the first."""
     from app.controller.passivity import PassivitySettings
-    from app.session.stability import design_stiffness, grip_damping, press
+    from app.session.stability import design_stiffness, device_bound, grip_damping, press
 
-    b = grip_damping(device)
+    held = hand or DEFAULT_HAND
+    b = grip_damping(device, held)
     bound = 2.0 * b / 1e-3
     per_k_t = design_stiffness(1.0, device=device)
-    lines = [f"  {label}: passivity bound 2b/T = {bound:,.0f} N/m (b = {b:.2f} N s/m at the grip)"]
+    lines = [
+        f"  {label}: bound 2b/T with the hand {bound:,.0f} N/m (b = {b:.2f} N s/m at the grip), "
+        f"device only {device_bound(device):,.0f} N/m"
+    ]
     stable: dict[str, list[float]] = {"plain": [], "PO/PC": []}
     for multiple in multiples:
         k_t = multiple * bound / per_k_t
         cells = []
         for name, enabled in (("plain", False), ("PO/PC", True)):
             gains = {"k_t": [k_t] * 3 + [1.0] * 3}
-            r = press(1e5, "pose", device=device, gains=gains, passivity=PassivitySettings(enabled=enabled))
+            passivity = PassivitySettings(enabled=enabled)
+            r = press(1e5, "pose", device=device, gains=gains, passivity=passivity, hand=held, released=hand is None)
             if r.stable:
                 stable[name].append(multiple)
             state = (

@@ -12,10 +12,13 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from app.config import fmt_number
 from app.errors import ConfigError, FrhcError, InvalidField
+
+if TYPE_CHECKING:
+    from app.device.hand import HandParams
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -200,9 +203,16 @@ def _cmd_web(args: argparse.Namespace) -> int:
 
 
 def _cmd_zwidth(args: argparse.Namespace) -> int:
+    from app.session.stability import device_bound, passivity_bound
     from app.session.zwidth import zwidth
 
     out = Path(args.out)
+    device_only = device_bound(args.device, args.rate)
+    if args.hand is None:
+        print(f"hand released after the first push: bound 2b/T {device_only:,.0f} N/m (the device only)")
+    else:
+        with_hand = passivity_bound(args.device, args.rate, args.hand)
+        print(f"bound 2b/T with the hand {with_hand:,.0f} N/m, device only {device_only:,.0f} N/m")
     edges = zwidth(
         out,
         renderers=tuple(args.renderers),
@@ -214,6 +224,7 @@ def _cmd_zwidth(args: argparse.Namespace) -> int:
         progress=True,
         workers=args.workers,
         address=args.address,
+        hand=args.hand,
     )
     print(
         f"{'renderer':<9} {'K_D (N s/m)':>12} {'largest stable K_T':>19} {'felt (N/m)':>12} {'oscillates at K_T':>18}"
@@ -245,6 +256,19 @@ def _renderer(text: str) -> str:
     if text not in RENDERERS:
         raise ValueError(f"unknown renderer {text!r} (known: {', '.join(RENDERERS)})")
     return text
+
+
+def _hand(text: str) -> HandParams | None:
+    """``--hand``: ``K,B`` (translational stiffness N/m, damping N s/m) or ``released``."""
+    from app.device.hand import HandParams
+
+    if text == "released":
+        return None
+    try:
+        k, b = (float(v) for v in text.split(","))
+        return HandParams(stiffness_trans=k, damping_trans=b)
+    except (ValueError, InvalidField) as exc:
+        raise argparse.ArgumentTypeError(f"expected K,B (N/m, N s/m) or 'released': {exc}") from None
 
 
 def _damping(text: str) -> float:
@@ -377,6 +401,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--renderers", type=_list_of(_renderer), default=["plain", "pc"], help="e.g. plain,pc,wave")
     p.add_argument("--dampings", type=_list_of(_damping), default=[0.0, 4.0, 16.0], help="K_D values (N s/m)")
     p.add_argument("--iterations", type=int, default=5, choices=range(1, 13), metavar="1..12", help="bisection steps")
+    p.add_argument(
+        "--hand",
+        type=_hand,
+        default=_hand("400,10"),
+        help="the hand: K,B (N/m, N s/m; default 400,10) or 'released' (lets go after the first push)",
+    )
     p.add_argument("--out", default="runs/zwidth", help="output directory")
     _engine_arguments(p)
     p.set_defaults(func=_cmd_zwidth)

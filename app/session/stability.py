@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 import re
-import shutil
 import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -29,10 +28,10 @@ import numpy as np
 
 from app.device.hand import HandParams
 from app.device.plant import DevicePlant
-from app.device.spec import load_device, resolve_device_path
-from app.session.metrics import SETTLE_WINDOW
+from app.device.spec import load_device
+from app.session.metrics import SETTLE_RIPPLE, SETTLE_WINDOW
 from app.session.run import run_session
-from app.session.spec import Session, Waypoint, load_session
+from app.session.spec import Session, SwitchEvent, Waypoint, load_session
 from app.session.tick import TickRecord
 from app.teleop.channel import ChannelSettings, Coupling
 from app.world.scene import SCENES_DIR
@@ -46,7 +45,8 @@ class PressResult:
         mean_force: Mean contact force magnitude over the settling window (N).
         ripple: Peak-to-peak contact force over that window (N).
         settled: ``ripple`` below 5 % of the mean (and finite), the mean at least 0.1 N
-            (:data:`~app.session.metrics.SETTLE_MIN_FORCE`: in contact).
+            (:data:`~app.session.metrics.SETTLE_MIN_FORCE`: in contact); for a released press,
+            ``ripple`` below 5 % of the force the hand held before letting go (:func:`press`).
         felt_stiffness: Pose mode: the secant stiffness between the press's two plateaus (N/m,
             :class:`FeltStiffness`); NaN in rate mode, where the grip commands a velocity.
         saturated: Pose mode: the motors saturated on some tick of a plateau's window, so the
@@ -80,25 +80,6 @@ def probe_scene_with_stiffness(stiffness: float, damping: float, folder: Path) -
     return path
 
 
-def device_with_encoders(device: str, counts_per_rev: int, folder: Path) -> Path:
-    """A copy of ``device`` (its folder: file, MJCF, calibration) in ``folder`` whose encoders
-    resolve ``counts_per_rev`` counts per revolution on every joint; returns its ``device.toml``.
-
-    The shipped devices' 13- and 14-bit encoders put one count ~0.1 mm from the grip, so a wall
-    stiffer than ~2 f_c / count (Abbott & Okamura 2005: ~8 kN/m at the Kraft's grip) chatters at
-    one count whatever renders it; a finer-encoder copy shows the limit that is left, ``2 b / T``.
-    """
-    source = resolve_device_path(device).parent
-    target = folder / f"{source.name}_{counts_per_rev}"
-    shutil.copytree(source, target)
-    path = target / "device.toml"
-    n = load_device(device).n_joints
-    counts = ", ".join([str(counts_per_rev)] * n)
-    text = re.sub(r"(?m)^encoder_counts_per_rev = .*$", f"encoder_counts_per_rev = [{counts}]", path.read_text())
-    path.write_text(text)
-    return path
-
-
 def grip_damping(device: str | Path, hand: HandParams | None = None) -> float:
     """Physical damping (N s/m) that resists the grip moving along z of the device base {0}.
 
@@ -124,6 +105,30 @@ def passivity_bound(device: str | Path, servo_rate: float = 1000.0, hand: HandPa
     return 2.0 * grip_damping(device, hand) * servo_rate
 
 
+#: The hand with no impedance at all: the grip let go (:func:`device_bound`, released presses).
+RELEASED = HandParams(stiffness_trans=0.0, damping_trans=0.0, stiffness_rot=0.0, damping_rot=0.0)
+
+
+def device_bound(device: str | Path, servo_rate: float = 1000.0) -> float:
+    """The bound ``2 b / T`` (N/m) with the device's own damping only: the hand let go."""
+    return passivity_bound(device, servo_rate, RELEASED)
+
+
+#: Hands of the stability tools, ``(label, hand)``: the corners and middle of a human arm's
+#: endpoint impedance. Stiffness 100-1000 N/m spans a relaxed to a stiffened arm (Mussa-Ivaldi,
+#: Hogan & Bizzi 1985, J. Neurosci. 5(10): 300-900 N/m in the horizontal plane at rest); damping
+#: 1-10 N s/m spans a fingertip grasp (Hajian & Howe 1997, J. Biomech. Eng. 119(1): ~1-4 N s/m)
+#: to a whole-hand grip (the default hand, 10 N s/m). ``"released"`` is the hand let go.
+HANDS: tuple[tuple[str, HandParams], ...] = (
+    ("default 400/10", HandParams()),
+    ("soft 100/1", HandParams(stiffness_trans=100.0, damping_trans=1.0)),
+    ("soft 120/3", HandParams(stiffness_trans=120.0, damping_trans=3.0)),
+    ("soft 100/10", HandParams(stiffness_trans=100.0, damping_trans=10.0)),
+    ("stiff 1000/1", HandParams(stiffness_trans=1000.0, damping_trans=1.0)),
+    ("stiff 1000/10", HandParams(stiffness_trans=1000.0, damping_trans=10.0)),
+)
+
+
 def design_stiffness(k_t: float, surface: float = 1e5, device: str | Path = "kraft") -> float:
     """The pose-mode wall stiffness (N/m) a press with task gain ``k_t`` renders at the grip:
     ``K_T K_P k_s``, with ``k_s`` the probe slave's tracking spring in series with a surface of
@@ -136,6 +141,9 @@ def design_stiffness(k_t: float, surface: float = 1e5, device: str | Path = "kra
 #: Hand-target depths (m) below the grip's start of a pose-mode press: it holds the first, then
 #: the second, so the felt stiffness is a secant between two pushes (~2.5 N and ~8 N at the grip
 #: with the default hand and K_P; both within every device's motors and the slave's force limit).
+#: Every hand pushes to these depths: a 1000 N/m hand then pushes the slave to its 40 N limit
+#: (scaling the depths down by the hand's stiffness left it short of the surface: a depth has to
+#: cover the ~2.4 cm gap to the surface first).
 PUSH_DEPTHS = (0.03, 0.045)
 #: Simulated time (s) of a press: rate mode holds the probe session's push to the end; pose mode
 #: reaches the first depth at 1.0 s, the second at ``POSE_SECONDS - 2 SETTLE_WINDOW + 0.2``.
@@ -170,6 +178,12 @@ class FeltStiffness:
                 self._counts[i] += 1
                 self.saturated |= out.saturation_scale < 1.0
 
+    def plateau_force(self, i: int) -> float:
+        """Magnitude of the mean rendered grip force over plateau ``i``'s window (N; NaN if no tick)."""
+        if not self._counts[i]:
+            return math.nan
+        return float(np.linalg.norm(self._sums[i, 0:3])) / self._counts[i]
+
     def stiffness(self) -> float:
         """``(F_2 - F_1) . n / ((p_1 - p_2) . n)`` (N/m), ``n`` the unit second-plateau force: the
         grip pushed further in (against ``n``) meets more force. NaN if a window saw no tick, no
@@ -189,34 +203,50 @@ class FeltStiffness:
 HOLD_SECONDS = 0.2
 
 
-def _pose_push(seconds: float, hold: float) -> tuple[tuple[Waypoint, ...], tuple[float, float]]:
+def _pose_push(seconds: float, hold: float, released: bool = False) -> tuple[tuple[Waypoint, ...], tuple[float, float]]:
     """The hand's waypoints of a pose-mode press lasting ``seconds`` that holds its second push
-    ``hold`` (s) before the judged window, and its plateaus' window ends."""
+    ``hold`` (s) before the judged window, and its plateaus' window ends. ``released``: the hand
+    holds only the first push, and lets go where the second would start (:func:`release_time`)."""
     first, second = (Waypoint(0.0, (0.0, 0.0, -d)) for d in PUSH_DEPTHS)
-    end_1 = seconds - SETTLE_WINDOW - hold - 0.2  # the second push starts here, reached 0.2 s later
-    waypoints = (
-        Waypoint(0.3),
-        replace(first, t=1.0),
-        replace(first, t=end_1),
-        replace(second, t=end_1 + 0.2),
-        replace(second, t=seconds),
-    )
+    end_1 = release_time(seconds, hold)  # the second push starts here, reached 0.2 s later
+    waypoints: tuple[Waypoint, ...] = (Waypoint(0.3), replace(first, t=1.0), replace(first, t=end_1))
+    if not released:
+        waypoints += (replace(second, t=end_1 + 0.2), replace(second, t=seconds))
     return waypoints, (end_1, seconds + 1e-9)
 
 
+def release_time(seconds: float, hold: float) -> float:
+    """When (s) the first plateau of a pose press lasting ``seconds`` with ``hold`` ends: the
+    second push starts there, or a released press's hand lets go."""
+    return seconds - SETTLE_WINDOW - hold - 0.2
+
+
 def press_session(
-    scene: Path, mode: str = "rate", seconds: float | None = None, hold: float = HOLD_SECONDS, **changes: Any
+    scene: Path,
+    mode: str = "rate",
+    seconds: float | None = None,
+    hold: float = HOLD_SECONDS,
+    released: bool = False,
+    **changes: Any,
 ) -> Session:
     """The probe session's push (reflection on, the device's gains and the hand) on ``scene``, in
     ``mode``, for ``seconds`` of simulated time (default :data:`RATE_SECONDS`, or
     :data:`POSE_SECONDS` lengthened by the ``hold`` beyond :data:`HOLD_SECONDS`); in pose mode the
     hand pushes in two steps (:data:`PUSH_DEPTHS`) and holds the second ``hold`` (s) before the
-    judged window. ``changes`` are further session-file fields."""
+    judged window; ``released`` (pose mode): it holds the first push, then lets go of the grip
+    with the tool on the surface and the judged window comes ``hold`` + 0.2 s later.
+    ``changes`` are further session-file fields."""
+    base = load_session("probe_rate")
     if mode == "pose":
         seconds = seconds or POSE_SECONDS + hold - HOLD_SECONDS
-        changes.setdefault("waypoints", _pose_push(seconds, hold)[0])
+        changes.setdefault("waypoints", _pose_push(seconds, hold, released)[0])
+        if released:
+            let_go = SwitchEvent(release_time(seconds, hold), hand=False)
+            changes.setdefault("events", (*base.data.events, let_go))
+    elif released:
+        raise ValueError("a released press is a pose-mode press")
     duration = seconds or RATE_SECONDS
-    return load_session("probe_rate").with_changes(scene=str(scene), mode=mode, duration=duration, **changes)
+    return base.with_changes(scene=str(scene), mode=mode, duration=duration, **changes)
 
 
 def press(
@@ -226,6 +256,7 @@ def press(
     damping: float = 3.0,
     seconds: float | None = None,
     hold: float = HOLD_SECONDS,
+    released: bool = False,
     **changes: Any,
 ) -> PressResult:
     """Run the probe session's push on a surface of another stiffness; judge how the force settles.
@@ -236,18 +267,25 @@ def press(
         seconds: Simulated time (default per mode, see :func:`press_session`); the force is
             judged over the last 0.6 s, while the hand still holds the (second) push.
         hold: Pose mode: how long (s) the hand holds the second push before that window.
-            ``changes``: further session fields (``passivity``, ``channel``...).
+        released: Pose mode: the hand lets go after the first push (the device-only case). The
+            tool is left resting on the surface, pressed only by what the rendering does, so
+            the force may settle anywhere from zero up: *settled* is then a ripple below 5 % of
+            the force the hand held (the first plateau's rendered grip force), and the felt
+            stiffness is NaN. ``changes``: further session fields (``passivity``, ``hand``...).
     """
     with tempfile.TemporaryDirectory() as tmp:
         scene = probe_scene_with_stiffness(stiffness, damping, Path(tmp))
-        session = press_session(scene, mode, seconds, hold, gains=gains or {}, **changes)
+        session = press_session(scene, mode, seconds, hold, released, gains=gains or {}, **changes)
         felt = FeltStiffness(_pose_push(session.data.duration, hold)[1]) if mode == "pose" else None
         summary = run_session(session, out_dir=None, plots=False, observers=(felt,) if felt else ()).summary
         force_limit = session.scene.spec.slave.force_limit
     s = summary["settling"]
+    settled = bool(s["settled"])
     stiffness, saturated = (felt.stiffness(), felt.saturated) if felt else (math.nan, False)
+    if released and felt is not None:
+        stiffness, settled = math.nan, bool(s["ripple_N"] < SETTLE_RIPPLE * felt.plateau_force(0))
     pushed_through = s["mean_force_N"] >= 0.95 * force_limit
-    return PressResult(s["mean_force_N"], s["ripple_N"], s["settled"], stiffness, saturated, pushed_through, summary)
+    return PressResult(s["mean_force_N"], s["ripple_N"], settled, stiffness, saturated, pushed_through, summary)
 
 
 #: The delay of issue 13's bar, each way (ms): 100 ms round trip.

@@ -37,6 +37,7 @@ import pyarrow.parquet as pq
 from tqdm import tqdm
 
 from app.controller.passivity import PassivitySettings
+from app.device.hand import HandParams
 from app.session.stability import PressResult, press
 from app.teleop.channel import ChannelSettings
 
@@ -44,6 +45,8 @@ Renderer = Literal["plain", "pc", "wave"]
 RENDERERS: tuple[str, ...] = get_args(Renderer)
 #: Surface stiffness of every point (N/m): stiff, so the felt stiffness is set by K_T.
 SURFACE_STIFFNESS = 1e5
+#: The hand of a Z-width unless another is given.
+DEFAULT_HAND = HandParams()
 
 
 @dataclass(frozen=True)
@@ -68,7 +71,9 @@ class ZWidthPoint:
     error: str = ""
 
 
-def _press(k_t: float, damping: float, renderer: str, device: str, servo_rate: float, delay_ms: float) -> PressResult:
+def _press(
+    k_t: float, damping: float, renderer: str, device: str, servo_rate: float, delay_ms: float, hand: HandParams | None
+) -> PressResult:
     gains: dict[str, Any] = {"k_t": [k_t] * 3 + [1.0] * 3, "k_d": [damping] * 3 + [0.02] * 3}
     channel = ChannelSettings(delay_ms=delay_ms, coupling="wave" if renderer == "wave" else "direct")
     return press(
@@ -79,6 +84,8 @@ def _press(k_t: float, damping: float, renderer: str, device: str, servo_rate: f
         servo_rate=servo_rate,
         passivity=PassivitySettings(enabled=renderer == "pc"),
         channel=channel,
+        hand=hand or HandParams(),
+        released=hand is None,
     )
 
 
@@ -91,8 +98,11 @@ def stability_edge(
     k_t_low: float = 0.25,
     k_t_high: float = 64.0,
     iterations: int = 5,
+    hand: HandParams | None = DEFAULT_HAND,
 ) -> ZWidthPoint:
-    """Bisect (in log K_T) for the largest stable K_T of ``renderer`` at ``damping`` (N s/m)."""
+    """Bisect (in log K_T) for the largest stable K_T of ``renderer`` at ``damping`` (N s/m),
+    pushed by ``hand`` (None: the default hand, which lets go after the first push, see
+    :func:`~app.session.stability.press`)."""
     if renderer not in RENDERERS:
         raise ValueError(f"renderer must be one of {RENDERERS}, got {renderer!r}")
     run = 0
@@ -100,7 +110,7 @@ def stability_edge(
     def stable(k_t: float) -> tuple[bool, float]:
         nonlocal run
         run += 1
-        r = _press(k_t, damping, renderer, device, servo_rate, delay_ms)
+        r = _press(k_t, damping, renderer, device, servo_rate, delay_ms, hand)
         return r.stable, r.felt_stiffness
 
     ok_low, felt_low = stable(k_t_low)
@@ -127,17 +137,19 @@ class EdgeTask:
     Attributes:
         device: Device name. servo_rate: Servo rate (Hz). delay_ms: One-way channel delay (ms).
         iterations: Bisection steps after the two ends.
+        hand: The operator's hand (None: let go after the first push).
     """
 
     device: str
     servo_rate: float
     delay_ms: float
     iterations: int
+    hand: HandParams | None = DEFAULT_HAND
 
     def __call__(self, payload: tuple[str, float]) -> dict[str, Any]:
         renderer, damping = payload
         edge = stability_edge(
-            renderer, damping, self.device, self.servo_rate, self.delay_ms, iterations=self.iterations
+            renderer, damping, self.device, self.servo_rate, self.delay_ms, iterations=self.iterations, hand=self.hand
         )
         return dataclasses.asdict(edge)
 
@@ -153,8 +165,11 @@ def zwidth(
     progress: bool = False,
     workers: int = 1,
     address: str | None = None,
+    hand: HandParams | None = DEFAULT_HAND,
 ) -> list[ZWidthPoint]:
     """Every (renderer, damping) edge; writes ``zwidth.parquet`` and ``zwidth.png`` to ``out_dir``.
+
+    ``hand`` pushes every press (None: the default hand, let go after the first push).
 
     The edges are bisected in parallel on the sweep engine's ``workers`` (1 = serially in this
     process) and ``address`` (a Ray cluster; see :func:`app.sweep.engine.run_points`). An edge
@@ -164,7 +179,7 @@ def zwidth(
 
     out_dir.mkdir(parents=True, exist_ok=True)
     pairs = [(renderer, damping) for renderer in renderers for damping in dampings]
-    task = EdgeTask(device, servo_rate, delay_ms, iterations)
+    task = EdgeTask(device, servo_rate, delay_ms, iterations, hand)
     found: dict[int, ZWidthPoint] = {}
     with tqdm(total=len(pairs), unit="edge", disable=not progress) as bar:
         for index, row in run_points(task, enumerate(pairs), workers, address):
@@ -179,7 +194,8 @@ def zwidth(
     table = pa.table({**columns, "device": [device] * len(edges), "servo_rate": [servo_rate] * len(edges)})
     table = table.append_column("delay_ms", pa.array([delay_ms] * len(edges)))
     pq.write_table(table, out_dir / "zwidth.parquet")
-    _plot(edges, out_dir / "zwidth.png", f"{device}, {servo_rate:g} Hz, delay {delay_ms:g} ms each way")
+    held = "released" if hand is None else f"hand {hand.stiffness_trans:g} N/m, {hand.damping_trans:g} N s/m"
+    _plot(edges, out_dir / "zwidth.png", f"{device}, {servo_rate:g} Hz, delay {delay_ms:g} ms each way, {held}")
     return edges
 
 

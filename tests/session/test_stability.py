@@ -9,10 +9,13 @@ import pytest
 
 from app.controller.passivity import PassivitySettings
 from app.device.hand import HandParams
+from app.device.variants import DeviceVariant, write_variant
 from app.session.run import run_session
 from app.session.spec import load_session
-from app.session.stability import design_stiffness, device_with_encoders, grip_damping, passivity_bound, press
+from app.session.stability import design_stiffness, device_bound, grip_damping, passivity_bound, press
 from app.world.scene import available_scenes, load_scene
+
+ENC20 = DeviceVariant("enc20", encoder_bits=20)
 
 STIFFEST_SHIPPED = max(o.stiffness for name in available_scenes() for o in load_scene(name).objects)
 
@@ -79,7 +82,7 @@ def test_at_3x_the_passivity_bound_plain_oscillates_and_the_pc_settles_at_the_bo
     """Kraft with 20-bit encoders (so quantisation does not bind first), pose mode, a wall designed
     at 3x 2b/T: plain rendering oscillates; with PO/PC it settles, felt about as stiff as the bound
     (the PC removes exactly the energy the sampled wall would add, no more)."""
-    device = str(device_with_encoders("kraft", 2**20, tmp_path))
+    device = str(write_variant("kraft", ENC20, tmp_path))
     bound = passivity_bound(device)
     k_t = 3.0 * bound / design_stiffness(1.0, device=device)
     gains = {"k_t": [k_t] * 3 + [1.0] * 3}
@@ -122,7 +125,7 @@ def test_a_wall_the_hand_pushed_through_is_not_stable(tmp_path: Path) -> None:
     so short a step buys so little force per joule that once the touch has drawn the reserve the
     energy bound holds the force down, and the hand pushes the slave to its 40 N limit. The force
     is steady there, but that is the slave's limit, not a wall."""
-    device = str(device_with_encoders("freflex", 2**20, tmp_path))
+    device = str(write_variant("freflex", ENC20, tmp_path))
     bound = passivity_bound(device)
     k_t = 3.0 * bound / design_stiffness(1.0, device=device)
     settings = PassivitySettings(enabled=True, step=2.0 * math.pi / 2**20, step_counts=1)
@@ -131,3 +134,29 @@ def test_a_wall_the_hand_pushed_through_is_not_stable(tmp_path: Path) -> None:
     assert r.pushed_through
     assert r.felt_stiffness < 0.05 * bound
     assert not r.stable
+
+
+def test_the_device_only_bound_is_the_joints_damping_alone() -> None:
+    """With the hand let go ``b`` is the joints' damping at the grip only: 0.40 / 0.17 / 1.88 N s/m,
+    a bound of ~803 / 343 / 3,755 N/m on kraft / jpl / freflex, against ~20-24 kN/m with the
+    default hand's 10 N s/m."""
+    for device, expected in (("kraft", 803.0), ("jpl", 343.0), ("freflex", 3755.0)):
+        assert device_bound(device) == pytest.approx(expected, rel=0.01)
+        assert device_bound(device) == pytest.approx(passivity_bound(device, hand=HandParams(damping_trans=0.0)))
+
+
+def test_a_released_press_is_judged_after_the_hand_lets_go(tmp_path: Path) -> None:
+    """Pose mode, the hand holds the first push and lets go: on the Kraft at a quarter of the
+    with-hand bound the rendering pushes the grip back off the surface and everything comes to
+    rest; without the joints' Coulomb friction the same wall keeps bouncing the released tool
+    (ripple of several newtons against the ~5 N the hand held)."""
+    k_t = 0.25 * passivity_bound("kraft") / design_stiffness(1.0)
+    gains = {"k_t": [k_t] * 3 + [1.0] * 3}
+    held = press(1e5, "pose", gains=gains, released=True)
+    assert held.stable
+    assert math.isnan(held.felt_stiffness)
+    assert held.summary["settling"]["ripple_N"] < 0.05
+    no_friction = str(write_variant("kraft", DeviceVariant("nofric", friction=False), tmp_path))
+    bouncing = press(1e5, "pose", device=no_friction, gains=gains, released=True)
+    assert bouncing.ripple > 1.0
+    assert not bouncing.stable

@@ -39,7 +39,8 @@ def test_bisections_on_ray_give_the_serial_edges(tmp_path: Path, local_ray: None
 
 
 def test_bad_arguments_are_refused_in_one_line(tmp_path: Path) -> None:
-    for args in (["--renderers", "plain,magic"], ["--dampings", "4,-1"], ["--iterations", "0"]):
+    bad = (["--renderers", "plain,magic"], ["--dampings", "4,-1"], ["--iterations", "0"], ["--hand", "400"])
+    for args in (*bad, ["--hand", "400,-1"], ["--hand", "let-go"]):
         done = subprocess.run(
             [sys.executable, "-m", "app.cli", "zwidth", *args, "--out", str(tmp_path)],
             capture_output=True,

@@ -73,6 +73,10 @@ class DemoApp:
         self.controls = Controls(server, self, available_scenes(), available_devices(), scene.spec.name, device.name)
         self.player: ReplayPlayer | None = None
         self._showing_selection = False
+        #: A line above the status: loading a session, or why one stopped ("" for none).
+        self._notice = ""
+        self._loading = False  # the notice is a loading one, cleared when the play shows up
+        self._replay_shown = float("nan")  # the replay cursor the plots show
         self.experiment: ExperimentJob | None = None
         self.gate: TokenGate | None = None
         self.url = ""
@@ -124,9 +128,15 @@ class DemoApp:
         self.move_hand_target(self._home_T_0_G)
 
     def select(self, scene_name: str, device_name: str) -> None:
-        """Rebuild the loop for another scene and/or device (gains follow the device)."""
+        """Rebuild the loop for another scene and/or device (gains follow the device); a session
+        playing is stopped, and the page says so."""
         if self._showing_selection or (scene_name == self._scene.spec.name and device_name == self._device.name):
             return
+        playing = self.rt.snapshot.playing
+        if playing is not None:
+            what = "scene" if scene_name != self._scene.spec.name else "device"
+            self._notice = f"**stopped `{playing.stem}`**: the {what} was changed"
+            self.server.add_notification("Session stopped", f"{playing.stem}: the {what} was changed", color="yellow")
         try:
             scene = self._scene if scene_name == self._scene.spec.name else load_scene(scene_name)
             device = self._device if device_name == self._device.name else load_device(device_name)
@@ -151,6 +161,7 @@ class DemoApp:
             self.rt.set_hand_target(self._home_T_0_G)
             self.controls.show_gains(config.gains)
             self.controls.release_switches()
+            self.controls.clear_plots()
             self.rt.start()
         self._showing_selection = True  # the dropdowns' callbacks must not rebuild again
         try:
@@ -165,8 +176,12 @@ class DemoApp:
         try:
             session = load_session(name)
         except ConfigError as exc:
-            self.panel.play_status.content = f"**cannot load:** {exc}"
+            self.panel.show_play_status(f"**cannot load:** {exc}")
             return
+        # Shown at once: building a loop for another scene or device takes seconds.
+        self._notice = f"**loading `{name}`**: building the loop and starting its script..."
+        self.panel.show_play_status(self._notice)
+        self._loading = True
         self.close_replay()
         wanted = LoopConfig.from_session(session)
         have = self.rt.config
@@ -184,6 +199,7 @@ class DemoApp:
         self.rt.play(session)
         self.rt.set_speed(float(self.panel.speed.value))
         self.controls.show_gains(session.gains)
+        self.controls.clear_plots()
 
     def pause(self, on: bool) -> None:
         self.rt.pause(on)
@@ -207,6 +223,7 @@ class DemoApp:
             self.view.remove()
             self.view = SceneView(self.server, player.replay.loop, lambda _: None)
             self.player = player
+            self._replay_shown = float("nan")
         self.panel.show_replay(player.duration, f"replaying `{player.replay.directory}` ({len(player.replay)} ticks)")
 
     def close_replay(self) -> None:
@@ -277,20 +294,29 @@ class DemoApp:
         """Redraw the view and the panel once, from the replay or the live loop."""
         player = self.player
         stats = self.rt.stats(last=round(1.0 / self.rt.loop.dt))
+        servo_rate = 1.0 / self.rt.loop.dt
         if player is None:
             snap = self.rt.snapshot
+            if self._loading and snap.playing is not None:
+                self._loading, self._notice = False, ""
             self.view.update(snap)
-            self.controls.update(snap, stats, self.rt.scheduling)
-            left = f", {snap.play_left:.1f} s left" if snap.playing else ""
-            self.panel.play_status.content = (
-                f"playing `{snap.playing.stem}`{left}" if snap.playing else "no session playing"
-            ) + (" (paused)" if snap.paused else "")
+            self.controls.update(snap, stats, self.rt.scheduling, servo_rate, self._notice)
+            if snap.playing is not None:
+                left = f", {snap.play_left:.1f} s left at {snap.speed:g}x"
+                text = f"playing `{snap.playing.stem}`{left}" + (" (paused)" if snap.paused else "")
+            else:
+                text = self._notice or "no session playing" + (" (paused)" if snap.paused else "")
+            self.panel.show_play_status(text)
+            self.panel.show_speed(snap.speed)
         else:
             player.advance(period)
             snap = player.snapshot()
             self.view.update(snap)
-            self.controls.update(snap, stats, "replay")
-            self.controls.plot(player.window(PLOT_SECONDS))
+            self.controls.update(snap, stats, "replay", servo_rate, "", live=False)
+            # As often as the live page plots, and only when the cursor moved: a still replay sends none.
+            if player.cursor != self._replay_shown and self.controls.plot_due():
+                self.controls.plot(player.window(PLOT_SECONDS))
+                self._replay_shown = player.cursor
             self.panel.timeline.value = player.cursor  # type: ignore[misc]  # viser 1.1: setter exists
             p = snap.T_w_MRF[0:3, 3]
             self.panel.replay_status.content = (

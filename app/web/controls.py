@@ -28,6 +28,7 @@ from app.controller.types import Fault
 from app.errors import ConfigError, InvalidField
 from app.session.pacer import TimingStats
 from app.teleop.channel import COUPLINGS
+from app.web.camera import PRESETS
 from app.web.scene_view import (
     CONTACT_COLOR,
     DEVICE_ORIGIN_V,
@@ -88,6 +89,8 @@ class DemoActions(Protocol):
     def set_passivity(self, on: bool) -> None: ...
 
     def set_channel(self, delay_ms: float, coupling: str) -> None: ...
+
+    def frame_camera(self, client: viser.ClientHandle, preset: str) -> object: ...
 
 
 def _assign(handle: viser.GuiInputHandle[T], value: T) -> None:
@@ -202,6 +205,11 @@ class Controls:
             self.reflection = gui.add_checkbox("Reflection [F]", False, hint="Task wrench, return-to-centre, damping")
             self.hand_to_grip = gui.add_button("Hand target to grip", hint="Move the gizmo to where the grip is")
 
+        with gui.add_folder("Camera"):
+            self.camera = gui.add_button_group(
+                "View", PRESETS, hint="Frame both spaces, the device, the world, the tool"
+            )
+
         with gui.add_folder("Status"):
             self.status = gui.add_markdown("starting...")
 
@@ -304,6 +312,11 @@ class Controls:
         def _(_: viser.GuiEvent) -> None:
             if not self._quiet():
                 a.set_reflection(self.reflection.value)
+
+        @self.camera.on_click
+        def _(event: viser.GuiEvent) -> None:
+            if event.client is not None:  # each browser frames its own camera
+                a.frame_camera(event.client, self.camera.value)
 
         self.reference.on_click(lambda _: a.press_reference())
         self.hand_to_grip.on_click(lambda _: a.hand_to_grip())

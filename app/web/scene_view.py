@@ -210,6 +210,8 @@ class SceneView:
         tool = loop.slave.scene.tool
         self._T_MRF_T = invert_pose(tool.T_T_MRF)
         tool_mesh = _tool_mesh(tool.centers_T, tool.radii)
+        #: Radius (m) of the tool's sphere shell about {MRF}: what the tool camera preset frames.
+        self.tool_radius = float(np.max(np.linalg.norm(tool_mesh.vertices - tool.T_T_MRF[0:3, 3], axis=1)))
         self.tool = self._add(scene.add_mesh_simple("/tool", tool_mesh.vertices, tool_mesh.faces, color=(200, 160, 60)))
         self.mrf = self._add(scene.add_frame("/mrf", axes_length=0.04, axes_radius=0.002))
         self._add(scene.add_label("/mrf/label", "{MRF}", position=(0.015, 0.0, 0.0)))

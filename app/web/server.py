@@ -15,6 +15,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 
@@ -25,23 +26,24 @@ from app.controller.gains import ControllerGains
 from app.controller.passivity import PassivitySettings
 from app.device.spec import DeviceSpec, available_devices, load_device
 from app.errors import ConfigError, InvalidField
-from app.session.loop import LoopConfig
+from app.session.loop import LoopConfig, ServoLoop
 from app.session.spec import Session, load_session
 from app.spatial import Array
 from app.teleop.channel import ChannelSettings
 from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token
+from app.web.camera import FOV, CameraPose, fit_camera
 from app.web.controls import PLOT_SECONDS, Controls
 from app.web.realtime import RealtimeLoop
 from app.web.replay import LogReplay, ReplayPlayer
-from app.web.scene_view import SceneView
+from app.web.scene_view import WORLD_ORIGIN_V, SceneView
 from app.web.session_panel import ExperimentJob, SessionPanel
+from app.web.snapshot import Snapshot
 from app.world.scene import ROOT_DIR, Scene, available_scenes, load_scene
 
 #: Scene and panel redraws per second.
 UI_RATE = 30.0
-#: Initial camera position and target in the viser frame (m).
-INITIAL_CAMERA_POSITION = (-0.1, -1.1, 0.55)
-INITIAL_CAMERA_LOOK_AT = (-0.1, 0.0, 0.08)
+#: The canvas size the opening camera is fitted for before a browser reports its own (px).
+DEFAULT_CANVAS = (1400, 900)
 #: Where the record button writes ``web-<timestamp>/log``.
 RUNS_DIR = ROOT_DIR / "runs"
 
@@ -62,10 +64,10 @@ class DemoApp:
         self._scene, self._device = scene, device
         self.rt = RealtimeLoop(self._loop_config(device, scene, self._start_gains(device)))
         server.scene.set_up_direction("+z")
-        # In front of both spaces, slightly above: the device on the left, the world on the right.
-        server.initial_camera.position = INITIAL_CAMERA_POSITION
-        server.initial_camera.look_at = INITIAL_CAMERA_LOOK_AT
         self.view = SceneView(server, self.rt.loop, self.rt.set_hand_target)
+        self._fitted: set[int] = set()  # clients whose camera was fitted to their canvas
+        self._frame_initial_camera()
+        server.on_client_connect(self._on_connect)
         self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
         self.rt.set_hand_target(self._home_T_0_G)
         self._recording = False
@@ -155,8 +157,7 @@ class DemoApp:
             self._scene, self._device = config.scene, config.device
             self.rt = RealtimeLoop(config)
             if self.player is None:
-                self.view.remove()
-                self.view = SceneView(self.server, self.rt.loop, self.rt.set_hand_target)
+                self._show_view(self.rt.loop, self.rt.set_hand_target)
             self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
             self.rt.set_hand_target(self._home_T_0_G)
             self.controls.show_gains(config.gains)
@@ -168,6 +169,65 @@ class DemoApp:
             self.controls.show_selection(config.scene.spec.name, config.device.name)
         finally:
             self._showing_selection = False
+
+    # -- camera -------------------------------------------------------------------------------
+
+    def preset_box(self, preset: str) -> Array:
+        """The box ``[min, max]`` (2, 3, viser frame, m) camera preset ``preset`` frames."""
+        view = self.view
+        if preset == "device":
+            return view.device_box_v
+        if preset == "world":
+            return view.world_box_v
+        if preset == "tool":
+            centre = self.shown_snapshot().T_w_MRF[0:3, 3] + WORLD_ORIGIN_V
+            half = np.full(3, 1.5 * view.tool_radius)
+            return np.stack((centre - half, centre + half))
+        boxes = np.stack((view.device_box_v, view.world_box_v))
+        return np.stack((boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)))
+
+    def frame_camera(self, client: viser.ClientHandle, preset: str = "both") -> CameraPose:
+        """Point ``client``'s camera at ``preset`` fitted to its canvas beside the panel."""
+        camera = client.camera
+        width, height = (camera.image_width, camera.image_height) if camera.image_height else DEFAULT_CANVAS
+        camera.fov = FOV
+        pose = fit_camera(self.preset_box(preset), width, height)
+        camera.position = pose.position
+        camera.look_at = pose.look_at
+        return pose
+
+    def _frame_initial_camera(self) -> None:
+        """The opening (and Reset View) camera: both spaces, fitted to :data:`DEFAULT_CANVAS`."""
+        pose = fit_camera(self.preset_box("both"), *DEFAULT_CANVAS)
+        initial = self.server.initial_camera
+        initial.fov = FOV
+        initial.position = pose.position
+        initial.look_at = pose.look_at
+
+    def _on_connect(self, client: viser.ClientHandle) -> None:
+        """Fit a new browser's camera once it has reported its canvas size."""
+
+        @client.camera.on_update
+        def _(camera: viser.CameraHandle) -> None:
+            if client.client_id not in self._fitted and camera.image_height:
+                self._fitted.add(client.client_id)
+                self.frame_camera(client)
+
+    def _show_view(self, loop: ServoLoop, on_hand_moved: Callable[[Array], None]) -> None:
+        """Replace the 3D view by one of ``loop``; every browser's camera is refitted when what
+        it frames changed (another scene or device: each has its own framing)."""
+        before = self.preset_box("both")
+        self.view.remove()
+        self.view = SceneView(self.server, loop, on_hand_moved)
+        if not np.allclose(before, self.preset_box("both")):
+            self._frame_initial_camera()
+            for client in self.server.get_clients().values():
+                self.frame_camera(client)
+
+    def shown_snapshot(self) -> Snapshot:
+        """The state the view shows: the replay's cursor, else the live loop's latest."""
+        player = self.player
+        return player.snapshot() if player is not None else self.rt.snapshot
 
     # -- SessionActions -------------------------------------------------------------------------
 
@@ -220,8 +280,7 @@ class DemoApp:
         """Show ``replay`` instead of the live loop (which keeps running)."""
         player = ReplayPlayer(replay)
         with self._lock:
-            self.view.remove()
-            self.view = SceneView(self.server, player.replay.loop, lambda _: None)
+            self._show_view(player.replay.loop, lambda _: None)
             self.player = player
             self._replay_shown = float("nan")
         self.panel.show_replay(player.duration, f"replaying `{player.replay.directory}` ({len(player.replay)} ticks)")
@@ -232,8 +291,7 @@ class DemoApp:
             if self.player is None:
                 return
             self.player = None
-            self.view.remove()
-            self.view = SceneView(self.server, self.rt.loop, self.rt.set_hand_target)
+            self._show_view(self.rt.loop, self.rt.set_hand_target)
         self.panel.show_replay(None, "")
 
     def seek(self, t: float) -> None:

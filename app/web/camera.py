@@ -24,9 +24,12 @@ from app.spatial import Array
 VIEW_DIRECTION = np.array([0.0, 1.0, -0.45]) / math.hypot(1.0, 0.45)
 #: Vertical field of view set on every browser (rad).
 FOV = math.radians(45.0)
-#: Pixels of the canvas the panel covers on the right: viser 1.1's "large" control width (400 px)
-#: and its margins, measured in chromium at 1400x900 (the browser test measures it again).
-PANEL_PX = 440
+#: Share of the canvas width kept clear for the panel on the right. viser 1.1's "large" panel is
+#: 399 CSS px with its margin (measured in chromium at 1400x900: 0.285; the browser test measures
+#: it again). The server learns a browser's canvas only in device pixels (CSS px times an adaptive
+#: pixel ratio), so the panel is kept as a share: 0.32 covers it on canvases from 1250 CSS px wide
+#: (narrower ones lose a few px of the margin), wider ones leave the panel a wider strip.
+PANEL_SHARE = 0.32
 #: Share of the free width and of the height left empty on each side of the framed box.
 MARGIN = 0.06
 #: The presets offered in the panel.
@@ -70,15 +73,15 @@ def project(points: Array, pose: CameraPose, fov: float, width: float, height: f
     return np.stack(((x_ndc + 1) * width / 2, (1 - y_ndc) * height / 2), axis=1)
 
 
-def fit_camera(box: Array, width: float, height: float, fov: float = FOV, panel_px: float = PANEL_PX) -> CameraPose:
+def fit_camera(box: Array, aspect: float, fov: float = FOV, panel_share: float = PANEL_SHARE) -> CameraPose:
     """The camera along :data:`VIEW_DIRECTION` that shows ``box`` ([min, max], (2, 3), viser frame)
-    as large as it fits in the canvas left of the panel (``width`` - ``panel_px`` by ``height`` px).
-    """
+    as large as it fits in the canvas (width / height ``aspect``) left of the panel (which covers
+    ``panel_share`` of the width on the right)."""
     right, up, forward = _basis()
     centre = box.mean(axis=0)
     q = box_corners(box) - centre
-    free = max(width - panel_px, 0.2 * width) / width  # share of the canvas left of the panel
-    aspect, t = width / height, math.tan(fov / 2)
+    free = 1.0 - panel_share  # share of the canvas left of the panel
+    t = math.tan(fov / 2)
     x_mid = free - 1.0  # NDC x of the free part's middle
     half_x, half_y = free * (1 - MARGIN), 1 - MARGIN
 

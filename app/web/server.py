@@ -42,8 +42,8 @@ from app.world.scene import ROOT_DIR, Scene, available_scenes, load_scene
 
 #: Scene and panel redraws per second.
 UI_RATE = 30.0
-#: The canvas size the opening camera is fitted for before a browser reports its own (px).
-DEFAULT_CANVAS = (1400, 900)
+#: The canvas width / height the opening camera is fitted for before a browser reports its own.
+DEFAULT_ASPECT = 1400 / 900
 #: Where the record button writes ``web-<timestamp>/log``.
 RUNS_DIR = ROOT_DIR / "runs"
 
@@ -189,16 +189,16 @@ class DemoApp:
     def frame_camera(self, client: viser.ClientHandle, preset: str = "both") -> CameraPose:
         """Point ``client``'s camera at ``preset`` fitted to its canvas beside the panel."""
         camera = client.camera
-        width, height = (camera.image_width, camera.image_height) if camera.image_height else DEFAULT_CANVAS
+        aspect = camera.aspect if camera.image_height else DEFAULT_ASPECT
         camera.fov = FOV
-        pose = fit_camera(self.preset_box(preset), width, height)
+        pose = fit_camera(self.preset_box(preset), aspect)
         camera.position = pose.position
         camera.look_at = pose.look_at
         return pose
 
     def _frame_initial_camera(self) -> None:
-        """The opening (and Reset View) camera: both spaces, fitted to :data:`DEFAULT_CANVAS`."""
-        pose = fit_camera(self.preset_box("both"), *DEFAULT_CANVAS)
+        """The opening (and Reset View) camera: both spaces, fitted to :data:`DEFAULT_ASPECT`."""
+        pose = fit_camera(self.preset_box("both"), DEFAULT_ASPECT)
         initial = self.server.initial_camera
         initial.fov = FOV
         initial.position = pose.position

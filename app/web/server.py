@@ -233,15 +233,16 @@ class DemoApp:
 
     def play_session(self, name: str) -> None:
         """Play session ``name`` (in ``sessions/``, or a path) live, rebuilding the loop if it needs another."""
-        try:
-            session = load_session(name)
-        except ConfigError as exc:
-            self.panel.show_play_status(f"**cannot load:** {exc}")
-            return
-        # Shown at once: building a loop for another scene or device takes seconds.
+        # Shown at once: loading the session's scene and device and building its loop take seconds.
         self._notice = f"**loading `{name}`**: building the loop and starting its script..."
         self.panel.show_play_status(self._notice)
         self._loading = True
+        try:
+            session = load_session(name)
+        except ConfigError as exc:
+            self._notice, self._loading = f"**cannot load:** {exc}", False
+            self.panel.show_play_status(self._notice)
+            return
         self.close_replay()
         wanted = LoopConfig.from_session(session)
         have = self.rt.config

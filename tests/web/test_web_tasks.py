@@ -73,7 +73,7 @@ def test_try_the_peg_task_plays_it_to_the_inserted_state(demo: DemoApp, page: ob
     there for the slow page), the pegs go in, and the speed set during the play is 1 again after it."""
     _click(page, "Try the peg task")
     clicked = time.monotonic()
-    while "loading `peg_ntrfc`" not in _body(page):
+    while "loading peg_ntrfc" not in _body(page):
         assert demo.rt.snapshot.playing is None, "the session played before the page said it was loading"
         assert time.monotonic() < clicked + STEP_TIMEOUT, "no loading notice"
         time.sleep(0.02)

@@ -139,6 +139,21 @@ def _series(label: str, stroke: str, dash: tuple[float, ...] | None = None) -> v
     return viser.uplot.Series(label=label, stroke=stroke, width=2.0, dash=dash)
 
 
+def _add_plot(gui: viser.GuiApi, title: str, *series: viser.uplot.Series) -> viser.GuiUplotHandle:
+    """A time plot (x: simulated s) of ``series``, empty until :meth:`Controls.plot` fills it.
+
+    The legend is not live: a live one reads "--" until the pointer hovers over the plot.
+    """
+    return gui.add_uplot(
+        data=(np.zeros(0),) * (len(series) + 1),
+        series=(viser.uplot.Series(label="t (s)"), *series),
+        title=title,
+        aspect=PLOT_ASPECT,
+        scales={"x": viser.uplot.Scale(time=False)},
+        legend=viser.uplot.Legend(live=False),
+    )
+
+
 def status_block(snap: Snapshot, timing: TimingStats, scheduling: str, servo_rate: float, notice: str) -> str:
     """The status as a fixed-width block: the same lines in the same places every frame, so the
     panel below it never moves. Rates: the servo rate is simulated (1/dt, what the controller
@@ -217,51 +232,23 @@ class Controls:
             gui.add_markdown(legend_markdown())
 
         with gui.add_folder("Plots"):
-            no_data = (np.zeros(0),)
             xyz = ("red", "green", "blue")
-            time_axis = {"x": viser.uplot.Scale(time=False)}
-            legend = viser.uplot.Legend(live=False)
-            self.wrench_plot = gui.add_uplot(
-                data=no_data * 4,
-                series=(
-                    viser.uplot.Series(label="t (s)"),
-                    *(_series(f"F_MRF {a}", c) for a, c in zip("xyz", xyz, strict=True)),
-                ),
-                title="Task wrench F_MRF at {MRF} (N)",
-                aspect=PLOT_ASPECT,
-                scales=time_axis,
-                legend=legend,
+            self.wrench_plot = _add_plot(
+                gui,
+                "Task wrench F_MRF at {MRF} (N)",
+                *(_series(f"F_MRF {a}", c) for a, c in zip("xyz", xyz, strict=True)),
             )
-            self.grip_plot = gui.add_uplot(
-                data=no_data * 3,
-                series=(
-                    viser.uplot.Series(label="t (s)"),
-                    _series("|K_T F_MRF| rendered", "orange"),
-                    _series("hand |f|", "rgb(40,170,80)", dash=(6.0, 4.0)),
-                ),
-                title="Forces at the grip (N)",
-                aspect=PLOT_ASPECT,
-                scales=time_axis,
-                legend=legend,
+            self.grip_plot = _add_plot(
+                gui,
+                "Forces at the grip (N)",
+                _series("|K_T F_MRF| rendered", "orange"),
+                _series("hand |f|", "rgb(40,170,80)", dash=(6.0, 4.0)),
             )
-            self.delta_plot = gui.add_uplot(
-                data=no_data * 4,
-                series=(
-                    viser.uplot.Series(label="t (s)"),
-                    *(_series(f"ΔX {a}", c) for a, c in zip("xyz", xyz, strict=True)),
-                ),
-                title="Delta X, Eq 4 (mm)",
-                aspect=PLOT_ASPECT,
-                scales=time_axis,
-                legend=legend,
+            self.delta_plot = _add_plot(
+                gui, "Delta X, Eq 4 (mm)", *(_series(f"ΔX {a}", c) for a, c in zip("xyz", xyz, strict=True))
             )
-            self.energy_plot = gui.add_uplot(
-                data=no_data * 2,
-                series=(viser.uplot.Series(label="t (s)"), _series("PO energy into the device port", "purple")),
-                title="Passivity observer energy (J)",
-                aspect=PLOT_ASPECT,
-                scales=time_axis,
-                legend=legend,
+            self.energy_plot = _add_plot(
+                gui, "Passivity observer energy (J)", _series("PO energy into the device port", "purple")
             )
 
         with gui.add_folder("Mode and gains", expand_by_default=False):

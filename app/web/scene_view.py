@@ -213,9 +213,11 @@ class SceneView:
         #: Radius (m) of the tool's sphere shell about {MRF}: what the tool camera preset frames.
         self.tool_radius = float(np.max(np.linalg.norm(tool_mesh.vertices - tool.T_T_MRF[0:3, 3], axis=1)))
         self.tool = self._add(scene.add_mesh_simple("/tool", tool_mesh.vertices, tool_mesh.faces, color=(200, 160, 60)))
-        self.mrf = self._add(scene.add_frame("/mrf", axes_length=0.04, axes_radius=0.002))
+        # The tool's frames at the world's scale (a 4 cm axis hid the 13 cm peg block).
+        axes = 1.5 * ARROW_UNIT_FRACTION * space_size(world_box(loop.slave.scene))
+        self.mrf = self._add(scene.add_frame("/mrf", axes_length=axes, axes_radius=0.04 * axes))
         self._add(scene.add_label("/mrf/label", "{MRF}", position=(0.015, 0.0, 0.0)))
-        self.sensor = self._add(scene.add_frame("/sensor", axes_length=0.03, axes_radius=0.002))
+        self.sensor = self._add(scene.add_frame("/sensor", axes_length=0.75 * axes, axes_radius=0.04 * axes))
         self._add(scene.add_label("/sensor/label", "{S}", position=(0.015, 0.0, 0.0)))
         self.device_box_v = device_box(loop) + DEVICE_ORIGIN_V
         self.world_box_v = world_box(loop.slave.scene) + WORLD_ORIGIN_V

@@ -164,7 +164,9 @@ class SceneView:
 
         self._add(scene.add_frame("/device", axes_length=0.08, axes_radius=0.003, position=DEVICE_ORIGIN_V))
         self._add(scene.add_label("/device/label", "device base {0}", position=(0.0, 0.0, -0.03)))
-        self._add(scene.add_frame("/world", axes_length=0.08, axes_radius=0.003, position=WORLD_ORIGIN_V))
+        # The world's frames at its own scale (8 cm axes hid a 13 cm peg block).
+        axes = 1.5 * ARROW_UNIT_FRACTION * space_size(world_box(loop.slave.scene))
+        self._add(scene.add_frame("/world", axes_length=axes, axes_radius=0.04 * axes, position=WORLD_ORIGIN_V))
         self._add(scene.add_label("/world/label", "slave world {w}", position=(0.0, 0.0, -0.05)))
 
         model = loop.plant.model
@@ -213,8 +215,6 @@ class SceneView:
         #: Radius (m) of the tool's sphere shell about {MRF}: what the tool camera preset frames.
         self.tool_radius = float(np.max(np.linalg.norm(tool_mesh.vertices - tool.T_T_MRF[0:3, 3], axis=1)))
         self.tool = self._add(scene.add_mesh_simple("/tool", tool_mesh.vertices, tool_mesh.faces, color=(200, 160, 60)))
-        # The tool's frames at the world's scale (a 4 cm axis hid the 13 cm peg block).
-        axes = 1.5 * ARROW_UNIT_FRACTION * space_size(world_box(loop.slave.scene))
         self.mrf = self._add(scene.add_frame("/mrf", axes_length=axes, axes_radius=0.04 * axes))
         self._add(scene.add_label("/mrf/label", "{MRF}", position=(0.015, 0.0, 0.0)))
         self.sensor = self._add(scene.add_frame("/sensor", axes_length=0.75 * axes, axes_radius=0.04 * axes))

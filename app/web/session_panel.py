@@ -89,6 +89,7 @@ class SessionPanel:
             self.play = gui.add_button("Play", hint="Reset and run the session's scripted operator")
             self.pause = gui.add_checkbox("Pause", False)
             self.speed = gui.add_dropdown("Speed", SPEEDS, initial_value="1")
+            self._speed_seen = 1.0
             self.play_status = gui.add_markdown("")
         self.play.on_click(lambda _: a.play_session(self.session.value))
         self.pause.on_update(lambda _: a.pause(self.pause.value))
@@ -127,10 +128,14 @@ class SessionPanel:
         self.try_status.content = text
 
     def show_speed(self, speed: float) -> None:
-        """Show the playing session's speed (back to 1 when it ends) in the selector."""
+        """Show the loop's speed (back to 1 when its session ends) in the selector: on a change
+        of the loop's speed only, so a choice not yet applied by the loop is not undone."""
+        if speed == self._speed_seen:
+            return
+        self._speed_seen = speed
         shown = f"{speed:g}"
         if shown in SPEEDS and self.speed.value != shown:
-            # Its callback re-sends the speed: harmless (the loop ignores it without a session).
+            # Its callback re-sends the loop's own speed: no change.
             self.speed.value = shown  # type: ignore[misc]  # viser 1.1: setter exists
 
     def show_replay(self, duration: float | None, text: str) -> None:

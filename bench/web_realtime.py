@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.session.run import run_session
 from app.session.spec import load_session
-from app.web.headless import CHROMIUM, free_port, open_page
+from app.web.headless import CHROMIUM, free_port, open_page, press_probe
 from app.web.server import start_demo
 
 #: Seconds to let the tool reach the surface before measuring.
@@ -50,11 +50,7 @@ def main(seconds: float, browser: bool, play: bool, replay: bool) -> int:
             if play:
                 app.play_session("peg_ntrfc")
             else:
-                app.controls.deadman.value = True
-                app.controls.reflection.value = True
-                T_0_H = app.rt.snapshot.T_0_G.copy()
-                T_0_H[2, 3] -= 0.03
-                app.move_hand_target(T_0_H)
+                press_probe(app)
             time.sleep(SETTLE_SECONDS)
             ticks_before = app.rt.stats().counted
             time.sleep(seconds)

@@ -12,6 +12,9 @@ deadman is a toggle rather than a hold): ``D`` deadman, ``R`` reference, ``F`` r
 from __future__ import annotations
 
 import collections
+import contextlib
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Protocol, TypeVar
 
@@ -25,7 +28,15 @@ from app.controller.types import Fault
 from app.errors import ConfigError, InvalidField
 from app.session.pacer import TimingStats
 from app.teleop.channel import COUPLINGS
-from app.web.scene_view import DEVICE_ORIGIN_V, FORCE_SCALE, MOMENT_SCALE, WORLD_ORIGIN_V, WRENCH_ARROWS
+from app.web.camera import PRESETS
+from app.web.scene_view import (
+    CONTACT_COLOR,
+    DEVICE_ORIGIN_V,
+    FORCE_REF,
+    MOMENT_REF,
+    WORLD_ORIGIN_V,
+    WRENCH_ARROWS,
+)
 from app.web.snapshot import Snapshot
 from app.world.arm import ArmStatus
 
@@ -43,9 +54,13 @@ SIX_GAINS = (
 PLOT_SECONDS = 10.0
 #: UI frames between plot refreshes (plots are the heaviest messages).
 PLOT_EVERY = 3
+#: Width / height of each plot (the panel is ~380 px wide: ~240 px high plots).
+PLOT_ASPECT = 1.6
 
-#: One plot sample: t (s), F_MRF xyz (N), |K_T F_MRF| (N), Delta X xyz (mm).
+#: One plot sample: t (s), F_MRF xyz (N), |K_T F_MRF| (N), hand |f| (N), Delta X xyz (mm), PO energy (J).
 PlotRow = tuple[float, ...]
+#: Rows of a plot sample array (see :data:`PlotRow`).
+PLOT_ROWS = 10
 T = TypeVar("T")
 
 
@@ -74,6 +89,8 @@ class DemoActions(Protocol):
     def set_passivity(self, on: bool) -> None: ...
 
     def set_channel(self, delay_ms: float, coupling: str) -> None: ...
+
+    def frame_camera(self, client: viser.ClientHandle, preset: str) -> object: ...
 
 
 def _assign(handle: viser.GuiInputHandle[T], value: T) -> None:
@@ -104,14 +121,74 @@ def parse_six(name: str, text: str) -> tuple[float, ...]:
 
 
 def legend_markdown() -> str:
-    """The legend: where {0} and {w} are, and the arrow colours and scales."""
-    rows = "\n".join(f"- <span style='color:rgb{a.color}'>■</span> {a.label} (darker: moment)" for a in WRENCH_ARROWS)
+    """The legend: arrow colours and their log scale, contacts, and where {0} and {w} are."""
+    rows = "\n".join(f"- <span style='color:rgb{a.color}'>■</span> {a.label}" for a in WRENCH_ARROWS)
     return (
+        f"{rows}\n- <span style='color:rgb{CONTACT_COLOR}'>●</span> contact points, arrows: surface normals\n\n"
+        f"Arrow length grows as log2(1 + |f| / {FORCE_REF:g} N) (moments: {MOMENT_REF:g} N m; darker shade), "
+        "in units of each space's size: 1 N draws one unit, 3 N two, 7 N three. The number at a tip is "
+        "the force in N.\n\n"
         f"Device base {{0}} on the left at x = {DEVICE_ORIGIN_V[0]:+.2f} m, slave world {{w}} on the right "
-        f"at x = {WORLD_ORIGIN_V[0]:+.2f} m (same axes, z up). Drag the gizmo: it is the operator's hand.\n\n"
-        f"Arrows: {FORCE_SCALE * 100:g} cm/N for forces, {MOMENT_SCALE * 100:g} cm/(N m) for moments.\n\n"
-        f"{rows}\n- <span style='color:rgb(255,0,200)'>●</span> contact points"
+        f"at x = {WORLD_ORIGIN_V[0]:+.2f} m (same axes, z up). Drag the gizmo: it is the operator's hand."
     )
+
+
+def _series(label: str, stroke: str, dash: tuple[float, ...] | None = None) -> viser.uplot.Series:
+    if dash is None:
+        return viser.uplot.Series(label=label, stroke=stroke, width=2.0)
+    return viser.uplot.Series(label=label, stroke=stroke, width=2.0, dash=dash)
+
+
+def _add_plot(gui: viser.GuiApi, title: str, *series: viser.uplot.Series) -> viser.GuiUplotHandle:
+    """A time plot (x: simulated s) of ``series``, empty until :meth:`Controls.plot` fills it.
+
+    The legend is not live: a live one reads "--" until the pointer hovers over the plot.
+    """
+    return gui.add_uplot(
+        data=(np.zeros(0),) * (len(series) + 1),
+        series=(viser.uplot.Series(label="t (s)"), *series),
+        title=title,
+        aspect=PLOT_ASPECT,
+        scales={"x": viser.uplot.Scale(time=False)},
+        legend=viser.uplot.Legend(live=False),
+    )
+
+
+def status_block(snap: Snapshot, timing: TimingStats, scheduling: str, servo_rate: float, notice: str) -> str:
+    """The status as a fixed-width block: the same lines in the same places every frame, so the
+    panel below it never moves. Rates: the servo rate is simulated (1/dt, what the controller
+    runs at), the tick rate is wall-clock (ticks per second of real time, ``speed`` times it)."""
+    f_task = float(np.linalg.norm(snap.F_MRF[0:3]))
+    f_grip = float(np.linalg.norm(snap.G_F_T[0:3]))
+    f_hand = float(np.linalg.norm(snap.hand_wrench_0[0:3]))
+    dx = ", ".join(f"{1000 * v:+6.1f}" for v in snap.delta_x[0:3])
+    lines = (
+        f"t {snap.time:9.2f} s sim   mode {snap.mode:<4}",
+        f"deadman {'ON ' if snap.deadman else 'off'}   reflection {'ON ' if snap.reflection else 'off'}",
+        f"servo {servo_rate:6.0f} Hz simulated",
+        f"ticks {timing.rate_hz:6.0f} /s wall (x{snap.speed:g})",
+        f"tick {timing.tick_p50_us:5.0f} us p99 {timing.tick_p99_us:5.0f} us",
+        f"jitter p99 {timing.jitter_p99_us:5.0f} us slips {timing.slips:4d}",
+        f"sched {scheduling}",
+        f"|F_MRF| = {f_task:.2f} N",
+        f"|K_T F| = {f_grip:.2f} N   hand |f| = {f_hand:.2f} N",
+        f"dX [{dx}] mm",
+        f"contacts {len(snap.contact_points_w):4d}  sat {snap.saturation_scale:5.3f}  ramp {snap.ramp:4.2f}",
+        f"PO {snap.po_energy:+8.3f} J  PC cut {snap.pc_cut:4.0%}  wdog {snap.watchdog_trips}",
+    )
+    text = "```\n" + "\n".join(lines) + "\n```"
+    faults = Fault(snap.faults)
+    limits = ArmStatus(snap.slave_status)
+    extra = []
+    if notice:
+        extra.append(notice)
+    if snap.device_link:
+        extra.append(f"device link **{snap.device_link}**")
+    if limits != ArmStatus.NONE:
+        extra.append(f"**slave limited: {limits.name}**")
+    if faults != Fault.NONE:
+        extra.append(f"**fault {faults!r}:** {snap.fault_message}")
+    return "\n\n".join((*extra, text)) if extra else text
 
 
 class Controls:
@@ -145,39 +222,35 @@ class Controls:
             self.reflection = gui.add_checkbox("Reflection [F]", False, hint="Task wrench, return-to-centre, damping")
             self.hand_to_grip = gui.add_button("Hand target to grip", hint="Move the gizmo to where the grip is")
 
+        with gui.add_folder("Camera"):
+            self.camera = gui.add_button_group(
+                "View", PRESETS, hint="Frame both spaces, the device, the world, the tool"
+            )
+
         with gui.add_folder("Status"):
             self.status = gui.add_markdown("starting...")
-            self.wrench_readout = gui.add_markdown("")
+
+        with gui.add_folder("Legend", expand_by_default=True):
+            gui.add_markdown(legend_markdown())
 
         with gui.add_folder("Plots"):
-            empty = np.zeros(0)
-            stroke = ("red", "green", "blue")
-            self.wrench_plot = gui.add_uplot(
-                data=(empty, empty, empty, empty, empty),
-                series=(
-                    viser.uplot.Series(label="t (s)"),
-                    *(
-                        viser.uplot.Series(label=f"F_MRF {a} (N)", stroke=c, width=1.5)
-                        for a, c in zip("xyz", stroke, strict=True)
-                    ),
-                    viser.uplot.Series(label="|K_T F_MRF| at G (N)", stroke="orange", width=1.5),
-                ),
-                title="Task wrench",
-                aspect=2.0,
-                scales={"x": viser.uplot.Scale(time=False)},
+            xyz = ("red", "green", "blue")
+            self.wrench_plot = _add_plot(
+                gui,
+                "Task wrench F_MRF at {MRF} (N)",
+                *(_series(f"F_MRF {a}", c) for a, c in zip("xyz", xyz, strict=True)),
             )
-            self.delta_plot = gui.add_uplot(
-                data=(empty, empty, empty, empty),
-                series=(
-                    viser.uplot.Series(label="t (s)"),
-                    *(
-                        viser.uplot.Series(label=f"ΔX {a} (mm)", stroke=c, width=1.5)
-                        for a, c in zip("xyz", stroke, strict=True)
-                    ),
-                ),
-                title="Delta X (Eq 4)",
-                aspect=2.0,
-                scales={"x": viser.uplot.Scale(time=False)},
+            self.grip_plot = _add_plot(
+                gui,
+                "Forces at the grip (N)",
+                _series("|K_T F_MRF| rendered", "orange"),
+                _series("hand |f|", "rgb(40,170,80)", dash=(6.0, 4.0)),
+            )
+            self.delta_plot = _add_plot(
+                gui, "Delta X, Eq 4 (mm)", *(_series(f"ΔX {a}", c) for a, c in zip("xyz", xyz, strict=True))
+            )
+            self.energy_plot = _add_plot(
+                gui, "Passivity observer energy (J)", _series("PO energy into the device port", "purple")
             )
 
         with gui.add_folder("Mode and gains", expand_by_default=False):
@@ -210,23 +283,29 @@ class Controls:
             self.record = gui.add_button("Record", hint="Write the per-tick Parquet log to runs/web-<time>/log")
             self.record_status = gui.add_markdown("")
 
-        with gui.add_folder("Legend", expand_by_default=False):
-            gui.add_markdown(legend_markdown())
-
         self._connect()
         self._history: collections.deque[PlotRow] = collections.deque()
         self._frames = 0
+        self._switches_seen: tuple[bool, bool] | None = None
+        self._quiet_thread: int | None = None
 
     def _connect(self) -> None:
         a = self.actions
 
         @self.deadman.on_update
         def _(_: viser.GuiEvent) -> None:
-            a.set_deadman(self.deadman.value)
+            if not self._quiet():
+                a.set_deadman(self.deadman.value)
 
         @self.reflection.on_update
         def _(_: viser.GuiEvent) -> None:
-            a.set_reflection(self.reflection.value)
+            if not self._quiet():
+                a.set_reflection(self.reflection.value)
+
+        @self.camera.on_click
+        def _(event: viser.GuiEvent) -> None:
+            if event.client is not None:  # each browser frames its own camera
+                a.frame_camera(event.client, self.camera.value)
 
         self.reference.on_click(lambda _: a.press_reference())
         self.hand_to_grip.on_click(lambda _: a.hand_to_grip())
@@ -254,6 +333,37 @@ class Controls:
         reflection_key = self.server.gui.add_command("Toggle reflection", hotkey="F")
         reflection_key.on_trigger(lambda _: _assign(self.reflection, not self.reflection.value))
 
+    def _quiet(self) -> bool:
+        """Whether this thread is showing state in the inputs (their callbacks must not act on it)."""
+        return self._quiet_thread == threading.get_ident()
+
+    @contextlib.contextmanager
+    def _showing(self) -> Iterator[None]:
+        """Set inputs to show state without their callbacks sending it back (viser runs an input's
+        callbacks synchronously on assignment, in the assigning thread)."""
+        self._quiet_thread = threading.get_ident()
+        try:
+            yield
+        finally:
+            self._quiet_thread = None
+
+    def follow_switches(self, deadman: bool, reflection: bool) -> None:
+        """Tick the switch checkboxes as the shown state has them, whoever set them (a script, a
+        replayed log, another browser): on every change of that state, not on every frame, so a
+        click is never undone by a snapshot from before it."""
+        seen = (deadman, reflection)
+        if seen == self._switches_seen:
+            return
+        self._switches_seen = seen
+        with self._showing():
+            _assign(self.deadman, deadman)
+            _assign(self.reflection, reflection)
+
+    def clear_plots(self) -> None:
+        """Forget the plotted history (a new loop, a new play: its time starts again)."""
+        self._history.clear()
+        self._switches_seen = None
+
     def _reset(self) -> None:
         self.actions.reset()
         self.release_switches()
@@ -278,7 +388,10 @@ class Controls:
             self.record_status.content = f"recording to `{directory}`"
 
     def _apply_gains(self, event: viser.GuiEvent) -> None:
-        """Build gains from every input; refuse (and say why) anything the gains reject."""
+        """Build gains from every input; refuse (and say why) anything the gains reject, and put
+        the gains still in force back into the inputs."""
+        if self._quiet():
+            return
         current = self.actions.gains
         try:
             changes: dict[str, object] = {name: parse_six(name, h.value) for name, h in self.six.items()}
@@ -293,55 +406,64 @@ class Controls:
             field = getattr(exc, "field", "")
             reason = getattr(exc, "reason", str(exc))
             message = f"Refused {field}: {reason}"
-            self.gain_message.content = f"**{message}** (kept the previous gains)"
+            self.gain_message.content = f"**{message}** (kept the previous gains; the fields show them)"
             if event.client is not None:
                 event.client.add_notification("Gain refused", message, color="red", auto_close_seconds=6.0)
+            self.show_gains(current)
             return
         self.actions.set_gains(gains)
         self.gain_message.content = "gains applied"
 
     def show_gains(self, gains: ControllerGains) -> None:
-        """Put ``gains`` into the inputs (after a device change) without re-applying them."""
-        for name, handle in self.six.items():
-            _assign(handle, format_six(getattr(gains, name)))
+        """Put ``gains`` into the inputs (the gains in force) without re-applying them."""
+        with self._showing():
+            for name, handle in self.six.items():
+                _assign(handle, format_six(getattr(gains, name)))
+            _assign(self.mode, gains.mode)
+            _assign(self.rtc, gains.rtc)
+            _assign(self.remove_payload, gains.remove_payload)
+            _assign(self.gravity_compensation, gains.gravity_compensation)
 
-    def update(self, snap: Snapshot, timing: TimingStats, scheduling: str) -> None:
-        """Redraw status and plots from ``snap`` (call from the UI thread)."""
-        faults = Fault(snap.faults)
-        fault_text = "none" if faults == Fault.NONE else f"{faults!r}: {snap.fault_message}"
-        limits = ArmStatus(snap.slave_status)
-        slave_text = "follows" if limits == ArmStatus.NONE else f"**limited: {limits.name}**"
-        self.status.content = (
-            f"t = {snap.time:.2f} s · mode **{snap.mode}** · deadman {'ON' if snap.deadman else 'off'} · "
-            f"reflection {'ON' if snap.reflection else 'off'}\n\n"
-            f"servo rate **{timing.rate_hz:.1f} Hz** · tick {timing.tick_p50_us:.0f} us "
-            f"(p99 {timing.tick_p99_us:.0f}) · jitter p99 {timing.jitter_p99_us:.0f} us · slips {timing.slips} · {scheduling}\n\n"
-            f"saturation scale {snap.saturation_scale:.3f} · force ramp {snap.ramp:.2f} · "
-            f"contacts {len(snap.contact_points_w)} · "
-            + (f"device link **{snap.device_link}** · " if snap.device_link else "")
-            + f"amplifier watchdog trips {snap.watchdog_trips} · "
-            f"PO energy {snap.po_energy:+.3f} J · PC cut {snap.pc_cut:.0%} · "
-            f"slave {slave_text} · faults: {fault_text}"
-        )
-        f_mrf = float(np.linalg.norm(snap.F_MRF[0:3]))
-        f_g = float(np.linalg.norm(snap.G_F_T[0:3]))
-        self.wrench_readout.content = (
-            f"Task force |F_MRF| = {f_mrf:.2f} N · reflected |K_T F| = {f_g:.2f} N · "
-            f"hand |f| = {float(np.linalg.norm(snap.hand_wrench_0[0:3])):.2f} N\n\n"
-            f"ΔX = [{', '.join(f'{1000 * v:+.1f}' for v in snap.delta_x[0:3])}] mm"
-        )
-
+    def update(
+        self, snap: Snapshot, timing: TimingStats, scheduling: str, servo_rate: float, notice: str, live: bool = True
+    ) -> None:
+        """Redraw status and (``live``: a replay plots its own window) plots from ``snap`` (call from
+        the UI thread); ``servo_rate`` (Hz) is the simulated rate, ``notice`` a line shown above the
+        status (loading, a stopped session)."""
+        self.status.content = status_block(snap, timing, scheduling, servo_rate, notice)
+        self.follow_switches(snap.deadman, snap.reflection)
+        self._frames += 1
+        if not live:
+            return
         history = self._history
         if history and snap.time < history[-1][0]:
             history.clear()  # reset or a new loop
-        history.append((snap.time, *snap.F_MRF[0:3], f_g, *(1000 * snap.delta_x[0:3])))
+        history.append(plot_row(snap))
         while history and history[0][0] < snap.time - PLOT_SECONDS:
             history.popleft()
-        self._frames += 1
-        if self._frames % PLOT_EVERY == 0 and len(history) > 1:
+        if self.plot_due() and len(history) > 1:
             self.plot(np.array(history).T)
 
+    def plot_due(self) -> bool:
+        """Whether this frame refreshes the plots (every :data:`PLOT_EVERY` frames)."""
+        return self._frames % PLOT_EVERY == 0
+
     def plot(self, cols: np.ndarray) -> None:
-        """Show plot samples ``cols`` (8, k): rows as in :data:`PlotRow`."""
-        self.wrench_plot.data = (cols[0], cols[1], cols[2], cols[3], cols[4])
-        self.delta_plot.data = (cols[0], cols[5], cols[6], cols[7])
+        """Show plot samples ``cols`` (:data:`PLOT_ROWS`, k): rows as in :data:`PlotRow`."""
+        c = cols.astype(np.float32)  # half the bytes on the wire; 7 significant digits are plenty
+        self.wrench_plot.data = (c[0], c[1], c[2], c[3])
+        self.grip_plot.data = (c[0], c[4], c[5])
+        self.delta_plot.data = (c[0], c[6], c[7], c[8])
+        self.energy_plot.data = (c[0], c[9])
+
+
+def plot_row(snap: Snapshot) -> PlotRow:
+    """The plot sample of ``snap`` (see :data:`PlotRow`)."""
+    return (
+        snap.time,
+        *snap.F_MRF[0:3],
+        float(np.linalg.norm(snap.G_F_T[0:3])),
+        float(np.linalg.norm(snap.hand_wrench_0[0:3])),
+        *(1000 * snap.delta_x[0:3]),
+        snap.po_energy,
+    )

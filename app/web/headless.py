@@ -9,7 +9,10 @@ import socket
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from app.web.server import DemoApp
 
 #: The system chromium.
 CHROMIUM = Path("/usr/bin/chromium")
@@ -47,3 +50,32 @@ def open_page(url: str, width: int = 1400, height: int = 900) -> Iterator[Any]:
             yield page
         finally:
             browser.close()
+
+
+@contextmanager
+def running_demo(scene: str = "probe", device: str = "kraft") -> Iterator[DemoApp]:
+    """The demo on a free port with its loop running (stopped, with its server, on exit).
+
+    Raises:
+        RuntimeError: the loop process did not publish within a minute.
+    """
+    from app.web.server import start_demo  # the server imports this module's helpers' users
+
+    app = start_demo(scene, device, port=free_port())
+    try:
+        if not app.rt.wait_running():
+            raise RuntimeError("the servo loop process did not start")
+        yield app
+    finally:
+        app.close()
+        app.server.stop()
+
+
+def press_probe(app: DemoApp, depth: float = 0.03) -> None:
+    """Deadman and reflection on and the hand ``depth`` (m) below the grip: in rate mode the probe
+    tool then moves down onto the surface and presses on it (contact, arrows, plots all moving)."""
+    app.controls.deadman.value = True  # type: ignore[misc]  # viser 1.1: the setter exists
+    app.controls.reflection.value = True  # type: ignore[misc]
+    T_0_H = app.rt.snapshot.T_0_G.copy()
+    T_0_H[2, 3] -= depth
+    app.move_hand_target(T_0_H)

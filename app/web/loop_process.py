@@ -141,17 +141,20 @@ class LoopHost:
             case SetChannel(settings):
                 loop.set_channel(settings)
             case SetSpeed(factor):
-                self.speed = factor
-                self.publisher.speed = factor
+                # Speed is a property of the playing session: without one the loop keeps real time.
+                if self.operator is None:
+                    return False
+                self._set_speed(factor)
                 return True
             case Stop():
                 self.running = False
         return False
 
-    def tick(self) -> None:
-        """One tick (none while paused), with the playing script acting first."""
+    def tick(self) -> bool:
+        """One tick (none while paused), with the playing script acting first; True if the script
+        ended on it (the speed is back to 1: the schedule restarts)."""
         if self.paused:
-            return
+            return False
         operator = self.operator
         if operator is not None:
             operator.before_tick(self.loop)
@@ -161,6 +164,8 @@ class LoopHost:
             self.publisher.play_left = self.ticks_left * self.loop.dt
             if self.ticks_left == 0:
                 self._end_play()
+                return True
+        return False
 
     def close(self) -> None:
         """Close a log being written."""
@@ -195,6 +200,11 @@ class LoopHost:
         self.operator = None
         self.publisher.playing = None
         self.publisher.play_left = 0.0
+        self._set_speed(1.0)
+
+    def _set_speed(self, factor: float) -> None:
+        self.speed = factor
+        self.publisher.speed = factor
 
 
 def loop_main(
@@ -225,7 +235,8 @@ def loop_main(
                     pacer.set_period(loop.dt / host.speed)
             except (EOFError, OSError):  # the parent is gone: nobody to serve
                 host.running = False
-            host.tick()
+            if host.tick():
+                pacer.set_period(loop.dt / host.speed)
             pacer.done()
     finally:
         host.close()

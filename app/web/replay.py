@@ -102,6 +102,11 @@ class LogReplay:
     def __len__(self) -> int:
         return len(self.t)
 
+    @property
+    def columns(self) -> list[str]:
+        """Names of the logged columns."""
+        return list(self._cols)
+
     def index_at(self, t: float) -> int:
         """The last row at or before time ``t`` (s) (the first row before the log starts)."""
         return int(np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 1))
@@ -125,6 +130,7 @@ class LogReplay:
         T_0_H = None if np.isnan(hand).any() else make_pose(T_0_G[0:3, 0:3], hand)
         T_w_MRF = _pose(c, "tool", i)
         deadman, reflection = bool(c["deadman"][i]), bool(c["reflection"][i])
+        contact = contact_wrench(self.loop.slave.scene, T_w_MRF)
         return Snapshot(
             time=float(c["t"][i]),
             ticks=i + 1,
@@ -135,7 +141,8 @@ class LogReplay:
             T_0_H=T_0_H,
             T_w_MRF=T_w_MRF,
             T_w_S=T_w_MRF @ self._T_MRF_S,
-            contact_points_w=contact_wrench(self.loop.slave.scene, T_w_MRF).points_w.copy(),
+            contact_points_w=contact.points_w.copy(),
+            contact_normals_w=contact.normals_w.copy(),
             F_MRF=_six(c, "F_MRF", WRENCH_AXES, i),
             G_F_T=_six(c, "G_F_T", WRENCH_AXES, i),
             G_F_RD=_six(c, "G_F_RD", WRENCH_AXES, i),
@@ -158,8 +165,9 @@ class LogReplay:
         )
 
 
-#: Most samples a replay plot window shows (the log is thinned to this).
-PLOT_SAMPLES = 600
+#: Most samples a replay plot window shows (the log is thinned to this): what a live plot window
+#: holds (10 s at 30 frames/s), so a replay sends no more plot data than the live page.
+PLOT_SAMPLES = 300
 
 
 class ReplayPlayer:
@@ -176,14 +184,22 @@ class ReplayPlayer:
         self.playing = False
         self.speed = 1.0
         c = replay.column
+
+        def norm(prefix: str) -> Array:
+            return np.linalg.norm(np.vstack([c(f"{prefix}_f{a}") for a in "xyz"]), axis=0)
+
+        energy = c("po_energy") if "po_energy" in replay.columns else np.zeros(len(replay))
+        # The rows of app.web.controls.PlotRow.
         self._plot_rows = np.vstack(
             (
                 replay.t,
                 c("F_MRF_fx"),
                 c("F_MRF_fy"),
                 c("F_MRF_fz"),
-                np.linalg.norm(np.vstack((c("G_F_T_fx"), c("G_F_T_fy"), c("G_F_T_fz"))), axis=0),
+                norm("G_F_T"),
+                norm("hand_G"),
                 *(1000.0 * c(f"delta_x_{a}") for a in DELTA_X_AXES[0:3]),
+                energy,
             )
         )
 
@@ -204,8 +220,9 @@ class ReplayPlayer:
         return self.replay.snapshot(self.replay.index_at(self.cursor))
 
     def window(self, seconds: float) -> Array:
-        """Plot samples (8, k) of the ``seconds`` before the cursor (thinned to :data:`PLOT_SAMPLES`)."""
+        """Plot samples (10, k) of the ``seconds`` before the cursor, thinned to at most
+        :data:`PLOT_SAMPLES` (the last one is the cursor's row)."""
         t = self.replay.t
-        lo, hi = np.searchsorted(t, self.cursor - seconds), self.replay.index_at(self.cursor) + 1
-        step = max(1, (hi - lo) // PLOT_SAMPLES)
-        return self._plot_rows[:, lo:hi:step]
+        lo, hi = int(np.searchsorted(t, self.cursor - seconds)), self.replay.index_at(self.cursor) + 1
+        step = -(-(hi - lo) // PLOT_SAMPLES)
+        return self._plot_rows[:, hi - 1 - ((hi - 1 - lo) // step) * step : hi : step]

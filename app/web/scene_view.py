@@ -3,16 +3,17 @@
 The device base {0} and the slave world {w} are separate spaces. In the viser scene frame {v}
 (z up) they are placed side by side without rotation: {0} at :data:`DEVICE_ORIGIN_V` (left) and
 {w} at :data:`WORLD_ORIGIN_V` (right), so ``p_v = p_0 + DEVICE_ORIGIN_V`` and
-``p_v = p_w + WORLD_ORIGIN_V``. Wrench arrows are drawn at their reference points with
-:data:`FORCE_SCALE` metres per newton and :data:`MOMENT_SCALE` metres per newton-metre (a moment
-arrow points along its axis, right-hand rule).
+``p_v = p_w + WORLD_ORIGIN_V``. Wrench arrows are drawn at their reference points, log-scaled
+(:func:`arrow_length`) so that 0.5 N and 40 N both read: each space has its own arrow unit (a
+fraction of its size), and each force arrow carries its magnitude as a label at its tip. A moment
+arrow points along its axis (right-hand rule).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TypeVar, cast
+from typing import Literal, TypeVar, cast
 
 import mujoco
 import numpy as np
@@ -22,17 +23,19 @@ import viser
 from app.session.loop import ServoLoop
 from app.spatial import Array, invert_pose, make_pose, matrix_to_quat, quat_to_matrix
 from app.web.snapshot import Snapshot
+from app.world.scene import Scene
 
 #: Where the device base {0} sits in the viser frame (m): on the left.
 DEVICE_ORIGIN_V = np.array([-0.5, 0.0, 0.0])
 #: Where the slave world {w} sits in the viser frame (m): on the right.
 WORLD_ORIGIN_V = np.array([0.3, 0.0, 0.0])
-#: Arrow length per newton of force (m/N).
-FORCE_SCALE = 0.025
-#: Arrow length per newton-metre of moment (m/(N m)).
-MOMENT_SCALE = 0.1
-#: Arrows shorter than this (m) are hidden rather than drawn as a degenerate cone.
-MIN_ARROW = 1e-3
+#: Force that draws one arrow unit (N); moments use :data:`MOMENT_REF` (N m).
+FORCE_REF = 1.0
+MOMENT_REF = 0.1
+#: One arrow unit as a fraction of the size (largest extent) of the space it is drawn in.
+ARROW_UNIT_FRACTION = 0.08
+#: Magnitudes below this share of the reference are hidden (no degenerate cone, no "0.0 N" label).
+MIN_SHOWN = 0.02
 
 T_V_0 = make_pose(np.eye(3), DEVICE_ORIGIN_V)
 T_V_W = make_pose(np.eye(3), WORLD_ORIGIN_V)
@@ -43,20 +46,56 @@ H = TypeVar("H", bound=viser.SceneNodeHandle)
 
 @dataclass(frozen=True)
 class WrenchArrow:
-    """One drawn wrench: which snapshot field, where it acts, its colour, and its legend text."""
+    """One drawn wrench: which snapshot field, the space it is drawn in, its colour, its legend text."""
 
     key: str
+    space: Literal["device", "world"]
     label: str
     color: tuple[int, int, int]
 
 
-#: The wrenches drawn, each as a force arrow and a (darker) moment arrow.
+#: The wrenches drawn, each as a force arrow (with its magnitude) and a (darker) moment arrow.
 WRENCH_ARROWS = (
-    WrenchArrow("task_MRF", "task wrench F_MRF at {MRF}", (230, 60, 40)),
-    WrenchArrow("reflected_G", "reflected task wrench K_T F_MRF at {G}", (240, 150, 20)),
-    WrenchArrow("assist_G", "assist wrench (return-to-centre + damping) at {G}", (60, 110, 230)),
-    WrenchArrow("hand_G", "operator's hand on the grip at {G}", (40, 170, 80)),
+    WrenchArrow("task_MRF", "world", "task wrench F_MRF at {MRF}", (230, 60, 40)),
+    WrenchArrow("reflected_G", "device", "reflected task wrench K_T F_MRF at {G}", (240, 150, 20)),
+    WrenchArrow("assist_G", "device", "assist wrench (return-to-centre + damping) at {G}", (60, 110, 230)),
+    WrenchArrow("hand_G", "device", "operator's hand on the grip at {G}", (40, 170, 80)),
 )
+#: Contact points and their normals (magenta).
+CONTACT_COLOR = (255, 0, 200)
+
+
+def device_box(loop: ServoLoop) -> Array:
+    """The device's links at the loop's current pose as a box ``[min, max]`` in {0} (m), (2, 3).
+
+    Geom centres padded by each geom's bounding radius (MuJoCo's ``geom_rbound``).
+    """
+    xpos, rbound = loop.reading.geom_xpos, loop.plant.model.geom_rbound[:, None]
+    return np.stack(((xpos - rbound).min(axis=0), (xpos + rbound).max(axis=0)))
+
+
+def world_box(scene: Scene) -> Array:
+    """What a view of the world frames, ``[min, max]`` in {w} (m), (2, 3): the scene file's
+    ``[view]`` box if it has one, else the objects and the tool at home."""
+    view = scene.spec.view
+    if view is not None:
+        centre, half = np.array(view.center), 0.5 * np.array(view.size)
+        return np.stack((centre - half, centre + half))
+    home = scene.tool.T_w_MRF_home[0:3, 3]
+    points = [home[None], *(obj.mesh.bounds for obj in scene.objects)]
+    stacked = np.vstack(points)
+    return np.stack((stacked.min(axis=0), stacked.max(axis=0)))
+
+
+def arrow_length(magnitude: float, reference: float, unit: float) -> float:
+    """Drawn length (m) of a wrench part of ``magnitude`` (N or N m): ``unit * log2(1 + m/ref)``,
+    so ``reference`` draws one unit, 3x it two units, 7x three: small and large forces both read."""
+    return unit * float(np.log2(1.0 + magnitude / reference))
+
+
+def space_size(points: Array) -> float:
+    """Largest extent (m) of the axis-aligned box around ``points`` (k, 3)."""
+    return float(np.max(np.ptp(points, axis=0)))
 
 
 def pose_to_wxyz_position(T: Array) -> tuple[Array, Array]:
@@ -125,7 +164,9 @@ class SceneView:
 
         self._add(scene.add_frame("/device", axes_length=0.08, axes_radius=0.003, position=DEVICE_ORIGIN_V))
         self._add(scene.add_label("/device/label", "device base {0}", position=(0.0, 0.0, -0.03)))
-        self._add(scene.add_frame("/world", axes_length=0.08, axes_radius=0.003, position=WORLD_ORIGIN_V))
+        # The world's frames at its own scale (8 cm axes hid a 13 cm peg block).
+        axes = 1.5 * ARROW_UNIT_FRACTION * space_size(world_box(loop.slave.scene))
+        self._add(scene.add_frame("/world", axes_length=axes, axes_radius=0.04 * axes, position=WORLD_ORIGIN_V))
         self._add(scene.add_label("/world/label", "slave world {w}", position=(0.0, 0.0, -0.05)))
 
         model = loop.plant.model
@@ -171,32 +212,65 @@ class SceneView:
         tool = loop.slave.scene.tool
         self._T_MRF_T = invert_pose(tool.T_T_MRF)
         tool_mesh = _tool_mesh(tool.centers_T, tool.radii)
+        #: Radius (m) of the tool's sphere shell about {MRF}: what the tool camera preset frames.
+        self.tool_radius = float(np.max(np.linalg.norm(tool_mesh.vertices - tool.T_T_MRF[0:3, 3], axis=1)))
         self.tool = self._add(scene.add_mesh_simple("/tool", tool_mesh.vertices, tool_mesh.faces, color=(200, 160, 60)))
-        self.mrf = self._add(scene.add_frame("/mrf", axes_length=0.04, axes_radius=0.002))
+        self.mrf = self._add(scene.add_frame("/mrf", axes_length=axes, axes_radius=0.04 * axes))
         self._add(scene.add_label("/mrf/label", "{MRF}", position=(0.015, 0.0, 0.0)))
-        self.sensor = self._add(scene.add_frame("/sensor", axes_length=0.03, axes_radius=0.002))
+        self.sensor = self._add(scene.add_frame("/sensor", axes_length=0.75 * axes, axes_radius=0.04 * axes))
         self._add(scene.add_label("/sensor/label", "{S}", position=(0.015, 0.0, 0.0)))
+        self.device_box_v = device_box(loop) + DEVICE_ORIGIN_V
+        self.world_box_v = world_box(loop.slave.scene) + WORLD_ORIGIN_V
+        # Arrow units: the device's and the world's own scale (a peg block is 10x smaller than a terrain).
+        self.units = {
+            "device": ARROW_UNIT_FRACTION * space_size(self.device_box_v),
+            "world": ARROW_UNIT_FRACTION * space_size(self.world_box_v),
+        }
+        world_unit = self.units["world"]
         self.contacts = self._add(
             scene.add_point_cloud(
-                "/contacts", np.zeros((1, 3)), colors=(255, 0, 200), point_size=0.006, point_shape="circle"
+                "/contacts",
+                np.zeros((1, 3)),
+                colors=CONTACT_COLOR,
+                point_size=0.15 * world_unit,
+                point_shape="circle",
+                visible=False,
+            )
+        )
+        self.normals = self._add(
+            scene.add_arrows(
+                "/contact_normals",
+                np.zeros((1, 2, 3)),
+                colors=CONTACT_COLOR,
+                shaft_radius=0.04 * world_unit,
+                head_radius=0.1 * world_unit,
+                head_length=0.2 * world_unit,
+                visible=False,
             )
         )
 
         self.arrows: dict[str, viser.ArrowsHandle] = {}
+        self.labels: dict[str, viser.LabelHandle] = {}
+        self._label_text: dict[str, str] = {}
         for arrow in WRENCH_ARROWS:
+            unit = self.units[arrow.space]
             for part, shade in (("force", 1.0), ("moment", 0.55)):
                 r, g, b = (int(c * shade) for c in arrow.color)
-                self.arrows[f"{arrow.key}/{part}"] = self._add(
+                key = f"{arrow.key}/{part}"
+                self.arrows[key] = self._add(
                     scene.add_arrows(
-                        f"/wrenches/{arrow.key}/{part}",
+                        f"/wrenches/{key}",
                         np.zeros((1, 2, 3)),
                         colors=(r, g, b),
-                        shaft_radius=0.002,
-                        head_radius=0.005,
-                        head_length=0.01,
+                        shaft_radius=0.06 * unit,
+                        head_radius=0.15 * unit,
+                        head_length=0.3 * unit,
                         visible=False,
                     )
                 )
+            self.labels[arrow.key] = self._add(
+                scene.add_label(f"/wrenches/{arrow.key}/label", "", visible=False, font_screen_scale=0.8)
+            )
 
     def _add(self, handle: H) -> H:
         self._handles.append(handle)
@@ -221,13 +295,18 @@ class SceneView:
         self._last[key] = (wxyz, position)
         handle.wxyz, handle.position = wxyz, position
 
-    def _arrow(self, key: str, origin_v: Array, vector_v: Array) -> None:
+    def _arrow(self, key: str, origin_v: Array, vector_v: Array, reference: float, unit: float) -> Array | None:
+        """Draw arrow ``key`` for ``vector_v`` (N or N m, viser axes) at ``origin_v``; its tip, or
+        None when it is too small to show."""
         handle = self.arrows[key]
-        if float(np.linalg.norm(vector_v)) < MIN_ARROW:
+        magnitude = float(np.linalg.norm(vector_v))
+        if magnitude < MIN_SHOWN * reference:
             handle.visible = False
-            return
-        handle.points = np.stack((origin_v, origin_v + vector_v))[None].astype(np.float32)
+            return None
+        tip = origin_v + vector_v * (arrow_length(magnitude, reference, unit) / magnitude)
+        handle.points = np.stack((origin_v, tip))[None].astype(np.float32)
         handle.visible = True
+        return tip
 
     def update(self, snap: Snapshot) -> None:
         """Move every node to the state in ``snap`` (call from the UI thread)."""
@@ -245,11 +324,13 @@ class SceneView:
         self._place("mrf", self.mrf, T_v_MRF)
         self._place("sensor", self.sensor, T_V_W @ snap.T_w_S)
 
-        if len(snap.contact_points_w):
-            self.contacts.points = snap.contact_points_w + WORLD_ORIGIN_V
-            self.contacts.visible = True
-        else:
-            self.contacts.visible = False
+        points = snap.contact_points_w
+        shown = len(points) > 0
+        if shown:
+            self.contacts.points = (points + WORLD_ORIGIN_V).astype(np.float32)
+            tips = points + 0.8 * self.units["world"] * snap.contact_normals_w
+            self.normals.points = (np.stack((points, tips), axis=1) + WORLD_ORIGIN_V).astype(np.float32)
+        self.contacts.visible = self.normals.visible = shown
 
         R_v_MRF, R_v_G = T_v_MRF[0:3, 0:3], T_v_G[0:3, 0:3]
         p_MRF, p_G = T_v_MRF[0:3, 3], T_v_G[0:3, 3]
@@ -259,6 +340,22 @@ class SceneView:
             "assist_G": (p_G, R_v_G @ snap.G_F_RD[0:3], R_v_G @ snap.G_F_RD[3:6]),
             "hand_G": (p_G, snap.hand_wrench_0[0:3], snap.hand_wrench_0[3:6]),
         }
-        for key, (origin, force, moment) in in_v.items():
-            self._arrow(f"{key}/force", origin, FORCE_SCALE * force)
-            self._arrow(f"{key}/moment", origin, MOMENT_SCALE * moment)
+        for arrow in WRENCH_ARROWS:
+            origin, force, moment = in_v[arrow.key]
+            unit = self.units[arrow.space]
+            tip = self._arrow(f"{arrow.key}/force", origin, force, FORCE_REF, unit)
+            self._arrow(f"{arrow.key}/moment", origin, moment, MOMENT_REF, unit)
+            self._label(arrow.key, tip, float(np.linalg.norm(force)))
+
+    def _label(self, key: str, tip: Array | None, magnitude: float) -> None:
+        """The magnitude at a force arrow's tip (sent only when the text or place changes)."""
+        label = self.labels[key]
+        if tip is None:
+            label.visible = False
+            return
+        text = f"{magnitude:.1f} N"
+        if text != self._label_text.get(key):
+            self._label_text[key] = text
+            label.text = text
+        self._place(f"label/{key}", label, make_pose(np.eye(3), tip))
+        label.visible = True

@@ -15,6 +15,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 
@@ -25,23 +26,24 @@ from app.controller.gains import ControllerGains
 from app.controller.passivity import PassivitySettings
 from app.device.spec import DeviceSpec, available_devices, load_device
 from app.errors import ConfigError, InvalidField
-from app.session.loop import LoopConfig
+from app.session.loop import LoopConfig, ServoLoop
 from app.session.spec import Session, load_session
 from app.spatial import Array
 from app.teleop.channel import ChannelSettings
 from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token
+from app.web.camera import FOV, CameraPose, fit_camera
 from app.web.controls import PLOT_SECONDS, Controls
 from app.web.realtime import RealtimeLoop
 from app.web.replay import LogReplay, ReplayPlayer
-from app.web.scene_view import SceneView
+from app.web.scene_view import WORLD_ORIGIN_V, SceneView
 from app.web.session_panel import ExperimentJob, SessionPanel
+from app.web.snapshot import Snapshot
 from app.world.scene import ROOT_DIR, Scene, available_scenes, load_scene
 
 #: Scene and panel redraws per second.
 UI_RATE = 30.0
-#: Initial camera position and target in the viser frame (m).
-INITIAL_CAMERA_POSITION = (-0.1, -1.1, 0.55)
-INITIAL_CAMERA_LOOK_AT = (-0.1, 0.0, 0.08)
+#: The canvas width / height the opening camera is fitted for before a browser reports its own.
+DEFAULT_ASPECT = 1400 / 900
 #: Where the record button writes ``web-<timestamp>/log``.
 RUNS_DIR = ROOT_DIR / "runs"
 
@@ -62,10 +64,10 @@ class DemoApp:
         self._scene, self._device = scene, device
         self.rt = RealtimeLoop(self._loop_config(device, scene, self._start_gains(device)))
         server.scene.set_up_direction("+z")
-        # In front of both spaces, slightly above: the device on the left, the world on the right.
-        server.initial_camera.position = INITIAL_CAMERA_POSITION
-        server.initial_camera.look_at = INITIAL_CAMERA_LOOK_AT
         self.view = SceneView(server, self.rt.loop, self.rt.set_hand_target)
+        self._fitted: set[int] = set()  # clients whose camera was fitted to their canvas
+        self._frame_initial_camera()
+        server.on_client_connect(self._on_connect)
         self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
         self.rt.set_hand_target(self._home_T_0_G)
         self._recording = False
@@ -73,6 +75,10 @@ class DemoApp:
         self.controls = Controls(server, self, available_scenes(), available_devices(), scene.spec.name, device.name)
         self.player: ReplayPlayer | None = None
         self._showing_selection = False
+        #: A line above the status: loading a session, or why one stopped ("" for none).
+        self._notice = ""
+        self._loading = False  # the notice is a loading one, cleared when the play shows up
+        self._replay_shown = float("nan")  # the replay cursor the plots show
         self.experiment: ExperimentJob | None = None
         self.gate: TokenGate | None = None
         self.url = ""
@@ -124,9 +130,15 @@ class DemoApp:
         self.move_hand_target(self._home_T_0_G)
 
     def select(self, scene_name: str, device_name: str) -> None:
-        """Rebuild the loop for another scene and/or device (gains follow the device)."""
+        """Rebuild the loop for another scene and/or device (gains follow the device); a session
+        playing is stopped, and the page says so."""
         if self._showing_selection or (scene_name == self._scene.spec.name and device_name == self._device.name):
             return
+        playing = self.rt.snapshot.playing
+        if playing is not None:
+            what = "scene" if scene_name != self._scene.spec.name else "device"
+            self._notice = f"**stopped `{playing.stem}`**: the {what} was changed"
+            self.server.add_notification("Session stopped", f"{playing.stem}: the {what} was changed", color="yellow")
         try:
             scene = self._scene if scene_name == self._scene.spec.name else load_scene(scene_name)
             device = self._device if device_name == self._device.name else load_device(device_name)
@@ -145,12 +157,12 @@ class DemoApp:
             self._scene, self._device = config.scene, config.device
             self.rt = RealtimeLoop(config)
             if self.player is None:
-                self.view.remove()
-                self.view = SceneView(self.server, self.rt.loop, self.rt.set_hand_target)
+                self._show_view(self.rt.loop, self.rt.set_hand_target)
             self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
             self.rt.set_hand_target(self._home_T_0_G)
             self.controls.show_gains(config.gains)
             self.controls.release_switches()
+            self.controls.clear_plots()
             self.rt.start()
         self._showing_selection = True  # the dropdowns' callbacks must not rebuild again
         try:
@@ -158,14 +170,78 @@ class DemoApp:
         finally:
             self._showing_selection = False
 
+    # -- camera -------------------------------------------------------------------------------
+
+    def preset_box(self, preset: str) -> Array:
+        """The box ``[min, max]`` (2, 3, viser frame, m) camera preset ``preset`` frames."""
+        view = self.view
+        if preset == "device":
+            return view.device_box_v
+        if preset == "world":
+            return view.world_box_v
+        if preset == "tool":
+            centre = self.shown_snapshot().T_w_MRF[0:3, 3] + WORLD_ORIGIN_V
+            half = np.full(3, 1.5 * view.tool_radius)
+            return np.stack((centre - half, centre + half))
+        boxes = np.stack((view.device_box_v, view.world_box_v))
+        return np.stack((boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)))
+
+    def frame_camera(self, client: viser.ClientHandle, preset: str = "both") -> CameraPose:
+        """Point ``client``'s camera at ``preset`` fitted to its canvas beside the panel."""
+        camera = client.camera
+        aspect = camera.aspect if camera.image_height else DEFAULT_ASPECT
+        camera.fov = FOV
+        pose = fit_camera(self.preset_box(preset), aspect)
+        camera.position = pose.position
+        camera.look_at = pose.look_at
+        return pose
+
+    def _frame_initial_camera(self) -> None:
+        """The opening (and Reset View) camera: both spaces, fitted to :data:`DEFAULT_ASPECT`."""
+        pose = fit_camera(self.preset_box("both"), DEFAULT_ASPECT)
+        initial = self.server.initial_camera
+        initial.fov = FOV
+        initial.position = pose.position
+        initial.look_at = pose.look_at
+
+    def _on_connect(self, client: viser.ClientHandle) -> None:
+        """Fit a new browser's camera once it has reported its canvas size."""
+
+        @client.camera.on_update
+        def _(camera: viser.CameraHandle) -> None:
+            if client.client_id not in self._fitted and camera.image_height:
+                self._fitted.add(client.client_id)
+                self.frame_camera(client)
+
+    def _show_view(self, loop: ServoLoop, on_hand_moved: Callable[[Array], None]) -> None:
+        """Replace the 3D view by one of ``loop``; every browser's camera is refitted when what
+        it frames changed (another scene or device: each has its own framing)."""
+        before = self.preset_box("both")
+        self.view.remove()
+        self.view = SceneView(self.server, loop, on_hand_moved)
+        if not np.allclose(before, self.preset_box("both")):
+            self._frame_initial_camera()
+            for client in self.server.get_clients().values():
+                self.frame_camera(client)
+
+    def shown_snapshot(self) -> Snapshot:
+        """The state the view shows: the replay's cursor, else the live loop's latest."""
+        player = self.player
+        return player.snapshot() if player is not None else self.rt.snapshot
+
     # -- SessionActions -------------------------------------------------------------------------
 
     def play_session(self, name: str) -> None:
         """Play session ``name`` (in ``sessions/``, or a path) live, rebuilding the loop if it needs another."""
+        # Shown at once: loading the session's scene and device and building its loop take seconds.
+        self._notice = f"**loading `{name}`**: building the loop and starting its script..."
+        self.panel.show_play_status(self._notice)
+        self._loading = True
         try:
             session = load_session(name)
         except ConfigError as exc:
-            self.panel.play_status.content = f"**cannot load:** {exc}"
+            self._notice, self._loading = f"**cannot load:** {exc}", False
+            self.panel.show_play_status(self._notice)
             return
         self.close_replay()
         wanted = LoopConfig.from_session(session)
@@ -184,6 +260,7 @@ class DemoApp:
         self.rt.play(session)
         self.rt.set_speed(float(self.panel.speed.value))
         self.controls.show_gains(session.gains)
+        self.controls.clear_plots()
 
     def pause(self, on: bool) -> None:
         self.rt.pause(on)
@@ -204,9 +281,9 @@ class DemoApp:
         """Show ``replay`` instead of the live loop (which keeps running)."""
         player = ReplayPlayer(replay)
         with self._lock:
-            self.view.remove()
-            self.view = SceneView(self.server, player.replay.loop, lambda _: None)
+            self._show_view(player.replay.loop, lambda _: None)
             self.player = player
+            self._replay_shown = float("nan")
         self.panel.show_replay(player.duration, f"replaying `{player.replay.directory}` ({len(player.replay)} ticks)")
 
     def close_replay(self) -> None:
@@ -215,8 +292,7 @@ class DemoApp:
             if self.player is None:
                 return
             self.player = None
-            self.view.remove()
-            self.view = SceneView(self.server, self.rt.loop, self.rt.set_hand_target)
+            self._show_view(self.rt.loop, self.rt.set_hand_target)
         self.panel.show_replay(None, "")
 
     def seek(self, t: float) -> None:
@@ -277,20 +353,29 @@ class DemoApp:
         """Redraw the view and the panel once, from the replay or the live loop."""
         player = self.player
         stats = self.rt.stats(last=round(1.0 / self.rt.loop.dt))
+        servo_rate = 1.0 / self.rt.loop.dt
         if player is None:
             snap = self.rt.snapshot
+            if self._loading and snap.playing is not None:
+                self._loading, self._notice = False, ""
             self.view.update(snap)
-            self.controls.update(snap, stats, self.rt.scheduling)
-            left = f", {snap.play_left:.1f} s left" if snap.playing else ""
-            self.panel.play_status.content = (
-                f"playing `{snap.playing.stem}`{left}" if snap.playing else "no session playing"
-            ) + (" (paused)" if snap.paused else "")
+            self.controls.update(snap, stats, self.rt.scheduling, servo_rate, self._notice)
+            if snap.playing is not None:
+                left = f", {snap.play_left:.1f} s left at {snap.speed:g}x"
+                text = f"playing `{snap.playing.stem}`{left}" + (" (paused)" if snap.paused else "")
+            else:
+                text = self._notice or "no session playing" + (" (paused)" if snap.paused else "")
+            self.panel.show_play_status(text)
+            self.panel.show_speed(snap.speed)
         else:
             player.advance(period)
             snap = player.snapshot()
             self.view.update(snap)
-            self.controls.update(snap, stats, "replay")
-            self.controls.plot(player.window(PLOT_SECONDS))
+            self.controls.update(snap, stats, "replay", servo_rate, "", live=False)
+            # As often as the live page plots, and only when the cursor moved: a still replay sends none.
+            if player.cursor != self._replay_shown and self.controls.plot_due():
+                self.controls.plot(player.window(PLOT_SECONDS))
+                self._replay_shown = player.cursor
             self.panel.timeline.value = player.cursor  # type: ignore[misc]  # viser 1.1: setter exists
             p = snap.T_w_MRF[0:3, 3]
             self.panel.replay_status.content = (

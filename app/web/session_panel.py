@@ -81,6 +81,7 @@ class SessionPanel:
             gui.add_markdown(GUIDE)
             self.try_peg = gui.add_button("Try the peg task", hint="Play sessions/peg_ntrfc.toml in real time")
             self.try_peg.on_click(lambda _: a.play_session("peg_ntrfc"))
+            self.try_status = gui.add_markdown("")
 
         with gui.add_folder("Play a session", expand_by_default=False):
             sessions = available_sessions()
@@ -88,6 +89,7 @@ class SessionPanel:
             self.play = gui.add_button("Play", hint="Reset and run the session's scripted operator")
             self.pause = gui.add_checkbox("Pause", False)
             self.speed = gui.add_dropdown("Speed", SPEEDS, initial_value="1")
+            self._speed_seen = 1.0
             self.play_status = gui.add_markdown("")
         self.play.on_click(lambda _: a.play_session(self.session.value))
         self.pause.on_update(lambda _: a.pause(self.pause.value))
@@ -119,6 +121,22 @@ class SessionPanel:
             self.server = server
             self.chart: viser.GuiImageHandle | None = None
         self.run_experiment.on_click(lambda _: a.start_experiment(int(self.operators.value)))
+
+    def show_play_status(self, text: str) -> None:
+        """What is playing (or loading), under both the guide's button and the player."""
+        self.play_status.content = text
+        self.try_status.content = text
+
+    def show_speed(self, speed: float) -> None:
+        """Show the loop's speed (back to 1 when its session ends) in the selector: on a change
+        of the loop's speed only, so a choice not yet applied by the loop is not undone."""
+        if speed == self._speed_seen:
+            return
+        self._speed_seen = speed
+        shown = f"{speed:g}"
+        if shown in SPEEDS and self.speed.value != shown:
+            # Its callback re-sends the loop's own speed: no change.
+            self.speed.value = shown  # type: ignore[misc]  # viser 1.1: setter exists
 
     def show_replay(self, duration: float | None, text: str) -> None:
         """Enable the timeline for a log of ``duration`` seconds (None: live again)."""

@@ -40,6 +40,7 @@ class Snapshot:
         T_w_MRF: Tool {MRF} pose in the slave world {w}, (4, 4).
         T_w_S: F/T sensor {S} pose in {w}, (4, 4).
         contact_points_w: Contact points on object surfaces in {w} (m), (k, 3).
+        contact_normals_w: Outward object normals at those points in {w} (unit), (k, 3).
         F_MRF: Task wrench ``[f; m]`` (N, N m) at {MRF} in {MRF} (Eq 6).
         G_F_T: Task wrench to be felt at the grip ``K_T F_MRF`` in {G}.
         G_F_RD: Assist wrench (return-to-centre + damping, Eq 10) in {G}.
@@ -79,6 +80,7 @@ class Snapshot:
     T_w_MRF: Array
     T_w_S: Array
     contact_points_w: Array
+    contact_normals_w: Array
     F_MRF: Array
     G_F_T: Array
     G_F_RD: Array
@@ -126,6 +128,7 @@ def take_snapshot(
         T_w_MRF=T_w_MRF,
         T_w_S=T_w_MRF @ T_MRF_S,
         contact_points_w=tick.contact.points_w.copy(),
+        contact_normals_w=tick.contact.normals_w.copy(),
         F_MRF=out.F_MRF.copy(),
         G_F_T=out.G_F_T.copy(),
         G_F_RD=out.G_F_RD.copy(),
@@ -168,7 +171,11 @@ class SharedSnapshot:
     def write(self, snap: Snapshot) -> None:
         data = pickle.dumps(snap, protocol=pickle.HIGHEST_PROTOCOL)
         if len(data) > SNAPSHOT_BYTES:
-            trimmed = replace(snap, contact_points_w=snap.contact_points_w[:MAX_SHOWN_CONTACTS])
+            trimmed = replace(
+                snap,
+                contact_points_w=snap.contact_points_w[:MAX_SHOWN_CONTACTS],
+                contact_normals_w=snap.contact_normals_w[:MAX_SHOWN_CONTACTS],
+            )
             data = pickle.dumps(trimmed, protocol=pickle.HIGHEST_PROTOCOL)
         self.seq.value += 1  # odd: a write is in progress
         memoryview(self.buffer).cast("B")[: len(data)] = data

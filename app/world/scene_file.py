@@ -325,6 +325,14 @@ def _within(T: Array, T_goal: Array, position_tolerance: float, angle_tolerance:
 
 
 @dataclass(frozen=True)
+class ViewSpec(Checked):
+    """What the browser demo's world view frames: an axis-aligned box in {w} (presentation only)."""
+
+    center: Annotated[Vec3, WORLD_POSITION]
+    size: Annotated[Vec3, OBJECT_SIZE]
+
+
+@dataclass(frozen=True)
 class SceneFile(Checked):
     """The schema of ``scenes/<name>.toml`` (see ``scenes/README.md``)."""
 
@@ -336,6 +344,7 @@ class SceneFile(Checked):
     slave: SlaveGains = field(default_factory=SlaveGains)
     task: TaskSpec | None = None
     margin: Annotated[float, Range(0.0, 1.0, "m")] = 0.0
+    view: ViewSpec | None = None
 
     def validate(self) -> None:
         names = [o.name for o in self.objects]

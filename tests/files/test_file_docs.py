@@ -28,6 +28,7 @@ from app.world.scene_file import (
     SphereSpec,
     TaskSpec,
     ToolSpec,
+    ViewSpec,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -43,6 +44,7 @@ SECTIONS = [
     ("scenes/README.md", "### `[[tool.boxes]]`", BoxSpec),
     ("scenes/README.md", "## `[slave]`", SlaveGains),
     ("scenes/README.md", "## `[task]`", TaskSpec),
+    ("scenes/README.md", "## `[view]`", ViewSpec),
     ("devices/README.md", "## Top level", DeviceFile),
     ("devices/README.md", "## `[motors]`", MotorSpec),
     ("devices/README.md", "## `[gains]`", ControllerGains),

@@ -25,8 +25,12 @@ def panel(**texts: str) -> SimpleNamespace:
     """What :meth:`Controls._apply_gains` reads of the panel, with some gain fields typed over."""
     gains = ControllerGains()
     six = {name: SimpleNamespace(value=texts.get(name, format_six(getattr(gains, name)))) for name, _, _ in SIX_GAINS}
+    shown: list[ControllerGains] = []
     return SimpleNamespace(
         actions=Actions(),
+        shown=shown,
+        show_gains=shown.append,
+        _quiet=lambda: False,
         six=six,
         mode=SimpleNamespace(value=gains.mode),
         rtc=SimpleNamespace(value=gains.rtc),
@@ -61,9 +65,11 @@ def test_a_bad_gain_is_refused_naming_it(name: str, text: str, reason: str) -> N
     assert reason in message
     assert "kept the previous gains" in message
     assert p.actions.applied == []
+    assert p.shown == [p.actions.gains]  # the fields are given the gains in force again
 
 
 def test_good_gains_are_applied() -> None:
     p = panel(k_t="0.5, 0.5, 0.5, 0.2, 0.2, 0.2")
     assert apply(p) == "gains applied"
+    assert p.shown == []
     assert p.actions.applied[0].k_t == (0.5, 0.5, 0.5, 0.2, 0.2, 0.2)

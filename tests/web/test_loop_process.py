@@ -21,6 +21,7 @@ from app.web.commands import (
     COMMANDS,
     LoopCommand,
     Pause,
+    Play,
     SetChannel,
     SetPassivity,
     SetSpeed,
@@ -90,8 +91,8 @@ def test_loop_host_applies_passivity_delay_pause_and_speed() -> None:
     assert loop.controller.passivity.enabled
     host.apply(SetChannel(ChannelSettings(delay_ms=20.0)))
     assert loop.link is not None
-    assert host.apply(SetSpeed(2.0))  # restarts the pacing
-    assert host.speed == 2.0
+    assert not host.apply(SetSpeed(2.0))  # no session playing: the loop keeps real time
+    assert host.speed == 1.0
     assert not host.apply(Pause(True))
     before = loop.ticks
     host.tick()
@@ -101,3 +102,17 @@ def test_loop_host_applies_passivity_delay_pause_and_speed() -> None:
     assert loop.ticks == before + 1
     with pytest.raises(InvalidField, match="speed"):
         SetSpeed(10.0)
+
+
+def test_speed_belongs_to_the_playing_session() -> None:
+    """A speed set during a play holds until the script ends, then the loop is back at real time."""
+    session = load_session("probe_rate").with_changes(duration=0.01)
+    loop = ServoLoop(LoopConfig.from_session(session))
+    host = LoopHost(loop, SharedSnapshot(), publish_every=20)
+    assert host.apply(Play(session.data, session.gains, session.path))
+    assert host.apply(SetSpeed(4.0))
+    assert (host.speed, host.publisher.speed) == (4.0, 4.0)
+    ended = [host.tick() for _ in range(session.data.n_ticks)]
+    assert ended == [False] * (session.data.n_ticks - 1) + [True]  # the last scripted tick ends it
+    assert host.operator is None
+    assert (host.speed, host.publisher.speed) == (1.0, 1.0)

@@ -15,7 +15,11 @@ import numpy as np
 import pytest
 from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT
 
+from app.web.camera import PANEL_SHARE, CameraPose, box_corners, fit_camera, project
+from app.web.controls import format_six
+from app.web.scene_view import WORLD_ORIGIN_V, world_box
 from app.web.server import DemoApp
+from app.world.scene import available_scenes, load_scene
 
 pytestmark = pytest.mark.browser
 
@@ -30,7 +34,7 @@ def _task_force_shown(page: object) -> float:
 
 def test_page_shows_controls_and_scene(demo: DemoApp, page: object) -> None:
     text = page.inner_text("body")  # type: ignore[attr-defined]
-    for label in ("Deadman [D]", "Reference [R]", "Reflection [F]", "Status", "Mode and gains", "servo rate"):
+    for label in ("Deadman [D]", "Reference [R]", "Reflection [F]", "Status", "Mode and gains", "Hz simulated"):
         assert label in text, label
     scene = demo.server.scene
     names = [
@@ -51,11 +55,27 @@ def test_page_shows_controls_and_scene(demo: DemoApp, page: object) -> None:
         assert scene.get_handle_by_name(name) is not None, name
 
 
+def _text_inputs(page: object) -> list[str]:
+    """The values of the page's text inputs (the gain fields among them)."""
+    return list(
+        page.evaluate("() => [...document.querySelectorAll('input')].filter(e => e.type === 'text').map(e => e.value)")
+    )  # type: ignore[attr-defined]
+
+
 def test_out_of_range_gain_is_refused_on_the_page(demo: DemoApp, page: object) -> None:
     before = demo.gains
-    demo.controls.six["k_v"].value = "-1, 1, 1, 1, 1, 1"
+    refused = "-1, 1, 1, 1, 1, 1"
+    demo.controls.six["k_v"].value = refused
     assert demo.gains == before
     page.get_by_text("Refused k_v").first.wait_for(state="attached", timeout=STEP_TIMEOUT * 1000)  # type: ignore[attr-defined]
+    # The field shows the gain in force again, in the page too, not the refused text.
+    in_force = format_six(before.k_v)
+    assert in_force != refused
+    assert demo.controls.six["k_v"].value == in_force
+    end = time.monotonic() + STEP_TIMEOUT
+    while refused in _text_inputs(page) or in_force not in _text_inputs(page):
+        assert time.monotonic() < end, f"the page's K_V field does not show {in_force}: {_text_inputs(page)}"
+        time.sleep(0.1)
     demo.controls.six["k_v"].value = "1, 1, 1, 1, 1, 1"
     assert demo.gains.k_v == (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
 
@@ -122,3 +142,67 @@ def test_a_second_browser_watches_the_same_demo(demo: DemoApp, page: object) -> 
         assert demo.rt.stats().counted - ticks > 900  # still ~1 kHz with two browsers watching
     finally:
         second.close()
+
+
+#: The left edge (px) of viser's panel: the left of the box holding its title.
+PANEL_LEFT_JS = """() => {
+  const title = [...document.querySelectorAll('*')].find(e => e.innerText === 'FRHC haptic demo (Williams 1997)');
+  let e = title;
+  while (e.parentElement && e.parentElement.getBoundingClientRect().width < window.innerWidth) e = e.parentElement;
+  return e.getBoundingClientRect().left;
+}"""
+
+
+def test_every_scene_is_framed_beside_the_panel(demo: DemoApp, page: object) -> None:
+    """The world's box, seen by the browser's own camera (the pose, field of view and canvas it
+    reports back), projects inside the canvas left of the panel: the opening view of the running
+    scene, then both spaces and the world preset for every shipped scene (each with its [view])."""
+    panel_left = float(page.evaluate(PANEL_LEFT_JS))  # type: ignore[attr-defined]
+    client = next(iter(demo.server.get_clients().values()))
+    reports: list[tuple[CameraPose, float, int, int]] = []
+
+    @client.camera.on_update
+    def _(camera: object) -> None:
+        c = client.camera
+        reports.append((CameraPose(c.position.copy(), c.look_at.copy()), c.fov, c.image_width, c.image_height))
+
+    def shown(pose: CameraPose | None) -> tuple[CameraPose, float, int, int]:
+        """The browser's next camera report (at ``pose``, if given)."""
+        n, end = len(reports), time.monotonic() + STEP_TIMEOUT
+        while True:
+            done = [r for r in reports[n:] if pose is None or np.allclose(r[0].position, pose.position, atol=1e-4)]
+            if done:
+                return done[-1]
+            if pose is None and client.client_id in demo._fitted and client.camera.image_height:
+                c = client.camera
+                return CameraPose(c.position.copy(), c.look_at.copy()), c.fov, c.image_width, c.image_height
+            assert time.monotonic() < end, "the browser did not report its camera"
+            time.sleep(0.05)
+
+    css_width, css_height = page.viewport_size["width"], page.viewport_size["height"]  # type: ignore[attr-defined]
+    assert 1.0 - panel_left / css_width <= PANEL_SHARE  # framing keeps clear at least what the panel covers
+
+    def check(box: object, report: tuple[CameraPose, float, int, int], least: float) -> None:
+        pose, fov, width, height = report
+        assert width / height == pytest.approx(css_width / css_height, rel=0.01)
+        # The browser reports its canvas in device pixels: the page's (CSS) pixels are compared.
+        px = project(box_corners(box), pose, fov, css_width, css_height)  # type: ignore[arg-type]
+        lo, hi = px.min(axis=0), px.max(axis=0)
+        assert lo[0] >= 0, px
+        assert hi[0] <= panel_left, px
+        assert lo[1] >= 0, px
+        assert hi[1] <= css_height, px
+        extent = np.ptp(px, axis=0)
+        assert max(extent[0] / panel_left, extent[1] / css_height) >= least, extent  # not a speck
+
+    check(demo.view.world_box_v, shown(None), 0.2)
+    device = demo.view.device_box_v
+    for name in available_scenes():
+        world = world_box(load_scene(name)) + WORLD_ORIGIN_V
+        both = np.stack((np.minimum(device[0], world[0]), np.maximum(device[1], world[1])))
+        for box, least in ((both, 0.0), (world, 0.7)):
+            pose = fit_camera(box, client.camera.aspect)
+            client.camera.position = pose.position
+            client.camera.look_at = pose.look_at
+            check(world, shown(pose), least)
+    demo.frame_camera(client, "both")

@@ -62,11 +62,22 @@ def test_the_guide_is_on_the_first_page(page: object) -> None:
     assert "drag the" in text.lower()
 
 
+def _checked(page: object, label: str) -> bool:
+    return bool(page.get_by_label(label, exact=True).first.is_checked())  # type: ignore[attr-defined]
+
+
 def test_try_the_peg_task_plays_it_to_the_inserted_state(demo: DemoApp, page: object, tmp_path: Path) -> None:
-    """The button rebuilds the loop for peg_in_hole and plays peg_ntrfc live: the status shows the
-    contact force when the pegs press on the block (the play is paused there for the slow page),
-    and the pegs go in."""
+    """The button says at once that it is loading (before the new loop runs), rebuilds the loop
+    for peg_in_hole and plays peg_ntrfc live: the switch checkboxes show the switches the script
+    holds, the status shows the contact force when the pegs press on the block (the play is paused
+    there for the slow page), the pegs go in, and the speed set during the play is 1 again after it."""
     _click(page, "Try the peg task")
+    clicked = time.monotonic()
+    while "loading peg_ntrfc" not in _body(page):
+        assert demo.rt.snapshot.playing is None, "the session played before the page said it was loading"
+        assert time.monotonic() < clicked + STEP_TIMEOUT, "no loading notice"
+        time.sleep(0.02)
+    print(f"loading notice on the page {time.monotonic() - clicked:.2f} s after the click")
     _wait_for(lambda: demo.rt.snapshot.playing is not None, "the session did not start playing")
     task = load_scene("peg_in_hole").spec.task
     assert task is not None
@@ -78,11 +89,20 @@ def test_try_the_peg_task_plays_it_to_the_inserted_state(demo: DemoApp, page: ob
         time.sleep(0.01)
     demo.panel.pause.value = True
     _wait_for(lambda: demo.rt.snapshot.paused, "the loop did not pause")
-    shown = float(np.linalg.norm(demo.rt.snapshot.F_MRF[0:3]))
+    snap = demo.rt.snapshot
+    assert snap.deadman  # the script holds both while it presses
+    assert snap.reflection
+    _wait_for(
+        lambda: (_checked(page, "Deadman [D]"), _checked(page, "Reflection [F]")) == (snap.deadman, snap.reflection),
+        "the switch checkboxes do not show the script's switches",
+    )
+    shown = float(np.linalg.norm(snap.F_MRF[0:3]))
     _wait_for(
         lambda: f"|F_MRF| = {shown:.2f} N" in _body(page), f"the page does not show the {shown:.2f} N contact force"
     )
     demo.panel.pause.value = False
+    demo.panel.speed.value = "2"  # the rest of the play at 2x (and a shorter test)
+    _wait_for(lambda: demo.rt.snapshot.speed == 2.0, "the speed did not reach the loop")
     inserted = False
     while demo.rt.snapshot.playing is not None:
         assert time.monotonic() < end, "the session did not finish"
@@ -94,6 +114,15 @@ def test_try_the_peg_task_plays_it_to_the_inserted_state(demo: DemoApp, page: ob
     p = snap.T_w_MRF[0:3, 3]
     assert inserted or (np.linalg.norm(p[0:2] - goal[0:2]) < task.position_tolerance and p[2] < goal[2]), p
     page.get_by_text("no session playing").first.wait_for(state="attached", timeout=STEP_TIMEOUT * 1000)  # type: ignore[attr-defined]
+    assert demo.rt.snapshot.speed == 1.0  # the speed ended with the session
+    _wait_for(lambda: demo.panel.speed.value == "1", "the speed selector is not back at 1")
+    _wait_for(
+        lambda: (
+            (_checked(page, "Deadman [D]"), _checked(page, "Reflection [F]"))
+            == (demo.rt.snapshot.deadman, demo.rt.snapshot.reflection)
+        ),
+        "the switch checkboxes do not show the loop's switches after the play",
+    )
     SCREENSHOT_DIR.mkdir(parents=True, exist_ok=True)
     page.screenshot(path=str(tmp_path / "peg.png"))  # type: ignore[attr-defined]
     shutil.copy(tmp_path / "peg.png", SCREENSHOT_DIR / "peg_played.png")

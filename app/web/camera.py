@@ -1,0 +1,104 @@
+"""Camera framing: fit a box of the viser scene into the part of the page the panel leaves free.
+
+viser's panel floats over the right of the canvas, and a camera centres its look-at point on the
+whole canvas. :func:`fit_camera` therefore places the box's centre in the middle of the *free*
+part (left of the panel) and backs off until every corner of the box projects inside it with a
+margin. The camera looks along :data:`VIEW_DIRECTION` (from the front, above), z up.
+
+Presets (:data:`PRESETS`): both spaces, the device, the world (the scene file's ``[view]`` box if
+it has one), the tool. The wheel dollies toward the look-at point, which for a preset lies on the
+framed thing's side of the screen (viser 1.1 offers no zoom toward the cursor).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.spatial import Array
+
+#: Viewing direction of every preset (viser frame, from the camera toward the scene): from the
+#: front (-y) and 24 degrees above the horizontal.
+VIEW_DIRECTION = np.array([0.0, 1.0, -0.45]) / math.hypot(1.0, 0.45)
+#: Vertical field of view set on every browser (rad).
+FOV = math.radians(45.0)
+#: Share of the canvas width kept clear for the panel on the right. viser 1.1's "large" panel is
+#: 399 CSS px with its margin (measured in chromium at 1400x900: 0.285; the browser test measures
+#: it again). The server learns a browser's canvas only in device pixels (CSS px times an adaptive
+#: pixel ratio), so the panel is kept as a share: 0.32 covers it on canvases from 1250 CSS px wide
+#: (narrower ones lose a few px of the margin), wider ones leave the panel a wider strip.
+PANEL_SHARE = 0.32
+#: Share of the free width and of the height left empty on each side of the framed box.
+MARGIN = 0.06
+#: The presets offered in the panel.
+PRESETS = ("both", "device", "world", "tool")
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """Where a camera is and what it looks at (viser frame, m)."""
+
+    position: Array
+    look_at: Array
+
+
+def _basis() -> tuple[Array, Array, Array]:
+    """Camera right, up and forward unit vectors for :data:`VIEW_DIRECTION` (z up)."""
+    forward = VIEW_DIRECTION
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    return right, np.cross(right, forward), forward
+
+
+def box_corners(box: Array) -> Array:
+    """The 8 corners (8, 3) of an axis-aligned box ``[min, max]`` (2, 3)."""
+    return np.array([[box[i, 0], box[j, 1], box[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+
+
+def project(points: Array, pose: CameraPose, fov: float, width: float, height: float) -> Array:
+    """Pixel coordinates (k, 2) of ``points`` (k, 3) in a ``width`` x ``height`` canvas (x right,
+    y down from the top-left) seen from ``pose`` with vertical field of view ``fov`` (rad), z up."""
+    forward = pose.look_at - pose.position
+    forward = forward / np.linalg.norm(forward)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    rel = points - pose.position
+    depth = rel @ forward
+    t = math.tan(fov / 2)
+    x_ndc = (rel @ right) / (depth * t * width / height)
+    y_ndc = (rel @ up) / (depth * t)
+    return np.stack(((x_ndc + 1) * width / 2, (1 - y_ndc) * height / 2), axis=1)
+
+
+def fit_camera(box: Array, aspect: float, fov: float = FOV, panel_share: float = PANEL_SHARE) -> CameraPose:
+    """The camera along :data:`VIEW_DIRECTION` that shows ``box`` ([min, max], (2, 3), viser frame)
+    as large as it fits in the canvas (width / height ``aspect``) left of the panel (which covers
+    ``panel_share`` of the width on the right)."""
+    right, up, forward = _basis()
+    centre = box.mean(axis=0)
+    q = box_corners(box) - centre
+    free = 1.0 - panel_share  # share of the canvas left of the panel
+    t = math.tan(fov / 2)
+    x_mid = free - 1.0  # NDC x of the free part's middle
+    half_x, half_y = free * (1 - MARGIN), 1 - MARGIN
+
+    def fits(distance: float) -> bool:
+        depth = distance + q @ forward
+        if np.any(depth <= 0):
+            return False
+        x = (x_mid * distance * t * aspect + q @ right) / (depth * t * aspect)
+        y = (q @ up) / (depth * t)
+        return bool(np.all(np.abs(x - x_mid) <= half_x) and np.all(np.abs(y) <= half_y))
+
+    near, far = 1e-3, 1.0
+    while not fits(far):
+        near, far = far, 2 * far
+    for _ in range(40):  # bisection to 1e-12 of the bracket: exact enough for pixels
+        mid = 0.5 * (near + far)
+        near, far = (near, mid) if fits(mid) else (mid, far)
+    # The look-at point sits right of the centre so that the centre lands mid free part.
+    look_at = centre - x_mid * far * t * aspect * right
+    return CameraPose(position=look_at - far * forward, look_at=look_at)

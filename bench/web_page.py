@@ -1,0 +1,136 @@
+"""The browser demo as a visitor meets it: first panel, page update rate, bytes per second live and
+in replay, and the README's screenshots.
+
+Starts the demo on a free port and opens it in headless chromium (1400x900), then:
+
+1. reloads the page and times it until the panel's first folder is visible;
+2. presses the probe tool onto the surface (deadman and reflection on, hand 3 cm down) and, for
+   ``seconds``, counts the status block's changes in the page (the page's update rate) and the
+   bytes the page's websocket receives;
+3. replays a recorded probe session playing at 1x and counts the same bytes (same run, side by side);
+4. with ``--screenshots``, writes the README's screenshots to ``assets/web/`` (palette PNGs).
+
+Run from the repository root:
+    .venv/bin/python bench/web_page.py [seconds] [--screenshots]
+Goals: first panel <= 3 s on a quiet machine, update rate >= 30 Hz (the UI's rate), replay bytes/s
+within 2x of the live page's.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from PIL import Image
+
+from app.session.run import run_session
+from app.session.spec import load_session
+from app.web.headless import open_page, press_probe, running_demo
+from app.world.scene import ASSETS_DIR
+
+#: Where the README's screenshots go.
+SHOT_DIR = ASSETS_DIR / "web"
+#: Seconds to let the tool reach the surface (or a replay start) before measuring.
+SETTLE_SECONDS = 3.0
+
+#: Counts the status block's text changes (each a redraw the page received and showed).
+COUNT_STATUS_JS = """(seconds) => new Promise((done) => {
+  const text = () => {
+    const block = [...document.querySelectorAll('pre, code')].find(e => e.innerText.includes('Hz simulated'));
+    return block ? block.innerText : '';
+  };
+  let changes = 0, last = text();
+  const poll = setInterval(() => { const now = text(); if (now !== last) { changes += 1; last = now; } }, 4);
+  setTimeout(() => { clearInterval(poll); done(changes / seconds); }, seconds * 1000);
+})"""
+
+
+class ByteCounter:
+    """Bytes the page receives on its websockets (frames' payloads)."""
+
+    def __init__(self, page: Any) -> None:
+        self.bytes = 0
+        self.frames = 0
+        self.page = page
+        page.on("websocket", self._socket)
+
+    def _socket(self, ws: Any) -> None:
+        ws.on("framereceived", self._frame)
+
+    def _frame(self, payload: bytes | str) -> None:
+        self.bytes += len(payload)
+        self.frames += 1
+
+    def rate(self, seconds: float) -> tuple[float, float]:
+        """Bytes and websocket messages per second over the next ``seconds`` (waiting in
+        playwright, which delivers the frame events only while one of its calls runs)."""
+        before, frames = self.bytes, self.frames
+        self.page.wait_for_timeout(seconds * 1000)
+        return (self.bytes - before) / seconds, (self.frames - frames) / seconds
+
+
+def screenshot(page: Any, name: str) -> Path:
+    """A palette PNG of the page in ``assets/web/<name>.png`` (the README's; well under 300 KB)."""
+    close = page.locator(".mantine-Notification-closeButton")  # viser's "software WebGL" notice
+    for i in range(close.count()):
+        close.nth(i).dispatch_event("click")
+    page.wait_for_timeout(500)
+    SHOT_DIR.mkdir(parents=True, exist_ok=True)
+    raw = SHOT_DIR / f"{name}.raw.png"
+    page.screenshot(path=str(raw))
+    out = SHOT_DIR / f"{name}.png"
+    Image.open(raw).convert("RGB").quantize(colors=128).save(out, optimize=True)
+    raw.unlink()
+    return out
+
+
+def main(seconds: float, shots: bool) -> None:
+    with running_demo() as app:
+        with open_page(f"http://127.0.0.1:{app.server.get_port()}/") as page:
+            page.get_by_text("Deadman [D]").first.wait_for(timeout=60_000)
+            counter = ByteCounter(page)
+            start = time.monotonic()
+            page.reload()
+            page.get_by_text("Start here").first.wait_for(timeout=60_000)
+            first_panel = time.monotonic() - start
+            page.get_by_text("Hz simulated").first.wait_for(timeout=60_000)
+            press_probe(app)
+            time.sleep(SETTLE_SECONDS)
+            live, live_messages = counter.rate(seconds)
+            update_hz = float(page.evaluate(COUNT_STATUS_JS, seconds))
+            if shots:
+                print("wrote", screenshot(page, "probe_contact"))
+            with tempfile.TemporaryDirectory() as tmp:
+                run_session(load_session("probe_rate"), out_dir=Path(tmp), plots=False)
+                app.open_replay(tmp)
+            assert app.player is not None
+            app.player.playing = True
+            time.sleep(SETTLE_SECONDS)
+            replay, _ = counter.rate(seconds)
+            if shots:
+                print("wrote", screenshot(page, "replay"))
+                app.close_replay()
+                app.play_session("peg_ntrfc")
+                end = time.monotonic() + 120.0
+                while app.rt.snapshot.F_MRF[2] < 2.0 and time.monotonic() < end:
+                    time.sleep(0.01)
+                app.pause(True)
+                client = next(iter(app.server.get_clients().values()))
+                app.frame_camera(client, "world")
+                time.sleep(4.0)
+                print("wrote", screenshot(page, "peg_contact"))
+        print(f"first panel visible  {first_panel:6.2f} s after a reload (goal <= 3 s on a quiet machine)")
+        print(f"messages received    {live_messages:6.1f} /s (websocket messages to the page, live)")
+        print(f"page update rate     {update_hz:6.1f} Hz (status redraws the page showed over {seconds:g} s)")
+        print(f"live page            {live / 1000:8.1f} kB/s (probe pressed: arrows, contacts, plots)")
+        print(f"replay at 1x         {replay / 1000:8.1f} kB/s = {replay / live:.2f}x live (same run)")
+
+
+if __name__ == "__main__":
+    args = [a for a in sys.argv[1:] if not a.startswith("--")]
+    main(float(args[0]) if args else 10.0, "--screenshots" in sys.argv)

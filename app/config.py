@@ -217,6 +217,24 @@ def field_range(cls: type, name: str) -> Rule | None:
     return None
 
 
+def require_file(path: Path, source: str | Path, field: str, missing: str) -> Path:
+    """``path`` if it names a regular file; else a :class:`ConfigError` on ``field`` of ``source``.
+
+    The one check of every file a file refers to (a mesh, an MJCF, a calibration) and of a named
+    file itself: ``missing`` is the reason when there is no such file; any other failure of the
+    look-up (a name longer than the file system allows, a permission) gives the system's reason.
+    """
+    try:
+        if path.stat().st_mode & 0o170000 == 0o100000:  # S_IFREG
+            return path
+    except (FileNotFoundError, NotADirectoryError):
+        pass
+    except OSError as exc:
+        shown = str(path) if len(str(path)) <= 120 else f"{str(path)[:100]}...({len(str(path))} characters)"
+        raise ConfigError(source, field, f"cannot read {shown}: {exc.strerror}") from None
+    raise ConfigError(source, field, missing)
+
+
 def load_toml(path: str | Path) -> dict[str, Any]:
     """Read a TOML file, turning I/O, size, encoding and syntax errors into :class:`ConfigError`."""
     p = Path(path)

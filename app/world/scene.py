@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from app.config import deferred_warnings, from_dict, load_toml
+from app.config import deferred_warnings, from_dict, load_toml, require_file
 from app.errors import ConfigError
 from app.spatial import Array, invert_pose
 from app.world.collision import CollisionMesh, PackedMeshes, pack_meshes
@@ -214,8 +214,7 @@ def _primitive_mesh(spec: ObjectSpec) -> trimesh.Trimesh:
 
 
 def _load_mesh(path: Path, source: str | Path, field_name: str) -> trimesh.Trimesh:
-    if not path.is_file():
-        raise ConfigError(source, field_name, f"mesh file not found: {path}")
+    require_file(path, source, field_name, f"mesh file not found: {path}")
     if path.stat().st_size > MAX_MESH_BYTES:
         raise ConfigError(source, field_name, f"{path.name} is larger than {MAX_MESH_BYTES // 2**20} MiB")
     try:
@@ -294,7 +293,6 @@ def load_scene(name_or_path: str | Path = DEFAULT_SCENE) -> Scene:
         ConfigError: naming the file and the field, for any malformed entry.
     """
     path = resolve_scene_path(name_or_path)
-    if not path.is_file():
-        raise ConfigError(path, "<file>", f"no such scene (shipped scenes: {', '.join(available_scenes())})")
+    require_file(path, path, "<file>", f"no such scene (shipped scenes: {', '.join(available_scenes())})")
     spec = from_dict(SceneFile, load_toml(path), path)
     return build_scene(spec, path, path)

@@ -10,7 +10,6 @@ device, and a part of another column layout.
 
 from __future__ import annotations
 
-import errno
 import json
 import resource
 import shutil
@@ -18,6 +17,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 import pyarrow.parquet as pq
 import pytest
@@ -79,12 +79,13 @@ def tmpfs(tmp_path: Path) -> Iterator[Path]:
 
 def _fill(path: Path) -> None:
     """Write zeros to ``path`` until its file system is full."""
-    with path.open("wb", buffering=0) as fh:
-        try:
-            while True:
-                fh.write(b"\0" * 4096)
-        except OSError as exc:
-            assert exc.errno == errno.ENOSPC
+
+    def write_forever(fh: BinaryIO) -> None:
+        while True:
+            fh.write(b"\0" * 4096)
+
+    with path.open("wb", buffering=0) as fh, pytest.raises(OSError, match="No space left"):
+        write_forever(fh)
 
 
 def bad_outs(tmp_path: Path) -> dict[str, tuple[str, str]]:

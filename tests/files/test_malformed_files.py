@@ -319,6 +319,16 @@ CASES: dict[str, dict[str, Case]] = {
         "mesh empty file": S("box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/empty.stl"', "objects[0].mesh"),
         "mesh flat": S("box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/flat.ply"', "objects[0].mesh", "not closed"),
         "mesh non-finite vertex": S("box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/nan.obj"', "objects[0].mesh"),
+        # Refused from the header: trimesh would spend gigabytes on these before counting.
+        "binary STL of 5M triangles": S(
+            "box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/huge.stl"', "objects[0].mesh", "5000000 faces (at most 2000000)"
+        ),
+        "PLY header of 3M faces": S(
+            "box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/huge.ply"', "objects[0].mesh", "3000000 faces (at most 2000000)"
+        ),
+        "mesh path longer than the file system allows": S(
+            "box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/' + "m" * 300 + '.stl"', "objects[0].mesh", "File name too long"
+        ),
         "mesh is a folder": S("box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}"', "objects[0].mesh", "not found"),
         "open mesh refused before a later error": S(
             None,
@@ -342,6 +352,13 @@ def write_meshes(folder: Path) -> None:
     """The bad meshes the table refers to as ``{tmp}/...``."""
     (folder / "junk.stl").write_bytes(b"\x00\x01 not a mesh")
     (folder / "empty.stl").write_bytes(b"")
+    with (folder / "huge.stl").open("wb") as fh:  # sparse: 250 MB long, no disk used
+        fh.write(b"\0" * 80 + (5_000_000).to_bytes(4, "little"))
+        fh.truncate(84 + 50 * 5_000_000)
+    (folder / "huge.ply").write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        b"property float z\nelement face 3000000\nproperty list uchar int vertex_indices\nend_header\n"
+    )
     flat = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]], process=False)
     flat.export(folder / "flat.ply")
     (folder / "nan.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 nan 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")

@@ -235,7 +235,7 @@ def load_sweep(path: str | Path) -> SweepPlan:
     path = Path(path)
     spec = from_dict(SweepFile, load_toml(path), path)
     # A path is the sweep file's neighbour, wherever the sweep is run from; a name is in sessions/.
-    base_path = path.parent / spec.base if spec.base.endswith(".toml") else resolve_session_path(spec.base)
+    base_path = (path.parent / spec.base).absolute() if spec.base.endswith(".toml") else resolve_session_path(spec.base)
     try:
         raw = load_toml(base_path)
         base = resolve_session(from_dict(SessionFile, raw, base_path), base_path)

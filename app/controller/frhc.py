@@ -194,6 +194,7 @@ class FRHCController:
         rec["scalars"] = 1.0
         rec["min_period"] = safety.min_period
         rec["ramp_rate"] = safety.ramp_rate
+        rec["gravity_level"] = 1.0
         rec["max_joint_speed"] = safety.max_joint_speed
         rec["release_speed"] = safety.release_fraction * safety.max_joint_speed
         self._brake_damping = safety.brake_damping

@@ -57,7 +57,11 @@ BAD = {
     "unknown metric": ('metric = "speed"\n[[vary]]\nfield = "seed"\nvalues = [1]', "metric", "unknown metric"),
     "twice": ('[[vary]]\nfield = "seed"\nvalues = [1]\n[[vary]]\nfield = "seed"\nvalues = [2]', "vary", "twice"),
     "negative samples": ('samples = -1\n[[vary]]\nfield = "seed"\nvalues = [1]', "samples", "non-negative"),
-    "samples over the limit": ('samples = 1000001\n[[vary]]\nfield = "seed"\nvalues = [1]', "samples", "in [0, 1000000]"),
+    "samples over the limit": (
+        'samples = 1000001\n[[vary]]\nfield = "seed"\nvalues = [1]',
+        "samples",
+        "in [0, 1000000]",
+    ),
     "grid over the limit": (
         '[[vary]]\nfield = "seed"\nrange = [0.0, 1e6]\nsteps = 1001\n'
         '[[vary]]\nfield = "duration"\nrange = [1.0, 2.0]\nsteps = 1000',

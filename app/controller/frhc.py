@@ -405,5 +405,5 @@ def _fault_text(faults: Fault) -> str:
     if faults & Fault.FT_INVALID:
         parts.append("F/T reading marked invalid by the world (failed contact query)")
     if faults & Fault.NONFINITE_INPUT:
-        parts.append("non-finite F/T reading")
+        parts.append("non-finite F/T reading (wrench, orientation, or the motion inertia removal uses)")
     return "; ".join(parts)

@@ -203,8 +203,10 @@ def controller_tick(
     lowpass(qdot, lowpass_gain(dt if period_ok else 0.0, r.pc_filter), pc_velocity)
     if not ft_valid:
         faults |= FT_INVALID
-    elif not math.isfinite(_total(wrench_S) + _total(R_w_S)):
-        faults |= NONFINITE_INPUT
+    elif not math.isfinite(
+        _total(wrench_S) + _total(R_w_S) + (_total(acc_w) + _total(omega_w) if r.remove_inertia else 0.0)
+    ):
+        faults |= NONFINITE_INPUT  # the acceleration and angular velocity count only when used
     if faults:
         return faults
 

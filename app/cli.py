@@ -10,12 +10,30 @@ import argparse
 import logging
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from app.config import fmt_number
-from app.errors import ConfigError, FrhcError, InvalidField
+from app.errors import ConfigError, FrhcError, InvalidField, OutputError
+
+
+@contextmanager
+def _output_folder(folder: Path) -> Iterator[Path]:
+    """Create ``folder`` and turn any OS error while the command works into one :class:`OutputError`.
+
+    The one error path of every command that writes results: the folder is made first (a regular
+    file in the way, a read-only file system or a too-long name fails here, before any work),
+    and a disk that fills up later fails the same way. Entered after the input files are loaded,
+    so a bad input file leaves no folder behind.
+    """
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        yield folder
+    except OSError as exc:
+        raise OutputError(folder, exc) from None
+
 
 if TYPE_CHECKING:
     from app.device.hand import HandParams
@@ -30,15 +48,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
         logging.basicConfig(level=logging.INFO, format="%(message)s")
         logging.getLogger("websockets").setLevel(logging.WARNING)
     out_dir = Path(args.out) if args.out else Path("runs") / Path(args.session).stem
-    result = run_session(
-        session,
-        out_dir=out_dir,
-        plots=not args.no_plots,
-        progress=True,
-        realtime=args.realtime,
-        flush_interval=args.flush_interval,
-        device_url=args.device,
-    )
+    with _output_folder(out_dir):
+        result = run_session(
+            session,
+            out_dir=out_dir,
+            plots=not args.no_plots,
+            progress=True,
+            realtime=args.realtime,
+            flush_interval=args.flush_interval,
+            device_url=args.device,
+        )
     s = result.summary
     print(f"log:      {result.log_dir}/ (Parquet)")
     print(f"summary:  {out_dir / 'summary.json'}")
@@ -88,16 +107,17 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
             check_slave_kind(args.slave, "--slave")
         except InvalidField as exc:
             raise ConfigError("frhc experiment", exc.field, exc.reason) from None
-    report = run_experiment(
-        Path(args.out),
-        n_operators=args.operators,
-        seed=args.seed,
-        time_limit=args.time_limit,
-        workers=args.workers,
-        address=args.address,
-        progress=True,
-        slave=args.slave,
-    )
+    with _output_folder(Path(args.out)) as out_dir:
+        report = run_experiment(
+            out_dir,
+            n_operators=args.operators,
+            seed=args.seed,
+            time_limit=args.time_limit,
+            workers=args.workers,
+            address=args.address,
+            progress=True,
+            slave=args.slave,
+        )
     print(report.table)
     print(f"\nchart: {report.chart}\nresults: {report.results}\nsummary: {report.json_path}")
     return 0
@@ -108,7 +128,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
     plan = load_sweep(args.file)
     out_dir = Path(args.out) if args.out else Path("runs") / "sweeps" / Path(args.file).stem
-    report = run_sweep(plan, out_dir, args.workers, args.address, args.metric, progress=True)
+    with _output_folder(out_dir):
+        report = run_sweep(plan, out_dir, args.workers, args.address, args.metric, progress=True)
     print(
         f"results:  {report.results} ({report.table.num_rows} points: {report.ran} run now, {report.skipped} resumed)"
     )
@@ -206,26 +227,26 @@ def _cmd_zwidth(args: argparse.Namespace) -> int:
     from app.session.stability import device_bound, passivity_bound
     from app.session.zwidth import zwidth
 
-    out = Path(args.out)
     device_only = device_bound(args.device, args.rate)
     if args.hand is None:
         print(f"hand released after the first push: bound 2b/T {device_only:,.0f} N/m (the device only)")
     else:
         with_hand = passivity_bound(args.device, args.rate, args.hand)
         print(f"bound 2b/T with the hand {with_hand:,.0f} N/m, device only {device_only:,.0f} N/m")
-    edges = zwidth(
-        out,
-        renderers=tuple(args.renderers),
-        dampings=tuple(args.dampings),
-        device=args.device,
-        servo_rate=args.rate,
-        delay_ms=args.delay_ms,
-        iterations=args.iterations,
-        progress=True,
-        workers=args.workers,
-        address=args.address,
-        hand=args.hand,
-    )
+    with _output_folder(Path(args.out)) as out:
+        edges = zwidth(
+            out,
+            renderers=tuple(args.renderers),
+            dampings=tuple(args.dampings),
+            device=args.device,
+            servo_rate=args.rate,
+            delay_ms=args.delay_ms,
+            iterations=args.iterations,
+            progress=True,
+            workers=args.workers,
+            address=args.address,
+            hand=args.hand,
+        )
     print(
         f"{'renderer':<9} {'K_D (N s/m)':>12} {'largest stable K_T':>19} {'felt (N/m)':>12} {'oscillates at K_T':>18}"
     )
@@ -419,7 +440,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     func: Callable[[argparse.Namespace], int] = args.func
     try:
         return func(args)
-    except (ConfigError, FrhcError) as exc:
+    except FrhcError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import re
 import tomllib
 import types
 import typing
@@ -46,6 +47,22 @@ T = TypeVar("T")
 
 #: Largest TOML file read (bytes): every shipped file is far smaller; this bounds parse time and memory.
 MAX_FILE_BYTES = 4 * 1024 * 1024
+#: Most parts of one dotted key (``a.b.c`` has 3). CPython's ``tomllib`` spends time quadratic in the
+#: parts of a key (a 20,000-part key: 55 s, 1.6 GB); shipped files use at most 3.
+MAX_KEY_PARTS = 32
+#: Deepest nesting of arrays and inline tables; shipped files nest at most 3 deep.
+MAX_NESTING = 32
+#: Longest run of digits (and ``_``) in a number: Python refuses to convert an integer of over 4300
+#: digits (a ``ValueError`` from inside ``tomllib``); shorter ones reach the field, which names them.
+MAX_DIGITS = 1000
+
+# One token of the structure scan: a string or comment (skipped whole, so nothing inside counts),
+# a dot, an opening or closing bracket, a separator ending a key, or an over-long digit run.
+_STRUCTURE = re.compile(
+    r'(?P<skip>"""(?:[^\\]|\\.)*?"""|' + r"'''[\s\S]*?'''|" + r'"(?:[^"\\\n]|\\.)*"|' + r"'[^'\n]*'|#[^\n]*)"
+    r"|(?P<dot>\.)|(?P<open>[\[{])|(?P<close>[\]}])|(?P<sep>[=,\n])"
+    rf"|(?P<digits>[0-9_]{{{MAX_DIGITS + 1},}})"
+)
 
 
 def fmt_number(v: float) -> str:
@@ -200,6 +217,24 @@ def field_range(cls: type, name: str) -> Rule | None:
     return None
 
 
+def require_file(path: Path, source: str | Path, field: str, missing: str) -> Path:
+    """``path`` if it names a regular file; else a :class:`ConfigError` on ``field`` of ``source``.
+
+    The one check of every file a file refers to (a mesh, an MJCF, a calibration) and of a named
+    file itself: ``missing`` is the reason when there is no such file; any other failure of the
+    look-up (a name longer than the file system allows, a permission) gives the system's reason.
+    """
+    try:
+        if path.stat().st_mode & 0o170000 == 0o100000:  # S_IFREG
+            return path
+    except (FileNotFoundError, NotADirectoryError):
+        pass
+    except OSError as exc:
+        shown = str(path) if len(str(path)) <= 120 else f"{str(path)[:100]}...({len(str(path))} characters)"
+        raise ConfigError(source, field, f"cannot read {shown}: {exc.strerror}") from None
+    raise ConfigError(source, field, missing)
+
+
 def load_toml(path: str | Path) -> dict[str, Any]:
     """Read a TOML file, turning I/O, size, encoding and syntax errors into :class:`ConfigError`."""
     p = Path(path)
@@ -219,12 +254,53 @@ def load_toml(path: str | Path) -> dict[str, Any]:
     except UnicodeDecodeError as exc:
         line = raw[: exc.start].count(b"\n") + 1
         raise ConfigError(p, "<file>", f"not UTF-8 text (byte 0x{raw[exc.start]:02x} on line {line})") from None
+    check_structure(text, p)
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(p, "<file>", f"not valid TOML: {exc}") from None
-    except RecursionError:
-        raise ConfigError(p, "<file>", "not valid TOML: arrays or tables nested too deeply") from None
+    except (RecursionError, ValueError) as exc:
+        # Structure the scan let through (it bounds, it does not parse): still one line.
+        raise ConfigError(p, "<file>", f"not valid TOML: {exc}") from None
+
+
+def check_structure(text: str, source: str | Path) -> None:
+    """Refuse TOML whose structure would make ``tomllib`` slow, or fail outside its own errors.
+
+    One linear regular-expression pass (strings and comments skipped whole) bounds the parts of
+    every dotted key (:data:`MAX_KEY_PARTS`), the nesting of arrays and inline tables
+    (:data:`MAX_NESTING`) and the digits of every number (:data:`MAX_DIGITS`) before the parser
+    sees the text. A key's dots are those between two separators (``=``, ``,``, a newline or a
+    bracket); a value holds at most one (``1.5``, ``07:32:00.5``). Text the scan misreads is
+    invalid TOML, which ``tomllib`` refuses itself.
+
+    Raises:
+        ConfigError: Naming the file and the line of the first excess.
+    """
+    dots = depth = 0
+    for m in _STRUCTURE.finditer(text):
+        kind = m.lastgroup
+        if kind == "dot":
+            dots += 1
+            if dots < MAX_KEY_PARTS:
+                continue
+            reason = f"a dotted key of more than {MAX_KEY_PARTS} parts"
+        elif kind == "open":
+            dots = 0
+            depth += 1
+            if depth <= MAX_NESTING:
+                continue
+            reason = f"arrays or tables nested more than {MAX_NESTING} deep"
+        elif kind == "digits":
+            reason = f"a number of more than {MAX_DIGITS} digits"
+        else:
+            if kind == "close":
+                depth -= 1
+            if kind != "skip":
+                dots = 0
+            continue
+        line = text.count("\n", 0, m.start()) + 1
+        raise ConfigError(source, "<file>", f"not valid TOML: {reason} (line {line})")
 
 
 @contextmanager

@@ -6,6 +6,7 @@ file and the field, so the command line can print it as one line and exit 2.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 
@@ -58,3 +59,21 @@ class ContactInputError(ContactQueryError):
 
 class EngineError(FrhcError):
     """The point engine could not start or reach its workers (a Ray instance or cluster)."""
+
+
+class OutputError(FrhcError):
+    """An output folder (``--out``) could not be created or written: a read-only or full file
+    system, a regular file in the way, a name longer than the file system allows.
+
+    The message names the file that failed (or the folder, when the library that wrote did not
+    say which file) and the operating system's reason.
+    """
+
+    def __init__(self, folder: str | Path, exc: OSError) -> None:
+        self.folder = str(folder)
+        where = exc.filename if exc.filename is not None else folder
+        # pyarrow's OSError carries the errno but a long "Detail: ..." text as its strerror.
+        reason = os.strerror(exc.errno) if exc.errno else str(exc)
+        if isinstance(exc, FileExistsError | NotADirectoryError):
+            reason = "a file is in the way of the folder"
+        super().__init__(f"{where}: field '--out': cannot write the output: {reason}")

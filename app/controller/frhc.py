@@ -161,6 +161,7 @@ def fill_record(rec: RecordArray, slave: SlaveModel, safety: SafetyLimits) -> No
     rec["scalars"] = 1.0
     rec["min_period"] = safety.min_period
     rec["ramp_rate"] = safety.ramp_rate
+    rec["gravity_level"] = 1.0
     rec["max_joint_speed"] = safety.max_joint_speed
     rec["release_speed"] = safety.release_fraction * safety.max_joint_speed
     rec["payload_mass"] = slave.payload_mass
@@ -414,5 +415,5 @@ def _fault_text(faults: Fault) -> str:
     if faults & Fault.FT_INVALID:
         parts.append("F/T reading marked invalid by the world (failed contact query)")
     if faults & Fault.NONFINITE_INPUT:
-        parts.append("non-finite F/T reading")
+        parts.append("non-finite F/T reading (wrench, orientation, or the motion inertia removal uses)")
     return "; ".join(parts)

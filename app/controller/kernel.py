@@ -165,6 +165,7 @@ def controller_tick(
     # it, which is the safe side).
     if not math.isfinite(_total(q)):
         r.have_q_prev = False  # no velocity across the gap
+        r.gravity_level = 0.0  # the safe output has no gravity compensation: it ramps back in
         return JOINTS_NONFINITE
     # The record's array fields as plain arrays (``[:]``): numba types a field by its shape,
     # which would compile every worker again for each device.
@@ -178,6 +179,13 @@ def controller_tick(
             T_0_G[i, k] = site_xmat[r.grip_site, 3 * i + k]
     if r.gravity_compensation:
         gravity_torque(xaxis, xanchor, xipos, joint_ids, slide, r.moves[:], r.support[:], torques[TAU_G])
+        if r.gravity_level < 1.0:
+            # Back from a joint-reading fault: the compensation ramps in at the safety ramp's rate,
+            # as the rendered wrench does after any fault, instead of stepping to full.
+            ramp_step = r.ramp_rate * dt if r.min_period <= dt <= r.max_period else 0.0
+            r.gravity_level = min(1.0, r.gravity_level + ramp_step)
+            for j in range(torques.shape[1]):
+                torques[TAU_G, j] *= r.gravity_level
     else:
         for j in range(torques.shape[1]):
             torques[TAU_G, j] = 0.0
@@ -195,8 +203,10 @@ def controller_tick(
     lowpass(qdot, lowpass_gain(dt if period_ok else 0.0, r.pc_filter), pc_velocity)
     if not ft_valid:
         faults |= FT_INVALID
-    elif not math.isfinite(_total(wrench_S) + _total(R_w_S)):
-        faults |= NONFINITE_INPUT
+    elif not math.isfinite(
+        _total(wrench_S) + _total(R_w_S) + (_total(acc_w) + _total(omega_w) if r.remove_inertia else 0.0)
+    ):
+        faults |= NONFINITE_INPUT  # the acceleration and angular velocity count only when used
     if faults:
         return faults
 

@@ -129,7 +129,9 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         restart_damping: No previous Delta X on this reference (Eq 9 starts from zero).
         prev_reference, prev_deadman, prev_reflecting: Last tick's switches, for edges. J_W:
         wrist Jacobian (6, n). q_prev, have_q_prev: last finite joint angles; qdot: joint
-        velocities from their difference (n,). braking: the velocity brake is on. po_energy:
+        velocities from their difference (n,). braking: the velocity brake is on. gravity_level:
+        the share of gravity compensation applied, in [0, 1] (0 after a joint-reading fault, ramping
+        back at ``ramp_rate``). po_energy:
         the passivity observer's energy of the whole port (J), (1,); po_tau: the rendered torque
         commanded last tick (N m or N), (n,); pc_velocity: the low-passed joint velocity the
         passivity controller uses (n,).
@@ -184,6 +186,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("have_q_prev", b1),
             ("qdot", f8, (n,)),
             ("braking", b1),
+            ("gravity_level", f8),
             ("po_energy", f8, (1,)),
             ("po_tau", f8, (n,)),
             ("pc_velocity", f8, (n,)),

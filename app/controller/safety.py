@@ -6,7 +6,9 @@ refuse a servo period that makes no sense; this controller does the same, in its
 - **Ramp**: the task and assist torques (``tau_T``, ``tau_RDs``) are scaled by a level that
   restarts from 0 whenever rendering starts (the deadman engages with reflection on, or
   reflection is switched on under the deadman) and after any fault tick, and rises linearly to 1
-  over ``ramp_time``. Gravity compensation is never ramped.
+  over ``ramp_time``. Gravity compensation stays on through every other fault, so it is not
+  ramped, except after non-finite joint angles: it was off (no pose to compute it at), and it
+  comes back over ``ramp_time`` the same way.
 - **Velocity brake**: joint speeds are estimated from encoder differences. Above
   ``max_joint_speed`` on any joint the controller enters a damping-only state (fault
   ``OVERSPEED``): gravity compensation plus ``-brake_damping * qdot`` per joint, clipped to the

@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 from numpy.polynomial import polynomial as npoly
 
-from app.config import Checked, Count, Range, deferred_warnings, from_dict, load_toml
+from app.config import Checked, Count, Range, deferred_warnings, from_dict, load_toml, require_file
 from app.controller.gains import ControllerGains
 from app.errors import ConfigError, InvalidField
 from app.spatial import Array
@@ -315,8 +315,7 @@ def available_devices() -> list[str]:
 
 def load_mjcf(path: Path, source: Path, field_name: str = "mjcf") -> mujoco.MjModel:
     """Compile an MJCF file, turning MuJoCo's errors into :class:`ConfigError`."""
-    if not path.is_file():
-        raise ConfigError(source, field_name, f"MJCF file not found: {path}")
+    require_file(path, source, field_name, f"MJCF file not found: {path}")
     try:
         with deferred_warnings():
             return mujoco.MjModel.from_xml_path(str(path))
@@ -332,9 +331,7 @@ def load_device(name_or_path: str | Path) -> DeviceSpec:
         ConfigError: naming the file and field, for any malformed or inconsistent entry.
     """
     path = resolve_device_path(name_or_path)
-    if not path.is_file():
-        known = ", ".join(available_devices())
-        raise ConfigError(path, "<file>", f"no such device (shipped devices: {known})")
+    require_file(path, path, "<file>", f"no such device (shipped devices: {', '.join(available_devices())})")
     data = from_dict(DeviceFile, load_toml(path), path)
     model = load_mjcf(path.parent / data.mjcf, path)
     n = len(data.joints)
@@ -364,8 +361,7 @@ def load_device(name_or_path: str | Path) -> DeviceSpec:
     calibration = None
     if data.calibration is not None:
         cal_path = path.parent / data.calibration
-        if not cal_path.is_file():
-            raise ConfigError(path, "calibration", f"calibration file not found: {cal_path}")
+        require_file(cal_path, path, "calibration", f"calibration file not found: {cal_path}")
         calibration = from_dict(CalibrationSpec, load_toml(cal_path), cal_path)
         for side in ("positive", "negative"):
             if len(getattr(calibration, side)) != n:

@@ -25,6 +25,7 @@ from numba import njit
 
 from app.compiled import entry_point, is_f8
 from app.controller.layout import SCALARS, TORQUE_ROWS, TWIST_AXES, VECTOR_ROWS, WRENCH_AXES
+from app.errors import ConfigError
 from app.session.tick import STAGES, TickRecord
 from app.spatial import Array, IntArray, quat_into
 
@@ -194,9 +195,34 @@ class TickLog:
         self._writer.shutdown()
 
 
-def read_log(directory: Path) -> pa.Table:
-    """The whole log as one Arrow table (``.to_pandas()`` for a DataFrame): every complete part."""
-    return pq.read_table(directory)
+def read_log(directory: Path, n_joints: int | None = None) -> pa.Table:
+    """The whole log as one Arrow table (``.to_pandas()`` for a DataFrame): every complete part.
+
+    Args:
+        directory: The log directory.
+        n_joints: If given, every part must hold exactly :func:`log_columns` of this many joints.
+
+    Raises:
+        ConfigError: Naming the first part that is not a readable Parquet file (truncated, empty,
+            random bytes) or, with ``n_joints``, whose columns are not this log's.
+    """
+    expected = None if n_joints is None else log_columns(n_joints)
+    tables = []
+    for part in sorted(directory.glob("part-*.parquet")):
+        try:
+            table = pq.read_table(part)
+        except (pa.ArrowException, OSError) as exc:
+            reason = " ".join(str(exc).split())[:200]
+            raise ConfigError(part, "<file>", f"not a readable log part: {reason}") from None
+        if expected is not None and table.column_names != expected:
+            missing = sorted(set(expected) - set(table.column_names))
+            extra = sorted(set(table.column_names) - set(expected))
+            diff = f"missing {', '.join(missing[:3]) or 'none'}; unknown {', '.join(extra[:3]) or 'none'}"
+            raise ConfigError(part, "<file>", f"not a part of a {n_joints}-joint log ({diff})")
+        tables.append(table)
+    if not tables:
+        raise ConfigError(directory, "<file>", "the log has no parts")
+    return pa.concat_tables(tables)
 
 
 @njit(cache=True)

@@ -1,11 +1,15 @@
 """An access token in front of the demo when it is served beyond this machine.
 
 Whoever reaches the demo's port can drive the device, so ``frhc web --host`` with a non-loopback
-address serves through :class:`TokenGate`: viser listens on 127.0.0.1 only, and the gate, on the
-public address, relays a connection to it only if the connection's first request carries the
-token, as ``?token=...`` in the URL (the printed URL has it) or as the cookie the gate sets on
-that first visit (so the page's own asset and websocket requests, which do not repeat the query,
-pass too). Anything else gets ``403 Forbidden``. ``--insecure`` skips the gate.
+address serves through :class:`TokenGate`: the gate, on the public address, relays a connection
+to viser only if the connection's first request carries the token, as ``?frhc_token=...`` in the
+URL (the printed URL has it) or as the cookie the gate sets on that first visit (so the page's own
+asset and websocket requests, which do not repeat the query, pass too). Anything else gets
+``403 Forbidden``. ``--insecure`` skips the gate.
+
+viser itself then listens on no TCP port at all but on a unix socket in a fresh folder only this
+user may enter (:func:`viser_on_unix_socket`): an inner loopback port would let any local process
+(any user's) drive the demo without the token, around the gate.
 
 Hand-written rather than a reverse-proxy library: it relays bytes after one header check (about
 a hundred lines of asyncio), and viser has no authentication hook of its own.
@@ -17,9 +21,16 @@ import asyncio
 import hmac
 import ipaddress
 import secrets
+import shutil
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from http.cookies import SimpleCookie
+from pathlib import Path
+from typing import Any
 from urllib.parse import parse_qs, urlsplit
+
+import websockets.asyncio.server
 
 #: Name of the query parameter and of the cookie that carry the token.
 TOKEN_NAME = "frhc_token"
@@ -74,18 +85,40 @@ def _with_cookie(head: bytes, token: str) -> bytes:
     return head[:end] + cookie + head[end:]
 
 
+@contextmanager
+def viser_on_unix_socket(path: Path) -> Iterator[None]:
+    """A viser server constructed inside the block listens on the unix socket ``path``, not TCP.
+
+    viser has no option for it: its server thread calls ``websockets.asyncio.server.serve(handler,
+    host, port, **options)`` before its constructor returns; inside the block that call is
+    ``unix_serve(handler, path, **options)``, with viser's own options (its HTTP handler for the
+    page, its subprotocols). Only that constructor may run inside the block.
+    """
+    original = websockets.asyncio.server.serve
+
+    def on_socket(handler: Any, host: object, port: object, **options: Any) -> Any:
+        return original(handler, unix=True, path=str(path), **options)  # what unix_serve does
+
+    websockets.asyncio.server.serve = on_socket  # type: ignore[assignment, misc]
+    try:
+        yield
+    finally:
+        websockets.asyncio.server.serve = original  # type: ignore[misc]
+
+
 class TokenGate:
-    """Relays ``host:port`` to the viser server on ``127.0.0.1:target_port`` for token holders.
+    """Relays ``host:port`` to the viser server on the unix socket ``target`` for token holders.
 
     Args:
         host, port: Public address to listen on (port 0: any free one, see :attr:`port`).
-        target_port: viser's loopback port.
+        target: viser's unix socket (:func:`viser_on_unix_socket`), in a folder of its own that
+            the gate removes when it closes.
         token: The access token.
     """
 
-    def __init__(self, host: str, port: int, target_port: int, token: str) -> None:
+    def __init__(self, host: str, port: int, target: Path, token: str) -> None:
         self.token = token
-        self.target_port = target_port
+        self.target = target
         self._loop = asyncio.new_event_loop()
         self._server = self._loop.run_until_complete(asyncio.start_server(self._serve, host, port))
         self.port: int = self._server.sockets[0].getsockname()[1]
@@ -102,6 +135,7 @@ class TokenGate:
         asyncio.run_coroutine_threadsafe(shutdown(), self._loop).result(timeout=5.0)
         self._loop.call_soon_threadsafe(self._loop.stop)
         self._thread.join(timeout=5.0)
+        shutil.rmtree(self.target.parent, ignore_errors=True)
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         try:
@@ -115,7 +149,7 @@ class TokenGate:
             writer.close()
             return
         try:
-            up_reader, up_writer = await asyncio.open_connection("127.0.0.1", self.target_port)
+            up_reader, up_writer = await asyncio.open_unix_connection(self.target)
         except OSError:
             writer.close()
             return

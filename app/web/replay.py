@@ -78,8 +78,11 @@ class LogReplay:
             meta = json.loads(meta_path.read_text())
         except (OSError, ValueError) as exc:
             raise ConfigError(meta_path, "<file>", f"cannot read: {exc}") from None
-        if not meta.get("scene"):
-            raise ConfigError(meta_path, "scene", "the log's scene was not loaded from a file")
+        if not isinstance(meta, dict):
+            raise ConfigError(meta_path, "<file>", f"expected a JSON object, got {type(meta).__name__}")
+        for name in ("device", "scene"):
+            if not isinstance(meta.get(name), str) or not meta[name]:
+                raise ConfigError(meta_path, name, "missing: the log does not name the file it was run with")
         device, scene = load_device(meta["device"]), load_scene(meta["scene"])
         if device.data.interface == "cartesian":
             # Its log's q_* columns are the grip pose's coordinates, not the joint angles the
@@ -90,7 +93,7 @@ class LogReplay:
         self.directory = directory
         self.mode = str(meta.get("mode", "rate"))
         self.loop = ServoLoop(LoopConfig(device, scene, device.data.gains))
-        table = read_log(directory)
+        table = read_log(directory, device.n_joints)
         if table.num_rows == 0:
             raise ConfigError(directory, "<file>", "the log has no ticks")
         order = np.argsort(table.column("t").to_numpy(), kind="stable")

@@ -13,6 +13,7 @@ Three kinds of thread run the demo:
 from __future__ import annotations
 
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -30,7 +31,7 @@ from app.session.loop import LoopConfig, ServoLoop
 from app.session.spec import Session, load_session
 from app.spatial import Array
 from app.teleop.channel import ChannelSettings
-from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token
+from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token, viser_on_unix_socket
 from app.web.camera import FOV, CameraPose, fit_camera
 from app.web.controls import PLOT_SECONDS, Controls
 from app.web.realtime import RealtimeLoop
@@ -415,8 +416,8 @@ def start_demo(
     """Check the inputs, start a viser server and the demo on it; returns at once (non-blocking).
 
     On a non-loopback ``host`` the demo is served through a :class:`~app.web.access.TokenGate`
-    (viser itself listens on loopback) unless ``insecure``; :attr:`DemoApp.url` is the address to
-    open, with the token.
+    (viser itself then listens on a private unix socket, no TCP port) unless ``insecure``;
+    :attr:`DemoApp.url` is the address to open, with the token.
 
     Raises:
         ConfigError: for an unknown or malformed scene, device or session, before any server starts.
@@ -426,15 +427,18 @@ def start_demo(
     device_obj = load_device(device)
     loaded_replay = LogReplay(Path(replay)) if replay is not None else None
     gated = not is_loopback(host) and not insecure
-    server = viser.ViserServer(
-        host="127.0.0.1" if gated else host, port=0 if gated else port, label="FRHC haptic demo", verbose=False
-    )
+    if gated:
+        inner = Path(tempfile.mkdtemp(prefix="frhc-viser-")) / "viser.sock"  # the folder is 0700
+        with viser_on_unix_socket(inner):
+            server = viser.ViserServer(label="FRHC haptic demo", verbose=False)
+    else:
+        server = viser.ViserServer(host=host, port=port, label="FRHC haptic demo", verbose=False)
     app = DemoApp(server, scene_obj, device_obj, loaded_session)
     if loaded_replay is not None:
         app.show_replay(loaded_replay)
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
     if gated:
-        app.gate = TokenGate(host, port, server.get_port(), new_token())
+        app.gate = TokenGate(host, port, inner, new_token())
         app.url = f"http://{shown}:{app.gate.port}/?{TOKEN_NAME}={app.gate.token}"
     else:
         if not is_loopback(host):

@@ -68,6 +68,9 @@ class ArmStatus(IntFlag):
     VELOCITY = arm_ik.VELOCITY  # the commanded motion was scaled down to the joint velocity limits
     TRACKING = arm_ik.TRACKING  # the reference is out of reach (beyond the dead band): the limit wrench acts
     TORQUE = arm_ik.TORQUE  # a motor saturated (e.g. the arm is blocked)
+    # The world touches a link (not the tool): the force loads the arm, never the F/T sensor, so
+    # the operator cannot feel it; this bit (and :attr:`ArmSlave.link_force`) is how it shows.
+    LINK_CONTACT = 2 * arm_ik.TORQUE
 
 
 # Every combination, built once: making an IntFlag from an int costs about a microsecond a tick.
@@ -309,7 +312,8 @@ class ArmSlave(SlaveBase):
             )
             status |= bits
             if near:  # the kernel stopped before mj_step2: the links' wrenches go in first
-                self._link_contacts()
+                if self._link_contacts():
+                    status |= ArmStatus.LINK_CONTACT
                 mujoco.mj_step2(m, d)
             elif self.link_contacts:
                 self.link_contacts = []
@@ -318,8 +322,9 @@ class ArmSlave(SlaveBase):
         self._reading = self._make_reading(contact)
         return self._reading
 
-    def _link_contacts(self) -> None:
-        """Contact wrenches of the links near the world (``near`` in the record), added to ``xfrc_applied``."""
+    def _link_contacts(self) -> bool:
+        """Contact wrenches of the links near the world (``near`` in the record), added to
+        ``xfrc_applied``; whether any link touches."""
         self.link_contacts = []
         xfrc = self._xfrc
         for i in np.flatnonzero(self._near):
@@ -333,6 +338,12 @@ class ArmSlave(SlaveBase):
             self.link_contacts.append(r)
             if r.valid:
                 ak.body_wrench(r.force_w, r.wrench_MRF[3:6], T[0:3, 0:3], T[0:3, 3], self._xipos[b], xfrc[b])
+        return any(r.count > 0 for r in self.link_contacts)
+
+    @property
+    def link_force(self) -> float:
+        """Magnitude of the world's force on the links at the last substep (N), summed over links."""
+        return sum(float(np.linalg.norm(r.force_w)) for r in self.link_contacts if r.valid)
 
     def _make_reading(self, contact: ContactResult, at_rest: bool = False) -> FTReading:
         """The F/T reading at {S} for the state the last step's forces were computed at

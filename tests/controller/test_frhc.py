@@ -212,6 +212,32 @@ def test_inertial_removal(kraft: DeviceSpec, slave: SlaveModel) -> None:
     np.testing.assert_allclose(out.F_S_task, 0.0, atol=1e-12)
 
 
+@pytest.mark.parametrize(
+    ("acc_w", "omega_w"),
+    [
+        (np.array([np.nan, 0.0, 0.0, 0.0, 0.0, 0.0]), np.zeros(3)),
+        (np.array([0.0, 0.0, 0.0, 0.0, np.inf, 0.0]), np.zeros(3)),
+        (np.zeros(6), np.array([0.0, -np.inf, 0.0])),
+    ],
+)
+def test_non_finite_motion_is_a_fault_when_inertia_is_removed(
+    kraft: DeviceSpec, slave: SlaveModel, acc_w: np.ndarray, omega_w: np.ndarray
+) -> None:
+    """The acceleration and angular velocity feed the wrench only with ``remove_inertia``: then a
+    non-finite one is a fault (safe output, named); without it they are unused and harmless."""
+    on = Switches(True, False, True)
+    bad = FTReading(acc_w=acc_w, omega_w=omega_w)
+    ctrl = FRHCController(kraft, kraft.data.gains.with_changes(remove_inertia=True), slave, safety=PAPER)
+    ctrl.step(home(kraft), on, FTReading(), DT)
+    out = ctrl.step(home(kraft), on, bad, DT)
+    assert out.faults == Fault.NONFINITE_INPUT
+    assert "inertia removal" in out.fault_message
+    np.testing.assert_array_equal(out.tau_T, 0.0)
+    np.testing.assert_allclose(out.tau, out.tau_G)
+    plain = FRHCController(kraft, kraft.data.gains, slave, safety=PAPER)
+    assert plain.step(home(kraft), on, bad, DT).faults == Fault.NONE
+
+
 def test_assist_torques_are_scaled_to_their_share_of_capacity(kraft: DeviceSpec, slave: SlaveModel) -> None:
     gains = kraft.data.gains.with_changes(rtc="hooke", k_r=(1e5,) * 6, assist_fraction=0.25)
     ctrl = FRHCController(kraft, gains, slave, safety=PAPER)

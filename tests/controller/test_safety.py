@@ -260,3 +260,30 @@ def test_an_encoder_glitch_brakes_within_each_joints_limit(safe, kraft, slave, j
     back = safe.step(q, on, pushed(slave), DT)  # and the jump back: the same bound, the other way
     assert np.all(np.isfinite(back.tau))
     assert np.all(np.abs(back.tau - back.tau_G) <= safe.joint_limit + 1e-12)
+
+
+def test_gravity_ramps_back_after_a_joint_reading_fault(safe, kraft, slave) -> None:
+    """Non-finite joint angles leave no gravity compensation (no pose to compute it at); when the
+    reading recovers, the torque comes back at the ramp's rate like after any other fault, not as
+    one step (it was a step of 32 % of the amplifier's full scale in counts)."""
+    q = np.array(kraft.data.home)
+    on = Switches(deadman=True, reflection=True)
+    for _ in range(round(2 * RAMP_TIME / DT)):
+        out = safe.step(q, on, pushed(slave), DT)
+    full_tau, full = out.tau_sat.copy(), out.counts.copy()
+    for _ in range(10):
+        out = safe.step(np.full_like(q, np.nan), on, pushed(slave), DT)
+        assert out.faults == Fault.NONFINITE_INPUT
+        np.testing.assert_array_equal(out.counts, 0)
+    previous, previous_tau, worst, worst_tau = out.counts.copy(), out.tau_sat.copy(), 0, np.zeros_like(full_tau)
+    for _ in range(round(RAMP_TIME / DT)):
+        out = safe.step(q, on, pushed(slave), DT)
+        assert out.faults == Fault.NONE
+        worst = max(worst, int(np.abs(out.counts - previous).max()))
+        worst_tau = np.maximum(worst_tau, np.abs(out.tau_sat - previous_tau))
+        previous, previous_tau = out.counts.copy(), out.tau_sat.copy()
+    np.testing.assert_array_equal(out.counts, full)  # back at full strength within the ramp time
+    jump = int(np.abs(full).max())
+    assert jump > 0.2 * safe.curve.counts_max  # a large torque to bring back
+    assert worst <= jump * DT / RAMP_TIME * 1.5 + deadzone_counts(safe) + 1, worst / safe.curve.counts_max
+    assert np.all(worst_tau <= np.abs(full_tau) * DT / RAMP_TIME * 1.001 + 1e-9)

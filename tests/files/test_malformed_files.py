@@ -126,6 +126,11 @@ CASES: dict[str, dict[str, Case]] = {
         "capsule spacing too fine": S("spacing = 0.0025", "spacing = 1e-6", "tool.capsules[0].spacing", "spheres"),
         "capsule default spacing too fine": S(None, CAPSULE, "tool.capsules[1].radius", "over 10000 spheres"),
         "box grid too fine": S("spacing = 0.004", "spacing = 1e-6", "tool.boxes[0].spacing", "spheres"),
+        "dotted key of 100000 parts": S("", "a" + ".a" * 100_000 + " = 1\n", "<file>", "more than 32 parts (line 1)"),
+        "quoted dotted key of 33 parts": P(None, '"k".' * 32 + '"k" = 1', "<file>", "more than 32 parts"),
+        "table header of 100 parts": D(None, "[" + ".".join(["t"] * 100) + "]", "<file>", "more than 32 parts"),
+        "inline tables 1000 deep": S("", "x = " + "{a=" * 1000 + "1" + "}" * 1000 + "\n", "<file>", "32 deep"),
+        "5000-digit integer": P("seed = 0", "seed = 1" + "0" * 5000, "<file>", "more than 1000 digits"),
         "1001 objects": S(None, MANY_OBJECTS, "objects", "0..1000 entries"),
         "1001 tool spheres": S(None, MANY_SPHERES, "tool.spheres", "0..1000 entries"),
         "duration 1e12": P("duration = 5.0", "duration = 1e12", "duration", "(0, 86400] s"),
@@ -314,6 +319,16 @@ CASES: dict[str, dict[str, Case]] = {
         "mesh empty file": S("box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/empty.stl"', "objects[0].mesh"),
         "mesh flat": S("box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/flat.ply"', "objects[0].mesh", "not closed"),
         "mesh non-finite vertex": S("box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/nan.obj"', "objects[0].mesh"),
+        # Refused from the header: trimesh would spend gigabytes on these before counting.
+        "binary STL of 5M triangles": S(
+            "box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/huge.stl"', "objects[0].mesh", "5000000 faces (at most 2000000)"
+        ),
+        "PLY header of 3M faces": S(
+            "box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/huge.ply"', "objects[0].mesh", "3000000 faces (at most 2000000)"
+        ),
+        "mesh path longer than the file system allows": S(
+            "box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/' + "m" * 300 + '.stl"', "objects[0].mesh", "File name too long"
+        ),
         "mesh is a folder": S("box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}"', "objects[0].mesh", "not found"),
         "open mesh refused before a later error": S(
             None,
@@ -337,6 +352,13 @@ def write_meshes(folder: Path) -> None:
     """The bad meshes the table refers to as ``{tmp}/...``."""
     (folder / "junk.stl").write_bytes(b"\x00\x01 not a mesh")
     (folder / "empty.stl").write_bytes(b"")
+    with (folder / "huge.stl").open("wb") as fh:  # sparse: 250 MB long, no disk used
+        fh.write(b"\0" * 80 + (5_000_000).to_bytes(4, "little"))
+        fh.truncate(84 + 50 * 5_000_000)
+    (folder / "huge.ply").write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        b"property float z\nelement face 3000000\nproperty list uchar int vertex_indices\nend_header\n"
+    )
     flat = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]], process=False)
     flat.export(folder / "flat.ply")
     (folder / "nan.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 nan 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
@@ -414,6 +436,8 @@ def test_an_open_mesh_is_refused_naming_its_field(tmp_path: Path) -> None:
 CLI_CASES = [
     ("encoding", "scene latin-1 byte"),
     ("resource exhaustion", "capsule spacing 1e-12"),
+    ("resource exhaustion", "dotted key of 100000 parts"),
+    ("resource exhaustion", "5000-digit integer"),
     ("inf, NaN, huge or tiny", "tool mass 1e-300"),
     ("inf, NaN, huge or tiny", "stiffness 1e300"),
     ("unknown key", "plant"),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +57,17 @@ BAD = {
     "unknown metric": ('metric = "speed"\n[[vary]]\nfield = "seed"\nvalues = [1]', "metric", "unknown metric"),
     "twice": ('[[vary]]\nfield = "seed"\nvalues = [1]\n[[vary]]\nfield = "seed"\nvalues = [2]', "vary", "twice"),
     "negative samples": ('samples = -1\n[[vary]]\nfield = "seed"\nvalues = [1]', "samples", "non-negative"),
+    "samples over the limit": (
+        'samples = 1000001\n[[vary]]\nfield = "seed"\nvalues = [1]',
+        "samples",
+        "in [0, 1000000]",
+    ),
+    "grid over the limit": (
+        '[[vary]]\nfield = "seed"\nrange = [0.0, 1e6]\nsteps = 1001\n'
+        '[[vary]]\nfield = "duration"\nrange = [1.0, 2.0]\nsteps = 1000',
+        "vary",
+        "the grid has 1001000 points (at most 1000000)",
+    ),
 }
 
 
@@ -181,3 +193,13 @@ def test_random_samples_are_seeded_and_inside_the_range(lo: float, span: float, 
 def test_shipped_sweep_files_load() -> None:
     for path in sorted((ROOT / "sweeps").glob("*.toml")):
         assert load_sweep(path).n_points() > 0
+
+
+def test_a_base_path_is_read_beside_the_sweep_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``base = "mine.toml"`` is the sweep file's neighbour, not a file of the working directory."""
+    folder = tmp_path / "study"
+    folder.mkdir()
+    shutil.copy(ROOT / "sessions" / "probe_rate.toml", folder / "mine.toml")
+    (folder / "sweep.toml").write_text('base = "mine.toml"\n[[vary]]\nfield = "seed"\nvalues = [1, 2]\n')
+    monkeypatch.chdir(tmp_path)
+    assert load_sweep("study/sweep.toml").base_path == folder / "mine.toml"

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import http.client
+import os
 import time
+from pathlib import Path
 
 import pytest
 
@@ -27,6 +29,26 @@ def test_token_is_found_in_query_or_cookie(head: bytes, ok: bool) -> None:
     assert token_in_request(head, "abc") is ok
 
 
+def listening_tcp_ports() -> set[int]:
+    """TCP ports this process listens on (IPv4 and IPv6), from ``/proc``: the sockets among its
+    open files that the kernel's tables list in state LISTEN."""
+    inodes = set()
+    for fd in Path("/proc/self/fd").iterdir():
+        try:
+            target = os.readlink(fd)
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            inodes.add(target[8:-1])
+    ports = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for line in Path(table).read_text().splitlines()[1:]:
+            fields = line.split()
+            if fields[3] == "0A" and fields[9] in inodes:
+                ports.add(int(fields[1].rsplit(":", 1)[1], 16))
+    return ports
+
+
 def _get(port: int, path: str, headers: dict[str, str] | None = None) -> http.client.HTTPResponse:
     connection = http.client.HTTPConnection("127.0.0.2", port, timeout=30)
     connection.request("GET", path, headers=headers or {})
@@ -35,9 +57,10 @@ def _get(port: int, path: str, headers: dict[str, str] | None = None) -> http.cl
 
 def test_non_loopback_host_requires_the_token() -> None:
     """Served on 0.0.0.0 the page answers only with the token (URL, then the cookie it sets)."""
+    before = listening_tcp_ports()
     app = start_demo("probe", "kraft", host="0.0.0.0", port=free_port())
+    assert app.gate is not None
     try:
-        assert app.gate is not None
         assert f"{TOKEN_NAME}={app.gate.token}" in app.url
         port = app.gate.port
         end = time.monotonic() + 30
@@ -57,8 +80,12 @@ def test_non_loopback_host_requires_the_token() -> None:
         assert cookie is not None
         assert cookie.startswith(f"{TOKEN_NAME}={app.gate.token}")
         assert _get(port, "/", {"Cookie": cookie.split(";")[0]}).status == 200
-        # viser itself listens on loopback only.
-        assert app.server.get_host() in ("127.0.0.1", "localhost")
+        # Nothing else of the demo listens on TCP: viser is on a unix socket in a folder only
+        # this user may enter, so no plain request reaches it around the gate.
+        assert listening_tcp_ports() - before == {port}
+        assert app.gate.target.exists()
+        assert app.gate.target.parent.stat().st_mode & 0o777 == 0o700
     finally:
         app.close()
         app.server.stop()
+    assert not app.gate.target.parent.exists()

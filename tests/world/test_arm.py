@@ -259,6 +259,10 @@ def test_a_link_pressed_by_the_world_loads_the_arm_not_the_sensor() -> None:
     assert sum(c.count for c in arm.link_contacts) > 0
     link_force = sum(float(np.linalg.norm(c.force_w)) for c in arm.link_contacts)
     assert link_force > 5.0
+    assert arm.status & ArmStatus.LINK_CONTACT  # shown, though the sensor does not feel it
+    assert arm.link_force == pytest.approx(link_force)
+    probe.step(SlaveCommand())
+    assert not probe.status & ArmStatus.LINK_CONTACT  # without the slab: no bit
     assert arm.contact.count == 0
     np.testing.assert_allclose(reading.wrench_S, probe.reading().wrench_S, atol=0.05)
 

@@ -170,3 +170,19 @@ def test_open_mesh_is_refused_naming_the_field(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="not closed") as info:
         load_scene(write_scene(tmp_path, mesh_line=f'mesh = "{path_mesh}"'))
     assert info.value.field == "objects[0].mesh"
+
+
+def test_declared_faces_counts_each_format_without_parsing(tmp_path: Path) -> None:
+    """Known counts: a binary and an ASCII STL, an OBJ with a quad, a PLY header; None for others."""
+    from app.world.mesh_check import _SCAN_CHUNK, declared_faces
+
+    box = trimesh.creation.box()
+    box.export(tmp_path / "box.stl")
+    (tmp_path / "box_ascii.stl").write_text(trimesh.exchange.stl.export_stl_ascii(box))
+    box.export(tmp_path / "box.ply")
+    box.export(tmp_path / "box.glb")
+    # The 4th face's "\nf " straddles the scan's first chunk boundary: counted once.
+    pad = "#" * (_SCAN_CHUNK - len("v 0 0 0\n" * 4 + "f 1 2 3\nf 1 2 4\nf 1 3 4") - 1)
+    (tmp_path / "q.obj").write_text("v 0 0 0\n" * 4 + "f 1 2 3\nf 1 2 4\nf 1 3 4" + pad + "\nf 1 2 3 4\n")
+    got = {p.name: declared_faces(p) for p in sorted(tmp_path.iterdir())}
+    assert got == {"box.glb": None, "box.ply": 12, "box.stl": 12, "box_ascii.stl": 12, "q.obj": 4}

@@ -1,0 +1,207 @@
+"""Every output-folder and replay-log failure is one line naming the path, exit 2, no traceback.
+
+The conditions are real ones: a regular file where the folder should be (or above it), a folder
+under ``/proc`` (nothing can be created there, even by root, who ignores permission bits), a
+name longer than the file system allows, and a tiny tmpfs mounted full or read-only (skipped
+with the reason when this machine may not mount). The damaged logs are a real log of
+``frhc run`` with one part truncated, overwritten or emptied, ``_meta.json`` without its
+device, and a part of another column layout.
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import BinaryIO
+
+import pyarrow.parquet as pq
+import pytest
+
+from app.cli import main
+from app.session.run import run_session
+from app.session.spec import load_session
+
+FRHC = [sys.executable, "-m", "app.cli"]
+
+TINY_SWEEP = """\
+base = "{base}"
+metric = "peak_contact_force_N"
+
+[[vary]]
+field = "duration"
+values = [0.2, 0.3]
+"""
+
+
+def frhc_fails(args: list[str], cwd: Path) -> str:
+    """Run ``frhc args`` in a child process; assert exit 2, no traceback; return the last stderr line."""
+    done = subprocess.run([*FRHC, *args], capture_output=True, text=True, timeout=300, cwd=cwd, check=False)
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert "Traceback" not in done.stderr, done.stderr[-2000:]
+    assert done.stdout == ""
+    # A progress bar may precede the error (a disk fills during the run): the error is the last line.
+    return done.stderr.rstrip("\n").splitlines()[-1].split("\r")[-1]
+
+
+def main_fails(args: list[str], cwd: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> str:
+    """:func:`frhc_fails` in this process (the same ``main``, without a child's imports): an exception
+    other than the one-line error would escape here and fail the test."""
+    monkeypatch.chdir(cwd)
+    assert main(args) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    return err.rstrip("\n").splitlines()[-1].split("\r")[-1]
+
+
+@pytest.fixture
+def tmpfs(tmp_path: Path) -> Iterator[Path]:
+    """A folder holding a 64 KiB tmpfs mounted at ``full`` (filled up) and one mounted read-only at ``ro``."""
+    mounted = []
+    try:
+        for name, options in (("full", "size=64k"), ("ro", "ro,size=64k")):
+            point = tmp_path / name
+            point.mkdir()
+            done = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(point)], capture_output=True)
+            if done.returncode != 0:
+                pytest.skip(f"cannot mount a tmpfs here: {done.stderr.decode().strip()}")
+            mounted.append(point)
+        _fill(tmp_path / "full" / "filler")
+        yield tmp_path
+    finally:
+        for m in mounted:
+            subprocess.run(["umount", str(m)], check=True)
+
+
+def _fill(path: Path) -> None:
+    """Write zeros to ``path`` until its file system is full."""
+
+    def write_forever(fh: BinaryIO) -> None:
+        while True:
+            fh.write(b"\0" * 4096)
+
+    with path.open("wb", buffering=0) as fh, pytest.raises(OSError, match="No space left"):
+        write_forever(fh)
+
+
+def bad_outs(tmp_path: Path) -> dict[str, tuple[str, str]]:
+    """--out value -> (the path the error names, its reason)."""
+    (tmp_path / "a_file").write_text("")
+    long_name = "n" * 300
+    return {
+        "a_file": ("a_file", "a file is in the way of the folder"),
+        "a_file/sub": ("a_file/sub", "a file is in the way of the folder"),
+        "/proc/frhc_out": ("/proc/frhc_out", "No such file or directory"),
+        long_name: (long_name, "File name too long"),
+    }
+
+
+def test_run_out_folder_failures_are_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    for out, (named, reason) in bad_outs(tmp_path).items():
+        line = main_fails(["run", "probe_rate", "--no-plots", "--out", out], tmp_path, capsys, monkeypatch)
+        assert line == f"error: {named}: field '--out': cannot write the output: {reason}"
+    # And once in a child process: nothing but the one line reaches the terminal.
+    line = frhc_fails(["run", "probe_rate", "--no-plots", "--out", "a_file/sub"], tmp_path)
+    assert line == "error: a_file/sub: field '--out': cannot write the output: a file is in the way of the folder"
+
+
+def test_sweep_out_folder_failures_are_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    sweep = tmp_path / "tiny.toml"
+    sweep.write_text(TINY_SWEEP.format(base="probe_rate"))
+    for out, (named, reason) in bad_outs(tmp_path).items():
+        line = main_fails(["sweep", str(sweep), "--workers", "1", "--out", out], tmp_path, capsys, monkeypatch)
+        assert line == f"error: {named}: field '--out': cannot write the output: {reason}"
+
+
+def test_full_and_read_only_file_systems_are_one_line(
+    tmpfs: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    sweep = tmpfs / "tiny.toml"
+    sweep.write_text(TINY_SWEEP.format(base="probe_rate"))
+    commands = {
+        "run": ["run", "probe_rate", "--no-plots", "--out"],
+        "sweep": ["sweep", str(sweep), "--workers", "1", "--out"],
+    }
+    for name, command in commands.items():
+        line = main_fails([*command, f"full/{name}"], tmpfs, capsys, monkeypatch)
+        assert line == f"error: full/{name}: field '--out': cannot write the output: No space left on device"
+        line = main_fails([*command, f"ro/{name}"], tmpfs, capsys, monkeypatch)
+        assert line == f"error: ro/{name}: field '--out': cannot write the output: Read-only file system"
+
+
+@pytest.fixture(scope="module")
+def log_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A real three-part log of a 0.3 s probe session."""
+    out = tmp_path_factory.mktemp("run")
+    session = load_session("probe_rate").with_changes(duration=0.3)
+    run_session(session, out_dir=out, plots=False)
+    assert len(list((out / "log").glob("part-*.parquet"))) == 3
+    return out / "log"
+
+
+def _damage(log: Path, how: str) -> tuple[Path, str, str]:
+    """Damage the copy ``log`` as ``how`` says; return (the file named, the field, the reason)."""
+    parts = sorted(log.glob("part-*.parquet"))
+    meta = log / "_meta.json"
+    if how == "last part truncated":
+        parts[-1].write_bytes(parts[-1].read_bytes()[:-100])
+        return parts[-1], "<file>", "not a readable log part"
+    if how == "random bytes":
+        parts[1].write_bytes(bytes(range(256)) * 16)
+        return parts[1], "<file>", "not a readable log part"
+    if how == "0-byte part":
+        parts[0].write_bytes(b"")
+        return parts[0], "<file>", "not a readable log part"
+    if how == "meta without device":
+        data = json.loads(meta.read_text())
+        del data["device"]
+        meta.write_text(json.dumps(data))
+        return meta, "device", "missing"
+    if how == "meta not an object":
+        meta.write_text("[1, 2]")
+        return meta, "<file>", "expected a JSON object"
+    assert how == "part with other columns"
+    table = pq.read_table(parts[1])
+    pq.write_table(table.drop_columns(["t"]).append_column("time", table.column("t")), parts[1])
+    return parts[1], "<file>", "not a part of a 6-joint log (missing t; unknown time)"
+
+
+@pytest.mark.parametrize(
+    "how",
+    [
+        "last part truncated",
+        "random bytes",
+        "0-byte part",
+        "meta without device",
+        "meta not an object",
+        "part with other columns",
+    ],
+)
+def test_replay_of_a_damaged_log_is_one_line(
+    tmp_path: Path, log_dir: Path, how: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    log = tmp_path / "log"
+    shutil.copytree(log_dir, log)
+    named, field, reason = _damage(log, how)
+    line = main_fails(["web", "--replay", str(log), "--port", "0"], tmp_path, capsys, monkeypatch)
+    assert line.startswith(f"error: {named}: field '{field}': {reason}"), line
+
+
+def test_a_toml_bomb_is_refused_in_one_line_with_bounded_memory(tmp_path: Path) -> None:
+    """A 200 KB file with one dotted key of 100,000 parts (> 6 GB inside ``tomllib`` before)."""
+    bomb = tmp_path / "b.toml"
+    bomb.write_text("a" + ".a" * 100_000 + " = 1\n")
+    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    line = frhc_fails(["check", str(bomb)], tmp_path)
+    assert line == f"error: {bomb}: field '<file>': not valid TOML: a dotted key of more than 32 parts (line 1)"
+    peak_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    # The largest child so far: the command's imports (about 0.3 GB), not the bomb.
+    assert peak_kib < 1_000_000 or peak_kib == before

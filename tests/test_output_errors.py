@@ -210,5 +210,6 @@ def test_a_toml_bomb_is_refused_in_one_line_with_bounded_memory(tmp_path: Path) 
     assert "Traceback" not in lines
     line = lines.rstrip("\n").splitlines()[-1]
     assert line == f"error: {bomb}: field '<file>': not valid TOML: a dotted key of more than 32 parts (line 1)"
-    # The command's imports (about 0.3 GB), not the bomb (> 6 GB before).
-    assert usage.ru_maxrss < 1_000_000
+    # The command's imports: 0.3 GB, or 1.03 GB in a fresh clone whose kernels compile on first
+    # import; not the bomb (> 6 GB before, past 1.6 GB in 55 s at 20,000 parts).
+    assert usage.ru_maxrss < 2_000_000

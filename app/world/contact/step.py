@@ -268,6 +268,14 @@ def _enter_from_nearest(
         pair.mem_n[0], pair.mem_n[1], pair.mem_n[2] = nx, ny, nz
 
 
+@njit(cache=True, inline="always")
+def _place(pair: Record, R: np.ndarray, p: np.ndarray) -> None:
+    """The pair's sphere centre in {w}, ``pair.c = R c_T + p``, for the tool pose ``(R, p)`` of {T}."""
+    s = pair.c_T
+    for a in range(3):
+        pair.c[a] = R[a, 0] * s[0] + R[a, 1] * s[1] + R[a, 2] * s[2] + p[a]
+
+
 @tick_kernel
 def _evaluate(
     pair: Record,
@@ -402,9 +410,7 @@ def contact_step(
             pair = pairs[k]
             if not (full or pair.hot):
                 continue  # its centre is only needed at the next full check
-            s = pair.c_T
-            for a in range(3):
-                pair.c[a] = R[a, 0] * s[0] + R[a, 1] * s[1] + R[a, 2] * s[2] + p[a]
+            _place(pair, R, p)
             if full:
                 ex, ey, ez = pair.c[0] - pair.last[0], pair.c[1] - pair.last[1], pair.c[2] - pair.last[2]
                 if math.sqrt(ex * ex + ey * ey + ez * ez) < pair.slack:
@@ -468,9 +474,7 @@ def contact_step(
             break
         j, i = best // n, best % n
         pair = pairs[best]
-        s = pair.c_T
-        for a in range(3):
-            pair.c[a] = R[a, 0] * s[0] + R[a, 1] * s[1] + R[a, 2] * s[2] + p[a]
+        _place(pair, R, p)
         queries += 1
         n_c, g = _evaluate(pair, best, i, j, objs[j], tool, verts, tris, edges, cells, lists, stamp, pool, out, n_c, T,
                            has_twist, V, FM)  # fmt: skip

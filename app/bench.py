@@ -34,8 +34,8 @@ def bench_controller(quick: bool = False) -> str:
     from app.controller.passivity import PassivitySettings
     from app.controller.types import FTReading, Switches
     from app.device.spec import load_device
+    from app.slave.tool import VirtualSlave
     from app.world.scene import load_scene
-    from app.world.slave import VirtualSlave
 
     device = load_device("kraft")
     slave = VirtualSlave(load_scene("probe")).slave_model()
@@ -114,8 +114,8 @@ def bench_arm(quick: bool = False) -> str:
     from app.controller.types import SlaveCommand
     from app.session.run import run_session
     from app.session.spec import load_session
+    from app.slave.api import make_slave
     from app.world.scene import load_scene, with_slave
-    from app.world.slave_api import make_slave
 
     lines = ["slave step (probe, rate command down onto the surface, NTRFC on; first 500 steps not timed):"]
     n = 3000 if quick else 20000

@@ -99,7 +99,7 @@ _count = _bounded(int, 0, 10_000_000)
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
-    from app.session.experiment import run_experiment
+    from app.study.experiment import run_experiment
     from app.world.scene_file import check_slave_kind
 
     if args.slave is not None:
@@ -225,7 +225,7 @@ def _cmd_web(args: argparse.Namespace) -> int:
 
 def _cmd_zwidth(args: argparse.Namespace) -> int:
     from app.session.stability import device_bound, passivity_bound
-    from app.session.zwidth import zwidth
+    from app.study.zwidth import zwidth
 
     device_only = device_bound(args.device, args.rate)
     if args.hand is None:
@@ -272,7 +272,7 @@ def _list_of(kind: Callable[[str], object]) -> Callable[[str], list[object]]:
 
 
 def _renderer(text: str) -> str:
-    from app.session.zwidth import RENDERERS
+    from app.study.zwidth import RENDERERS
 
     if text not in RENDERERS:
         raise ValueError(f"unknown renderer {text!r} (known: {', '.join(RENDERERS)})")
@@ -414,7 +414,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "zwidth",
         help="the stable region of a design (largest stable felt stiffness per damping)",
-        description="Z-width by bisection on the task-wrench gain, pose-mode probe presses (see app/session/zwidth.py).",
+        description="Z-width by bisection on the task-wrench gain, pose-mode probe presses (see app/study/zwidth.py).",
     )
     p.add_argument("--device", default="kraft")
     p.add_argument("--rate", type=float, default=1000.0, help="servo rate (Hz)")

@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.controller.types import SlaveCommand
 from app.world.scene import build_scene, load_scene
-from app.world.slave import VirtualSlave
+from app.slave.tool import VirtualSlave
 
 T_SERVO = 1e-3
 

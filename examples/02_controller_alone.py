@@ -15,7 +15,7 @@ from app.controller.frhc import FRHCController
 from app.controller.types import FTReading, Switches
 from app.device.spec import load_device
 from app.world.scene import load_scene
-from app.world.slave import VirtualSlave
+from app.slave.tool import VirtualSlave
 
 device = load_device("kraft")
 slave_model = VirtualSlave(load_scene("probe")).slave_model()  # payload mass, sensor frame

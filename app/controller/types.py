@@ -47,7 +47,7 @@ class FTReading:
         valid: False when the world could not produce a trustworthy reading (failed or
             non-finite contact query); the controller then reflects nothing and flags a fault.
         slave_status: Why the slave did not follow its command exactly when it took the reading
-            (:class:`~app.world.arm.ArmStatus` bits; 0 = it did, always for the ideal tool): the
+            (:class:`~app.slave.arm.ArmStatus` bits; 0 = it did, always for the ideal tool): the
             slave reports it with the reading, and the controller's output carries it on.
     """
 

@@ -35,11 +35,11 @@ from app.device.plant import WATCHDOG, DevicePlant
 from app.device.spec import DeviceSpec, load_device
 from app.errors import ConfigError
 from app.session.tick import STAGES, TickObserver, TickRecord
+from app.slave.api import make_slave
 from app.spatial import Array, IntArray
 from app.teleop.channel import ChannelSettings
 from app.teleop.link import TeleopLink
 from app.world.scene import Scene, load_scene, with_slave
-from app.world.slave_api import make_slave
 
 if TYPE_CHECKING:
     from app.session.spec import Session
@@ -150,7 +150,7 @@ class ServoLoop:
             the simulated plant; a :class:`~app.session.cartesian_loop.CartesianServoLoop`'s is
             a Cartesian device.
         plant, controller, slave: The three rooms (the slave is the ideal tool or an arm, as the
-            scene's ``[slave] kind`` says: :func:`~app.world.slave_api.make_slave`).
+            scene's ``[slave] kind`` says: :func:`~app.slave.api.make_slave`).
         switches: The switch state the next tick uses (set by a script or the UI). The
             reference switch is momentary: the loop releases it after the tick that used it.
         record: The :class:`TickRecord` of the last tick (or of the reset state).

@@ -10,8 +10,8 @@ from numba import njit
 
 from app.controller.types import Fault
 from app.session.tick import STAGES, TickRecord
+from app.slave.arm import ArmStatus
 from app.spatial import Array, rotation_log
-from app.world.arm import ArmStatus
 from app.world.scene import TaskSpec
 
 #: Seconds at the end of a session over which the contact force's settling is judged (s).

@@ -1,7 +1,7 @@
 """Contact stability of the whole loop: press the probe into a surface and watch the force settle.
 
 Used by ``frhc bench stability`` (a stiffness sweep, compared with the passivity bound
-``K < 2 b / T`` for a sampled-data virtual wall), by ``frhc zwidth`` (:mod:`app.session.zwidth`)
+``K < 2 b / T`` for a sampled-data virtual wall), by ``frhc zwidth`` (:mod:`app.study.zwidth`)
 and by the tests (the shipped surfaces settle). Every press is an ordinary headless session
 (:func:`press`), so a sweep engine can run the same points anywhere.
 

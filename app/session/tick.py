@@ -16,9 +16,9 @@ from app.controller.frhc import ControllerOutput
 from app.controller.types import FTReading, SlaveCommand
 from app.device.boundary import CartesianReading
 from app.device.plant import PlantReading
+from app.slave.api import Slave
 from app.spatial import Array, IntArray
 from app.world.contact import ContactResult
-from app.world.slave_api import Slave
 
 STAGES = ("plant", "controller", "slave", "tick")
 """Stages of one tick timed in :attr:`TickRecord.stage_ns`, in order (``tick`` is their sum)."""
@@ -46,7 +46,7 @@ class TickRecord:
         ft: The F/T reading the slave produced this tick (the controller reflects it next tick).
         contact: The tool's contact with the world at the end of the tick.
         slave_status: Why the slave did not follow the command exactly this tick: bits of
-            :class:`~app.world.arm.ArmStatus` (joint limit, singularity, ...); 0 for the ideal tool.
+            :class:`~app.slave.arm.ArmStatus` (joint limit, singularity, ...); 0 for the ideal tool.
         stage_ns: Durations (ns) of the stages in :data:`STAGES`, (4,) int64.
     """
 
@@ -97,7 +97,7 @@ class TickRecord:
 
     def slave_geom_poses(self) -> tuple[Array, Array]:
         """The slave's geoms in {w}: positions (ngeom, 3), orientations (ngeom, 9) (views; see
-        :meth:`~app.world.slave_api.Slave.geom_poses`)."""
+        :meth:`~app.slave.api.Slave.geom_poses`)."""
         return self._slave.geom_poses()
 
     @property

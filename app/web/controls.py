@@ -27,6 +27,7 @@ from app.controller.layout import MODES, RTC_LAWS
 from app.controller.types import Fault
 from app.errors import ConfigError, InvalidField
 from app.session.pacer import TimingStats
+from app.slave.arm import ArmStatus
 from app.teleop.channel import COUPLINGS
 from app.web.camera import PRESETS
 from app.web.scene_view import (
@@ -38,7 +39,6 @@ from app.web.scene_view import (
     WRENCH_ARROWS,
 )
 from app.web.snapshot import Snapshot
-from app.world.arm import ArmStatus
 
 #: Gain fields typed as six comma-separated numbers, with their labels and units (translations; rotations).
 SIX_GAINS = (

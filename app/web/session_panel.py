@@ -15,9 +15,9 @@ import matplotlib.image as mpimg
 import numpy as np
 import viser
 
-from app.session.experiment import ExperimentReport, run_experiment
 from app.session.log import META_FILE
 from app.session.spec import SESSIONS_DIR
+from app.study.experiment import ExperimentReport, run_experiment
 from app.web.commands import MAX_SPEED, MIN_SPEED
 
 #: Choices of the speed selectors (simulated seconds per wall-clock second).

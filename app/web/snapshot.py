@@ -60,7 +60,7 @@ class Snapshot:
         device_link: A Cartesian device's link state (:class:`~app.device.boundary.LinkStatus`
             name: OK, RAMPING, STALLED, DISCONNECTED); empty for a joint-space device.
         slave_status: Why the slave did not follow the command exactly this tick
-            (:class:`~app.world.arm.ArmStatus` bits; 0 = it did, always for the ideal tool).
+            (:class:`~app.slave.arm.ArmStatus` bits; 0 = it did, always for the ideal tool).
         slave_geom_xpos, slave_geom_xmat: The slave's own geoms (an arm's links) in {w}, (k, 3)
             and (k, 3, 3); empty for the ideal tool and in a replay (the log keeps no arm angles).
         recording: The log directory being written, or None.

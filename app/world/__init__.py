@@ -1,8 +1,12 @@
-"""The virtual world: scenes, FCL contact on trimesh objects, and the virtual slave tool.
+"""The virtual world that replaces the paper's slave environment: scenes, static meshes and the
+contact wrench on the tool's sphere set.
+
+The slave that touches it (tool, arms, F/T sensor, NTRFC) is :mod:`app.slave`; the world never
+imports it.
 
 Public API::
 
-    from app.world import load_scene, ContactModel, contact_wrench, VirtualSlave
+    from app.world import load_scene, ContactModel, contact_wrench
 
     scene = load_scene("probe")
     result = contact_wrench(scene, T_w_MRF)  # result.wrench_S, result.points_w, result.valid
@@ -10,6 +14,5 @@ Public API::
 
 from app.world.contact import ContactModel, ContactResult, contact_wrench
 from app.world.scene import Scene, available_scenes, load_scene
-from app.world.slave import VirtualSlave
 
-__all__ = ["ContactModel", "ContactResult", "Scene", "VirtualSlave", "available_scenes", "contact_wrench", "load_scene"]
+__all__ = ["ContactModel", "ContactResult", "Scene", "available_scenes", "contact_wrench", "load_scene"]

@@ -1,10 +1,10 @@
-"""Contact-wrench and slave-step timing: median and p99 per case, as a text table.
+"""Contact-wrench timing: median and p99 per case, as a text table.
 
 Cases: the default tool of each shipped scene held in contact (``static``: the same pose every
 call; ``moving``: a random walk of 20 um / 0.01 deg steps, as a hand moves at 1 kHz), and stroked
 at 1 m/s (``1 m/s``: moving is 1 mm a call back and forth over 20 mm in contact); the probe
 tool pressed into icospheres of about 1k, 10k, 100k and 1M triangles; the probe scene with 1, 10
-and 100 objects (all but the surface far away); and one :meth:`VirtualSlave.step` in contact.
+and 100 objects (all but the surface far away). The slave's step is timed by ``frhc bench arm``.
 
 For each shipped scene MuJoCo's own collision runs beside ours on the same moving path: the
 tool's spheres as sphere geoms on a free body, the objects as mesh geoms (MuJoCo collides with
@@ -20,11 +20,9 @@ from collections.abc import Callable
 import numpy as np
 import trimesh
 
-from app.controller.types import SlaveCommand
 from app.spatial import Array, invert_pose, make_pose, zyx_to_matrix
 from app.world.contact import ContactModel
 from app.world.scene import ObjectSpec, Pose, Scene, build_scene, load_scene
-from app.world.slave import VirtualSlave
 
 # Pose of {MRF} in contact for each shipped scene (m, Z-Y-X rad), see scenes/*.toml.
 CONTACT_POSES: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
@@ -209,21 +207,6 @@ def run(quick: bool = False) -> str:
             for i in range(count - 1)
         ]
         rows.append(_contact_row(f"{count} objects", _probe_scene([surface, *far]), T_probe, n))
-    slave = VirtualSlave(load_scene("probe"), accommodation=True)
-    slave.reset(T_probe)
-    press = SlaveCommand(active=True, mode="rate", twist=np.array([0.0, 0.0, -0.01, 0.0, 0.0, 0.0]))
-    med, p99 = _time(lambda _k: slave.step(press), n)
-    rows.append(
-        [
-            "slave step (probe)",
-            "12",
-            f"{len(slave.scene.tool.radii)}",
-            f"{slave.contact.count}",
-            f"{med:.1f}",
-            f"{p99:.1f}",
-            *[""] * 5,
-        ]
-    )
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
     lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)), "  ".join("-" * w for w in widths)]
     lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]

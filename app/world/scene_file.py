@@ -261,11 +261,11 @@ class ToolSpec(Checked):
 
 @dataclass(frozen=True)
 class SlaveGains(Checked):
-    """The virtual slave robot's Cartesian controller (see :mod:`app.world.slave`).
+    """The virtual slave robot's Cartesian controller (see :mod:`app.slave.tool`).
 
     Attributes:
-        kind: ``"tool"``: the ideal Cartesian tool (:mod:`app.world.slave`); or the name of an arm
-            in ``slaves/`` carrying the tool on its flange (:mod:`app.world.arm`). The gains below
+        kind: ``"tool"``: the ideal Cartesian tool (:mod:`app.slave.tool`); or the name of an arm
+            in ``slaves/`` carrying the tool on its flange (:mod:`app.slave.arm`). The gains below
             are the tool's Cartesian PD; an arm uses ``kp_*``, the limits and ``accommodation`` for
             its reference and the wrench felt at its limits, and its own joint servos.
         kp_lin: Translational tracking stiffness (N/m) of {MRF} toward its reference.

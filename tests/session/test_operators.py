@@ -13,7 +13,6 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from app.session import load_session
-from app.session.experiment import BLIND, NTRFC, run_experiment
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.operators import (
     POPULATION,
@@ -23,6 +22,7 @@ from app.session.operators import (
     _Delayed,
     sample_population,
 )
+from app.study.experiment import BLIND, NTRFC, run_experiment
 
 
 @given(delay=st.floats(0.0, 0.3), rate=st.sampled_from([500.0, 1000.0, 2000.0]))

@@ -14,9 +14,9 @@ from app.filters import lowpass
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.script import OperatorScript
 from app.session.spec import load_session
+from app.slave.arm import ArmStatus
 from app.teleop import wave
 from app.teleop.channel import ChannelSettings, DelayLine
-from app.world.arm import ArmStatus
 
 
 def deliveries(line: DelayLine, n: int) -> list[float]:

@@ -8,11 +8,11 @@ import viser
 from app.controller.types import SlaveCommand
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.spec import load_session
+from app.slave.arm import ArmStatus
 from app.spatial import quat_to_matrix
 from app.web.headless import free_port
 from app.web.scene_view import WORLD_ORIGIN_V, SceneView
 from app.web.snapshot import take_snapshot
-from app.world.arm import ArmStatus
 
 
 def test_an_arm_out_of_reach_is_flagged_in_the_snapshot() -> None:

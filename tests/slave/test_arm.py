@@ -16,16 +16,16 @@ from world_helpers import sphere_tool
 
 from app.controller.payload import remove_weight
 from app.controller.types import FTReading, SlaveCommand
-from app.session.experiment import run_experiment
 from app.session.log import read_log
 from app.session.operators import sample_population
 from app.session.run import run_session
 from app.session.spec import load_session
+from app.slave.arm import ArmSlave, ArmStatus
+from app.slave.tool import VirtualSlave
 from app.spatial import rotation_log, zyx_to_matrix
-from app.world.arm import ArmSlave, ArmStatus
+from app.study.experiment import run_experiment
 from app.world.scene import ObjectSpec, Pose, Scene, SceneFile, SlaveGains, build_scene, load_scene, with_slave
 from app.world.scene_file import SLAVES_DIR
-from app.world.slave import VirtualSlave
 
 ARMS = ("puma560", "redundant7")
 

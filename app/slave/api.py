@@ -1,7 +1,7 @@
 """The slave interface the servo loop uses, and the one place a slave is chosen.
 
-Two implementations: the ideal Cartesian tool (:class:`~app.world.slave.VirtualSlave`) and a
-robot arm carrying it (:class:`~app.world.arm.ArmSlave`); the scene file's ``[slave] kind``
+Two implementations: the ideal Cartesian tool (:class:`~app.slave.tool.VirtualSlave`) and a
+robot arm carrying it (:class:`~app.slave.arm.ArmSlave`); the scene file's ``[slave] kind``
 chooses (``"tool"`` or an arm in ``slaves/``).
 """
 
@@ -12,11 +12,11 @@ from typing import Protocol
 import mujoco
 
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
+from app.slave.arm import ArmSlave
+from app.slave.tool import DEFAULT_PERIOD, VirtualSlave
 from app.spatial import Array
-from app.world.arm import ArmSlave
 from app.world.contact import ContactResult
 from app.world.scene import Scene
-from app.world.slave import DEFAULT_PERIOD, VirtualSlave
 
 
 class Slave(Protocol):
@@ -64,7 +64,7 @@ class Slave(Protocol):
 
     @property
     def status(self) -> int:
-        """Why the slave did not follow the command exactly (bits of :class:`~app.world.arm.ArmStatus`; 0 for the tool)."""
+        """Why the slave did not follow the command exactly (bits of :class:`~app.slave.arm.ArmStatus`; 0 for the tool)."""
 
 
 def make_slave(scene: Scene, accommodation: bool = True, period: float = DEFAULT_PERIOD) -> Slave:

@@ -1,6 +1,6 @@
-"""The arithmetic of one virtual-slave substep (:mod:`app.world.slave`), compiled with numba.
+"""The arithmetic of one virtual-slave substep (:mod:`app.slave.tool`), compiled with numba.
 
-:class:`~app.world.slave.VirtualSlave` keeps MuJoCo for the rigid-body integration and FCL (via
+:class:`~app.slave.tool.VirtualSlave` keeps MuJoCo for the rigid-body integration and FCL (via
 :class:`~app.world.contact.ContactModel`) for contact; what lies between them, the {MRF} state of
 the free joint, the rate reference, the saturated PD wrench and the F/T sensor, is here and reads
 and writes preallocated arrays. In CPython these few dozen 3-vector operations cost about 100 us a
@@ -116,7 +116,7 @@ def rate_reference(
     T_ref: Array,
     V_ref_w: Array,
 ) -> None:
-    """Integrate the rate reference over ``dt`` (s) (module docstring of :mod:`app.world.slave`, step 1).
+    """Integrate the rate reference over ``dt`` (s) (module docstring of :mod:`app.slave.tool`, step 1).
 
     Args:
         twist: Commanded ``[v; w]``, v (m/s) in {w}, w (rad/s) in {MRF} axes, (6,).

@@ -1,4 +1,4 @@
-"""Differential inverse kinematics of an arm slave (:mod:`app.world.arm`), compiled with numba.
+"""Differential inverse kinematics of an arm slave (:mod:`app.slave.arm`), compiled with numba.
 
 Damped least squares, hand-written rather than taken from a library (mink solves a quadratic
 program per tick with daqp: some hundred microseconds on this machine, against the 40 us budget
@@ -24,7 +24,7 @@ Each tick, for a Jacobian ``J`` (6, n) at the joint set-point:
 
 The small dense linear algebra (Cholesky of a 6 x 6 Gram matrix, loops instead of numba's BLAS
 calls, whose overhead dwarfs these sizes) is written out beside its only user. The rest of the
-tick around MuJoCo is :mod:`app.world.arm_kernel`.
+tick around MuJoCo is :mod:`app.slave.arm_kernel`.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from app.spatial import Array, rotation_log
 
 BoolArray = NDArray[np.bool_]
 
-# Status bits of :func:`ik_step`, :func:`app.world.arm_kernel.control` and the arm (see :class:`app.world.arm.ArmStatus`).
+# Status bits of :func:`ik_step`, :func:`app.slave.arm_kernel.control` and the arm (see :class:`app.slave.arm.ArmStatus`).
 SINGULAR, JOINT_LIMIT, VELOCITY, TRACKING, TORQUE = 1, 2, 4, 8, 16
 # Slots of the IK parameter vector.
 K_IK, LAMBDA_MAX, EPS_SING, K_LIMIT, K_NULL = range(5)
@@ -268,7 +268,7 @@ def ik_step(
         Status bits (``TRACKING`` when the limit wrench is non-zero, and those of :func:`ik_rates`).
     """
     pose_error(T_ref, T_w_MRF[0:3, 3], T_w_MRF[0:3, 0:3], e)
-    # The set-point's error, linearised about the measured state (see app.world.arm).
+    # The set-point's error, linearised about the measured state (see app.slave.arm).
     e -= matvec(J, q_c - q)
     W_limit[:] = limit_wrench(e, feel[0], feel[1], feel[2], feel[3], feel[4], feel[5])
     status = 0

@@ -1,8 +1,8 @@
-"""The arm slave's tick around MuJoCo (:mod:`app.world.arm`), compiled with numba.
+"""The arm slave's tick around MuJoCo (:mod:`app.slave.arm`), compiled with numba.
 
-One servo tick of :class:`~app.world.arm.ArmSlave` crosses from Python into compiled code three
+One servo tick of :class:`~app.slave.arm.ArmSlave` crosses from Python into compiled code three
 times, whatever the arm: :func:`mrf_state` after ``mj_step1`` (the {MRF} Jacobian, pose and
-twist), :func:`control` before ``mj_step2`` (the IK of :mod:`app.world.arm_ik`, the joint servo,
+twist), :func:`control` before ``mj_step2`` (the IK of :mod:`app.slave.arm_ik`, the joint servo,
 the tool's contact wrench and which links are near the world) and :func:`ft_reading` after it.
 Each crossing costs about 0.1 us per argument, so everything the arm owns (its constants, the IK
 state and the {MRF} buffers) is one numpy record (:func:`arm_record_dtype`) passed as a single
@@ -18,8 +18,8 @@ import numpy as np
 from numba import njit
 
 from app.mjcall import call_model_data
+from app.slave.arm_ik import TORQUE, ik_step, matTvec, matvec
 from app.spatial import Array, IntArray, cross3
-from app.world.arm_ik import TORQUE, ik_step, matTvec, matvec
 
 
 def arm_record_dtype(n: int, links: int, spheres: int) -> np.dtype:
@@ -30,9 +30,9 @@ def arm_record_dtype(n: int, links: int, spheres: int) -> np.dtype:
     Constants:
         lo, hi: Soft joint limits (n,). qd_max: joint velocity limits (n,). mid: the redundant
         arm's secondary goal (n,). kp, kd: servo gains (N m/rad, N m s/rad), (n,). tau_max:
-        motor torque limits (n,). ik: :data:`~app.world.arm_ik.K_IK` ... parameters (5,). feel:
+        motor torque limits (n,). ik: :data:`~app.slave.arm_ik.K_IK` ... parameters (5,). feel:
         ``[dead_lin, dead_rot, kp_lin, kp_rot, f_max, t_max]`` of
-        :func:`~app.world.arm_ik.limit_wrench`. links: body ids of the links with contact spheres
+        :func:`~app.slave.arm_ik.limit_wrench`. links: body ids of the links with contact spheres
         (links,). owner: index into ``links`` of each sphere (spheres,); centers: sphere centres
         in their link's frame (spheres, 3); radii (spheres,). box: ``[lo; hi]`` of every object,
         grown by the contact margin (2, 3). site_mrf, site_ft: MuJoCo site ids of {MRF} and {S};
@@ -146,7 +146,7 @@ def control(
             with ``mj_step2``; otherwise the caller adds the links' contact wrenches first.
 
     Returns:
-        Status bits (:mod:`app.world.arm_ik`) and whether any link is near the world (``rec.near``).
+        Status bits (:mod:`app.slave.arm_ik`) and whether any link is near the world (``rec.near``).
     """
     r = rec[0]
     n = r["q_c"].shape[0]

@@ -10,9 +10,9 @@ import pytest
 
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
 from app.errors import InputError
+from app.slave.tool import VirtualSlave
 from app.world import load_scene
 from app.world.scene import Scene
-from app.world.slave import VirtualSlave
 
 
 @functools.cache

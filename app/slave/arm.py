@@ -6,9 +6,9 @@ the slave sees. :class:`ArmSlave` carries the scene's tool on the wrist flange o
 follows that command as a real robot controller would:
 
 1. The Cartesian reference is updated exactly as for the ideal tool
-   (:func:`app.world.kernel.rate_reference`, with NTRFC accommodation and the following-error
+   (:func:`app.slave.tool_kernel.rate_reference`, with NTRFC accommodation and the following-error
    limit, or the pose command).
-2. Differential IK (:mod:`app.world.arm_ik`) moves a joint set-point toward that reference
+2. Differential IK (:mod:`app.slave.arm_ik`) moves a joint set-point toward that reference
    under joint, velocity and singularity limits; the redundant arm spends its null space on
    joint-limit avoidance. The pose error of the set-point is ``e(q) - J (q_c - q)``, linearised
    about the measured state (the set-point is within a servo lag of it), which saves a second
@@ -28,7 +28,7 @@ When the arm cannot follow (joint limit, singularity, velocity limit, workspace 
 command is limited smoothly by the IK, the condition is set in :attr:`ArmSlave.status`
 (:class:`ArmStatus`, logged per tick as ``slave_status``), and the operator feels it: the part of
 the reference the set-point cannot reach beyond a small dead band is reflected as a spring wrench
-at {MRF} (:func:`app.world.arm_ik.limit_wrench`, the scene's ``kp_lin``/``kp_rot``, saturated
+at {MRF} (:func:`app.slave.arm_ik.limit_wrench`, the scene's ``kp_lin``/``kp_rot``, saturated
 at its force and torque limits), added to the sensor reading, so the controller renders a wall
 at the limit without changing.
 
@@ -36,8 +36,8 @@ Frames as in :mod:`app.world.scene`, plus the arm's base (upright, placed so tha
 keyframe of the arm file reaches the scene's home pose) and the flange (z out of the wrist). The
 tool's {T} is mounted with its -z along the flange's z: every scene's tool points down -z.
 
-The arithmetic of a tick is compiled (:mod:`app.world.arm_kernel`, three calls per substep on
-one record of the arm's state); building the arm is :mod:`app.world.arm_model`.
+The arithmetic of a tick is compiled (:mod:`app.slave.arm_kernel`, three calls per substep on
+one record of the arm's state); building the arm is :mod:`app.slave.arm_model`.
 """
 
 from __future__ import annotations
@@ -50,13 +50,13 @@ import numpy as np
 from app.compiled import entry_point
 from app.controller.types import FTReading, SlaveCommand
 from app.mjcall import address, pointers
+from app.slave import arm_ik
+from app.slave import arm_kernel as ak
+from app.slave.arm_model import ArmGeom, ArmParams, arm_record, arm_spec, link_contact_models, place_base
+from app.slave.tool import DEFAULT_PERIOD, SlaveBase, command_error, finite, invalid_contact
 from app.spatial import Array
-from app.world import arm_ik
-from app.world import arm_kernel as ak
-from app.world.arm_model import ArmGeom, ArmParams, arm_record, arm_spec, link_contact_models, place_base
 from app.world.contact import ContactModel, ContactResult
 from app.world.scene import Scene
-from app.world.slave import DEFAULT_PERIOD, SlaveBase, command_error, finite, invalid_contact
 
 
 class ArmStatus(IntFlag):
@@ -347,7 +347,7 @@ class ArmSlave(SlaveBase):
 
     def _make_reading(self, contact: ContactResult, at_rest: bool = False) -> FTReading:
         """The F/T reading at {S} for the state the last step's forces were computed at
-        (:func:`~app.world.arm_kernel.ft_reading`). ``at_rest`` evaluates MuJoCo's sensors with
+        (:func:`~app.slave.arm_kernel.ft_reading`). ``at_rest`` evaluates MuJoCo's sensors with
         zero accelerations (a held arm) and adds the contact at that pose."""
         held = at_rest or not contact.valid
         if held:

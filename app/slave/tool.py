@@ -19,7 +19,7 @@ One servo tick (:meth:`VirtualSlave.step`):
 
 Frames as in :mod:`app.world.scene`. The MuJoCo body frame {C} is the tool's centre of mass with
 the axes of {T}, so the free joint's linear velocity is the centre-of-mass velocity. The
-arithmetic between MuJoCo and FCL is compiled (:mod:`app.world.kernel`).
+arithmetic between MuJoCo and FCL is compiled (:mod:`app.slave.tool_kernel`).
 
 Non-finite input never reaches MuJoCo (which would reset its state and write ``MUJOCO_LOG.TXT``):
 a reset to a non-finite pose is refused and leaves the slave faulted (tool held, readings
@@ -38,9 +38,7 @@ from app.compiled import entry_point, is_f8
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
 from app.errors import InputError
 from app.mjcall import address, pointers
-from app.spatial import Array, invert_pose, matrix_to_quat
-from app.world.contact import ContactModel, ContactResult
-from app.world.kernel import (
+from app.slave.tool_kernel import (
     GRAVITY_W,
     HOLD,
     INERTIA_C,
@@ -59,6 +57,8 @@ from app.world.kernel import (
     sensor_reading,
     tool_substep,
 )
+from app.spatial import Array, invert_pose, matrix_to_quat
+from app.world.contact import ContactModel, ContactResult
 from app.world.scene import Scene
 
 DEFAULT_PERIOD = 1e-3  # s, the servo period

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 
-from app.session.zwidth import zwidth
+from app.study.zwidth import zwidth
 
 
 def test_edge_brackets_the_onset_and_is_written(tmp_path: Path) -> None:

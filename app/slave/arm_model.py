@@ -1,7 +1,7 @@
 """Building an arm slave: the arm file with the tool on its flange, its tuning and record, and
 the links' contact spheres.
 
-Split from :mod:`app.world.arm` (the running slave). Frames as there.
+Split from :mod:`app.slave.arm` (the running slave). Frames as there.
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import mujoco
 import numpy as np
 
 from app.errors import ConfigError
+from app.slave import arm_ik
+from app.slave.arm_kernel import arm_record_dtype
 from app.spatial import Array, IntArray, matrix_to_quat
-from app.world import arm_ik
-from app.world.arm_kernel import arm_record_dtype
 from app.world.contact import ContactModel
 from app.world.scene import CapsuleSpec, Scene, capsule_spheres
 from app.world.scene_file import SLAVES_DIR
@@ -99,7 +99,7 @@ def link_contact_models(
     """Per arm link of ``model`` with capsules (not the tool body ``tool_body``): its body id and a
     ContactModel of its sphere chains (the link frame as {MRF}); and all the links' spheres as
     ``(owner (s,), centres (s, 3) in the link frame, radii (s,))`` for
-    :func:`~app.world.arm_kernel.links_near`."""
+    :func:`~app.slave.arm_kernel.links_near`."""
     m = model
     links: list[int] = []
     models: list[ContactModel] = []
@@ -174,12 +174,12 @@ def arm_record(
     links: list[int],
     spheres: tuple[IntArray, Array, Array],
 ) -> Array:
-    """The arm's record (:func:`~app.world.arm_kernel.arm_record_dtype`, one element) with its
+    """The arm's record (:func:`~app.slave.arm_kernel.arm_record_dtype`, one element) with its
     constants filled in; ``data`` holds the configuration the servo gains are tuned at.
 
     Raises:
         ConfigError: A joint is not a hinge on the tool's chain, which the record's Jacobian
-            (:func:`~app.world.arm_kernel.mrf_state`) assumes.
+            (:func:`~app.slave.arm_kernel.mrf_state`) assumes.
     """
     m, d = model, data
     n = m.nu

@@ -19,8 +19,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.controller.types import SlaveCommand
-from app.world.scene import build_scene, load_scene
 from app.slave.tool import VirtualSlave
+from app.world.scene import build_scene, load_scene
 
 T_SERVO = 1e-3
 

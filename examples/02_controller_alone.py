@@ -14,8 +14,8 @@ import numpy as np
 from app.controller.frhc import FRHCController
 from app.controller.types import FTReading, Switches
 from app.device.spec import load_device
-from app.world.scene import load_scene
 from app.slave.tool import VirtualSlave
+from app.world.scene import load_scene
 
 device = load_device("kraft")
 slave_model = VirtualSlave(load_scene("probe")).slave_model()  # payload mass, sensor frame

@@ -64,7 +64,8 @@ def test_demo_runs_everything_at_the_asked_servo_rate() -> None:
         assert snap.time == pytest.approx(snap.ticks / 4000.0, rel=1e-9)
         app.play_session("peg_ntrfc")
         assert app.rt.config.servo_rate == 4000.0
-        assert app.session is not None and app.session.data.servo_rate == 4000.0
+        assert app.session is not None
+        assert app.session.data.servo_rate == 4000.0
     finally:
         app.close()
 

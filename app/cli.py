@@ -341,7 +341,10 @@ def build_parser() -> argparse.ArgumentParser:
         "Service), fd:N (Force Dimension), openhaptics:NAME (Touch); the session's device file gives its limits",
     )
     p.add_argument(
-        "--rate", type=_servo_rate, default=None, help="servo rate (Hz) instead of the session's (e.g. 1000, 2000, 4000)"
+        "--rate",
+        type=_servo_rate,
+        default=None,
+        help="servo rate (Hz) instead of the session's (e.g. 1000, 2000, 4000)",
     )
     p.set_defaults(func=_cmd_run)
 

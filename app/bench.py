@@ -89,7 +89,48 @@ def bench_tick(quick: bool = False) -> str:
         lines.append(
             f"  {name}: median {med:6.1f} us   p99 {p99:6.1f} us   ({med / bare:.2f}x its bare tick, median {bare:.1f} us)"
         )
+    lines.extend(_web_loop_lines(quick))
     return "\n".join(lines)
+
+
+def _web_loop_lines(quick: bool) -> list[str]:
+    """The browser demo's loop as it runs (its own process, paced to the wall clock, publishing
+    snapshots, playing a session's script; no browser): compute per tick against the same
+    session's bare tick headless, achieved rate and period jitter, at 1 kHz and at 4 kHz."""
+    from app.session.loop import LoopConfig
+    from app.session.run import run_session
+    from app.session.spec import load_session
+    from app.web.realtime import RealtimeLoop
+
+    lines = ["the browser demo's loop (own process, paced, snapshots, session playing; no browser):"]
+    cases = [("probe_rate", 1000.0), ("peg_ntrfc", 1000.0), ("probe_rate", 4000.0)]
+    for name, rate in cases[:1] + cases[2:] if quick else cases:
+        session = load_session(name).with_changes(servo_rate=rate)
+        bare = run_session(session, out_dir=None, plots=False).summary["timing"]["tick"]["median_us"]
+        rt = RealtimeLoop(LoopConfig.from_session(session))
+        rt.start()
+        try:
+            if not rt.wait_running():
+                lines.append(f"  {name} at {rate / 1000:g} kHz: the loop process did not start")
+                continue
+            rt.play(session)
+            time.sleep(WEB_SETTLE_SECONDS)
+            time.sleep(WEB_MEASURE_SECONDS)
+            st = rt.stats(last=round(WEB_MEASURE_SECONDS * rate))
+            scheduling = rt.scheduling
+        finally:
+            rt.stop()
+        lines.append(
+            f"  {name} at {rate / 1000:g} kHz ({scheduling}): compute median {st.tick_p50_us:6.1f} us "
+            f"p99 {st.tick_p99_us:7.1f} us ({st.tick_p50_us / bare:.2f}x its bare tick, median {bare:.1f} us); "
+            f"rate {st.rate_hz:8.1f} Hz ({100 * (st.rate_hz * rate**-1 - 1):+.2f} %), jitter p99 {st.jitter_p99_us:6.1f} us"
+        )
+    return lines
+
+
+#: The web loop rows: seconds of the played session let run before, then measured.
+WEB_SETTLE_SECONDS = 1.0
+WEB_MEASURE_SECONDS = 3.0
 
 
 class _Laps:

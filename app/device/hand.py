@@ -28,6 +28,7 @@ import mujoco
 import numpy as np
 from numba import njit
 
+from app.compiled import entry_point, is_f8
 from app.config import Checked, Range
 from app.mjcall import address, call_model_data, pointers
 from app.spatial import Array, quat_into
@@ -132,8 +133,10 @@ class OperatorHand:
         self._mocap_pos = data.mocap_pos[self._mocap]
         self._mocap_quat = data.mocap_quat[self._mocap]
         self._opt = model.opt
-        self._pointers = pointers(model, data)
-        self._kinematics, self._transmission = address("mj_kinematics"), address("mj_transmission")
+        kinematics, transmission = address("mj_kinematics"), address("mj_transmission")
+        self._pull_args = (self._T, self._mocap_pos, self._mocap_quat, kinematics, transmission, *pointers(model, data))
+        # Called every tick with the same kinds of arguments: the compiled specialisation, once.
+        self._pull = entry_point(_pull, self._T, *self._pull_args)
         #: Hand target pose T_0_H (4, 4), or None when the operator has let go.
         self.T_0_H: Array | None = None
         self.set_target(None)
@@ -155,14 +158,13 @@ class OperatorHand:
             return
         if T_0_H.__class__ is not np.ndarray or T_0_H.shape != (4, 4):
             raise ValueError("T_0_H must be a finite 4x4 pose")
-        if not _pull(
-            np.ascontiguousarray(T_0_H, dtype=float), self._T, self._mocap_pos, self._mocap_quat,
-            self._kinematics, self._transmission, *self._pointers,
-        ):  # fmt: skip
+        if not is_f8(T_0_H, (4, 4)):
+            T_0_H = np.ascontiguousarray(T_0_H, dtype=float)
+        if not self._pull(T_0_H, *self._pull_args):
             raise ValueError("T_0_H must be a finite 4x4 pose")
-        self.T_0_H = self._T
-        if opt.disableactuator & (1 << HAND_GROUP):
+        if self.T_0_H is None:
             opt.disableactuator &= ~(1 << HAND_GROUP)
+        self.T_0_H = self._T
 
     def wrench_G(self) -> Array:
         """The hand's wrench on the grip in the last physics step.

@@ -3,16 +3,19 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 from numba import njit
 
+from app.compiled import entry_point
 from app.controller.types import Fault
 from app.session.tick import STAGES, TickRecord
 from app.slave.arm import ArmStatus
 from app.spatial import Array, rotation_log
 from app.world.scene import TaskSpec
+from app.world.scene_file import within_goal
 
 #: Seconds at the end of a session over which the contact force's settling is judged (s).
 SETTLE_WINDOW = 0.6
@@ -127,16 +130,24 @@ class SessionMetrics:
         self._tail = np.full(max(1, round(SETTLE_WINDOW / dt)), np.nan)
         self.task_done_at: float | None = None
         self._task = task
-        self._T_goal = None if task is None else task.goal.matrix()
+        self._accumulate: Callable[..., None] | None = None
+        if task is not None:
+            # The task's test (TaskSpec.done) without its per-call typing: goal and tolerances kept.
+            self._goal = (task.goal.matrix(), task.position_tolerance, math.radians(task.angle_tolerance_deg))
+            self._within = entry_point(within_goal, self._T_prev, *self._goal)
 
     def on_tick(self, tick: TickRecord) -> None:
         out = tick.out
         T = tick.T_w_MRF
         self._time = tick.time
-        _accumulate(
+        args = (
             self._acc, self._tail, self._T_prev, self._F_prev, T, tick.contact_wrench_MRF, self._ticks,
             out.po_energy, out.pc_cut,
         )  # fmt: skip
+        if self._accumulate is None:
+            # The same kinds of arguments every tick: the compiled specialisation, once.
+            self._accumulate = entry_point(_accumulate, *args)
+        self._accumulate(*args)
         self._contact_ticks += tick.contact.count > 0
         if out.faults:
             _count_bits(Fault, int(out.faults), self._fault_ticks)
@@ -149,7 +160,7 @@ class SessionMetrics:
             self._stage_ns[self._ticks] = tick.stage_ns
         self._ticks += 1
         task = self._task
-        if task is not None and self.task_done_at is None and task.done(T, self._T_goal):
+        if task is not None and self.task_done_at is None and self._within(T, *self._goal):
             self.task_done_at = tick.time
 
     @property

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 from numba import njit
 
+from app.compiled import entry_point
 from app.controller.types import Switches
 from app.session.spec import SessionFile, SwitchEvent
 from app.spatial import Array, make_pose, rotation_exp, rotation_log, zyx_to_matrix
@@ -65,6 +66,8 @@ class OperatorScript:
         self._T = np.eye(4)
         # The waypoint poses stacked, with the last repeated: the blend from it to itself holds it.
         self._stack = np.stack([*self._poses, self._poses[-1]])
+        # Called every tick with the same kinds of arguments: the compiled specialisation, once.
+        self._blend = entry_point(_blend, self._stack, 0, 0.0, self._tremor[0], self._T)
 
     def hand_target(self, t: float, tick: int) -> Array:
         """Hand-target pose ``T_0_H`` (4, 4) at time ``t`` (s); ``tick`` indexes the tremor."""
@@ -74,7 +77,7 @@ class OperatorScript:
             k, s = (0, 0.0) if i == 0 else (len(times) - 1, 0.0)
         else:
             k, s = i - 1, (t - times[i - 1]) / (times[i] - times[i - 1])
-        _blend(self._stack, k, s * s * (3.0 - 2.0 * s), self._tremor[min(tick, len(self._tremor) - 1)], self._T)
+        self._blend(self._stack, k, s * s * (3.0 - 2.0 * s), self._tremor[min(tick, len(self._tremor) - 1)], self._T)
         return self._T
 
     @staticmethod

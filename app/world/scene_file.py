@@ -304,15 +304,13 @@ class TaskSpec(Checked):
     angle_tolerance_deg: Annotated[float, Range(1e-3, 180.0, "deg")] = 3.0
     description: str = ""
 
-    def done(self, T_w_MRF: Array, T_goal: Array | None = None) -> bool:
-        """True when the pose ``T_w_MRF`` (4, 4) is within tolerance of the goal (``T_goal``, the
-        goal's matrix if the caller keeps it, is computed otherwise)."""
-        T_goal = self.goal.matrix() if T_goal is None else T_goal
-        return _within(T_w_MRF, T_goal, self.position_tolerance, math.radians(self.angle_tolerance_deg))
+    def done(self, T_w_MRF: Array) -> bool:
+        """True when the pose ``T_w_MRF`` (4, 4) is within tolerance of the goal."""
+        return within_goal(T_w_MRF, self.goal.matrix(), self.position_tolerance, math.radians(self.angle_tolerance_deg))
 
 
 @njit(cache=True)
-def _within(T: Array, T_goal: Array, position_tolerance: float, angle_tolerance: float) -> bool:
+def within_goal(T: Array, T_goal: Array, position_tolerance: float, angle_tolerance: float) -> bool:
     """Whether pose ``T`` is within ``position_tolerance`` (m) and ``angle_tolerance`` (rad) of
     ``T_goal`` (both (4, 4))."""
     dp2 = (T[0, 3] - T_goal[0, 3]) ** 2 + (T[1, 3] - T_goal[1, 3]) ** 2 + (T[2, 3] - T_goal[2, 3]) ** 2

@@ -165,3 +165,42 @@ def test_experiment_button_shows_the_table(demo: DemoApp, page: object) -> None:
     text = _body(page)
     assert "FRHC/NTRFC" in text
     assert demo.panel.chart is not None
+
+
+#: The x scale ``[min, max]`` of the page's uPlot chart with the given viser GUI id (viser's own
+#: end-to-end testpoint, ``window.__viserTestpoints``), or null before the chart exists.
+PLOT_X_SCALE_JS = """(uuid) => {
+  const chart = window.__viserTestpoints?.uplots?.[uuid]?.chart;
+  return chart ? [chart.scales.x.min, chart.scales.x.max] : null;
+}"""
+
+
+def test_a_device_change_stops_the_session_and_says_so(demo: DemoApp, page: object) -> None:
+    """Changing the device while a session plays stops it: the status names the session and the
+    change, and a notification pops up. The Delta X chart's time axis in the page then spans
+    the new loop's time, which starts again at 0 (it showed the old loop's window before)."""
+    demo.panel.speed.value = "0.1"  # a 55 s play: it cannot end by itself before the change
+    demo.play_session("peg_ntrfc")
+    _wait_for(lambda: demo.rt.snapshot.playing is not None, "the session did not start playing")
+    device = next(name for name in ("touch3", "kraft") if name != demo.rt.config.device.name)
+    demo.controls.device.value = device  # what choosing it in the page's dropdown does
+    assert demo.rt.config.device.name == device
+    page.get_by_text("the device was changed").first.wait_for(state="attached", timeout=STEP_TIMEOUT * 1000)  # type: ignore[attr-defined]
+    text = _body(page)
+    assert "stopped peg_ntrfc" in text
+    assert "Session stopped" in text  # the notification
+    _wait_for(lambda: demo.rt.snapshot.playing is None and demo.rt.snapshot.time > 2.0, "the new loop does not run")
+    uuid = demo.controls.delta_plot._impl.uuid  # viser's id of the chart in the page
+
+    def x_scale() -> list[float]:
+        shown = page.evaluate(PLOT_X_SCALE_JS, uuid)  # type: ignore[attr-defined]
+        return [float("nan")] * 2 if shown is None else [float(v) for v in shown]
+
+    _wait_for(lambda: x_scale()[1] > 1.5, "the Delta X chart does not show the new loop's time")
+    lo, hi = x_scale()
+    now = demo.rt.snapshot.time
+    assert 0.0 <= lo < 0.5, (lo, hi)  # from the new loop's start
+    assert hi <= now, (lo, hi, now)
+    times = demo.controls.delta_plot.data[0]  # what the page was sent: the same window
+    assert times[0] == pytest.approx(lo, abs=1e-6)
+    assert np.all(np.diff(times) > 0.0)

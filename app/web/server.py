@@ -156,7 +156,8 @@ class DemoApp:
         if playing is not None:
             what = "scene" if scene_name != self._scene.spec.name else "device"
             self._notice = f"**stopped `{playing.stem}`**: the {what} was changed"
-            self.server.add_notification("Session stopped", f"{playing.stem}: the {what} was changed", color="yellow")
+            for client in self.server.get_clients().values():  # viser notifies per browser
+                client.add_notification("Session stopped", f"{playing.stem}: the {what} was changed", color="yellow")
         try:
             scene = self._scene if scene_name == self._scene.spec.name else load_scene(scene_name)
             device = self._device if device_name == self._device.name else load_device(device_name)

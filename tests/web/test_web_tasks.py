@@ -18,7 +18,8 @@ from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT
 from app.session.log import read_log
 from app.session.run import run_session
 from app.session.spec import load_session
-from app.web.server import DemoApp
+from app.web.controls import PLOT_EVERY, PLOT_SECONDS
+from app.web.server import UI_RATE, DemoApp
 from app.world.scene import load_scene
 
 pytestmark = pytest.mark.browser
@@ -177,8 +178,9 @@ PLOT_X_SCALE_JS = """(uuid) => {
 
 def test_a_device_change_stops_the_session_and_says_so(demo: DemoApp, page: object) -> None:
     """Changing the device while a session plays stops it: the status names the session and the
-    change, and a notification pops up. The Delta X chart's time axis in the page then spans
-    the new loop's time, which starts again at 0 (it showed the old loop's window before)."""
+    change, and a notification pops up. Then the Delta X chart in the page spans exactly the
+    samples it was sent, all of the new loop (its time restarts at 0): no sample of the old loop
+    is left before them, none lies ahead of the new loop's time."""
     demo.panel.speed.value = "0.1"  # a 55 s play: it cannot end by itself before the change
     demo.play_session("peg_ntrfc")
     _wait_for(lambda: demo.rt.snapshot.playing is not None, "the session did not start playing")
@@ -190,17 +192,23 @@ def test_a_device_change_stops_the_session_and_says_so(demo: DemoApp, page: obje
     assert "stopped peg_ntrfc" in text
     assert "Session stopped" in text  # the notification
     _wait_for(lambda: demo.rt.snapshot.playing is None and demo.rt.snapshot.time > 2.0, "the new loop does not run")
+    demo.pause(True)  # the plots then hold still, and the page can catch up with them
+    _wait_for(lambda: demo.rt.snapshot.paused, "the loop did not pause")
+    time.sleep(2 * PLOT_EVERY / UI_RATE)  # a plot refresh after the pause
+    times = demo.controls.delta_plot.data[0]  # the Delta X chart's time axis as sent
+    now = demo.rt.snapshot.time
+    assert np.all(np.diff(times) > 0.0)
+    assert times[0] >= 0.0
+    assert times[-1] <= now
+    assert times[-1] - times[0] <= PLOT_SECONDS
     uuid = demo.controls.delta_plot._impl.uuid  # viser's id of the chart in the page
 
     def x_scale() -> list[float]:
         shown = page.evaluate(PLOT_X_SCALE_JS, uuid)  # type: ignore[attr-defined]
         return [float("nan")] * 2 if shown is None else [float(v) for v in shown]
 
-    _wait_for(lambda: x_scale()[1] > 1.5, "the Delta X chart does not show the new loop's time")
-    lo, hi = x_scale()
-    now = demo.rt.snapshot.time
-    assert 0.0 <= lo < 0.5, (lo, hi)  # from the new loop's start
-    assert hi <= now, (lo, hi, now)
-    times = demo.controls.delta_plot.data[0]  # what the page was sent: the same window
-    assert times[0] == pytest.approx(lo, abs=1e-6)
-    assert np.all(np.diff(times) > 0.0)
+    _wait_for(
+        lambda: np.allclose(x_scale(), (times[0], times[-1]), atol=1e-6),
+        f"the page's Delta X axis {x_scale()} is not the {times[0]:.3f}-{times[-1]:.3f} s it was sent",
+    )
+    demo.pause(False)

@@ -7,8 +7,10 @@ Starts the demo on a free port and opens it in headless chromium (1400x900), the
 2. presses the probe tool onto the surface (deadman and reflection on, hand 3 cm down) and, for
    ``seconds``, counts the status block's changes in the page (the page's update rate) and the
    bytes the page's websocket receives;
-3. replays a recorded probe session playing at 1x and counts the same bytes (same run, side by side);
-4. with ``--screenshots``, writes the README's screenshots to ``assets/web/`` (palette PNGs).
+3. the same while the hand drags the grip round a 2 cm circle once every 2 s (everything in the
+   3D view moves every frame, so each frame costs the page a 3D render);
+4. replays a recorded probe session playing at 1x and counts the same bytes (same run, side by side);
+5. with ``--screenshots``, writes the README's screenshots to ``assets/web/`` (palette PNGs).
 
 Run from the repository root:
     .venv/bin/python bench/web_page.py [seconds] [--screenshots]
@@ -18,8 +20,10 @@ within 2x of the live page's.
 
 from __future__ import annotations
 
+import math
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -31,6 +35,7 @@ from PIL import Image
 from app.session.run import run_session
 from app.session.spec import load_session
 from app.web.headless import open_page, press_probe, running_demo
+from app.web.server import UI_RATE, DemoApp
 from app.world.scene import ASSETS_DIR
 
 #: Where the README's screenshots go.
@@ -74,6 +79,19 @@ class ByteCounter:
         return (self.bytes - before) / seconds, (self.frames - frames) / seconds
 
 
+def drag_circle(app: DemoApp, stop: threading.Event, radius: float = 0.02, period: float = 2.0) -> None:
+    """Move the hand target round a horizontal circle about where it is, at the UI rate, until ``stop``."""
+    assert app.rt.snapshot.T_0_H is not None
+    centre = app.rt.snapshot.T_0_H.copy()
+    start = time.monotonic()
+    while not stop.wait(1.0 / UI_RATE):
+        angle = 2.0 * math.pi * (time.monotonic() - start) / period
+        T_0_H = centre.copy()
+        T_0_H[0, 3] += radius * math.cos(angle)
+        T_0_H[1, 3] += radius * math.sin(angle)
+        app.move_hand_target(T_0_H)
+
+
 def screenshot(page: Any, name: str) -> Path:
     """A palette PNG of the page in ``assets/web/<name>.png`` (the README's; well under 300 KB)."""
     close = page.locator(".mantine-Notification-closeButton")  # viser's "software WebGL" notice
@@ -105,6 +123,14 @@ def main(seconds: float, shots: bool) -> None:
             update_hz = float(page.evaluate(COUNT_STATUS_JS, seconds))
             if shots:
                 print("wrote", screenshot(page, "probe_contact"))
+            stop = threading.Event()
+            dragger = threading.Thread(target=drag_circle, args=(app, stop), daemon=True)
+            dragger.start()
+            time.sleep(1.0)
+            moving, _ = counter.rate(seconds)
+            moving_hz = float(page.evaluate(COUNT_STATUS_JS, seconds))
+            stop.set()
+            dragger.join()
             with tempfile.TemporaryDirectory() as tmp:
                 run_session(load_session("probe_rate"), out_dir=Path(tmp), plots=False)
                 app.open_replay(tmp)
@@ -127,8 +153,13 @@ def main(seconds: float, shots: bool) -> None:
         print(f"first panel visible  {first_panel:6.2f} s after a reload (goal <= 3 s on a quiet machine)")
         print(f"messages received    {live_messages:6.1f} /s (websocket messages to the page, live)")
         print(f"page update rate     {update_hz:6.1f} Hz (status redraws the page showed over {seconds:g} s)")
+        print(f"  while dragging     {moving_hz:6.1f} Hz (the hand circling: the 3D view moves every frame)")
         print(f"live page            {live / 1000:8.1f} kB/s (probe pressed: arrows, contacts, plots)")
-        print(f"replay at 1x         {replay / 1000:8.1f} kB/s = {replay / live:.2f}x live (same run)")
+        print(f"  while dragging     {moving / 1000:8.1f} kB/s")
+        print(
+            f"replay at 1x         {replay / 1000:8.1f} kB/s = {replay / live:.2f}x live pressed, "
+            f"{replay / moving:.2f}x live dragging (same run)"
+        )
 
 
 if __name__ == "__main__":

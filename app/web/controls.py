@@ -52,8 +52,13 @@ SIX_GAINS = (
 )
 #: Seconds of history in the live plots.
 PLOT_SECONDS = 10.0
-#: UI frames between plot refreshes (plots are the heaviest messages).
-PLOT_EVERY = 3
+#: Samples a plot window holds, live or replayed: ~2 px apart on the panel's ~330 px wide plot
+#: area. A live plot keeps the first snapshot in each ``PLOT_SECONDS / PLOT_SAMPLES`` (67 ms) slot
+#: of simulated time, whatever the speed.
+PLOT_SAMPLES = 150
+#: UI frames between plot refreshes (5 Hz at 30 frames/s). Plots are the heaviest messages: viser
+#: sends every refresh whole, as float64 (13 columns x 150 samples = 15.6 kB).
+PLOT_EVERY = 6
 #: Width / height of each plot (the panel is ~380 px wide: ~240 px high plots).
 PLOT_ASPECT = 1.6
 
@@ -438,7 +443,9 @@ class Controls:
         history = self._history
         if history and snap.time < history[-1][0]:
             history.clear()  # reset or a new loop
-        history.append(plot_row(snap))
+        slot = PLOT_SECONDS / PLOT_SAMPLES
+        if not history or snap.time // slot > history[-1][0] // slot:  # one sample a slot
+            history.append(plot_row(snap))
         while history and history[0][0] < snap.time - PLOT_SECONDS:
             history.popleft()
         if self.plot_due() and len(history) > 1:
@@ -450,11 +457,10 @@ class Controls:
 
     def plot(self, cols: np.ndarray) -> None:
         """Show plot samples ``cols`` (:data:`PLOT_ROWS`, k): rows as in :data:`PlotRow`."""
-        c = cols.astype(np.float32)  # half the bytes on the wire; 7 significant digits are plenty
-        self.wrench_plot.data = (c[0], c[1], c[2], c[3])
-        self.grip_plot.data = (c[0], c[4], c[5])
-        self.delta_plot.data = (c[0], c[6], c[7], c[8])
-        self.energy_plot.data = (c[0], c[9])
+        self.wrench_plot.data = (cols[0], cols[1], cols[2], cols[3])
+        self.grip_plot.data = (cols[0], cols[4], cols[5])
+        self.delta_plot.data = (cols[0], cols[6], cols[7], cols[8])
+        self.energy_plot.data = (cols[0], cols[9])
 
 
 def plot_row(snap: Snapshot) -> PlotRow:

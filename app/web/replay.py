@@ -31,6 +31,7 @@ from app.errors import ConfigError
 from app.session.log import META_FILE, read_log
 from app.session.loop import LoopConfig, ServoLoop
 from app.spatial import Array, make_pose, quat_to_matrix, zyx_to_matrix
+from app.web.controls import PLOT_SAMPLES
 from app.web.snapshot import Snapshot
 from app.world import contact_wrench
 from app.world.scene import load_scene
@@ -168,11 +169,6 @@ class LogReplay:
         )
 
 
-#: Most samples a replay plot window shows (the log is thinned to this): what a live plot window
-#: holds (10 s at 30 frames/s), so a replay sends no more plot data than the live page.
-PLOT_SAMPLES = 300
-
-
 class ReplayPlayer:
     """A cursor over a :class:`LogReplay`: seek, play at a speed, and the plots' window.
 
@@ -224,7 +220,8 @@ class ReplayPlayer:
 
     def window(self, seconds: float) -> Array:
         """Plot samples (10, k) of the ``seconds`` before the cursor, thinned to at most
-        :data:`PLOT_SAMPLES` (the last one is the cursor's row)."""
+        :data:`~app.web.controls.PLOT_SAMPLES`, as a live window holds (the last one is the
+        cursor's row): a replay sends no more plot data than the live page."""
         t = self.replay.t
         lo, hi = int(np.searchsorted(t, self.cursor - seconds)), self.replay.index_at(self.cursor) + 1
         step = -(-(hi - lo) // PLOT_SAMPLES)

@@ -36,12 +36,23 @@ MOMENT_REF = 0.1
 ARROW_UNIT_FRACTION = 0.08
 #: Magnitudes below this share of the reference are hidden (no degenerate cone, no "0.0 N" label).
 MIN_SHOWN = 0.02
+#: The least move sent to the browsers, as a share of the size of the space the node is in: half a
+#: pixel when that space fills 1000 px. The loop's sub-micron jitter and force noise then send
+#: nothing, and a still picture costs the browser no 3D render (viser drains the panel's updates
+#: at once only while no scene update waits for a frame).
+SHOWN_RESOLUTION = 5e-4
+#: The least turn sent (quaternion components; 1e-3 is 0.11 degrees).
+SHOWN_TURN = 1e-3
+#: The least change of a force label (N) that rewrites it.
+SHOWN_FORCE = 0.1
 
 T_V_0 = make_pose(np.eye(3), DEVICE_ORIGIN_V)
 T_V_W = make_pose(np.eye(3), WORLD_ORIGIN_V)
 T_0_V = invert_pose(T_V_0)
 
 H = TypeVar("H", bound=viser.SceneNodeHandle)
+#: The two spaces drawn side by side.
+Space = Literal["device", "world"]
 
 
 @dataclass(frozen=True)
@@ -49,7 +60,7 @@ class WrenchArrow:
     """One drawn wrench: which snapshot field, the space it is drawn in, its colour, its legend text."""
 
     key: str
-    space: Literal["device", "world"]
+    space: Space
     label: str
     color: tuple[int, int, int]
 
@@ -161,6 +172,7 @@ class SceneView:
         scene = server.scene
         self._handles: list[viser.SceneNodeHandle] = []
         self._last: dict[str, tuple[Array, Array]] = {}
+        self._last_points: dict[str, Array] = {}
 
         self._add(scene.add_frame("/device", axes_length=0.08, axes_radius=0.003, position=DEVICE_ORIGIN_V))
         self._add(scene.add_label("/device/label", "device base {0}", position=(0.0, 0.0, -0.03)))
@@ -226,6 +238,11 @@ class SceneView:
             "device": ARROW_UNIT_FRACTION * space_size(self.device_box_v),
             "world": ARROW_UNIT_FRACTION * space_size(self.world_box_v),
         }
+        #: The least move (m) sent in each space (:data:`SHOWN_RESOLUTION`).
+        self.resolution = {
+            "device": SHOWN_RESOLUTION * space_size(self.device_box_v),
+            "world": SHOWN_RESOLUTION * space_size(self.world_box_v),
+        }
         world_unit = self.units["world"]
         self.contacts = self._add(
             scene.add_point_cloud(
@@ -251,7 +268,7 @@ class SceneView:
 
         self.arrows: dict[str, viser.ArrowsHandle] = {}
         self.labels: dict[str, viser.LabelHandle] = {}
-        self._label_text: dict[str, str] = {}
+        self._label_force: dict[str, float] = {}
         for arrow in WRENCH_ARROWS:
             unit = self.units[arrow.space]
             for part, shade in (("force", 1.0), ("moment", 0.55)):
@@ -286,16 +303,32 @@ class SceneView:
         """Put the gizmo at ``T_0_H`` (4, 4, device base); browsers see it move."""
         self.hand_target.wxyz, self.hand_target.position = pose_to_wxyz_position(T_V_0 @ T_0_H)
 
-    def _place(self, key: str, handle: viser.SceneNodeHandle, T_v: Array) -> None:
-        """Move ``handle`` to pose ``T_v`` (viser frame), sending nothing when it has not moved."""
+    def _place(self, key: str, handle: viser.SceneNodeHandle, T_v: Array, space: Space) -> None:
+        """Move ``handle`` to pose ``T_v`` (viser frame), sending nothing when it has moved less than
+        the ``space``'s resolution (and turned less than :data:`SHOWN_TURN`) since last sent."""
         wxyz, position = pose_to_wxyz_position(T_v)
         last = self._last.get(key)
-        if last is not None and np.allclose(last[0], wxyz, atol=1e-5) and np.allclose(last[1], position, atol=1e-6):
+        if (
+            last is not None
+            and np.abs(np.abs(last[0] @ wxyz) - 1.0) < SHOWN_TURN  # q and -q are one turn
+            and np.max(np.abs(last[1] - position)) < self.resolution[space]
+        ):
             return
         self._last[key] = (wxyz, position)
         handle.wxyz, handle.position = wxyz, position
 
-    def _arrow(self, key: str, origin_v: Array, vector_v: Array, reference: float, unit: float) -> Array | None:
+    def _points(
+        self, key: str, handle: viser.PointCloudHandle | viser.ArrowsHandle, points: Array, space: Space
+    ) -> None:
+        """Set ``handle``'s points (m, viser frame), sending nothing when none moved by the
+        ``space``'s resolution since last sent."""
+        last = self._last_points.get(key)
+        if last is not None and last.shape == points.shape and np.max(np.abs(last - points)) < self.resolution[space]:
+            return
+        self._last_points[key] = points
+        handle.points = points.astype(np.float32)
+
+    def _arrow(self, key: str, origin_v: Array, vector_v: Array, reference: float, space: Space) -> Array | None:
         """Draw arrow ``key`` for ``vector_v`` (N or N m, viser axes) at ``origin_v``; its tip, or
         None when it is too small to show."""
         handle = self.arrows[key]
@@ -303,33 +336,33 @@ class SceneView:
         if magnitude < MIN_SHOWN * reference:
             handle.visible = False
             return None
-        tip = origin_v + vector_v * (arrow_length(magnitude, reference, unit) / magnitude)
-        handle.points = np.stack((origin_v, tip))[None].astype(np.float32)
+        tip = origin_v + vector_v * (arrow_length(magnitude, reference, self.units[space]) / magnitude)
+        self._points(key, handle, np.stack((origin_v, tip))[None], space)
         handle.visible = True
         return tip
 
     def update(self, snap: Snapshot) -> None:
         """Move every node to the state in ``snap`` (call from the UI thread)."""
         for g, handle in self.geoms.items():
-            self._place(f"geom_{g}", handle, T_V_0 @ make_pose(snap.geom_xmat[g], snap.geom_xpos[g]))
+            self._place(f"geom_{g}", handle, T_V_0 @ make_pose(snap.geom_xmat[g], snap.geom_xpos[g]), "device")
         if len(snap.slave_geom_xpos):
             for g, handle in self.slave_geoms.items():
                 T_w_geom = make_pose(snap.slave_geom_xmat[g], snap.slave_geom_xpos[g])
-                self._place(f"slave_geom_{g}", handle, T_V_W @ T_w_geom)
+                self._place(f"slave_geom_{g}", handle, T_V_W @ T_w_geom, "world")
         T_v_G = T_V_0 @ snap.T_0_G
-        self._place("grip", self.grip, T_v_G)
-        self._place("reference", self.reference, T_V_0 @ snap.T_0_G0)
+        self._place("grip", self.grip, T_v_G, "device")
+        self._place("reference", self.reference, T_V_0 @ snap.T_0_G0, "device")
         T_v_MRF = T_V_W @ snap.T_w_MRF
-        self._place("tool", self.tool, T_v_MRF @ self._T_MRF_T)
-        self._place("mrf", self.mrf, T_v_MRF)
-        self._place("sensor", self.sensor, T_V_W @ snap.T_w_S)
+        self._place("tool", self.tool, T_v_MRF @ self._T_MRF_T, "world")
+        self._place("mrf", self.mrf, T_v_MRF, "world")
+        self._place("sensor", self.sensor, T_V_W @ snap.T_w_S, "world")
 
         points = snap.contact_points_w
         shown = len(points) > 0
         if shown:
-            self.contacts.points = (points + WORLD_ORIGIN_V).astype(np.float32)
+            self._points("contacts", self.contacts, points + WORLD_ORIGIN_V, "world")
             tips = points + 0.8 * self.units["world"] * snap.contact_normals_w
-            self.normals.points = (np.stack((points, tips), axis=1) + WORLD_ORIGIN_V).astype(np.float32)
+            self._points("normals", self.normals, np.stack((points, tips), axis=1) + WORLD_ORIGIN_V, "world")
         self.contacts.visible = self.normals.visible = shown
 
         R_v_MRF, R_v_G = T_v_MRF[0:3, 0:3], T_v_G[0:3, 0:3]
@@ -342,20 +375,20 @@ class SceneView:
         }
         for arrow in WRENCH_ARROWS:
             origin, force, moment = in_v[arrow.key]
-            unit = self.units[arrow.space]
-            tip = self._arrow(f"{arrow.key}/force", origin, force, FORCE_REF, unit)
-            self._arrow(f"{arrow.key}/moment", origin, moment, MOMENT_REF, unit)
-            self._label(arrow.key, tip, float(np.linalg.norm(force)))
+            tip = self._arrow(f"{arrow.key}/force", origin, force, FORCE_REF, arrow.space)
+            self._arrow(f"{arrow.key}/moment", origin, moment, MOMENT_REF, arrow.space)
+            self._label(arrow.key, tip, float(np.linalg.norm(force)), arrow.space)
 
-    def _label(self, key: str, tip: Array | None, magnitude: float) -> None:
-        """The magnitude at a force arrow's tip (sent only when the text or place changes)."""
+    def _label(self, key: str, tip: Array | None, magnitude: float, space: Space) -> None:
+        """The magnitude at a force arrow's tip, rewritten when it has changed by
+        :data:`SHOWN_FORCE` (so noise does not flicker its last digit), moved with the tip."""
         label = self.labels[key]
         if tip is None:
             label.visible = False
             return
-        text = f"{magnitude:.1f} N"
-        if text != self._label_text.get(key):
-            self._label_text[key] = text
-            label.text = text
-        self._place(f"label/{key}", label, make_pose(np.eye(3), tip))
+        shown = self._label_force.get(key)
+        if shown is None or abs(magnitude - shown) >= SHOWN_FORCE:
+            self._label_force[key] = magnitude
+            label.text = f"{magnitude:.1f} N"
+        self._place(f"label/{key}", label, make_pose(np.eye(3), tip), space)
         label.visible = True

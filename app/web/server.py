@@ -6,8 +6,9 @@ Three kinds of thread run the demo:
   servo rate;
 - viser's own threads (websocket event loop, callback pool), which turn browser input into loop
   commands and never touch the loop directly;
-- the UI thread here, which at :data:`UI_RATE` redraws the scene and the panel from the loop's
-  latest snapshot. Every browser watches the same scene; a slow one only delays its own messages.
+- the UI thread here, which at :data:`UI_RATE` redraws the panel from the loop's latest
+  snapshot and, half a frame later, the scene from the same snapshot. Every browser watches the
+  same scene; a slow one only delays its own messages.
 """
 
 from __future__ import annotations
@@ -46,8 +47,22 @@ from app.world.scene import ROOT_DIR, Scene, available_scenes, load_scene
 UI_RATE = 30.0
 #: The canvas width / height the opening camera is fitted for before a browser reports its own.
 DEFAULT_ASPECT = 1400 / 900
+#: The hemisphere light replacing the environment map (:func:`light_without_shadows`): its ground
+#: colour (RGB) and intensity, chosen so the picture matches viser's default lighting by eye.
+FILL_GROUND = (90, 90, 100)
+FILL_INTENSITY = 1.5
 #: Where the record button writes ``web-<timestamp>/log``.
 RUNS_DIR = ROOT_DIR / "runs"
+
+
+def light_without_shadows(server: viser.ViserServer) -> None:
+    """viser's two directional lights without their shadows and a hemisphere light instead of the
+    image-based (environment map) light: the picture looks the same (the scenes have no floor to
+    take a shadow), but a 3D frame in a browser without a GPU (software WebGL) no longer draws three
+    shadow cascades nor samples the environment at every pixel."""
+    server.scene.configure_default_lights(enabled=True, cast_shadow=False)
+    server.scene.configure_environment_map(None)
+    server.scene.add_light_hemisphere("/fill_light", ground_color=FILL_GROUND, intensity=FILL_INTENSITY)
 
 
 class DemoApp:
@@ -76,6 +91,7 @@ class DemoApp:
         self._scene, self._device = scene, device
         self.rt = RealtimeLoop(self._loop_config(device, scene, self._start_gains(device)))
         server.scene.set_up_direction("+z")
+        light_without_shadows(server)
         self.view = SceneView(server, self.rt.loop, self.rt.set_hand_target)
         self._fitted: set[int] = set()  # clients whose camera was fitted to their canvas
         self._frame_initial_camera()
@@ -91,6 +107,7 @@ class DemoApp:
         self._notice = ""
         self._loading = False  # the notice is a loading one, cleared when the play shows up
         self._replay_shown = float("nan")  # the replay cursor the plots show
+        self._drawn: Snapshot | None = None  # what the panel shows, for the scene's redraw
         self.experiment: ExperimentJob | None = None
         self.gate: TokenGate | None = None
         self.url = ""
@@ -158,7 +175,8 @@ class DemoApp:
         if playing is not None:
             what = "scene" if scene_name != self._scene.spec.name else "device"
             self._notice = f"**stopped `{playing.stem}`**: the {what} was changed"
-            self.server.add_notification("Session stopped", f"{playing.stem}: the {what} was changed", color="yellow")
+            for client in self.server.get_clients().values():  # viser notifies per browser
+                client.add_notification("Session stopped", f"{playing.stem}: the {what} was changed", color="yellow")
         try:
             scene = self._scene if scene_name == self._scene.spec.name else load_scene(scene_name)
             device = self._device if device_name == self._device.name else load_device(device_name)
@@ -239,6 +257,7 @@ class DemoApp:
         before = self.preset_box("both")
         self.view.remove()
         self.view = SceneView(self.server, loop, on_hand_moved)
+        self._drawn = None  # a snapshot of the view before: another device's links
         if not np.allclose(before, self.preset_box("both")):
             self._frame_initial_camera()
             for client in self.server.get_clients().values():
@@ -360,17 +379,29 @@ class DemoApp:
     # -- UI thread ------------------------------------------------------------------------------
 
     def _ui_loop(self) -> None:
-        period = 1.0 / UI_RATE
-        next_frame = time.perf_counter()
+        """Redraw the panel, then half a frame later the scene, at :data:`UI_RATE` each.
+
+        Apart, they reach the browsers in separate websocket windows: viser's page applies a
+        window holding a scene update only in its next 3D frame (a render in software WebGL costs
+        tens of ms), but a panel-only window at once, so the status does not wait for the 3D view.
+        """
+        half = 0.5 / UI_RATE
+        next_step = time.perf_counter()
+        panel = True
         while not self._stop.is_set():
             with self._lock:
-                self._frame(period)
-            next_frame += period
-            self._stop.wait(max(0.0, next_frame - time.perf_counter()))
-            next_frame = max(next_frame, time.perf_counter() - period)
+                if panel:
+                    self._draw_panel(2 * half)
+                elif self._drawn is not None:
+                    self.view.update(self._drawn)
+            panel = not panel
+            next_step += half
+            self._stop.wait(max(0.0, next_step - time.perf_counter()))
+            next_step = max(next_step, time.perf_counter() - half)
 
-    def _frame(self, period: float) -> None:
-        """Redraw the view and the panel once, from the replay or the live loop."""
+    def _draw_panel(self, period: float) -> None:
+        """Redraw the panel once, from the replay or the live loop, and keep the snapshot shown
+        for the scene's redraw (``period``: wall seconds since the last call)."""
         player = self.player
         stats = self.rt.stats(last=round(1.0 / self.rt.loop.dt))
         servo_rate = 1.0 / self.rt.loop.dt
@@ -378,7 +409,6 @@ class DemoApp:
             snap = self.rt.snapshot
             if self._loading and snap.playing is not None:
                 self._loading, self._notice = False, ""
-            self.view.update(snap)
             self.controls.update(snap, stats, self.rt.scheduling, servo_rate, self._notice)
             if snap.playing is not None:
                 left = f", {snap.play_left:.1f} s left at {snap.speed:g}x"
@@ -390,7 +420,6 @@ class DemoApp:
         else:
             player.advance(period)
             snap = player.snapshot()
-            self.view.update(snap)
             self.controls.update(snap, stats, "replay", servo_rate, "", live=False)
             # As often as the live page plots, and only when the cursor moved: a still replay sends none.
             if player.cursor != self._replay_shown and self.controls.plot_due():
@@ -403,6 +432,7 @@ class DemoApp:
                 f"[{1000 * p[0]:+.1f}, {1000 * p[1]:+.1f}, {1000 * p[2]:+.1f}] mm · "
                 f"|F_MRF| = {float(np.linalg.norm(snap.F_MRF[0:3])):.2f} N"
             )
+        self._drawn = snap
         job = self.experiment
         if job is not None:
             if job.error is not None:

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
+import pytest
 import viser
 
 from app.controller.types import SlaveCommand
@@ -11,8 +14,8 @@ from app.session.spec import load_session
 from app.slave.arm import ArmStatus
 from app.spatial import quat_to_matrix
 from app.web.headless import free_port
-from app.web.scene_view import WORLD_ORIGIN_V, SceneView
-from app.web.snapshot import take_snapshot
+from app.web.scene_view import SHOWN_RESOLUTION, WORLD_ORIGIN_V, SceneView
+from app.web.snapshot import Snapshot, take_snapshot
 
 
 def test_an_arm_out_of_reach_is_flagged_in_the_snapshot() -> None:
@@ -52,3 +55,44 @@ def test_the_ideal_tool_has_no_links_to_draw() -> None:
     snap = take_snapshot(loop.tick(), np.eye(4))
     assert snap.slave_geom_xpos.shape == (0, 3)
     assert snap.slave_geom_xmat.shape == (0, 3, 3)
+
+
+def test_the_scene_view_sends_only_what_a_pixel_would_show() -> None:
+    """A move under the space's resolution (half a pixel when the space fills 1000 px) and force
+    noise under 0.1 N send nothing; a larger move, a larger force change, do."""
+    loop = ServoLoop(LoopConfig.from_session(load_session("probe_rate")))
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        view = SceneView(server, loop, on_hand_moved=lambda _T: None)
+        snap = take_snapshot(loop.tick(), np.eye(4))
+        step = view.resolution["device"]
+        assert step == pytest.approx(SHOWN_RESOLUTION * np.ptp(view.device_box_v, axis=0).max())
+
+        def grip_raised(dz: float) -> Snapshot:
+            T_0_G = snap.T_0_G.copy()
+            T_0_G[2, 3] += dz
+            return replace(snap, T_0_G=T_0_G)
+
+        view.update(snap)
+        sent = np.array(view.grip.position)
+        view.update(grip_raised(0.4 * step))
+        np.testing.assert_array_equal(view.grip.position, sent)
+        view.update(grip_raised(1.5 * step))
+        assert view.grip.position[2] == pytest.approx(sent[2] + 1.5 * step)
+
+        def pushed(fz: float) -> Snapshot:
+            return replace(snap, F_MRF=np.array([0.0, 0.0, fz, 0.0, 0.0, 0.0]))
+
+        view.update(pushed(8.0))
+        label, arrow = view.labels["task_MRF"], view.arrows["task_MRF/force"]
+        assert label.text == "8.0 N"
+        points = np.array(arrow.points)
+        view.update(pushed(8.01))  # the tip moves 0.13e-3 of the space's size: under half a pixel
+        np.testing.assert_array_equal(arrow.points, points)
+        view.update(pushed(8.09))  # 1.2e-3 of the size: drawn, but the label keeps its text
+        assert label.text == "8.0 N"
+        assert not np.array_equal(arrow.points, points)
+        view.update(pushed(8.3))
+        assert label.text == "8.3 N"
+    finally:
+        server.stop()

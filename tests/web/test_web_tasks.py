@@ -18,7 +18,8 @@ from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT
 from app.session.log import read_log
 from app.session.run import run_session
 from app.session.spec import load_session
-from app.web.server import DemoApp
+from app.web.controls import PLOT_EVERY, PLOT_SECONDS
+from app.web.server import UI_RATE, DemoApp
 from app.world.scene import load_scene
 
 pytestmark = pytest.mark.browser
@@ -165,3 +166,49 @@ def test_experiment_button_shows_the_table(demo: DemoApp, page: object) -> None:
     text = _body(page)
     assert "FRHC/NTRFC" in text
     assert demo.panel.chart is not None
+
+
+#: The x scale ``[min, max]`` of the page's uPlot chart with the given viser GUI id (viser's own
+#: end-to-end testpoint, ``window.__viserTestpoints``), or null before the chart exists.
+PLOT_X_SCALE_JS = """(uuid) => {
+  const chart = window.__viserTestpoints?.uplots?.[uuid]?.chart;
+  return chart ? [chart.scales.x.min, chart.scales.x.max] : null;
+}"""
+
+
+def test_a_device_change_stops_the_session_and_says_so(demo: DemoApp, page: object) -> None:
+    """Changing the device while a session plays stops it: the status names the session and the
+    change, and a notification pops up. Then the Delta X chart in the page spans exactly the
+    samples it was sent, all of the new loop (its time restarts at 0): no sample of the old loop
+    is left before them, none lies ahead of the new loop's time."""
+    demo.panel.speed.value = "0.1"  # a 55 s play: it cannot end by itself before the change
+    demo.play_session("peg_ntrfc")
+    _wait_for(lambda: demo.rt.snapshot.playing is not None, "the session did not start playing")
+    device = next(name for name in ("touch3", "kraft") if name != demo.rt.config.device.name)
+    demo.controls.device.value = device  # what choosing it in the page's dropdown does
+    assert demo.rt.config.device.name == device
+    page.get_by_text("the device was changed").first.wait_for(state="attached", timeout=STEP_TIMEOUT * 1000)  # type: ignore[attr-defined]
+    text = _body(page)
+    assert "stopped peg_ntrfc" in text
+    assert "Session stopped" in text  # the notification
+    _wait_for(lambda: demo.rt.snapshot.playing is None and demo.rt.snapshot.time > 2.0, "the new loop does not run")
+    demo.pause(True)  # the plots then hold still, and the page can catch up with them
+    _wait_for(lambda: demo.rt.snapshot.paused, "the loop did not pause")
+    time.sleep(2 * PLOT_EVERY / UI_RATE)  # a plot refresh after the pause
+    times = demo.controls.delta_plot.data[0]  # the Delta X chart's time axis as sent
+    now = demo.rt.snapshot.time
+    assert np.all(np.diff(times) > 0.0)
+    assert times[0] >= 0.0
+    assert times[-1] <= now
+    assert times[-1] - times[0] <= PLOT_SECONDS
+    uuid = demo.controls.delta_plot._impl.uuid  # viser's id of the chart in the page
+
+    def x_scale() -> list[float]:
+        shown = page.evaluate(PLOT_X_SCALE_JS, uuid)  # type: ignore[attr-defined]
+        return [float("nan")] * 2 if shown is None else [float(v) for v in shown]
+
+    _wait_for(
+        lambda: np.allclose(x_scale(), (times[0], times[-1]), atol=1e-6),
+        f"the page's Delta X axis {x_scale()} is not the {times[0]:.3f}-{times[-1]:.3f} s it was sent",
+    )
+    demo.pause(False)

@@ -186,10 +186,12 @@ def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         }
     rs = list(ratios(rows).values())
     q = _quartiles(rs)
+    p25, p75 = q["p25"], q["p75"]
     out["ratio_blind_over_ntrfc"] = {
         "operators": len(rs),
         **q,
-        "iqr_factor": q["p75"] / q["p25"] if q["p25"] else None,
+        # How many times the upper quartile is the lower: the spread of the middle half.
+        "iqr_factor": p75 / p25 if p25 and p75 is not None else None,
         "fraction_above_1": float(np.mean(np.array(rs) > 1.0)) if rs else None,
         "paper": [b / n for b, n in zip(PAPER[BLIND], PAPER[NTRFC], strict=True)],
     }

@@ -20,6 +20,8 @@ from app.session.spec import SESSIONS_DIR
 from app.study.experiment import ExperimentReport, run_experiment
 from app.web.commands import MAX_SPEED, MIN_SPEED
 
+#: The button that opens the experiment's chart full size.
+FULL_CHART = "Show the chart full size"
 #: Choices of the speed selectors (simulated seconds per wall-clock second).
 SPEEDS = tuple(f"{f:g}" for f in (MIN_SPEED, 0.25, 0.5, 1.0, 2.0, MAX_SPEED))
 
@@ -120,7 +122,12 @@ class SessionPanel:
             self.experiment_result = gui.add_markdown("")
             self.server = server
             self.chart: viser.GuiImageHandle | None = None
+            self.full_chart = gui.add_button(
+                FULL_CHART, visible=False, hint="Table I's chart at its own size (1600 x 1000 px), over the page"
+            )
+            self._chart_image: np.ndarray | None = None
         self.run_experiment.on_click(lambda _: a.start_experiment(int(self.operators.value)))
+        self.full_chart.on_click(lambda event: self._open_chart(event.client))
 
     def show_play_status(self, text: str) -> None:
         """What is playing (or loading), under both the guide's button and the player."""
@@ -156,11 +163,24 @@ class SessionPanel:
             return
         self.experiment_result.content = f"```\n{table}\n```"
         if chart is not None:
+            self._chart_image = chart
+            self.full_chart.visible = True
             if self.chart is None:
                 with self.server.gui.add_folder("Experiment chart", expand_by_default=True):
-                    self.chart = self.server.gui.add_image(chart, label="Work, Eq 13 (J)")
+                    self.chart = self.server.gui.add_image(chart, label="Table I (small: use the button above)")
             else:
                 self.chart.image = chart
+
+    def _open_chart(self, client: viser.ClientHandle | None) -> None:
+        """Open the latest chart at full size in a modal of the page that asked (all pages if the
+        click has no client)."""
+        chart = self._chart_image
+        if chart is None:
+            return
+        gui = client.gui if client is not None else self.server.gui
+        with gui.add_modal("Table I: work (Eq 13), where it goes, peak forces, blind / NTRFC") as modal:
+            gui.add_image(chart, label=None)
+            gui.add_button("Close").on_click(lambda _: modal.close())
 
 
 class ExperimentJob:

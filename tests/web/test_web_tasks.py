@@ -19,6 +19,7 @@ from app.session.log import read_log
 from app.session.run import run_session
 from app.session.spec import load_session
 from app.web.server import DemoApp
+from app.web.session_panel import FULL_CHART
 from app.world.scene import load_scene
 
 pytestmark = pytest.mark.browser
@@ -46,6 +47,8 @@ FOLDER_OF = {
     "Open": "Replay a log",
     "Back to live": "Replay a log",
     "Run experiment": "Experiment (Table I)",
+    FULL_CHART: "Experiment (Table I)",
+    "Close": "Experiment (Table I)",
 }
 
 
@@ -164,4 +167,26 @@ def test_experiment_button_shows_the_table(demo: DemoApp, page: object) -> None:
         time.sleep(0.5)
     text = _body(page)
     assert "FRHC/NTRFC" in text
+    assert "along the insertion" in text  # the work split
     assert demo.panel.chart is not None
+
+
+def test_the_experiment_chart_opens_full_size(demo: DemoApp, page: object) -> None:
+    """After an experiment (the test above), its button opens the chart over the page: the image
+    sent is the chart's own 1600 x 1000 px, drawn wider than the panel that holds its thumbnail;
+    Close closes it."""
+    if demo.panel._chart_image is None:
+        pytest.skip("needs the experiment of test_experiment_button_shows_the_table")
+    _click(page, FULL_CHART)
+    dialog = page.get_by_role("dialog").first  # type: ignore[attr-defined]
+    dialog.wait_for()
+    image = dialog.locator("img").first
+    _wait_for(lambda: image.evaluate("i => i.complete && i.naturalWidth") > 0, "the chart did not load")
+    assert image.evaluate("i => [i.naturalWidth, i.naturalHeight]") == [1600, 1000]
+    thumbnail = page.get_by_alt_text(re.compile("Table I")).first  # type: ignore[attr-defined]
+    panel_width = float(page.locator("img").first.evaluate("i => i.closest('div').getBoundingClientRect().width"))  # type: ignore[attr-defined]
+    shown = dialog.locator("img").first.bounding_box()
+    page.screenshot(path=str(SCREENSHOT_DIR / "table1_full.png"))  # type: ignore[attr-defined]
+    assert shown["width"] > 2 * panel_width, (shown, panel_width, thumbnail)
+    _click(page, "Close")
+    _wait_for(lambda: page.get_by_role("dialog").count() == 0, "the chart did not close")  # type: ignore[attr-defined]

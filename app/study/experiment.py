@@ -32,6 +32,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+from matplotlib.ticker import MaxNLocator
 from tqdm import tqdm
 
 from app.session.log import write_json
@@ -294,10 +295,14 @@ def _chart(rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> P
         ax_op.semilogy(x, [max(work[cond][n]["work_eq13"], 1e-9) for n in names], "o", color=COLOURS[cond], label=label)
         lo, hi = min(PAPER[cond]), max(PAPER[cond])
         ax_op.axhspan(lo, hi, color=COLOURS[cond], alpha=0.15, label=f"paper, {cond}: {lo:g}-{hi:g} J")
+    ax_op.set_xlim(-0.5, max(len(names), 1) - 0.5)
+    ax_op.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax_op.set_xlabel("operator (who completed both), sorted by the blind / NTRFC ratio")
     ax_op.set_ylabel("work, Eq 13 (J)")
     ax_op.set_title("Work per operator")
-    ax_op.legend(fontsize=10)
+    # Room above the paper's bands for the legend.
+    ax_op.set_ylim(top=100.0)
+    ax_op.legend(fontsize=10, loc="upper right", ncol=2)
     groups = [(c, key) for c in CONDITIONS for key in ("work_axial_J", "work_other_J")]
     data = [[max(r[key], 1e-9) for r in work[c].values()] for c, key in groups]
     if all(data):
@@ -310,7 +315,7 @@ def _chart(rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> P
         range(1, 5), [f"{c}\n{'along insertion' if k == 'work_axial_J' else 'the rest'}" for c, k in groups]
     )
     ax_split.set_ylabel("work (J)")
-    ax_split.set_title("Where the work goes: along the insertion ({MRF} z) and the other five axes")
+    ax_split.set_title("Where the work goes: along the insertion ({MRF} z), the other 5 axes")
     forces = [[r["peak_contact_force_N"] for r in work[c].values()] for c in CONDITIONS]
     if all(forces):
         box = ax_force.boxplot(forces, patch_artist=True, widths=0.6)

@@ -199,13 +199,17 @@ def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def _cell(r: dict[str, Any] | None) -> str:
-    if r is None:
-        return f"{'-':>22}"
-    if r.get("status") != "ok":
-        return f"{'error':>22}"
-    if not r["completed"]:
-        return f"{'failed':>22}"
+def _cell(r: dict[str, Any] | None, detail: bool = False) -> str:
+    """One run in a table cell, or why there is none: work, peak force and completion time (22
+    characters), or with ``detail`` work (along the insertion + the rest) and peak force (34)."""
+    if r is None or r.get("status") != "ok" or not r["completed"]:
+        why = "-" if r is None else "error" if r.get("status") != "ok" else "failed"
+        return f"{why:<34}" if detail else f"{why:>22}"
+    if detail:
+        return (
+            f"{r['work_eq13']:8.3g} J ({r['work_axial_J']:7.2g} + {r['work_other_J']:7.2g}) "
+            f"{r['peak_contact_force_N']:5.1f} N"
+        )
     return f"{r['work_eq13']:>8.2g} J {r['peak_contact_force_N']:>5.1f} N {r['completion_time_s']:>4.1f}s"
 
 
@@ -214,18 +218,10 @@ def _fmt(value: float | None, spec: str) -> str:
 
 
 def _spread(q: dict[str, float | None], spec: str) -> str:
+    """Median (quartiles), or "-" for no values."""
+    if q["median"] is None:
+        return "-"
     return f"{_fmt(q['median'], spec)} ({_fmt(q['p25'], spec)}-{_fmt(q['p75'], spec)})"
-
-
-def _run_line(r: dict[str, Any] | None) -> str:
-    """One condition of one operator: work (axial + other), peak force, or why there is none."""
-    if r is None:
-        return f"{'-':<34}"
-    if r.get("status") != "ok":
-        return f"{'error':<34}"
-    if not r["completed"]:
-        return f"{'failed':<34}"
-    return f"{r['work_eq13']:8.3g} J ({r['work_axial_J']:7.2g} + {r['work_other_J']:7.2g}) {r['peak_contact_force_N']:5.1f} N"
 
 
 def _table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
@@ -271,7 +267,9 @@ def _table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
     by_cond = {cond: {r["operator"]: r for r in _runs(rows, cond)} for cond in CONDITIONS}
     for name in operators:
         ratio = f"{rs[name]:.3g}" if name in rs else "-"
-        lines.append(f"{name:<14}" + "".join(f"{_run_line(by_cond[c].get(name))}  " for c in CONDITIONS) + ratio)
+        lines.append(
+            f"{name:<14}" + "".join(f"{_cell(by_cond[c].get(name), detail=True)}  " for c in CONDITIONS) + ratio
+        )
     return "\n".join(lines)
 
 

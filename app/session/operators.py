@@ -13,11 +13,12 @@ The strategy, per tick, in the base frame {0} (its axes are the slave world's, `
 1. Intent: a tool velocity toward the goal as seen, ``v = e * speed / SLOW_DISTANCE`` capped at
    ``speed`` (m/s), with ``e`` the goal (misjudged laterally by ``aim_error``, and
    :data:`OVERSHOOT` deeper: the operator inserts until the pegs bottom out) minus the seen tool
-   position; and a tool angular velocity ``w = e_R * speed / SLOW_DISTANCE`` (rad/s, {MRF} axes)
-   toward the orientation they take for upright, misjudged by ``tilt_error`` about a horizontal
-   axis, with ``e_R`` the rotation vector from the seen tool orientation to it. Phases: insert until, past the goal depth, the tool is seen to stop (:data:`BOTTOM_S`)
-   or a force above the threshold is felt; hold :data:`HOLD_S`; withdraw
-   toward the start height until seen :data:`CLEAR` above the goal; done.
+   position; and, while inserting, a tool angular velocity ``w = e_R * speed / SLOW_DISTANCE``
+   (rad/s, {MRF} axes) toward the orientation they take for upright, misjudged by ``tilt_error``
+   about a horizontal axis, with ``e_R`` the rotation vector from the seen tool orientation to it.
+   Phases: insert until, past the goal depth, the tool is seen to stop (:data:`BOTTOM_S`) or a
+   force above the threshold is felt; hold :data:`HOLD_S`; withdraw toward the start height until
+   seen :data:`CLEAR` above the goal; done.
 2. Force threshold: a felt force above ``force_threshold`` (N) is yielded to: the operator moves
    along it at ``speed`` per threshold of excess force.
 3. Searching: when the seen tool has not gone deeper by :data:`STALL_DEPTH` in :data:`STALL_S` while

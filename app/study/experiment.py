@@ -12,9 +12,10 @@ environment (Eq 13) and its split into the term along the insertion axis ({MRF} 
 axis) and the other five, the peak contact force, completion and its time. The table shows the
 paper's layout for the first three operators, then the population (completion rates, medians and
 quartiles, where the work goes, and the blind/NTRFC work ratio of every operator who completed
-both), then every operator on one line. The chart (``table1.png``, 1600 x 1000 px) shows the same. The paper measured lower
-work with FRHC/NTRFC for each of its three subjects (Table I: 1.66/2.55/1.51 J blind against
-0.59/0.61/0.42 J, ratios 2.8 to 4.2).
+both), then every operator on one line. The chart (``table1.png``, 1600 x 1000 px) shows the
+same. The paper measured lower work with FRHC/NTRFC for each of its three subjects (Table I:
+1.66/2.55/1.51 J blind against 0.59/0.61/0.42 J, ratios 2.8 to 4.2). ``docs/experiment.md`` says
+where every parameter of the task and the operators comes from, and how the result compares.
 """
 
 from __future__ import annotations

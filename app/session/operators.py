@@ -13,16 +13,21 @@ The strategy, per tick, in the base frame {0} (its axes are the slave world's, `
 1. Intent: a tool velocity toward the goal as seen, ``v = e * speed / SLOW_DISTANCE`` capped at
    ``speed`` (m/s), with ``e`` the goal (misjudged laterally by ``aim_error``, and
    :data:`OVERSHOOT` deeper: the operator inserts until the pegs bottom out) minus the seen tool
-   position. Phases: insert until, past the goal depth, the tool is seen to stop (:data:`BOTTOM_S`)
-   or a force above the threshold is felt; hold :data:`HOLD_S`; withdraw
-   toward the start height until seen :data:`CLEAR` above the goal; done.
+   position; and, while inserting, a tool angular velocity ``w = e_R * speed / SLOW_DISTANCE``
+   (rad/s, {MRF} axes) toward the orientation they take for upright, misjudged by ``tilt_error``
+   about a horizontal axis, with ``e_R`` the rotation vector from the seen tool orientation to it.
+   Phases: insert until, past the goal depth, the tool is seen to stop (:data:`BOTTOM_S`) or a
+   force above the threshold is felt; hold :data:`HOLD_S`; withdraw toward the start height until
+   seen :data:`CLEAR` above the goal; done.
 2. Force threshold: a felt force above ``force_threshold`` (N) is yielded to: the operator moves
    along it at ``speed`` per threshold of excess force.
 3. Searching: when the seen tool has not gone deeper by :data:`STALL_DEPTH` in :data:`STALL_S` while
-   inserting, the operator looks again and halves their aim error (lifts, re-aims, pushes again).
+   inserting, the operator looks again and halves their aim and tilt errors (lifts, re-aims,
+   pushes again).
 4. The hand target is the start grip pose displaced by the rate-mode inverse the operator has
-   learned, ``d = v / K_V + DB tanh(v / V_DB)`` per axis (the deadband is crossed smoothly), plus a
-   seeded physiological tremor.
+   learned, ``d = v / K_V + DB tanh(v / V_DB)`` per axis (the deadband is crossed smoothly; for
+   the rotation ``W_DB`` in place of ``V_DB``, and ``d`` as the grip's Z-Y-X angles from its start,
+   which Eq 5 maps to ``w`` for small angles), plus a seeded physiological tremor.
 
 Parameter ranges of the population (:data:`POPULATION`) and their sources:
 
@@ -39,9 +44,14 @@ Parameter ranges of the population (:data:`POPULATION`) and their sources:
   insertions, Hannaford, Wood, McAffee & Zak (1991), IEEE Trans. SMC 21(3):620-633.
 - Tremor 0.1-0.5 mm (standard deviation, low-passed at 8 Hz): physiological hand tremor, Elble &
   Koller (1990), *Tremor*, Johns Hopkins University Press.
-- Approach speed 20-50 mm/s and aim error up to 2 mm: *not* from the literature; task choices
-  spanning a careful to a brisk insertion and a misjudgement from one to four times the holes'
-  0.5 mm clearance. Nothing here is fitted to the paper's Table I.
+- Lateral misalignment up to 2.5 mm and angular misalignment up to 1 degree: the part-location
+  errors a remote centre compliance is built to absorb in robotic peg-in-hole assembly (+-2.5 mm
+  lateral, +-1 degree; "Remote center compliance", https://probsee.com/p/remote_center_compliance,
+  after Whitney (1982), J. Dyn. Syst. Meas. Control 104:65-77, whose analysis takes the initial
+  lateral and angular errors as the two inputs of an insertion). Here they are the operator's
+  misjudgement of where the holes are and of upright, drawn uniformly up to those bounds.
+- Approach speed 20-50 mm/s: *not* from the literature; a task choice spanning a careful to a
+  brisk insertion. Nothing here is fitted to the paper's Table I.
 """
 
 from __future__ import annotations
@@ -55,7 +65,7 @@ import numpy as np
 from app.config import Checked, Range
 from app.session.script import OperatorScript, _tremor
 from app.session.spec import Session
-from app.spatial import Array
+from app.spatial import Array, rotation_exp, rotation_log, zyx_to_matrix
 
 if TYPE_CHECKING:
     from app.session.loop import ServoLoop
@@ -75,6 +85,8 @@ STALL_DEPTH = 0.001
 STALL_S = 1.0
 #: Tool speed (m/s) over which the learned rate inverse crosses the deadband.
 V_DB = 0.002
+#: Tool angular speed (rad/s) over which the learned rate inverse crosses the rotational deadband.
+W_DB = 0.02
 
 #: Ranges (lo, hi) the population is drawn from, uniformly (sources in the module docstring).
 POPULATION: dict[str, tuple[float, float]] = {
@@ -85,7 +97,8 @@ POPULATION: dict[str, tuple[float, float]] = {
     "force_threshold": (1.0, 5.0),
     "tremor": (1e-4, 5e-4),
     "speed": (0.02, 0.05),
-    "aim_error": (0.0, 0.002),
+    "aim_error": (0.0, 0.0025),
+    "tilt_error": (0.0, math.radians(1.0)),
 }
 
 
@@ -104,6 +117,9 @@ class OperatorParams(Checked):
         speed: Tool speed (m/s) they aim for.
         aim_error: Lateral misjudgement (m) of where the goal is, at angle ``aim_angle`` (rad).
         aim_angle: Direction of the misjudgement in the x-y plane (rad).
+        tilt_error: Angular misjudgement (rad) of upright: the tool orientation they steer to is
+            tilted by this about the horizontal axis at ``tilt_axis``.
+        tilt_axis: Direction (rad) of that axis in the x-y plane.
         seed: Seed of their tremor.
     """
 
@@ -117,6 +133,8 @@ class OperatorParams(Checked):
     speed: Annotated[float, Range(0.0, 1.0, "m/s", lo_open=True)] = 0.03
     aim_error: Annotated[float, Range(0.0, 0.1, "m")] = 0.001
     aim_angle: Annotated[float, Range(-10.0, 10.0, "rad")] = 0.0
+    tilt_error: Annotated[float, Range(0.0, 0.5, "rad")] = 0.0
+    tilt_axis: Annotated[float, Range(-10.0, 10.0, "rad")] = 0.0
     seed: Annotated[int, Range(0, 2**32 - 1)] = 0
 
 
@@ -126,8 +144,9 @@ def sample_population(n: int, seed: int = 0) -> tuple[OperatorParams, ...]:
     out = []
     for i in range(n):
         values = {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in POPULATION.items()}
-        angle = float(rng.uniform(-math.pi, math.pi))
-        out.append(OperatorParams(f"Operator {i + 1}", **values, aim_angle=angle, seed=int(rng.integers(2**32))))
+        aim_angle, tilt_axis = (float(a) for a in rng.uniform(-math.pi, math.pi, 2))
+        seed = int(rng.integers(2**32))
+        out.append(OperatorParams(f"Operator {i + 1}", **values, aim_angle=aim_angle, tilt_axis=tilt_axis, seed=seed))
     return tuple(out)
 
 
@@ -170,14 +189,17 @@ class ReactingOperator:
         self._dt = loop.dt
         self._T_start = loop.reading.T_0_G.copy()
         self._hand = self._T_start.copy()
-        self._k_v = np.array(session.gains.k_v[0:3])
-        self._db = np.array(session.gains.deadband[0:3])
+        self._k_v = np.array(session.gains.k_v)
+        self._db = np.array(session.gains.deadband)
         tool = loop.record.T_w_MRF[0:3, 3].copy()
         self._home = tool
         self._goal = task.goal.matrix()[0:3, 3]
         self._tolerance = task.position_tolerance
         self._aim = params.aim_error * np.array([math.cos(params.aim_angle), math.sin(params.aim_angle), 0.0])
+        self._tilt = params.tilt_error * np.array([math.cos(params.tilt_axis), math.sin(params.tilt_axis), 0.0])
+        self._R_home = loop.record.T_w_MRF[0:3, 0:3].copy()
         self._seen = _Delayed(params.visual_delay, loop.dt, tool)
+        self._seen_R = _Delayed(params.visual_delay, loop.dt, self._R_home.ravel())
         self._felt = _Delayed(params.haptic_delay, loop.dt, np.zeros(3))
         self._tremor = _tremor(session.data.n_ticks, params.tremor, params.seed, 1.0 / loop.dt, 8.0)
         self._since = 0.0
@@ -191,15 +213,27 @@ class ReactingOperator:
         self._switches.update_switches(loop.time)
         rec = loop.record
         seen = self._seen.push(rec.T_w_MRF[0:3, 3])
+        seen_R = self._seen_R.push(rec.T_w_MRF[0:3, 0:3].ravel()).reshape(3, 3)
         felt = self._felt.push(rec.reading.T_0_G[0:3, 0:3] @ rec.out.G_F_T[0:3])
         f = float(np.linalg.norm(felt))
         v = self._intent(seen, f, loop.time)
         if f > self.params.force_threshold:
             v = v + felt / f * self.params.speed * (f / self.params.force_threshold - 1.0)
-        d = v / self._k_v + self._db * np.tanh(v / V_DB)
+        w = self._turn(seen_R)
+        d = v / self._k_v[0:3] + self._db[0:3] * np.tanh(v / V_DB)
+        a = w / self._k_v[3:6] + self._db[3:6] * np.tanh(w / W_DB)
         hand = self._hand
         hand[0:3, 3] = self._T_start[0:3, 3] + d + self._tremor[min(loop.ticks, len(self._tremor) - 1)]
+        hand[0:3, 0:3] = self._T_start[0:3, 0:3] @ zyx_to_matrix(a[0], a[1], a[2])
         loop.set_hand_target(hand)
+
+    def _turn(self, seen_R: Array) -> Array:
+        """The tool angular velocity (rad/s, {MRF} axes) the operator wants while inserting, from the
+        seen tool orientation ``seen_R`` (3, 3): toward upright as they misjudge it; none after."""
+        if self.phase != "insert":
+            return np.zeros(3)
+        e = rotation_log(seen_R.T @ rotation_exp(self._tilt) @ self._R_home)
+        return e * (self.params.speed / SLOW_DISTANCE)
 
     def _intent(self, seen: Array, felt: float, t: float) -> Array:
         """The tool velocity (m/s, {w}) the operator wants, from the seen tool position ``seen`` (m)
@@ -215,6 +249,7 @@ class ReactingOperator:
             elif not deep and t - self._stall_t > STALL_S:
                 # Stuck above the holes: look again, misjudge by half as much, lift a little, push again.
                 self._aim = self._aim * 0.5
+                self._tilt = self._tilt * 0.5
                 self._stall_t, self._best_depth = t, float(seen[2]) + STALL_DEPTH
                 return np.array([0.0, 0.0, self.params.speed])
             return self._toward(e)

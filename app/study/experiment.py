@@ -8,11 +8,14 @@ points of the sweep engine (:func:`app.sweep.engine.run_points`: serially or on 
 
 A run counts only if the task completes (both pegs 20 mm deep) within the time limit: a failed
 run is reported as failed and its work is not averaged in. Reported per run: the work on the
-environment (Eq 13), the peak contact force, completion and its time. The table shows the
-paper's layout for the first three operators, then the population: completion rates, medians,
-and the blind/NTRFC work ratio of every operator who completed both. The paper measured lower
-work with FRHC/NTRFC for each of its three subjects (Table I: 1.66/2.55/1.51 J blind against
-0.59/0.61/0.42 J, ratios 2.8 to 4.2).
+environment (Eq 13) and its split into the term along the insertion axis ({MRF} z, the pegs'
+axis) and the other five, the peak contact force, completion and its time. The table shows the
+paper's layout for the first three operators, then the population (completion rates, medians and
+quartiles, where the work goes, and the blind/NTRFC work ratio of every operator who completed
+both), then every operator on one line. The chart (``table1.png``, 1600 x 1000 px) shows the
+same. The paper measured lower work with FRHC/NTRFC for each of its three subjects (Table I:
+1.66/2.55/1.51 J blind against 0.59/0.61/0.42 J, ratios 2.8 to 4.2). ``docs/experiment.md`` says
+where every parameter of the task and the operators comes from, and how the result compares.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+from matplotlib.ticker import MaxNLocator
 from tqdm import tqdm
 
 from app.session.log import write_json
@@ -39,6 +43,10 @@ from app.session.spec import load_session
 
 CONDITIONS = {"FRHC/NTRFC": "peg_ntrfc", "No Force Info": "peg_blind"}
 NTRFC, BLIND = CONDITIONS
+#: The paper's Table I (J) per condition, subjects 1-3.
+PAPER = {NTRFC: (0.59, 0.61, 0.42), BLIND: (1.66, 2.55, 1.51)}
+#: Index of the insertion axis among Eq 13's six {MRF} axes: the pegs point along {MRF} -z.
+INSERTION_AXIS = 2
 #: Longest simulated time (s) a run may take; an operator who has not finished by then failed.
 TIME_LIMIT = 12.0
 
@@ -65,6 +73,9 @@ class ExperimentPoint:
             "completion_time_s": s["task"]["time_s"],
             "simulated_s": s["simulated_s"],
             "fault_ticks": sum(s["faults"].values()),
+            # Eq 13's terms are per {MRF} axis; z is the pegs' axis, the insertion.
+            "work_axial_J": s["work_per_axis"][INSERTION_AXIS],
+            "work_other_J": s["work_eq13"] - s["work_per_axis"][INSERTION_AXIS],
         }
 
 
@@ -147,41 +158,59 @@ def ratios(rows: list[dict[str, Any]]) -> dict[str, float]:
     return {op: w[BLIND] / max(w[NTRFC], 1e-12) for op, w in by_op.items() if len(w) == 2}
 
 
+def _quartiles(values: Sequence[float]) -> dict[str, float | None]:
+    """Median and quartiles of ``values`` (None for none)."""
+    if not len(values):
+        return {"median": None, "p25": None, "p75": None}
+    p25, median, p75 = (float(v) for v in np.percentile(values, [25, 50, 75]))
+    return {"median": median, "p25": p25, "p75": p75}
+
+
 def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for cond in CONDITIONS:
         runs = _runs(rows, cond)
         done = [r for r in runs if _ok(r)]
-
-        def median(key: str, done: list[dict[str, Any]] = done) -> float | None:
-            return float(np.median([r[key] for r in done])) if done else None
-
+        work = [r["work_eq13"] for r in done]
+        axial = [r["work_axial_J"] for r in done]
         out[cond] = {
             "runs": len(runs),
             "completed": len(done),
             "errors": sum(1 for r in runs if r.get("status") != "ok"),
-            "median_work_J": median("work_eq13"),
-            "median_peak_force_N": median("peak_contact_force_N"),
-            "median_time_s": median("completion_time_s"),
+            "work_J": _quartiles(work),
+            "work_axial_J": _quartiles(axial),
+            "work_other_J": _quartiles([r["work_other_J"] for r in done]),
+            # Where the work goes: the share along the insertion of the population's total.
+            "axial_share": float(sum(axial) / sum(work)) if done and sum(work) > 0 else None,
+            "peak_force_N": _quartiles([r["peak_contact_force_N"] for r in done]),
+            "median_time_s": _quartiles([r["completion_time_s"] for r in done])["median"],
+            "paper_J": list(PAPER[cond]),
         }
     rs = list(ratios(rows).values())
+    q = _quartiles(rs)
+    p25, p75 = q["p25"], q["p75"]
     out["ratio_blind_over_ntrfc"] = {
         "operators": len(rs),
-        "median": float(np.median(rs)) if rs else None,
-        "p25": float(np.percentile(rs, 25)) if rs else None,
-        "p75": float(np.percentile(rs, 75)) if rs else None,
+        **q,
+        # How many times the upper quartile is the lower: the spread of the middle half.
+        "iqr_factor": p75 / p25 if p25 and p75 is not None else None,
         "fraction_above_1": float(np.mean(np.array(rs) > 1.0)) if rs else None,
+        "paper": [b / n for b, n in zip(PAPER[BLIND], PAPER[NTRFC], strict=True)],
     }
     return out
 
 
-def _cell(r: dict[str, Any] | None) -> str:
-    if r is None:
-        return f"{'-':>22}"
-    if r.get("status") != "ok":
-        return f"{'error':>22}"
-    if not r["completed"]:
-        return f"{'failed':>22}"
+def _cell(r: dict[str, Any] | None, detail: bool = False) -> str:
+    """One run in a table cell, or why there is none: work, peak force and completion time (22
+    characters), or with ``detail`` work (along the insertion + the rest) and peak force (34)."""
+    if r is None or r.get("status") != "ok" or not r["completed"]:
+        why = "-" if r is None else "error" if r.get("status") != "ok" else "failed"
+        return f"{why:<34}" if detail else f"{why:>22}"
+    if detail:
+        return (
+            f"{r['work_eq13']:8.3g} J ({r['work_axial_J']:7.2g} + {r['work_other_J']:7.2g}) "
+            f"{r['peak_contact_force_N']:5.1f} N"
+        )
     return f"{r['work_eq13']:>8.2g} J {r['peak_contact_force_N']:>5.1f} N {r['completion_time_s']:>4.1f}s"
 
 
@@ -189,8 +218,16 @@ def _fmt(value: float | None, spec: str) -> str:
     return "-" if value is None else format(value, spec)
 
 
+def _spread(q: dict[str, float | None], spec: str) -> str:
+    """Median (quartiles), or "-" for no values."""
+    if q["median"] is None:
+        return "-"
+    return f"{_fmt(q['median'], spec)} ({_fmt(q['p25'], spec)}-{_fmt(q['p75'], spec)})"
+
+
 def _table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
-    names = list(dict.fromkeys(r["operator"] for r in rows))[:3]
+    operators = list(dict.fromkeys(r["operator"] for r in rows))
+    names = operators[:3]
     lines = [
         "Dual peg-in-the-holes, reacting operators: work (Eq 13), peak contact force, completion time",
         "",
@@ -201,50 +238,110 @@ def _table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
         lines.append(f"{cond:<16}" + "".join(_cell(found.get(n)) for n in names))
     rs = ratios(rows)
     lines.append(f"{'blind / NTRFC':<16}" + "".join(f"{rs[n]:>22.2f}" if n in rs else f"{'-':>22}" for n in names))
-    lines += ["", f"Population of {len({r['operator'] for r in rows})} operators (medians over completed runs):"]
+    lines += [
+        "",
+        f"Population of {len(operators)} operators, over completed runs: median (quartiles); "
+        "work along the insertion + the rest:",
+    ]
     for cond in CONDITIONS:
         s = summary[cond]
         errors = f" ({s['errors']} errors)" if s["errors"] else ""
-        lines.append(
-            f"  {cond:<14} completed {s['completed']}/{s['runs']}{errors}, work {_fmt(s['median_work_J'], '.3g')} J, "
-            f"peak force {_fmt(s['median_peak_force_N'], '.1f')} N, time {_fmt(s['median_time_s'], '.2f')} s"
-        )
+        share = "-" if s["axial_share"] is None else f"{100 * s['axial_share']:.0f} %"
+        paper = "/".join(f"{w:g}" for w in s["paper_J"])
+        lines += [
+            f"  {cond:<14} completed {s['completed']}/{s['runs']}{errors}, time {_fmt(s['median_time_s'], '.2f')} s",
+            f"    work {_spread(s['work_J'], '.3g')} J (paper {paper} J); along the insertion "
+            f"{_spread(s['work_axial_J'], '.3g')} J, the rest {_spread(s['work_other_J'], '.3g')} J; "
+            f"{share} of all work along the insertion",
+            f"    peak force {_spread(s['peak_force_N'], '.1f')} N",
+        ]
     r = summary["ratio_blind_over_ntrfc"]
     if r["operators"]:
+        paper = "/".join(f"{v:.1f}" for v in r["paper"])
         lines.append(
-            f"  blind / NTRFC work over {r['operators']} operators who completed both: median {r['median']:.2f} "
-            f"(quartiles {r['p25']:.2f} to {r['p75']:.2f}); lower work with FRHC/NTRFC for "
-            f"{100 * r['fraction_above_1']:.0f} % of them (paper: every subject, ratios 2.8 to 4.2)"
+            f"  blind / NTRFC work over {r['operators']} operators who completed both: median {r['median']:.3g} "
+            f"(quartiles {r['p25']:.3g} to {r['p75']:.3g}, a factor {r['iqr_factor']:.3g}); lower work with "
+            f"FRHC/NTRFC for {100 * r['fraction_above_1']:.0f} % of them (paper: every subject, ratios {paper})"
+        )
+    lines += ["", "Per operator: work (along the insertion + the rest), peak force; blind / NTRFC work", ""]
+    lines.append(f"{'':<14}{NTRFC:<36}{BLIND:<36}ratio")
+    by_cond = {cond: {r["operator"]: r for r in _runs(rows, cond)} for cond in CONDITIONS}
+    for name in operators:
+        ratio = f"{rs[name]:.3g}" if name in rs else "-"
+        lines.append(
+            f"{name:<14}" + "".join(f"{_cell(by_cond[c].get(name), detail=True)}  " for c in CONDITIONS) + ratio
         )
     return "\n".join(lines)
 
 
+#: Colour of each condition in the chart.
+COLOURS = {NTRFC: "tab:blue", BLIND: "tab:orange"}
+
+
 def _chart(rows: list[dict[str, Any]], summary: dict[str, Any], path: Path) -> Path:
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    """Table I as a 1600 x 1000 px figure: work per operator, where the work goes, peak forces
+    and the blind/NTRFC ratio, each beside the paper's values."""
+    plt.rcParams.update({"font.size": 12})
+    fig, axes = plt.subplots(2, 2, figsize=(16, 10))
+    ax_op, ax_split, ax_force, ax_ratio = axes.ravel()
+    rs = ratios(rows)
+    names = sorted(rs, key=rs.__getitem__)
+    work = {c: {r["operator"]: r for r in _runs(rows, c) if _ok(r)} for c in CONDITIONS}
+    x = np.arange(len(names))
     for cond in CONDITIONS:
-        done = [r for r in _runs(rows, cond) if _ok(r)]
-        work = np.array([max(r["work_eq13"], 1e-6) for r in done])
-        label = f"{cond} ({len(done)}/{summary[cond]['runs']} completed)"
-        if len(work):
-            axes[0].hist(work, bins=np.geomspace(work.min(), work.max() * 1.01 + 1e-9, 20), alpha=0.6, label=label)
-            axes[1].hist([r["peak_contact_force_N"] for r in done], bins=20, alpha=0.6, label=cond)
-    axes[0].set_xscale("log")
-    axes[0].set_xlabel("work on the environment, Eq 13 (J)")
-    if axes[0].patches:
-        axes[0].legend(fontsize=8)
-    axes[1].set_xlabel("peak contact force (N)")
-    rs = np.array(list(ratios(rows).values()))
-    if len(rs):
-        axes[2].hist(rs, bins=np.geomspace(max(rs.min(), 1e-3), rs.max() * 1.01 + 1e-9, 20))
-        axes[2].set_xscale("log")
-        axes[2].axvspan(2.8, 4.2, color="tab:green", alpha=0.2, label="paper's 3 subjects")
-        axes[2].axvline(1.0, color="k", lw=0.8)
-        axes[2].legend(fontsize=8)
-    axes[2].set_xlabel("work ratio blind / NTRFC, per operator")
-    for ax in axes:
-        ax.set_ylabel("runs" if ax is not axes[2] else "operators")
+        s = summary[cond]
+        label = f"{cond} ({s['completed']}/{s['runs']} completed)"
+        ax_op.semilogy(x, [max(work[cond][n]["work_eq13"], 1e-9) for n in names], "o", color=COLOURS[cond], label=label)
+        lo, hi = min(PAPER[cond]), max(PAPER[cond])
+        ax_op.axhspan(lo, hi, color=COLOURS[cond], alpha=0.15, label=f"paper, {cond}: {lo:g}-{hi:g} J")
+    ax_op.set_xlim(-0.5, max(len(names), 1) - 0.5)
+    ax_op.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax_op.set_xlabel("operator (who completed both), sorted by the blind / NTRFC ratio")
+    ax_op.set_ylabel("work, Eq 13 (J)")
+    ax_op.set_title("Work per operator")
+    # Room above the paper's bands for the legend.
+    ax_op.set_ylim(top=100.0)
+    ax_op.legend(fontsize=10, loc="upper right", ncol=2)
+    groups = [(c, key) for c in CONDITIONS for key in ("work_axial_J", "work_other_J")]
+    data = [[max(r[key], 1e-9) for r in work[c].values()] for c, key in groups]
+    if all(data):
+        box = ax_split.boxplot(data, patch_artist=True, widths=0.6)
+        for patch, (cond, _) in zip(box["boxes"], groups, strict=True):
+            patch.set_facecolor(COLOURS[cond])
+            patch.set_alpha(0.5)
+    ax_split.set_yscale("log")
+    ax_split.set_xticks(
+        range(1, 5), [f"{c}\n{'along insertion' if k == 'work_axial_J' else 'the rest'}" for c, k in groups]
+    )
+    ax_split.set_ylabel("work (J)")
+    ax_split.set_title("Where the work goes: along the insertion ({MRF} z), the other 5 axes")
+    forces = [[r["peak_contact_force_N"] for r in work[c].values()] for c in CONDITIONS]
+    if all(forces):
+        box = ax_force.boxplot(forces, patch_artist=True, widths=0.6)
+        for patch, cond in zip(box["boxes"], CONDITIONS, strict=True):
+            patch.set_facecolor(COLOURS[cond])
+            patch.set_alpha(0.5)
+    ax_force.set_xticks(range(1, 3), list(CONDITIONS))
+    ax_force.set_ylabel("peak contact force (N)")
+    ax_force.set_title("Peak contact force per run")
+    values = np.array([rs[n] for n in names])
+    r = summary["ratio_blind_over_ntrfc"]
+    if len(values):
+        lo, hi = max(values.min(), 1e-3) / 1.1, values.max() * 1.1
+        ax_ratio.hist(values, bins=np.geomspace(lo, hi, 25), color="tab:gray")
+        ax_ratio.axvspan(min(r["paper"]), max(r["paper"]), color="tab:green", alpha=0.3, label="paper's 3 subjects")
+        ax_ratio.axvline(r["median"], color="k", lw=2, label=f"median {r['median']:.3g}")
+        for q in (r["p25"], r["p75"]):
+            ax_ratio.axvline(q, color="k", lw=1, ls="--")
+        ax_ratio.axvline(1.0, color="tab:red", lw=1, label="equal work")
+        ax_ratio.set_xscale("log")
+        ax_ratio.legend(fontsize=10)
+    ax_ratio.set_xlabel("blind / NTRFC work, per operator (quartiles dashed)")
+    ax_ratio.set_ylabel("operators")
+    ax_ratio.set_title("Work ratio")
+    for ax in axes.ravel():
         ax.grid(alpha=0.3)
-    fig.suptitle("Dual peg-in-the-holes over a population of reacting operators")
+    fig.suptitle(f"Table I: dual peg-in-the-holes, {len({r['operator'] for r in rows})} simulated operators")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

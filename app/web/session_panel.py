@@ -20,6 +20,11 @@ from app.session.spec import SESSIONS_DIR
 from app.study.experiment import ExperimentReport, run_experiment
 from app.web.commands import MAX_SPEED, MIN_SPEED
 
+#: The button that opens the experiment's chart full size.
+FULL_CHART = "Show the chart full size"
+#: Size (CSS px) of the chart's window: the 1600 x 1000 px chart at 0.6, left of a 1400 px wide
+#: page's panel (the window can be moved and resized).
+CHART_WINDOW = (980.0, 740.0)
 #: Choices of the speed selectors (simulated seconds per wall-clock second).
 SPEEDS = tuple(f"{f:g}" for f in (MIN_SPEED, 0.25, 0.5, 1.0, 2.0, MAX_SPEED))
 
@@ -120,7 +125,12 @@ class SessionPanel:
             self.experiment_result = gui.add_markdown("")
             self.server = server
             self.chart: viser.GuiImageHandle | None = None
+            self.full_chart = gui.add_button(
+                FULL_CHART, visible=False, hint="Table I's chart in a window beside the panel, large enough to read"
+            )
+            self._chart_image: np.ndarray | None = None
         self.run_experiment.on_click(lambda _: a.start_experiment(int(self.operators.value)))
+        self.full_chart.on_click(lambda event: self._open_chart(event.client))
 
     def show_play_status(self, text: str) -> None:
         """What is playing (or loading), under both the guide's button and the player."""
@@ -156,11 +166,27 @@ class SessionPanel:
             return
         self.experiment_result.content = f"```\n{table}\n```"
         if chart is not None:
+            self._chart_image = chart
+            self.full_chart.visible = True
             if self.chart is None:
                 with self.server.gui.add_folder("Experiment chart", expand_by_default=True):
-                    self.chart = self.server.gui.add_image(chart, label="Work, Eq 13 (J)")
+                    self.chart = self.server.gui.add_image(chart, label="Table I (small: use the button above)")
             else:
                 self.chart.image = chart
+
+    def _open_chart(self, client: viser.ClientHandle | None) -> None:
+        """Open the latest chart in a floating window of the page that asked (all pages if the click
+        has no client), :data:`CHART_WINDOW` CSS px wide beside the panel; its Close removes it."""
+        chart = self._chart_image
+        if chart is None:
+            return
+        gui = client.gui if client is not None else self.server.gui
+        window = gui.add_panel()
+        with window.add_tab("Table I"):
+            gui.add_image(chart, label="Work (Eq 13), where it goes, peak forces, blind / NTRFC")
+            gui.add_button("Close").on_click(lambda _: window.remove())
+        width, height = CHART_WINDOW
+        window.float(x=16.0, y=16.0, width=width, height=height)
 
 
 class ExperimentJob:

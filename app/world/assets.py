@@ -15,12 +15,23 @@ import trimesh
 
 from app.world.scene import ASSETS_DIR
 
-# Dual peg-in-the-holes (paper Sec 4.3): pegs of radius PEG_RADIUS enter holes with a
-# realistic 0.5 mm radial clearance, PEG_SPACING apart along x.
+# Dual peg-in-the-holes (paper Sec 4.3, which gives no dimensions): 12 mm pegs PEG_SPACING apart
+# along x in holes with the ISO 286 / ANSI B4.2 "loose running" fit H11/c11 at 12 mm nominal: hole
+# +0/+110 um, shaft -95/-205 um, diametral clearance 95-315 um; the pegs (radius PEG_RADIUS, the
+# shaft's nominal) are kept and the hole takes the fit's mean clearance, 205 um, as 102.5 um radial.
 PEG_RADIUS = 0.006
-HOLE_RADIUS = 0.0065
+HOLE_RADIUS = PEG_RADIUS + 0.205e-3 / 2
 PEG_SPACING = 0.06
 HOLE_DEPTH = 0.025
+# 45-degree entry chamfer on each hole, CHAMFER (m) wide and deep: Whitney (1982), "Quasi-static
+# assembly of compliantly supported rigid parts", J. Dyn. Syst. Meas. Control 104:65-77, analyses
+# the entry over 45-degree chamfers: a chamfer catches a lateral error up to its width plus the
+# clearance. The width is not from a source (the paper gives none): 1 mm catches 1.1 mm, less than
+# half of the operators' lateral misalignment range (app/session/operators.py); the others land on
+# the top face and search.
+CHAMFER = 0.001
+#: Radius (m) of a hole's rim on the block's top face, where its chamfer starts.
+RIM_RADIUS = HOLE_RADIUS + CHAMFER
 BLOCK_EXTENTS = (0.14, 0.08, 0.04)  # top face at z = 0 in the object frame
 
 BOWL_OUTER_RADIUS = 0.08
@@ -33,13 +44,25 @@ TERRAIN_SUBDIVISIONS = 7  # 12 * 4**7 = 196608 triangles
 
 
 def peg_block() -> trimesh.Trimesh:
-    """A block with two blind round holes; top face at z = 0, holes at x = +-PEG_SPACING/2."""
+    """A block with two blind round holes, each with a 45-degree entry chamfer; top face at z = 0,
+    holes at x = +-PEG_SPACING/2."""
     block = trimesh.creation.box(extents=BLOCK_EXTENTS)
     block.apply_translation((0.0, 0.0, -BLOCK_EXTENTS[2] / 2))
+    # The cutter's profile (radius, z), revolved about z: the bore, the chamfer's cone from
+    # (HOLE_RADIUS, -CHAMFER) through the rim (RIM_RADIUS, 0), continued above the top face so the
+    # boolean cuts cleanly.
+    above = 0.002
+    profile = [
+        (0.0, -HOLE_DEPTH),
+        (HOLE_RADIUS, -HOLE_DEPTH),
+        (HOLE_RADIUS, -CHAMFER),
+        (RIM_RADIUS + above, above),
+        (0.0, above),
+    ]
     holes = []
     for x in (-PEG_SPACING / 2, PEG_SPACING / 2):
         # 256 sections: the polygon's inscribed radius is within 0.5 um of HOLE_RADIUS.
-        hole = trimesh.creation.cylinder(radius=HOLE_RADIUS, height=2 * HOLE_DEPTH, sections=256)
+        hole = trimesh.creation.revolve(np.array(profile), sections=256)
         hole.apply_translation((x, 0.0, 0.0))
         holes.append(hole)
     return trimesh.boolean.difference([block, *holes], engine="manifold")

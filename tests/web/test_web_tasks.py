@@ -20,6 +20,7 @@ from app.session.run import run_session
 from app.session.spec import load_session
 from app.web.controls import PLOT_EVERY, PLOT_SECONDS
 from app.web.server import UI_RATE, DemoApp
+from app.web.session_panel import FULL_CHART
 from app.world.scene import load_scene
 
 pytestmark = pytest.mark.browser
@@ -47,6 +48,7 @@ FOLDER_OF = {
     "Open": "Replay a log",
     "Back to live": "Replay a log",
     "Run experiment": "Experiment (Table I)",
+    FULL_CHART: "Experiment (Table I)",
 }
 
 
@@ -165,7 +167,29 @@ def test_experiment_button_shows_the_table(demo: DemoApp, page: object) -> None:
         time.sleep(0.5)
     text = _body(page)
     assert "FRHC/NTRFC" in text
+    assert "along the insertion" in text  # the work split
     assert demo.panel.chart is not None
+
+
+def test_the_experiment_chart_opens_full_size(demo: DemoApp, page: object) -> None:
+    """After an experiment (the test above), its button opens the chart in a window: the image
+    sent is the chart's own 1600 x 1000 px, drawn more than twice as wide as the thumbnail in the
+    panel; Close removes the window."""
+    if demo.panel._chart_image is None:
+        pytest.skip("needs the experiment of test_experiment_button_shows_the_table")
+    images = page.locator("img")  # type: ignore[attr-defined]
+    before = images.count()
+    thumbnail = float(images.last.bounding_box()["width"])
+    _click(page, FULL_CHART)
+    _wait_for(lambda: images.count() == before + 1, "the chart's window did not open")
+    chart = images.last
+    _wait_for(lambda: chart.evaluate("i => i.complete && i.naturalWidth") > 0, "the chart did not load")
+    assert chart.evaluate("i => [i.naturalWidth, i.naturalHeight]") == [1600, 1000]
+    shown = chart.bounding_box()
+    assert shown["width"] > 2 * thumbnail, (shown, thumbnail)
+    assert shown["width"] >= 0.5 * 1600
+    page.get_by_role("button", name="Close").last.dispatch_event("click")  # type: ignore[attr-defined]
+    _wait_for(lambda: images.count() == before, "the chart's window did not close")
 
 
 #: The x scale ``[min, max]`` of the page's uPlot chart with the given viser GUI id (viser's own

@@ -14,7 +14,7 @@ from world_helpers import make_scene, plane, pose, sphere_tool
 
 from app.spatial import make_pose, quat_to_matrix
 from app.world import ContactModel, contact_wrench
-from app.world.assets import BOWL_CAVITY_RADIUS, HOLE_RADIUS, PEG_SPACING
+from app.world.assets import BOWL_CAVITY_RADIUS, PEG_SPACING, RIM_RADIUS
 from app.world.scene import BoxSpec, CapsuleSpec, ObjectSpec, Pose, Scene, SphereSpec, ToolSpec, load_scene
 
 K = 1000.0
@@ -132,7 +132,7 @@ def test_tilted_peg_on_the_hole_rim_is_pushed_from_the_rim_point() -> None:
     )
     block = ObjectSpec(name="block", mesh="peg_block.ply", stiffness=K)
     scene = make_scene([block], peg)
-    rim = np.array([PEG_SPACING / 2 + HOLE_RADIUS, 0.0, 0.0])  # a vertex of the 256-gon rim
+    rim = np.array([PEG_SPACING / 2 + RIM_RADIUS, 0.0, 0.0])  # a vertex of the 256-gon rim (top of the chamfer)
     c = rim + np.array([-0.002, 0.0, 0.003])  # tip centre inside the hole's circle, above the top
     theta = math.radians(10)  # the peg leans toward the hole centre going up
     T = pose(tuple(c), (0.0, -theta, 0.0))
@@ -214,7 +214,7 @@ def test_the_bowls_convex_hull_would_give_a_wrong_contact(tmp_path) -> None:
 def test_force_is_continuous_across_edges_and_vertices(tmp_path) -> None:
     block = ObjectSpec(name="block", mesh="peg_block.ply", stiffness=K)
     model = ContactModel(make_scene([block], sphere_tool(0.005)))
-    x_rim = PEG_SPACING / 2 + HOLE_RADIUS
+    x_rim = PEG_SPACING / 2 + RIM_RADIUS
     last = None
     # Slide at constant height from over the top face, over the rim edge, into the hole.
     for x in np.arange(x_rim + 0.004, x_rim - 0.008, -1e-4):

@@ -14,6 +14,7 @@ import numpy as np
 
 from app.device.hand import HandParams
 from app.session.loop import STAGES
+from app.session.stability import PressResult
 from app.session.tick import TickRecord
 from app.teleop.channel import Coupling
 
@@ -88,7 +89,48 @@ def bench_tick(quick: bool = False) -> str:
         lines.append(
             f"  {name}: median {med:6.1f} us   p99 {p99:6.1f} us   ({med / bare:.2f}x its bare tick, median {bare:.1f} us)"
         )
+    lines.extend(_web_loop_lines(quick))
     return "\n".join(lines)
+
+
+def _web_loop_lines(quick: bool) -> list[str]:
+    """The browser demo's loop as it runs (its own process, paced to the wall clock, publishing
+    snapshots, playing a session's script; no browser): compute per tick against the same
+    session's bare tick headless, achieved rate and period jitter, at 1 kHz and at 4 kHz."""
+    from app.session.loop import LoopConfig
+    from app.session.run import run_session
+    from app.session.spec import load_session
+    from app.web.realtime import RealtimeLoop
+
+    lines = ["the browser demo's loop (own process, paced, snapshots, session playing; no browser):"]
+    cases = [("probe_rate", 1000.0), ("peg_ntrfc", 1000.0), ("probe_rate", 4000.0)]
+    for name, rate in cases[:1] + cases[2:] if quick else cases:
+        session = load_session(name).with_changes(servo_rate=rate)
+        bare = run_session(session, out_dir=None, plots=False).summary["timing"]["tick"]["median_us"]
+        rt = RealtimeLoop(LoopConfig.from_session(session))
+        rt.start()
+        try:
+            if not rt.wait_running():
+                lines.append(f"  {name} at {rate / 1000:g} kHz: the loop process did not start")
+                continue
+            rt.play(session)
+            time.sleep(WEB_SETTLE_SECONDS)
+            time.sleep(WEB_MEASURE_SECONDS)
+            st = rt.stats(last=round(WEB_MEASURE_SECONDS * rate))
+            scheduling = rt.scheduling
+        finally:
+            rt.stop()
+        lines.append(
+            f"  {name} at {rate / 1000:g} kHz ({scheduling}): compute median {st.tick_p50_us:6.1f} us "
+            f"p99 {st.tick_p99_us:7.1f} us ({st.tick_p50_us / bare:.2f}x its bare tick, median {bare:.1f} us); "
+            f"rate {st.rate_hz:8.1f} Hz ({100 * (st.rate_hz * rate**-1 - 1):+.2f} %), jitter p99 {st.jitter_p99_us:6.1f} us"
+        )
+    return lines
+
+
+#: The web loop rows: seconds of the played session let run before, then measured.
+WEB_SETTLE_SECONDS = 1.0
+WEB_MEASURE_SECONDS = 3.0
 
 
 class _Laps:
@@ -184,6 +226,7 @@ def bench_stability(quick: bool = False) -> str:
                 lines.extend(
                     _wall_rows(f"{device}_{variant.label}", str(write_variant(device, variant, Path(tmp))), multiples)
                 )
+    lines.extend(_rate_lines(quick))
     lines.extend(_delay_lines(quick))
     return "\n".join(lines)
 
@@ -217,10 +260,7 @@ def _wall_rows(
             r = press(1e5, "pose", device=device, gains=gains, passivity=passivity, hand=held, released=hand is None)
             if r.stable:
                 stable[name].append(multiple)
-            state = (
-                "stable" if r.stable else "OSCILLATES" if not r.settled else "SATURATED" if r.saturated else "PUSHED IN"
-            )
-            cells.append(f"{name} {state:>10} (ripple {r.ripple:6.2f} N, felt {r.felt_stiffness:7,.0f} N/m)")
+            cells.append(f"{name} {_judged(r)}")
         lines.append(f"    design {multiple:4.2f} x bound, K_T {k_t:5.2f}: " + " | ".join(cells))
     for name, good in stable.items():
         upto = 0.0
@@ -230,6 +270,44 @@ def _wall_rows(
             upto = multiple
         listed = ", ".join(f"{m:g}" for m in good) or "none"
         lines.append(f"    {name}: stable at {listed} x bound; at every tested multiple up to {upto:g} x")
+    return lines
+
+
+def _judged(r: PressResult) -> str:
+    """A press's verdict, ripple and felt stiffness, in fixed width."""
+    state = "stable" if r.stable else "OSCILLATES" if not r.settled else "SATURATED" if r.saturated else "PUSHED IN"
+    return f"{state:>10} (ripple {r.ripple:6.2f} N, felt {r.felt_stiffness:7,.0f} N/m)"
+
+
+#: Servo rates (Hz) of the stability bench's rate rows and of ``frhc web --rate``'s examples.
+RATES = (1000.0, 2000.0, 4000.0)
+
+
+def _rate_lines(quick: bool) -> list[str]:
+    """Plain pose-mode walls designed at multiples of the 1 kHz bound (default hand), rendered at
+    each of :data:`RATES` (the gains are physical, so the design is the same wall at every rate).
+
+    The sampled-data bound ``2 b / T`` grows with the rate; measured, the stiffness a plain wall
+    holds does not (kraft: 0.5 x the 1 kHz bound stable at 1 and 4 kHz, 1 x oscillating at both,
+    ripple 5.7 and 4.7 N): in pose mode the limit of this position-force loop is the slave's
+    tracking spring and mass between the grip and the wall, not the sampling."""
+    from app.session.stability import design_stiffness, device_bound, passivity_bound, press
+
+    lines = ["servo rate: plain pose-mode walls (default hand) designed at multiples of the 1 kHz bound, at each rate"]
+    for device in ("kraft",) if quick else ("kraft", "jpl", "freflex"):
+        with_hand = " / ".join(f"{passivity_bound(device, rate):,.0f}" for rate in RATES)
+        alone = " / ".join(f"{device_bound(device, rate):,.0f}" for rate in RATES)
+        rates = " / ".join(f"{rate / 1000:g}" for rate in RATES)
+        lines.append(f"  {device}: bound 2b/T at {rates} kHz: with the hand {with_hand} N/m, device only {alone} N/m")
+        per_k_t = design_stiffness(1.0, device=device)
+        for multiple in (1.0,) if quick else (0.5, 1.0, 2.0):
+            k_t = multiple * passivity_bound(device) / per_k_t
+            cells = []
+            for rate in RATES:
+                gains = {"k_t": [k_t] * 3 + [1.0] * 3}
+                r = press(1e5, "pose", device=device, gains=gains, servo_rate=rate)
+                cells.append(f"{rate / 1000:g} kHz {_judged(r)}")
+            lines.append(f"    design {multiple:g} x the 1 kHz bound: " + " | ".join(cells))
     return lines
 
 

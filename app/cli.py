@@ -44,6 +44,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from app.session.spec import load_session
 
     session = load_session(args.session)
+    if args.rate is not None:
+        session = session.with_changes(servo_rate=args.rate)
     if args.device is not None:  # the device link's changes (connect, stall, loss) on stderr
         logging.basicConfig(level=logging.INFO, format="%(message)s")
         logging.getLogger("websockets").setLevel(logging.WARNING)
@@ -219,6 +221,7 @@ def _cmd_web(args: argparse.Namespace) -> int:
         session=args.session,
         insecure=args.insecure,
         replay=args.replay,
+        servo_rate=args.rate,
     )
     return 0
 
@@ -292,6 +295,18 @@ def _hand(text: str) -> HandParams | None:
         raise argparse.ArgumentTypeError(f"expected K,B (N/m, N s/m) or 'released': {exc}") from None
 
 
+def _servo_rate(text: str) -> float:
+    """``--rate``: a servo rate (Hz) in the range session files accept."""
+    from app.session.spec import check_servo_rate
+
+    try:
+        rate = float(text)
+        check_servo_rate(rate)
+    except (ValueError, InvalidField) as exc:
+        raise argparse.ArgumentTypeError(f"expected a servo rate in Hz: {exc}") from None
+    return rate
+
+
 def _damping(text: str) -> float:
     value = float(text)
     if not 0.0 <= value <= 1e3:
@@ -324,6 +339,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="drive a device outside this process: ws://host:port (frhc device serve, Haply's Inverse "
         "Service), fd:N (Force Dimension), openhaptics:NAME (Touch); the session's device file gives its limits",
+    )
+    p.add_argument(
+        "--rate",
+        type=_servo_rate,
+        default=None,
+        help="servo rate (Hz) instead of the session's (e.g. 1000, 2000, 4000)",
     )
     p.set_defaults(func=_cmd_run)
 
@@ -409,6 +430,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", type=int, default=8080)
     p.add_argument("--insecure", action="store_true", help="serve a non-loopback --host without an access token")
     p.add_argument("--replay", metavar="LOG", help="start replaying a recorded log (runs/<name> or runs/<name>/log)")
+    p.add_argument(
+        "--rate",
+        type=_servo_rate,
+        default=None,
+        help="servo rate (Hz) of the loop and of every session played (e.g. 1000, 2000, 4000; default: the session's, else 1000)",
+    )
     p.set_defaults(func=_cmd_web)
 
     p = sub.add_parser(

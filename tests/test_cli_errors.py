@@ -17,6 +17,8 @@ FRHC = [sys.executable, "-m", "app.cli"]
         (["run", "probe_rate", "--flush-interval", "0"], "--flush-interval: must be between"),
         (["run", "probe_rate", "--flush-interval", "soon"], "--flush-interval: not a number"),
         (["web", "--replay", "{tmp}/no-log-here"], "not a replayable log"),
+        (["web", "--rate", "50"], "--rate: expected a servo rate in Hz: servo_rate: must be"),
+        (["run", "probe_rate", "--rate", "fast"], "--rate: expected a servo rate in Hz"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(tmp_path: Path, args: list[str], expected: str) -> None:

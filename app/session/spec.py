@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
 
-from app.config import Checked, Count, Range, from_dict, load_toml
+from app.config import Checked, Count, Range, field_range, from_dict, load_toml
 from app.controller.gains import ControllerGains
 from app.controller.layout import Mode
 from app.controller.passivity import PassivitySettings
@@ -142,6 +142,14 @@ class Session:
     def with_changes(self, **changes: Any) -> Session:
         """A copy with fields of the session file replaced (e.g. ``accommodation=False``)."""
         return resolve_session(dataclasses.replace(self.data, **changes), self.path)
+
+
+def check_servo_rate(rate: float) -> None:
+    """Raise :class:`~app.errors.InvalidField` (``servo_rate``) for a rate (Hz) outside the range
+    a session file accepts."""
+    rule = field_range(SessionFile, "servo_rate")
+    assert rule is not None
+    rule.check("servo_rate", rate)
 
 
 def resolve_session_path(name_or_path: str | Path) -> Path:

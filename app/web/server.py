@@ -12,6 +12,7 @@ Three kinds of thread run the demo:
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import tempfile
 import threading
@@ -28,7 +29,7 @@ from app.controller.passivity import PassivitySettings
 from app.device.spec import DeviceSpec, available_devices, load_device
 from app.errors import ConfigError, InvalidField
 from app.session.loop import LoopConfig, ServoLoop
-from app.session.spec import Session, load_session
+from app.session.spec import Session, check_servo_rate, load_session
 from app.spatial import Array
 from app.teleop.channel import ChannelSettings
 from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token, viser_on_unix_socket
@@ -56,11 +57,21 @@ class DemoApp:
         server: The viser server (already listening).
         scene, device: The loaded scene and device to start with.
         session: Optional session whose gains, mode, hand, accommodation and servo rate are used.
+        servo_rate: The loop's rate (Hz) for everything the demo runs, sessions played included;
+            None: the session's (1 kHz without one).
     """
 
-    def __init__(self, server: viser.ViserServer, scene: Scene, device: DeviceSpec, session: Session | None) -> None:
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        scene: Scene,
+        device: DeviceSpec,
+        session: Session | None,
+        servo_rate: float | None = None,
+    ) -> None:
         self.server = server
-        self.session = session
+        self.servo_rate = servo_rate
+        self.session = self._at_rate(session) if session is not None else None
         self._lock = threading.Lock()  # the UI thread redraws; a selection change rebuilds
         self._scene, self._device = scene, device
         self.rt = RealtimeLoop(self._loop_config(device, scene, self._start_gains(device)))
@@ -91,8 +102,16 @@ class DemoApp:
     def _loop_config(self, device: DeviceSpec, scene: Scene, gains: ControllerGains) -> LoopConfig:
         """The loop for ``device`` and ``scene``; the session, if any, adds its hand, accommodation and rate."""
         if self.session is None:
-            return LoopConfig(device, scene, gains)
+            config = LoopConfig(device, scene, gains)
+            return config if self.servo_rate is None else dataclasses.replace(config, servo_rate=self.servo_rate)
         return LoopConfig.from_session(self.session, scene, device, gains)
+
+    def _at_rate(self, session: Session) -> Session:
+        """``session`` at the demo's servo rate, if one was asked for (its gains are physical, so
+        they mean the same at any rate: ``docs/conventions.md``)."""
+        if self.servo_rate is None or session.data.servo_rate == self.servo_rate:
+            return session
+        return session.with_changes(servo_rate=self.servo_rate)
 
     def _start_gains(self, device: DeviceSpec) -> ControllerGains:
         if self.session is not None and self.session.device.path == device.path:
@@ -239,7 +258,7 @@ class DemoApp:
         self.panel.show_play_status(self._notice)
         self._loading = True
         try:
-            session = load_session(name)
+            session = self._at_rate(load_session(name))
         except ConfigError as exc:
             self._notice, self._loading = f"**cannot load:** {exc}", False
             self.panel.show_play_status(self._notice)
@@ -412,6 +431,7 @@ def start_demo(
     session: str | None = None,
     insecure: bool = False,
     replay: str | None = None,
+    servo_rate: float | None = None,
 ) -> DemoApp:
     """Check the inputs, start a viser server and the demo on it; returns at once (non-blocking).
 
@@ -421,7 +441,10 @@ def start_demo(
 
     Raises:
         ConfigError: for an unknown or malformed scene, device or session, before any server starts.
+        InvalidField: ``servo_rate`` outside the sessions' range.
     """
+    if servo_rate is not None:
+        check_servo_rate(servo_rate)
     loaded_session = load_session(session) if session is not None else None
     scene_obj = load_scene(scene)
     device_obj = load_device(device)
@@ -433,7 +456,7 @@ def start_demo(
             server = viser.ViserServer(label="FRHC haptic demo", verbose=False)
     else:
         server = viser.ViserServer(host=host, port=port, label="FRHC haptic demo", verbose=False)
-    app = DemoApp(server, scene_obj, device_obj, loaded_session)
+    app = DemoApp(server, scene_obj, device_obj, loaded_session, servo_rate)
     if loaded_replay is not None:
         app.show_replay(loaded_replay)
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
@@ -459,6 +482,7 @@ def serve(
     open_seconds: float | None = None,
     insecure: bool = False,
     replay: str | None = None,
+    servo_rate: float | None = None,
 ) -> None:
     """Serve the browser demo until interrupted (or for ``open_seconds`` seconds), printing its URL.
 
@@ -472,11 +496,13 @@ def serve(
         open_seconds: Return after this long instead of serving forever (for tests).
         insecure: Serve a non-loopback ``host`` without a token.
         replay: A log directory to start on, in replay (the live loop runs beside it).
+        servo_rate: The loop's rate (Hz) for everything the demo runs, sessions played included
+            (default: the session's, else 1 kHz).
 
     Raises:
         ConfigError: for an unknown or malformed scene, device or session, before the server starts.
     """
-    app = start_demo(scene, device, host, port, session, insecure, replay)
+    app = start_demo(scene, device, host, port, session, insecure, replay, servo_rate)
     print(f"FRHC haptic demo: {app.url}  (Ctrl+C to stop)", flush=True)
     try:
         if open_seconds is None:

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
-from app.errors import ConfigError
+from app.errors import ConfigError, InvalidField
 from app.web import server
 from app.web.headless import free_port
 
@@ -47,3 +49,29 @@ def test_serve_prints_url_and_returns(capsys: pytest.CaptureFixture[str]) -> Non
     port = free_port()
     server.serve("probe", "kraft", port=port, open_seconds=0.5)
     assert f"http://127.0.0.1:{port}/" in capsys.readouterr().out
+
+
+def test_demo_runs_everything_at_the_asked_servo_rate() -> None:
+    """``frhc web --rate 4000``: the loop ticks every 250 us of simulated time, publishes 50
+    snapshots a second, and a session played from the page runs at 4 kHz too (not its own 1 kHz)."""
+    app = server.start_demo("probe", "kraft", port=free_port(), servo_rate=4000.0)
+    try:
+        assert app.rt.wait_running()
+        assert app.rt.publish_every == 80
+        time.sleep(0.3)
+        snap = app.rt.snapshot
+        assert snap.ticks > 0
+        assert snap.time == pytest.approx(snap.ticks / 4000.0, rel=1e-9)
+        app.play_session("peg_ntrfc")
+        assert app.rt.config.servo_rate == 4000.0
+        assert app.session is not None
+        assert app.session.data.servo_rate == 4000.0
+    finally:
+        app.close()
+
+
+@pytest.mark.usefixtures("no_server")
+def test_a_servo_rate_outside_the_sessions_range_is_refused_before_serving() -> None:
+    with pytest.raises(InvalidField) as info:
+        server.start_demo("probe", "kraft", servo_rate=50.0)
+    assert info.value.field == "servo_rate"

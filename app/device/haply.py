@@ -31,9 +31,9 @@ from __future__ import annotations
 
 import contextlib
 import json
-import socket
 import logging
 import math
+import socket
 import threading
 import time
 from dataclasses import dataclass, field

@@ -16,6 +16,7 @@ Not thread-safe: one thread uses a link at a time (a server may close it from an
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import time
 from collections import deque
@@ -43,7 +44,7 @@ class WsLink:
         self.protocol = protocol
         self.remote_address = sock.getpeername()
         self._messages: deque[str] = deque()
-        self._fragments: list[bytes] = []
+        self._fragments: list[bytes] = []  # a message's frames so far
         self._closed = False
 
     @staticmethod
@@ -168,19 +169,15 @@ class WsLink:
         """Send a close frame (best effort) and close the socket."""
         if not self._closed and self.protocol.state is State.OPEN:
             self.protocol.send_close(code, reason)
-            try:
+            with contextlib.suppress(OSError):
                 self._flush()
-            except OSError:
-                pass
         self.abort()
 
     def abort(self) -> None:
         """Close the socket without a close frame (the other side sees the connection drop)."""
         self._closed = True
-        try:
+        with contextlib.suppress(OSError):
             self.sock.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
         self.sock.close()
 
     def _receive(self, data: bytes) -> None:
@@ -192,19 +189,17 @@ class WsLink:
         for event in protocol.events_received():
             if isinstance(event, Frame):
                 self._take(event)
-        try:
+        with contextlib.suppress(OSError):
             self._flush()  # pongs and the close handshake's reply
-        except OSError:
-            pass
         if not data or protocol.close_rcvd is not None or protocol.state is State.CLOSED:
             self.abort()
 
     def _take(self, frame: Frame) -> None:
         """Collect data frames into messages (control frames are the protocol's own business)."""
         if frame.opcode in (Opcode.TEXT, Opcode.BINARY):
-            self._fragments = [frame.data]
+            self._fragments = [bytes(frame.data)]
         elif frame.opcode is Opcode.CONT:
-            self._fragments.append(frame.data)
+            self._fragments.append(bytes(frame.data))
         else:
             return
         if frame.fin:

@@ -26,7 +26,7 @@ from app.controller.gains import ControllerGains
 from app.controller.passivity import PassivitySettings
 from app.errors import ConfigError
 from app.session.loop import LoopConfig, ServoLoop
-from app.session.pacer import TimingStats, timing_stats
+from app.session.pacer import SCHEDULING, TimingStats, timing_stats
 from app.session.spec import Session
 from app.spatial import Array
 from app.teleop.channel import ChannelSettings
@@ -47,7 +47,7 @@ from app.web.commands import (
     Stop,
     check_command,
 )
-from app.web.loop_process import SCHEDULING, SharedTiming, loop_main
+from app.web.loop_process import SharedTiming, loop_main
 from app.web.snapshot import SharedSnapshot, Snapshot, take_snapshot
 
 #: Snapshots a second the loop publishes by default (above the page's redraw rate), whatever its servo rate.
@@ -220,7 +220,7 @@ class RealtimeLoop:
 
     @property
     def scheduling(self) -> str:
-        """The scheduling the loop process obtained (see :data:`~app.web.loop_process.SCHEDULING`)."""
+        """The scheduling the loop process obtained (see :data:`~app.session.pacer.SCHEDULING`)."""
         return SCHEDULING[int(self._timing.scheduling.value)]
 
     def stats(self, last: int | None = None) -> TimingStats:

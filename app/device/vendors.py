@@ -2,15 +2,24 @@
 
 - **Force Dimension** (omega, delta, sigma, lambda; Novint Falcon through the same SDK) via
   ``forcedimension-core`` (``pip install 'frhc[fd]'``), ctypes bindings of the Force Dimension
-  SDK's ``libdhd``: ``dhd.open``, ``dhd.getPosition`` (m), ``dhd.getOrientationFrame``,
-  ``dhd.getButton``, ``dhd.setForceAndTorque`` (N, N m), ``dhd.close``. The SDK's frame is the
-  device base with z up; it is taken as {0} as it is.
+  SDK's ``libdhd``: ``dhd.openID(index)``, ``dhd.getSystemName``, ``dhd.hasActiveWrist``,
+  ``dhd.enableForce``, ``dhd.getPosition(out)`` (m), ``dhd.getOrientationFrame(out)`` (3x3),
+  ``dhd.getButton(index)`` (1 pressed, 0 not, -1 error), ``dhd.setForceAndTorque(f, t)`` (N, N m),
+  ``dhd.close``, each with an ``ID`` keyword; all return -1 on error. Names and signatures as in
+  ``forcedimension_core/dhd/__init__.py`` of forcedimension-core 1.0.0
+  (github.com/EmDash00/forcedimension_core-python, a9e6784); its ``runtime`` module raises
+  ImportError at import when libdhd is absent. The SDK's frame is the device base with z up; it
+  is taken as {0} as it is.
 - **3D Systems Touch** (and other OpenHaptics devices) via ``pyOpenHaptics``
   (``pip install 'frhc[openhaptics]'``), ctypes bindings of OpenHaptics' ``libHD``:
-  ``hd.init_device``, ``hd.get_transform`` (HD_CURRENT_TRANSFORM: column-major 4x4, mm),
-  ``hd.get_buttons`` (HD_CURRENT_BUTTONS bits), ``hd.set_force`` (HD_CURRENT_FORCE, N). OpenHaptics'
-  frame has y up and z toward the user; {0} has z up: ``p_0 = (x, -z, y)``, and forces map back
-  the same way.
+  ``hd.init_device`` (None when it fails), ``hd.enable_force``, ``hd.start_scheduler``,
+  ``hd.begin_frame``/``hd.end_frame``, ``hd.get_transform`` (HD_CURRENT_TRANSFORM: a ctypes 4x4
+  of doubles, column-major, translation in row 3, mm), ``hd.get_buttons`` (HD_CURRENT_BUTTONS
+  bits), ``hd.set_force`` (HD_CURRENT_FORCE, N), ``hd.get_error``, ``hd.stop_scheduler``,
+  ``hd.close_device``: ``pyOpenHaptics/hd.py`` of pyOpenHaptics 1.0.1
+  (github.com/mikelitu/pyOpenHaptics, 3eafad1), which loads ``libHD.so`` with ctypes at import
+  (OSError when absent). OpenHaptics' frame has y up and z toward the user; {0} has z up:
+  ``p_0 = (x, -z, y)``, and forces map back the same way.
 
 Each refuses in one line, naming what is missing, when the Python package or its native library
 is absent (:class:`DeviceUnavailable`); nothing here pretends a device is attached. Buttons:
@@ -51,11 +60,11 @@ def _load(module: str, package: str, extra: str, native: str) -> ModuleType:
     """Import a vendor binding, or refuse in one line naming what is missing."""
     try:
         return importlib.import_module(module)
-    except ImportError:
+    except ModuleNotFoundError:
         raise DeviceUnavailable(
             f"{package} is not installed (pip install 'frhc[{extra}]'), and it needs {native}"
         ) from None
-    except OSError as exc:  # the ctypes bindings load the native library at import
+    except (ImportError, OSError) as exc:  # the bindings load the native library at import
         raise DeviceUnavailable(f"{package} cannot load {native}: {exc}") from None
 
 
@@ -102,7 +111,8 @@ class ForceDimensionDevice:
             r.status = LinkStatus.DISCONNECTED
             return r
         r.set_pose(np.array(self._R, dtype=float), np.array(self._pos, dtype=float))
-        r.buttons = tuple(bool(dhd.getButton(i, ID=ID)) for i in range(3))  # type: ignore[assignment]
+        # getButton is -1 on an error: only 1 is a press (an error must not hold the deadman).
+        r.buttons = tuple(dhd.getButton(i, ID=ID) == 1 for i in range(3))  # type: ignore[assignment]
         r.fresh = True
         if r.status == LinkStatus.DISCONNECTED:
             r.status = LinkStatus.RAMPING

@@ -31,7 +31,7 @@ class FakeDhd:
         self.calls: list[tuple[str, Any]] = []
         self.position = [0.01, -0.02, 0.03]  # m
         self.frame = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
-        self.buttons = [True, False, False]
+        self.buttons = [1, 0, 0]  # dhd.getButton: 1 pressed, 0 not, -1 an error
         self.fail = False
 
     def openID(self, index: int) -> int:
@@ -65,7 +65,7 @@ class FakeDhd:
         return 0
 
     def getButton(self, index: int, ID: int = -1) -> int:
-        return int(self.buttons[index])
+        return self.buttons[index]
 
     def close(self, ID: int = -1) -> int:
         self.calls.append(("close", ID))
@@ -172,6 +172,24 @@ def test_a_native_library_that_fails_to_load_is_named(monkeypatch: pytest.Monkey
         DeviceUnavailable, match=r"forcedimension-core cannot load the Force Dimension SDK's libdhd: libdhd\.so\.3"
     ):
         ForceDimensionDevice()
+
+
+def test_a_binding_whose_runtime_finds_no_native_library_is_named(monkeypatch: pytest.MonkeyPatch) -> None:
+    """forcedimension-core's runtime raises ImportError (not ModuleNotFoundError) at import when
+    libdhd is missing: the package is there, the library is not."""
+
+    def failing_import(name: str) -> None:
+        raise ImportError("There were problems loading libdrd.")
+
+    monkeypatch.setattr("app.device.vendors.importlib.import_module", failing_import)
+    with pytest.raises(DeviceUnavailable, match=r"^forcedimension-core cannot load the Force Dimension SDK's libdhd"):
+        ForceDimensionDevice()
+
+
+def test_force_dimension_button_error_is_not_a_press(dhd: FakeDhd) -> None:
+    device = ForceDimensionDevice()
+    dhd.buttons = [-1, 1, -1]
+    assert device.step(np.zeros(6), 1e-3).buttons == (False, True, False)  # -1 must not hold the deadman
 
 
 def test_device_addresses_are_checked() -> None:

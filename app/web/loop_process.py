@@ -194,7 +194,7 @@ def loop_main(
     host = LoopHost(loop, snapshot, publish_every)
     timing.scheduling.value = raise_priority()
     pacer = Pacer(loop.dt, timing.rings())
-    watchdog_ns = round(loop.plant.watchdog * 1e9)
+    watchdog_ns = round(loop.config.watchdog * 1e9)  # the amplifier's, or a Cartesian device's own
     try:
         while host.running:
             late = pacer.wait()

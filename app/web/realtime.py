@@ -16,6 +16,7 @@ needs (device geoms, world meshes, tool).
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing as mp
 import threading
 import time
@@ -72,7 +73,9 @@ class RealtimeLoop:
         if config.scene.path is None:
             raise ConfigError("<scene>", "path", "the web demo needs a scene loaded from a file")
         self.config = config
-        self.loop = ServoLoop(config)
+        # Never ticked, and never connected: a device outside this process is driven by the loop
+        # process alone (a served device takes one client), so this copy simulates its model.
+        self.loop = ServoLoop(dataclasses.replace(config, device_url=None))
         self.publish_every = publish_every or max(1, round(config.servo_rate / SNAPSHOT_RATE))
         self._gains = config.gains
         self._snapshot = SharedSnapshot()

@@ -424,7 +424,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("web", help="the browser demo (viser)", description="Serve the haptic demo in the browser.")
     p.add_argument("--scene", default="probe", help="scene name or path (default: probe)")
-    p.add_argument("--device", default="kraft", help="device name or path (default: kraft)")
+    p.add_argument(
+        "--device",
+        default="kraft",
+        help="device name or path (default: kraft), or a device outside this process: ws://host:port "
+        "(frhc device serve, Haply's Inverse Service), fd:N, openhaptics:NAME (limits from the session's "
+        "device file, else touch3's)",
+    )
     p.add_argument("--session", default=None, help="start with this session's gains and mode")
     p.add_argument(
         "--host",

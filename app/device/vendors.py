@@ -112,7 +112,7 @@ class ForceDimensionDevice:
             return r
         r.set_pose(np.array(self._R, dtype=float), np.array(self._pos, dtype=float))
         # getButton is -1 on an error: only 1 is a press (an error must not hold the deadman).
-        r.buttons = tuple(dhd.getButton(i, ID=ID) == 1 for i in range(3))  # type: ignore[assignment]
+        r.buttons = tuple(dhd.getButton(i, ID=ID) == 1 for i in range(3))
         r.fresh = True
         if r.status == LinkStatus.DISCONNECTED:
             r.status = LinkStatus.RAMPING

@@ -156,6 +156,7 @@ def _cmd_device_serve(args: argparse.Namespace) -> int:
     from app.device.cartesian_sim import SimCartesianDevice
     from app.device.haply import DeviceServer
     from app.device.spec import load_device
+    from app.session.pacer import SCHEDULING, raise_priority
 
     if not 10.0 <= args.rate <= 20000.0:
         raise FrhcError(f"--rate must be in [10, 20000] Hz, got {args.rate:g}")
@@ -166,8 +167,11 @@ def _cmd_device_serve(args: argparse.Namespace) -> int:
         server = DeviceServer(SimCartesianDevice(spec), args.host, args.port, period=1.0 / args.rate)
     except OSError as exc:
         raise FrhcError(f"cannot listen on {args.host}:{args.port}: {exc.strerror or exc}") from None
+    # The served simulation stands for a device's own processor: it keeps its period whatever else runs.
+    scheduling = SCHEDULING[raise_priority()]
     print(
-        f"serving {spec.name} (simulated, {args.rate:g} Hz) at ws://{args.host}:{server.port}  (Ctrl-C stops)",
+        f"serving {spec.name} (simulated, {args.rate:g} Hz) at ws://{args.host}:{server.port} ({scheduling})  "
+        "(Ctrl-C stops)",
         flush=True,
     )
     logging.basicConfig(level=logging.INFO, format="%(message)s")  # connects and force zeroing
@@ -420,7 +424,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("web", help="the browser demo (viser)", description="Serve the haptic demo in the browser.")
     p.add_argument("--scene", default="probe", help="scene name or path (default: probe)")
-    p.add_argument("--device", default="kraft", help="device name or path (default: kraft)")
+    p.add_argument(
+        "--device",
+        default="kraft",
+        help="device name or path (default: kraft), or a device outside this process: ws://host:port "
+        "(frhc device serve, Haply's Inverse Service), fd:N, openhaptics:NAME (limits from the session's "
+        "device file, else touch3's)",
+    )
     p.add_argument("--session", default=None, help="start with this session's gains and mode")
     p.add_argument(
         "--host",

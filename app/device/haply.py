@@ -33,6 +33,7 @@ import contextlib
 import json
 import logging
 import math
+import socket
 import threading
 import time
 from dataclasses import dataclass, field
@@ -40,14 +41,13 @@ from typing import Any, Literal
 
 import numpy as np
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
-from websockets.sync.client import ClientConnection, connect
-from websockets.sync.server import Server, ServerConnection, serve
 
 from app.device.boundary import CartesianReading, LinkStatus
 from app.device.cartesian_sim import SimCartesianDevice
 from app.device.guard import limited
 from app.device.plant import WATCHDOG
 from app.device.spec import DeviceSpec, load_device
+from app.device.wslink import WsLink
 from app.errors import FrhcError
 from app.spatial import Array, matrix_to_quat, quat_to_matrix
 
@@ -59,6 +59,8 @@ DEFAULT_URL = "ws://localhost:10001"
 CONNECT_TIMEOUT = 1.0
 #: Time between reconnection attempts while disconnected (s).
 RETRY_INTERVAL = 0.1
+#: How often the server's accept loop looks whether it was shut down (s).
+ACCEPT_POLL = 0.1
 
 
 class DeviceUnreachable(FrhcError):
@@ -198,7 +200,7 @@ class HaplyClient:
         self.name = url
         self.device_id = ""
         self.served: dict[str, Any] | None = None
-        self._ws: ClientConnection | None = None
+        self._ws: WsLink | None = None
         self._hand: Array | None = None
         self._last_attempt = -math.inf
         if not self.connect():
@@ -211,12 +213,12 @@ class HaplyClient:
         self._last_attempt = time.monotonic()
         self._drop()
         try:
-            ws = connect(self.url, open_timeout=CONNECT_TIMEOUT, ping_interval=None, compression=None)
+            ws = WsLink.connect(self.url, CONNECT_TIMEOUT)
         except (OSError, TimeoutError, InvalidHandshake, InvalidURI) as exc:
             log.info("device %s: cannot connect (%s)", self.url, exc)
             return False
         try:
-            first = parse_state(ws.recv(timeout=CONNECT_TIMEOUT))
+            first = parse_state(ws.recv(CONNECT_TIMEOUT))
         except (TimeoutError, ConnectionClosed, ValueError) as exc:
             log.info("device %s: no usable first state (%s)", self.url, exc)
             ws.close()
@@ -282,14 +284,7 @@ class HaplyClient:
             return r
         try:
             ws.send(force_command(self.device_id, wrench_0[:3], self._hand, self.served is not None))
-            text = ws.recv(timeout=self.period)
-            # A late state may sit behind this one: keep the newest.
-            while True:
-                try:
-                    text = ws.recv(timeout=0)
-                except TimeoutError:
-                    break
-            self._take(parse_state(text))
+            self._take(parse_state(ws.recv_latest(self.period)))
         except TimeoutError:
             r.fresh = False
         except (ConnectionClosed, OSError) as exc:
@@ -365,31 +360,44 @@ class DeviceServer:
         self._paused = threading.Event()
         #: Set whenever the force is zeroed (tests wait on it).
         self.zeroed = threading.Event()
-        self._conn: ServerConnection | None = None
-        self._server: Server = serve(self._handle, host, port, ping_interval=None, compression=None)
-        self.port: int = self._server.socket.getsockname()[1]
+        self._conn: WsLink | None = None
+        self._listener = socket.create_server((host, port))
+        self._listener.settimeout(ACCEPT_POLL)
+        self.port: int = self._listener.getsockname()[1]
+        self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
     def start(self) -> DeviceServer:
         """Serve in a background thread (for tests and benchmarks); returns self."""
-        self._thread = threading.Thread(target=self._server.serve_forever, name="device-serve", daemon=True)
+        self._thread = threading.Thread(target=self.serve_forever, name="device-serve", daemon=True)
         self._thread.start()
         return self
 
     def serve_forever(self) -> None:
-        """Serve in this thread until :meth:`shutdown` (or Ctrl-C)."""
-        self._server.serve_forever()
+        """Accept clients in this thread until :meth:`shutdown` (or Ctrl-C); each is served in a
+        thread of its own, which reads its socket itself (:mod:`app.device.wslink`)."""
+        try:
+            while not self._stop.is_set():
+                try:
+                    sock, _ = self._listener.accept()
+                except TimeoutError:
+                    continue
+                threading.Thread(target=self._connection, args=(sock,), name="device-client", daemon=True).start()
+        finally:
+            self._listener.close()
 
     def shutdown(self) -> None:
-        self._server.shutdown()
+        """Stop accepting, drop the client (its force is zeroed) and wait for the accept loop."""
+        self._stop.set()
+        self.drop_client()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
 
     def drop_client(self) -> None:
-        """Close the controlling client's connection, as a pulled cable would (tests)."""
+        """Close the controlling client's connection without a close frame, as a pulled cable would."""
         conn = self._conn
         if conn is not None:
-            conn.close(1001, "dropped")
+            conn.abort()
 
     def pause_stream(self, paused: bool) -> None:
         """Stop (or resume) answering commands, as a stalled device stream would (tests)."""
@@ -415,7 +423,15 @@ class DeviceServer:
             log.info("device %s: force zeroed (%s)", self.device.name, reason)
         self.zeroed.set()
 
-    def _handle(self, ws: ServerConnection) -> None:
+    def _connection(self, sock: socket.socket) -> None:
+        try:
+            ws = WsLink.accept(sock, CONNECT_TIMEOUT)
+        except (OSError, TimeoutError, InvalidHandshake) as exc:
+            log.info("device %s: no WebSocket handshake (%s)", self.device.name, exc)
+            return
+        self._handle(ws)
+
+    def _handle(self, ws: WsLink) -> None:
         if not self._busy.acquire(blocking=False):
             ws.close(1013, "another client controls the device")
             return
@@ -428,7 +444,7 @@ class DeviceServer:
             silent = 0.0
             while True:
                 try:
-                    text = ws.recv(timeout=self.period)
+                    text = ws.recv(self.period)
                 except TimeoutError:
                     silent += self.period
                     if silent >= self.watchdog:

@@ -2,15 +2,25 @@
 
 - **Force Dimension** (omega, delta, sigma, lambda; Novint Falcon through the same SDK) via
   ``forcedimension-core`` (``pip install 'frhc[fd]'``), ctypes bindings of the Force Dimension
-  SDK's ``libdhd``: ``dhd.open``, ``dhd.getPosition`` (m), ``dhd.getOrientationFrame``,
-  ``dhd.getButton``, ``dhd.setForceAndTorque`` (N, N m), ``dhd.close``. The SDK's frame is the
-  device base with z up; it is taken as {0} as it is.
+  SDK's ``libdhd``: ``dhd.openID(index)``, ``dhd.getSystemName``, ``dhd.hasActiveWrist``,
+  ``dhd.enableForce``, ``dhd.getPosition(out)`` (m), ``dhd.getOrientationFrame(out)`` (3x3),
+  ``dhd.getButton(index)`` (1 pressed, 0 not, -1 error), ``dhd.setForceAndTorque(f, t)`` (N, N m),
+  ``dhd.close``, each with an ``ID`` keyword; all return -1 on error. Names and signatures as in
+  ``forcedimension_core/dhd/__init__.py`` of forcedimension-core 1.0.0
+  (github.com/EmDash00/forcedimension_core-python, a9e6784); its ``runtime`` module raises
+  ImportError at import when libdhd is absent. The SDK's frame is the device base with z up; it
+  is taken as {0} as it is.
 - **3D Systems Touch** (and other OpenHaptics devices) via ``pyOpenHaptics``
   (``pip install 'frhc[openhaptics]'``), ctypes bindings of OpenHaptics' ``libHD``:
-  ``hd.init_device``, ``hd.get_transform`` (HD_CURRENT_TRANSFORM: column-major 4x4, mm),
-  ``hd.get_buttons`` (HD_CURRENT_BUTTONS bits), ``hd.set_force`` (HD_CURRENT_FORCE, N). OpenHaptics'
-  frame has y up and z toward the user; {0} has z up: ``p_0 = (x, -z, y)``, and forces map back
-  the same way.
+  ``hd.init_device`` (None when it fails), ``hd.enable_force``, ``hd.start_scheduler``,
+  ``hd_callback.hd_callback`` (runs a function inside ``hd.begin_frame``/``hd.end_frame``),
+  ``hd_callback.hdAsyncSheduler`` (sic; schedules it every servo tick), ``hd.get_transform``
+  (HD_CURRENT_TRANSFORM: a ctypes 4x4 of doubles, column-major, translation in row 3, mm),
+  ``hd.get_buttons`` (HD_CURRENT_BUTTONS bits), ``hd.set_force`` (HD_CURRENT_FORCE, N),
+  ``hd.stop_scheduler``, ``hd.close_device``: ``pyOpenHaptics/hd.py`` and ``hd_callback.py`` of
+  pyOpenHaptics 1.0.1 (github.com/mikelitu/pyOpenHaptics, 3eafad1), which load ``libHD.so``
+  with ctypes at import (OSError when absent). OpenHaptics' frame has y up and z toward the user;
+  {0} has z up: ``p_0 = (x, -z, y)``, and forces map back the same way.
 
 Each refuses in one line, naming what is missing, when the Python package or its native library
 is absent (:class:`DeviceUnavailable`); nothing here pretends a device is attached. Buttons:
@@ -25,6 +35,7 @@ file, whose ``[cartesian]`` table gives the limits.
 from __future__ import annotations
 
 import importlib
+import threading
 from types import ModuleType
 from typing import Any, Literal
 
@@ -41,6 +52,8 @@ C_0_HD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 MM = 1e-3
 #: Bits of HD_CURRENT_BUTTONS (HD_DEVICE_BUTTON_1, _2).
 HD_BUTTON_1, HD_BUTTON_2 = 1, 2
+#: How long (s) to wait for OpenHaptics' scheduler's first frame (and for the last, on closing).
+FIRST_FRAME_TIMEOUT = 1.0
 
 
 class DeviceUnavailable(FrhcError):
@@ -51,11 +64,11 @@ def _load(module: str, package: str, extra: str, native: str) -> ModuleType:
     """Import a vendor binding, or refuse in one line naming what is missing."""
     try:
         return importlib.import_module(module)
-    except ImportError:
+    except ModuleNotFoundError:
         raise DeviceUnavailable(
             f"{package} is not installed (pip install 'frhc[{extra}]'), and it needs {native}"
         ) from None
-    except OSError as exc:  # the ctypes bindings load the native library at import
+    except (ImportError, OSError) as exc:  # the bindings load the native library at import
         raise DeviceUnavailable(f"{package} cannot load {native}: {exc}") from None
 
 
@@ -102,7 +115,8 @@ class ForceDimensionDevice:
             r.status = LinkStatus.DISCONNECTED
             return r
         r.set_pose(np.array(self._R, dtype=float), np.array(self._pos, dtype=float))
-        r.buttons = tuple(bool(dhd.getButton(i, ID=ID)) for i in range(3))  # type: ignore[assignment]
+        # getButton is -1 on an error: only 1 is a press (an error must not hold the deadman).
+        r.buttons = tuple(dhd.getButton(i, ID=ID) == 1 for i in range(3))
         r.fresh = True
         if r.status == LinkStatus.DISCONNECTED:
             r.status = LinkStatus.RAMPING
@@ -114,26 +128,81 @@ class ForceDimensionDevice:
 
 
 class TouchDevice:
-    """A 3D Systems Touch (or another OpenHaptics device) through ``pyOpenHaptics.hd``.
+    """A 3D Systems Touch (or another OpenHaptics device) through ``pyOpenHaptics``.
+
+    OpenHaptics reads and sets a device's state only inside a haptic frame run by its own servo
+    scheduler thread (the HDAPI programmer's guide; pyOpenHaptics' ``hd_callback`` opens and closes
+    the frame around a callback). So the frame is not run from the servo loop: an asynchronous
+    scheduler callback renders the last force the loop sent and takes a sample; :meth:`step`
+    hands it the new force and waits up to ``period`` for the sample of a frame that rendered it.
 
     Args:
         name: The OpenHaptics device name ("Default Device").
+        period: How long (s) :meth:`step` waits for the scheduler's next frame before the sample
+            counts as missed (the guard then zeroes the force).
     """
 
     kind: Literal["cartesian"] = "cartesian"
     #: The Touch renders forces only (its gimbal is sensed, not actuated).
     torque_capable = False
 
-    def __init__(self, name: str = "Default Device") -> None:
-        self.hd: Any = _load("pyOpenHaptics.hd", "pyOpenHaptics", "openhaptics", "OpenHaptics' libHD")
-        self.handle = self.hd.init_device(name)
+    def __init__(self, name: str = "Default Device", period: float = 1e-3) -> None:
+        what = ("pyOpenHaptics", "openhaptics", "OpenHaptics' libHD")
+        self.hd: Any = _load("pyOpenHaptics.hd", *what)
+        scheduling: Any = _load("pyOpenHaptics.hd_callback", *what)
+        hd = self.hd
+        self.handle = hd.init_device(name)
         if self.handle is None:
             raise DeviceUnavailable(f"OpenHaptics: cannot initialise device {name!r}")
-        self.name = f"OpenHaptics {self.hd.get_model()}"
-        self.hd.enable_force()
-        self.hd.start_scheduler()
+        self.name = f"OpenHaptics {hd.get_model()}"
+        self.period = period
         self.reading = CartesianReading()
-        self.step(np.zeros(6), 0.0)
+        self._frames = threading.Condition()
+        # Shared with the scheduler's thread, under _frames: the force it renders (N, HD axes),
+        # its last sample (HD_CURRENT_TRANSFORM row-major, mm; HD_CURRENT_BUTTONS) and a count.
+        self._force_hd = [0.0, 0.0, 0.0]
+        self._T_hd = np.eye(4)
+        self._buttons = 0
+        self._frame_count = 0
+        self._taken = 0
+        # The ctypes callback must outlive the scheduler: kept here.
+        self._callback = scheduling.hd_callback(self._frame)
+        hd.enable_force()
+        hd.start_scheduler()
+        scheduling.hdAsyncSheduler(self._callback)
+        if not self._next_frame(FIRST_FRAME_TIMEOUT):
+            self._stop()
+            raise DeviceUnavailable(f"OpenHaptics: no servo frame from {name!r} within {FIRST_FRAME_TIMEOUT:g} s")
+
+    def _frame(self) -> None:
+        """One haptic frame, in OpenHaptics' scheduler thread (the frame is open around it)."""
+        hd = self.hd
+        T = np.array(hd.get_transform(), dtype=float).reshape(4, 4).T  # column-major -> row-major
+        buttons = int(hd.get_buttons())
+        with self._frames:
+            hd.set_force(self._force_hd)
+            self._T_hd[:] = T
+            self._buttons = buttons
+            self._frame_count += 1
+            self._frames.notify()
+
+    def _next_frame(self, timeout: float) -> bool:
+        """Wait (holding nothing on return) for a frame after the last one taken; take its sample
+        into :attr:`reading`. False if none came within ``timeout`` s."""
+        r = self.reading
+        with self._frames:
+            if not self._frames.wait_for(lambda: self._frame_count > self._taken, timeout):
+                r.fresh = False
+                return False
+            self._taken = self._frame_count
+            T = self._T_hd.copy()
+            buttons = self._buttons
+        r.set_pose(C_0_HD @ T[:3, :3] @ C_0_HD.T, C_0_HD @ T[:3, 3] * MM)
+        r.buttons = (bool(buttons & HD_BUTTON_1), bool(buttons & HD_BUTTON_2), False)
+        r.fresh = True
+        if r.status == LinkStatus.DISCONNECTED:
+            r.status = LinkStatus.RAMPING
+        return True
 
     def reset(self) -> CartesianReading:
         return self.step(np.zeros(6), 0.0)
@@ -142,28 +211,22 @@ class TouchDevice:
         """A real hand holds a real device: nothing to do."""
 
     def step(self, wrench_0: Array, dt: float) -> CartesianReading:
-        """One haptic frame: read the transform and buttons, set the force (N, in HD's axes)."""
-        hd, r = self.hd, self.reading
-        hd.begin_frame(self.handle)
-        T = np.array(hd.get_transform(), dtype=float).reshape(4, 4).T  # column-major -> row-major
-        buttons = int(hd.get_buttons())
-        hd.set_force(list(C_0_HD.T @ wrench_0[0:3]))
-        hd.end_frame(self.handle)
-        if hd.get_error():
-            r.fresh = False
-            r.status = LinkStatus.DISCONNECTED
-            return r
-        r.set_pose(C_0_HD @ T[:3, :3] @ C_0_HD.T, C_0_HD @ T[:3, 3] * MM)
-        r.buttons = (bool(buttons & HD_BUTTON_1), bool(buttons & HD_BUTTON_2), False)
-        r.fresh = True
-        if r.status == LinkStatus.DISCONNECTED:
-            r.status = LinkStatus.RAMPING
-        return r
+        """Hand the force (N, {0}; moments dropped) to the scheduler in OpenHaptics' axes and wait
+        up to one period for a frame that rendered it."""
+        force_hd = [float(v) for v in C_0_HD.T @ wrench_0[0:3]]
+        with self._frames:
+            self._force_hd = force_hd
+        self._next_frame(self.period)
+        return self.reading
 
     def close(self) -> None:
-        self.hd.begin_frame(self.handle)
-        self.hd.set_force([0.0, 0.0, 0.0])
-        self.hd.end_frame(self.handle)
+        """Zero the force, wait for a frame to render it, stop the scheduler and the device."""
+        with self._frames:
+            self._force_hd = [0.0, 0.0, 0.0]
+        self._next_frame(FIRST_FRAME_TIMEOUT)
+        self._stop()
+
+    def _stop(self) -> None:
         self.hd.stop_scheduler()
         self.hd.close_device(self.handle)
 
@@ -197,5 +260,5 @@ def open_device_url(url: str, period: float) -> CartesianDevice:
             raise InputError(f"fd:N needs a device number, got {url!r}")
         return ForceDimensionDevice(int(index))
     if url.startswith("openhaptics:"):
-        return TouchDevice(url[len("openhaptics:") :] or "Default Device")
+        return TouchDevice(url[len("openhaptics:") :] or "Default Device", period)
     raise InputError(f"not a device address: {url!r} (ws://host:port, fd:N, openhaptics:NAME)")

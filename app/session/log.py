@@ -320,4 +320,7 @@ def loop_meta(config: LoopConfig, session: Path | None = None) -> dict[str, Any]
         "device": str(config.device.path),
         "session": None if session is None else str(session),
         "mode": config.gains.mode,
+        # The q_* columns of a Cartesian device's log are its grip pose's coordinates.
+        "cartesian": config.cartesian,
+        "device_url": config.device_url,
     }

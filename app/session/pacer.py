@@ -1,6 +1,8 @@
 """Pacing a servo loop to the wall clock: one :class:`Pacer` for every paced loop.
 
-Used by headless sessions run with ``--realtime`` and by the web demo's loop process.
+Used by headless sessions run with ``--realtime`` and by the web demo's loop process. A paced
+loop may also ask for real-time scheduling (:func:`raise_priority`), as the web demo's loop
+process and ``frhc device serve`` do.
 
 Deadlines are absolute, ``t0 + k dt`` on ``time.perf_counter_ns``: the pacer sleeps most of the
 wait and spins the last :data:`SPIN_NS` (at most :data:`SPIN_SHARE` of a period), because ``time.sleep`` wakes up to ~0.1 ms late on
@@ -16,7 +18,10 @@ loop anything.
 
 from __future__ import annotations
 
+import os
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +39,43 @@ SPIN_SHARE = 0.5
 MAX_LAG_TICKS = 50
 #: Periods kept for the timing statistics (a ring buffer; 65 s at 1 kHz).
 TIMING_HISTORY = 1 << 16
+#: SCHED_FIFO priority a paced loop asks for. Without it, a headless browser rendering WebGL in
+#: software on a 2-core machine preempted the web demo's loop for tens of milliseconds (~570 Hz
+#: achieved).
+RT_PRIORITY = 50
+#: Niceness tried when real-time scheduling is not permitted.
+FALLBACK_NICE = -10
+#: What :func:`raise_priority` obtained (its return value indexes this).
+SCHEDULING = ("normal", f"nice {FALLBACK_NICE}", f"SCHED_FIFO {RT_PRIORITY}")
+
+
+def raise_priority() -> int:
+    """Ask for real-time scheduling for the calling thread, else a lower niceness; returns an
+    index into :data:`SCHEDULING`."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(RT_PRIORITY))
+        return 2
+    except (OSError, AttributeError):
+        pass
+    try:
+        os.nice(FALLBACK_NICE)
+        return 1
+    except OSError:
+        return 0
+
+
+@contextmanager
+def raised_priority() -> Iterator[int]:
+    """:func:`raise_priority` for the duration of the block (yields its index); the calling
+    thread's policy and niceness are restored after."""
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    nice = os.getpriority(os.PRIO_PROCESS, 0)
+    try:
+        yield raise_priority()
+    finally:
+        with suppress(OSError):
+            os.sched_setscheduler(0, policy, param)
+            os.setpriority(os.PRIO_PROCESS, 0, nice)
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import ctypes
 import dataclasses
 import multiprocessing as mp
-import os
 from multiprocessing.connection import Connection
 from pathlib import Path
 
@@ -21,7 +20,7 @@ import numpy as np
 from app.controller.gains import ControllerGains
 from app.session.log import TickLog, loop_meta
 from app.session.loop import LoopConfig, ServoLoop
-from app.session.pacer import TIMING_HISTORY, Pacer, TimingRings
+from app.session.pacer import TIMING_HISTORY, Pacer, TimingRings, raise_priority
 from app.session.script import OperatorScript
 from app.session.spec import SessionFile
 from app.web.commands import (
@@ -42,14 +41,6 @@ from app.web.commands import (
 )
 from app.web.snapshot import SharedSnapshot, SnapshotPublisher
 
-#: SCHED_FIFO priority asked for the loop process. Without it, a headless browser rendering WebGL in
-#: software on a 2-core machine preempted the loop for tens of milliseconds (~570 Hz achieved).
-RT_PRIORITY = 50
-#: Niceness tried when real-time scheduling is not permitted.
-FALLBACK_NICE = -10
-#: What :func:`raise_priority` obtained, as stored in shared memory.
-SCHEDULING = ("normal", f"nice {FALLBACK_NICE}", f"SCHED_FIFO {RT_PRIORITY}")
-
 
 class SharedTiming:
     """The pacer's timing rings and the scheduling obtained, in memory both processes map."""
@@ -66,20 +57,6 @@ class SharedTiming:
         return TimingRings(
             *(np.frombuffer(memoryview(a), dtype=np.int64) for a in (self.periods, self.tick_ns, self.counters))
         )
-
-
-def raise_priority() -> int:
-    """Ask for real-time scheduling, else a lower niceness; returns an index into :data:`SCHEDULING`."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(RT_PRIORITY))
-        return 2
-    except (OSError, AttributeError):
-        pass
-    try:
-        os.nice(FALLBACK_NICE)
-        return 1
-    except OSError:
-        return 0
 
 
 class LoopHost:
@@ -217,7 +194,7 @@ def loop_main(
     host = LoopHost(loop, snapshot, publish_every)
     timing.scheduling.value = raise_priority()
     pacer = Pacer(loop.dt, timing.rings())
-    watchdog_ns = round(loop.plant.watchdog * 1e9)
+    watchdog_ns = round(loop.config.watchdog * 1e9)  # the amplifier's, or a Cartesian device's own
     try:
         while host.running:
             late = pacer.wait()

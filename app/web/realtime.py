@@ -16,6 +16,7 @@ needs (device geoms, world meshes, tool).
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing as mp
 import threading
 import time
@@ -26,7 +27,7 @@ from app.controller.gains import ControllerGains
 from app.controller.passivity import PassivitySettings
 from app.errors import ConfigError
 from app.session.loop import LoopConfig, ServoLoop
-from app.session.pacer import TimingStats, timing_stats
+from app.session.pacer import SCHEDULING, TimingStats, timing_stats
 from app.session.spec import Session
 from app.spatial import Array
 from app.teleop.channel import ChannelSettings
@@ -47,7 +48,7 @@ from app.web.commands import (
     Stop,
     check_command,
 )
-from app.web.loop_process import SCHEDULING, SharedTiming, loop_main
+from app.web.loop_process import SharedTiming, loop_main
 from app.web.snapshot import SharedSnapshot, Snapshot, take_snapshot
 
 #: Snapshots a second the loop publishes by default (above the page's redraw rate), whatever its servo rate.
@@ -72,7 +73,9 @@ class RealtimeLoop:
         if config.scene.path is None:
             raise ConfigError("<scene>", "path", "the web demo needs a scene loaded from a file")
         self.config = config
-        self.loop = ServoLoop(config)
+        # Never ticked, and never connected: a device outside this process is driven by the loop
+        # process alone (a served device takes one client), so this copy simulates its model.
+        self.loop = ServoLoop(dataclasses.replace(config, device_url=None))
         self.publish_every = publish_every or max(1, round(config.servo_rate / SNAPSHOT_RATE))
         self._gains = config.gains
         self._snapshot = SharedSnapshot()
@@ -220,7 +223,7 @@ class RealtimeLoop:
 
     @property
     def scheduling(self) -> str:
-        """The scheduling the loop process obtained (see :data:`~app.web.loop_process.SCHEDULING`)."""
+        """The scheduling the loop process obtained (see :data:`~app.session.pacer.SCHEDULING`)."""
         return SCHEDULING[int(self._timing.scheduling.value)]
 
     def stats(self, last: int | None = None) -> TimingStats:

@@ -7,7 +7,9 @@ and device (:class:`~app.session.log.TickLog`). :class:`LogReplay` turns row ``i
 recomputed deterministically from what it does:
 
 - device link poses: MuJoCo forward kinematics of the device model at the logged angles (the
-  encoder angles, within one count of the true ones);
+  encoder angles, within one count of the true ones); a Cartesian device's log holds its grip
+  pose, not its angles (its ``q_*`` columns are the pose's coordinates), and its links are not
+  shown;
 - the reference pose {G0}: from the grip pose and Delta X (Eq 2-4 inverted);
 - the hand target's orientation: the grip's (the log keeps the target's position);
 - contact points: the scene's contact at the logged tool pose, evaluated afresh (stateless: a
@@ -36,7 +38,8 @@ from app.web.snapshot import Snapshot
 from app.world import contact_wrench
 from app.world.scene import load_scene
 
-# The log keeps no arm joint angles: a replay shows the tool, not the arm's links.
+# The log keeps no arm joint angles (nor a Cartesian device's): a replay shows the tool and the
+# grip, not those links.
 _NO_GEOM_XPOS = np.zeros((0, 3))
 _NO_GEOM_XMAT = np.zeros((0, 3, 3))
 
@@ -85,22 +88,22 @@ class LogReplay:
             if not isinstance(meta.get(name), str) or not meta[name]:
                 raise ConfigError(meta_path, name, "missing: the log does not name the file it was run with")
         device, scene = load_device(meta["device"]), load_scene(meta["scene"])
-        if device.data.interface == "cartesian":
-            # Its log's q_* columns are the grip pose's coordinates, not the joint angles the
-            # replay poses the device model with.
-            raise ConfigError(
-                meta_path, "device", f"{device.name} is a Cartesian device: its logs cannot be replayed yet"
-            )
+        cartesian = meta.get("cartesian", device.data.interface == "cartesian")  # not in older logs
+        if not isinstance(cartesian, bool):
+            raise ConfigError(meta_path, "cartesian", f"expected true or false, got {cartesian!r}")
+        #: The log is of a Cartesian device (its links are not shown).
+        self.cartesian = cartesian
         self.directory = directory
         self.mode = str(meta.get("mode", "rate"))
         self.loop = ServoLoop(LoopConfig(device, scene, device.data.gains))
-        table = read_log(directory, device.n_joints)
+        # A Cartesian device's controller has six "joints", the wrench axes (docs/conventions.md).
+        self._n_joints = len(WRENCH_AXES) if cartesian else device.n_joints
+        table = read_log(directory, self._n_joints)
         if table.num_rows == 0:
             raise ConfigError(directory, "<file>", "the log has no ticks")
         order = np.argsort(table.column("t").to_numpy(), kind="stable")
         self._cols: dict[str, Array] = {name: table.column(name).to_numpy()[order] for name in table.column_names}
         self.t: Array = self._cols["t"]
-        self._n_joints = device.n_joints
         self._T_MRF_S = self.loop.controller.slave.T_MRF_S
 
     def __len__(self) -> int:
@@ -122,10 +125,14 @@ class LogReplay:
     def snapshot(self, i: int) -> Snapshot:
         """The view of row ``i``, as the live loop would have published it."""
         c = self._cols
-        plant = self.loop.plant
-        data = plant.data
-        data.qpos[plant.qpos_slice] = [c[f"q_{j}"][i] for j in range(self._n_joints)]
-        mujoco.mj_kinematics(plant.model, data)
+        if self.cartesian:
+            geom_xpos, geom_xmat = _NO_GEOM_XPOS, _NO_GEOM_XMAT
+        else:
+            plant = self.loop.plant
+            data = plant.data
+            data.qpos[plant.qpos_slice] = [c[f"q_{j}"][i] for j in range(self._n_joints)]
+            mujoco.mj_kinematics(plant.model, data)
+            geom_xpos, geom_xmat = data.geom_xpos.copy(), data.geom_xmat.reshape(-1, 3, 3).copy()
         T_0_G = _pose(c, "grip", i)
         dx = _six(c, "delta_x", DELTA_X_AXES, i)
         R_0_G0 = T_0_G[0:3, 0:3] @ zyx_to_matrix(dx[3], dx[4], dx[5]).T
@@ -138,8 +145,8 @@ class LogReplay:
         return Snapshot(
             time=float(c["t"][i]),
             ticks=i + 1,
-            geom_xpos=data.geom_xpos.copy(),
-            geom_xmat=data.geom_xmat.reshape(-1, 3, 3).copy(),
+            geom_xpos=geom_xpos,
+            geom_xmat=geom_xmat,
             T_0_G=T_0_G,
             T_0_G0=T_0_G0,
             T_0_H=T_0_H,

@@ -191,6 +191,7 @@ class SceneView:
                 f"/links/geom_{g}", mesh.vertices, mesh.faces, color=_rgb(model.geom_rgba[g]), flat_shading=False
             )
             self.geoms[g] = self._add(handle)
+        self._links_shown = True
 
         self.grip = self._add(scene.add_frame("/grip", axes_length=0.05, axes_radius=0.004))
         self._add(scene.add_label("/grip/label", "{G}", position=(0.0, 0.0, 0.02)))
@@ -343,7 +344,14 @@ class SceneView:
 
     def update(self, snap: Snapshot) -> None:
         """Move every node to the state in ``snap`` (call from the UI thread)."""
-        for g, handle in self.geoms.items():
+        # A device not simulated here (a served or real one, or a Cartesian device's log) reports
+        # its grip, not its links: they are hidden rather than left where the model put them.
+        links = len(snap.geom_xpos) > 0
+        if links != self._links_shown:
+            for handle in self.geoms.values():
+                handle.visible = links
+            self._links_shown = links
+        for g, handle in self.geoms.items() if links else ():
             self._place(f"geom_{g}", handle, T_V_0 @ make_pose(snap.geom_xmat[g], snap.geom_xpos[g]), "device")
         if len(snap.slave_geom_xpos):
             for g, handle in self.slave_geoms.items():

@@ -27,7 +27,9 @@ import viser
 
 from app.controller.gains import ControllerGains
 from app.controller.passivity import PassivitySettings
+from app.device.haply import served_device
 from app.device.spec import DeviceSpec, available_devices, load_device
+from app.device.vendors import is_device_url
 from app.errors import ConfigError, InvalidField
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.spec import Session, check_servo_rate, load_session
@@ -51,6 +53,9 @@ DEFAULT_ASPECT = 1400 / 900
 #: colour (RGB) and intensity, chosen so the picture matches viser's default lighting by eye.
 FILL_GROUND = (90, 90, 100)
 FILL_INTENSITY = 1.5
+#: The device file that gives a device outside this process (``--device fd:``, a real Inverse
+#: Service) its limits and gains when no session names one: the shipped Cartesian device.
+DEFAULT_CARTESIAN_DEVICE = "touch3"
 #: Where the record button writes ``web-<timestamp>/log``.
 RUNS_DIR = ROOT_DIR / "runs"
 
@@ -74,6 +79,9 @@ class DemoApp:
         session: Optional session whose gains, mode, hand, accommodation and servo rate are used.
         servo_rate: The loop's rate (Hz) for everything the demo runs, sessions played included;
             None: the session's (1 kHz without one).
+        device_url: ``device`` is outside this process, at this address (``ws://host:port``,
+            ``fd:N``, ``openhaptics:NAME``); ``device`` is its file (limits, gains). Choosing
+            another device in the page simulates that one; choosing ``device`` again reconnects.
     """
 
     def __init__(
@@ -83,9 +91,12 @@ class DemoApp:
         device: DeviceSpec,
         session: Session | None,
         servo_rate: float | None = None,
+        device_url: str | None = None,
     ) -> None:
         self.server = server
         self.servo_rate = servo_rate
+        self._device_url = device_url
+        self._url_device = device.path
         self.session = self._at_rate(session) if session is not None else None
         self._lock = threading.Lock()  # the UI thread redraws; a selection change rebuilds
         self._scene, self._device = scene, device
@@ -120,8 +131,13 @@ class DemoApp:
         """The loop for ``device`` and ``scene``; the session, if any, adds its hand, accommodation and rate."""
         if self.session is None:
             config = LoopConfig(device, scene, gains)
-            return config if self.servo_rate is None else dataclasses.replace(config, servo_rate=self.servo_rate)
-        return LoopConfig.from_session(self.session, scene, device, gains)
+            if self.servo_rate is not None:
+                config = dataclasses.replace(config, servo_rate=self.servo_rate)
+        else:
+            config = LoopConfig.from_session(self.session, scene, device, gains)
+        if self._device_url is not None and device.path == self._url_device:
+            config = dataclasses.replace(config, device_url=self._device_url)
+        return config
 
     def _at_rate(self, session: Session) -> Session:
         """``session`` at the demo's servo rate, if one was asked for (its gains are physical, so
@@ -469,15 +485,25 @@ def start_demo(
     (viser itself then listens on a private unix socket, no TCP port) unless ``insecure``;
     :attr:`DemoApp.url` is the address to open, with the token.
 
+    ``device`` may be a device outside this process (``ws://host:port``, ``fd:N``,
+    ``openhaptics:NAME``): a ``frhc device serve`` names its own device file; for another, the
+    session's device file, else ``touch3``'s, gives its limits (:func:`~app.device.haply.served_device`).
+
     Raises:
         ConfigError: for an unknown or malformed scene, device or session, before any server starts.
         InvalidField: ``servo_rate`` outside the sessions' range.
+        DeviceUnreachable: nothing answers at a ``ws://`` ``device``.
     """
     if servo_rate is not None:
         check_servo_rate(servo_rate)
     loaded_session = load_session(session) if session is not None else None
     scene_obj = load_scene(scene)
-    device_obj = load_device(device)
+    device_url = device if is_device_url(device) else None
+    if device_url is not None:
+        fallback = loaded_session.device if loaded_session is not None else load_device(DEFAULT_CARTESIAN_DEVICE)
+        device_obj = served_device(device_url, fallback)
+    else:
+        device_obj = load_device(device)
     loaded_replay = LogReplay(Path(replay)) if replay is not None else None
     gated = not is_loopback(host) and not insecure
     if gated:
@@ -486,7 +512,7 @@ def start_demo(
             server = viser.ViserServer(label="FRHC haptic demo", verbose=False)
     else:
         server = viser.ViserServer(host=host, port=port, label="FRHC haptic demo", verbose=False)
-    app = DemoApp(server, scene_obj, device_obj, loaded_session, servo_rate)
+    app = DemoApp(server, scene_obj, device_obj, loaded_session, servo_rate, device_url)
     if loaded_replay is not None:
         app.show_replay(loaded_replay)
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
@@ -518,7 +544,8 @@ def serve(
 
     Args:
         scene: Scene name in ``scenes/`` or path to a scene ``.toml``.
-        device: Device name in ``devices/`` or path to a ``device.toml``.
+        device: Device name in ``devices/``, path to a ``device.toml``, or a device outside this
+            process (``ws://host:port``, ``fd:N``, ``openhaptics:NAME``; see :func:`start_demo`).
         host: Bind address; anything but loopback needs the printed token (or ``insecure``).
         port: TCP port (viser moves to the next free one if it is taken; the printed URL is right).
         session: Optional session whose gains, mode, hand, accommodation and servo rate are used

@@ -185,6 +185,29 @@ def test_touch3_session_in_process_reflects_k_t_times_the_contact_force_upward(t
     assert sent == pytest.approx(0.1 * contact, rel=0.02)
 
 
+def test_a_cartesian_devices_log_replays_its_grip_reference_and_tool_without_links(tmp_path: Path) -> None:
+    """The replay of a touch3 run (its q_* columns are the grip pose's six coordinates): the last
+    row's view is the live loop's last state, and the device's links, which the log cannot pose,
+    are not drawn."""
+    from app.web.replay import LogReplay
+
+    result = run_session(load_session(session_file(tmp_path, 1.2)), out_dir=tmp_path / "run", plots=False)
+    meta = json.loads((tmp_path / "run" / "log" / "_meta.json").read_text())
+    assert (meta["cartesian"], meta["device_url"]) == (True, None)
+    replay = LogReplay(tmp_path / "run")
+    assert replay.cartesian
+    assert len(replay) == 1200
+    last = replay.snapshot(len(replay) - 1)
+    loop = result.loop
+    np.testing.assert_allclose(last.T_0_G, loop.reading.T_0_G, atol=1e-12)
+    # {G0} recovered from the grip pose and Delta X (Eq 2-4 inverted) is the controller's reference.
+    np.testing.assert_allclose(last.T_0_G0, loop.controller.out.T_0_G0, atol=1e-9)
+    np.testing.assert_allclose(last.T_w_MRF, loop.record.T_w_MRF, atol=1e-12)
+    assert last.time == pytest.approx(loop.time)
+    assert last.geom_xpos.shape == (0, 3)
+    assert last.geom_xmat.shape == (0, 3, 3)
+
+
 # -- served over loopback -----------------------------------------------------------------------
 
 

@@ -104,7 +104,9 @@ def run_sweep(
         # The engine has ended its workers (and its Ray instance) on the way here.
         writer.flush()
         signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
-        kept = f"{len(points) - len(todo) + ran} of {len(points)} points are in {writer.parts}; the same command resumes"
+        kept = (
+            f"{len(points) - len(todo) + ran} of {len(points)} points are in {writer.parts}; the same command resumes"
+        )
         raise Interrupted(signum, kept) from None
     results = writer.close()
     table = pq.read_table(results)

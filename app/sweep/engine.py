@@ -194,14 +194,18 @@ def join_ray(address: str, source: str = "--address") -> None:
             ray.init(address=address, log_to_driver=False, configure_logging=False)
     except Exception as exc:
         causes = _causes(exc)
-        if any(isinstance(c, AuthenticationError) for c in causes):
+        # Ray's connection loop keeps only the text of its last error (a formatted traceback).
+        last = str(causes[-1]).strip().splitlines() or [type(causes[-1]).__name__]
+        if any(isinstance(c, AuthenticationError) for c in causes) or "AuthenticationError" in last[-1]:
             raise EngineError(
                 f"{where}: the Ray cluster refused this process's token; a cluster with token"
                 " authentication is joined with RAY_AUTH_MODE=token and its token in RAY_AUTH_TOKEN"
                 " or RAY_AUTH_TOKEN_PATH (sweeps/README.md)"
             ) from None
-        reason = " ".join(str(causes[-1]).split())[:300]
-        raise EngineError(f"{where}: cannot join the Ray cluster: {reason}") from None
+        reason = " ".join(
+            (last[-1] if "Traceback (most recent call last)" in str(causes[-1]) else " ".join(last)).split()
+        )
+        raise EngineError(f"{where}: cannot join the Ray cluster: {reason[:300]}") from None
 
 
 def _causes(exc: BaseException) -> list[BaseException]:

@@ -65,7 +65,9 @@ class ArmStatus(IntFlag):
     NONE = 0
     SINGULAR = arm_ik.SINGULAR  # near a singularity: damped least squares active
     JOINT_LIMIT = arm_ik.JOINT_LIMIT  # a joint's rate was clamped near its limit
-    VELOCITY = arm_ik.VELOCITY  # the commanded motion was scaled down to the joint velocity limits
+    # The commanded motion was scaled down to the joint velocity limits, or a joint servo's speed
+    # demand was clamped to its limit (the joint lags its set-point).
+    VELOCITY = arm_ik.VELOCITY
     TRACKING = arm_ik.TRACKING  # the reference is out of reach (beyond the dead band): the limit wrench acts
     TORQUE = arm_ik.TORQUE  # a motor saturated (e.g. the arm is blocked)
     # The world touches a link (not the tool): the force loads the arm, never the F/T sensor, so

@@ -1,7 +1,9 @@
 """The ``frhc`` command line: run sessions, the paper's experiment, benchmarks, checks, the web demo.
 
 Every user error (a malformed scene, session or device file; an unknown name) is printed to
-stderr as one line naming the file and field, with exit code 2 and no traceback.
+stderr as one line naming the file and field, with exit code 2 and no traceback. SIGINT (Ctrl-C)
+and SIGTERM stop a command the same way: what it started is ended on the way out (a sweep's Ray
+instance), what it kept is named in one line, and the exit code is 128 + the signal.
 """
 
 from __future__ import annotations
@@ -9,14 +11,16 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import signal
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 from app.config import fmt_number
-from app.errors import ConfigError, FrhcError, InvalidField, OutputError
+from app.errors import ConfigError, FrhcError, Interrupted, InvalidField, OutputError
 
 
 @contextmanager
@@ -475,13 +479,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``frhc``; returns the exit code (2 for bad input)."""
     args = build_parser().parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         return func(args)
     except FrhcError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        return 130
+    except KeyboardInterrupt as exc:
+        if str(exc):
+            print(f"interrupted: {exc}", file=sys.stderr)
+        return 128 + (exc.signum if isinstance(exc, Interrupted) else signal.SIGINT)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupt(signum: int, frame: FrameType | None) -> None:
+    """SIGTERM: unwind like Ctrl-C (Python's default would end the process without cleaning up)."""
+    raise Interrupted(signum)
 
 
 if __name__ == "__main__":

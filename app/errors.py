@@ -77,3 +77,20 @@ class OutputError(FrhcError):
         if isinstance(exc, FileExistsError | NotADirectoryError):
             reason = "a file is in the way of the folder"
         super().__init__(f"{where}: field '--out': cannot write the output: {reason}")
+
+
+class Interrupted(KeyboardInterrupt):
+    """A command stopped by SIGINT (Ctrl-C) or SIGTERM while it worked.
+
+    A ``KeyboardInterrupt``, so it unwinds every ``with`` block on the way out (the point engine
+    ends its Ray instance there) and is not caught as an ``Exception``.
+
+    Attributes:
+        signum: The signal (``signal.SIGINT`` or ``signal.SIGTERM``); the exit code is 128 + it.
+        kept: What the command kept of its work and where (one line), or empty.
+    """
+
+    def __init__(self, signum: int, kept: str = "") -> None:
+        self.signum = signum
+        self.kept = kept
+        super().__init__(kept)

@@ -63,6 +63,7 @@ def _layout(n_joints: int) -> list[tuple[str, list[str]]]:
         ("counts", _group("counts", joints)),
         ("scalars", list(SCALARS)),
         ("switches", list(INT_COLUMNS)),
+        ("link_force", ["link_force"]),
         ("stages", [f"{s}_us" for s in STAGES]),
     ]
 
@@ -120,7 +121,7 @@ class TickLog:
         directory.mkdir(parents=True, exist_ok=True)
         for old in [*directory.glob("part-*.parquet"), *directory.glob(".part-*.tmp")]:
             old.unlink()
-        write_json(directory / META_FILE, {**(meta or {}), "servo_period": period, "columns_version": 2})
+        write_json(directory / META_FILE, {**(meta or {}), "servo_period": period, "columns_version": 3})
         self.columns = log_columns(n_joints)
         # Where each block of the row starts, in the order of _layout (what _fill_row writes).
         self._starts = np.array([b.start for b in _blocks(n_joints).values()], dtype=np.int64)
@@ -149,7 +150,7 @@ class TickLog:
             tick.hand_target is not None, out.vectors, out.command.twist, tick.T_w_MRF, tick.ft.wrench_S,
             tick.contact_wrench_MRF, reading.wrench_G, out.torques, out.counts, out.scalars, tick.deadman,
             tick.reference, tick.reflection, tick.contact.count, int(out.faults), reading.watchdog_trips,
-            tick.slave_status, tick.stage_ns,
+            tick.slave_status, tick.link_force, tick.stage_ns,
         )  # fmt: skip
         if self._fill is None:
             # The same buffers every tick: the compiled row writer for their types, once.
@@ -266,6 +267,7 @@ def _fill_row(
     faults: int,
     watchdog_trips: int,
     slave_status: int,
+    link_force: float,
     stage_ns: IntArray,
 ) -> None:
     """One log row (the blocks of :func:`_layout`, starting at ``starts``) from one tick's arrays."""
@@ -286,7 +288,8 @@ def _fill_row(
     at = starts[13]
     row[at], row[at + 1], row[at + 2] = 1.0 if deadman else 0.0, 1.0 if reference else 0.0, 1.0 if reflection else 0.0
     row[at + 3], row[at + 4], row[at + 5], row[at + 6] = contacts, faults, watchdog_trips, slave_status
-    at = starts[14]
+    row[starts[14]] = link_force
+    at = starts[15]
     for v in stage_ns:
         row[at] = v * 1e-3
         at += 1

@@ -125,6 +125,7 @@ class SessionMetrics:
         self._ramping_ticks = 0
         self._watchdog_trips = 0
         self._slave_ticks: dict[str, int] = {}
+        self._peak_link_force = 0.0
         self._stage_ns = np.zeros((n_ticks, len(STAGES)), dtype=np.int64)
         # The contact force of the last SETTLE_WINDOW of ticks (a ring).
         self._tail = np.full(max(1, round(SETTLE_WINDOW / dt)), np.nan)
@@ -156,6 +157,8 @@ class SessionMetrics:
         self._watchdog_trips = tick.reading.watchdog_trips
         if tick.slave_status:
             _count_bits(ArmStatus, tick.slave_status, self._slave_ticks)
+            # A link force comes with the LINK_CONTACT bit: the ticks without bits have none.
+            self._peak_link_force = max(self._peak_link_force, tick.link_force)
         if self._ticks < len(self._stage_ns):
             self._stage_ns[self._ticks] = tick.stage_ns
         self._ticks += 1
@@ -217,6 +220,7 @@ class SessionMetrics:
             "watchdog_trips": self._watchdog_trips,
             "settling": self.settling(),
             "slave_status_ticks": self._slave_ticks,
+            "peak_link_force_N": self._peak_link_force,
             "ticks": self._ticks,
             "simulated_s": self._time,
             "timing": timing,

@@ -106,6 +106,12 @@ class TickRecord:
         return self._slave.pose_view()
 
     @property
+    def link_force(self) -> float:
+        """The world's force on the slave's links at the end of the tick (N): it loads the arm,
+        not the F/T sensor (:attr:`~app.slave.api.Slave.link_force`; 0 for the ideal tool)."""
+        return self._slave.link_force
+
+    @property
     def contact_wrench_MRF(self) -> Array:
         """Contact wrench at the {MRF} origin in {MRF} (N, N m), (6,): what Eq 13 integrates."""
         return self.contact.wrench_MRF

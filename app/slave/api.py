@@ -66,6 +66,12 @@ class Slave(Protocol):
     def status(self) -> int:
         """Why the slave did not follow the command exactly (bits of :class:`~app.slave.arm.ArmStatus`; 0 for the tool)."""
 
+    @property
+    def link_force(self) -> float:
+        """The world's force on the slave's links (not its tool) at the last step (N); 0 for the tool.
+
+        It loads the arm, never the F/T sensor, so the operator does not feel it."""
+
 
 def make_slave(scene: Scene, accommodation: bool = True, period: float = DEFAULT_PERIOD) -> Slave:
     """The slave the scene asks for (``scene.spec.slave.kind``)."""

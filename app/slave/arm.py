@@ -65,7 +65,9 @@ class ArmStatus(IntFlag):
     NONE = 0
     SINGULAR = arm_ik.SINGULAR  # near a singularity: damped least squares active
     JOINT_LIMIT = arm_ik.JOINT_LIMIT  # a joint's rate was clamped near its limit
-    VELOCITY = arm_ik.VELOCITY  # the commanded motion was scaled down to the joint velocity limits
+    # The commanded motion was scaled down to the joint velocity limits, or a joint servo's speed
+    # demand was clamped to its limit (the joint lags its set-point).
+    VELOCITY = arm_ik.VELOCITY
     TRACKING = arm_ik.TRACKING  # the reference is out of reach (beyond the dead band): the limit wrench acts
     TORQUE = arm_ik.TORQUE  # a motor saturated (e.g. the arm is blocked)
     # The world touches a link (not the tool): the force loads the arm, never the F/T sensor, so
@@ -175,6 +177,7 @@ class ArmSlave(SlaveBase):
         self.status = ArmStatus.NONE
         self._fault: str | None = None
         self.link_contacts: list[ContactResult] = []
+        self._link_force = 0.0
         self.reset()
 
     # --- state ---------------------------------------------------------------------------------
@@ -209,6 +212,7 @@ class ArmSlave(SlaveBase):
             model.reset()
         self._contact = self.contact_model.wrench(self._T, self._V)
         self.link_contacts = []
+        self._link_force = 0.0
         # At rest the sensor reads the payload weight; MuJoCo's sensor needs accelerations, which
         # a held arm does not have, so build that reading from the model directly.
         self._reading = self._make_reading(self._contact, at_rest=True)
@@ -319,6 +323,7 @@ class ArmSlave(SlaveBase):
                 self.link_contacts = []
         self._contact = contact
         self.status = _STATUS[status]
+        self._link_force = sum(float(np.linalg.norm(r.force_w)) for r in self.link_contacts if r.valid)
         self._reading = self._make_reading(contact)
         return self._reading
 
@@ -343,7 +348,7 @@ class ArmSlave(SlaveBase):
     @property
     def link_force(self) -> float:
         """Magnitude of the world's force on the links at the last substep (N), summed over links."""
-        return sum(float(np.linalg.norm(r.force_w)) for r in self.link_contacts if r.valid)
+        return self._link_force
 
     def _make_reading(self, contact: ContactResult, at_rest: bool = False) -> FTReading:
         """The F/T reading at {S} for the state the last step's forces were computed at

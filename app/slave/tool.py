@@ -260,6 +260,7 @@ class VirtualSlave(SlaveBase):
         self._fresh = False
         self._fault: str | None = None
         self.status = 0  # the ideal tool always follows (its limits are the PD's saturation)
+        self.link_force = 0.0  # it has no links for the world to touch
         self.reset()
         # The substep's arguments that are the slave's own arrays, the same objects every call.
         own = (self._params, self._frames, self._T, self._V, self._T_ref, self._V_ref_w)

@@ -11,9 +11,16 @@ again, becomes a row with ``status = "error"`` and ``error = "worker died ..."``
 
 Ray (https://docs.ray.io) rather than ``multiprocessing`` because the same code then runs on a
 cluster: with ``address`` (or ``RAY_ADDRESS``) it joins an existing Ray cluster, whose nodes must
-have this package and its data files installed at the same version. Locally it starts a private
-Ray instance with ``workers`` CPUs and no dashboard. ``workers = 1`` runs in this process without
-Ray.
+have this package and its data files installed at the same version; this machine must be one of
+its nodes (``ray start --address``), or the head itself. Locally it starts a private Ray instance
+with ``workers`` CPUs and no dashboard. ``workers = 1`` runs in this process without Ray.
+
+Network: a local instance, and the driver that joins a head on a loopback address, listen on
+127.0.0.1 only (:func:`loopback_ray`). Ray 2.60 turns token authentication on for the clusters it
+starts (the token in ``~/.ray/auth_token``, made if missing); joining such a cluster needs
+``RAY_AUTH_MODE=token`` and its token (``RAY_AUTH_TOKEN`` or ``RAY_AUTH_TOKEN_PATH``): a refused
+token, an unreachable address or a machine that is no node of the cluster is one
+:class:`~app.errors.EngineError` line (``sweeps/README.md`` says how to join).
 
 Where the time goes on Ray (``frhc bench sweep`` measures it): starting a local Ray instance
 (~10 s on a loaded 2-core machine), then each worker's first point, which imports the package
@@ -27,9 +34,13 @@ from __future__ import annotations
 
 import itertools
 import os
+import signal
+import socket
+import threading
 import traceback
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
@@ -66,8 +77,67 @@ def run_one(task: Task, payload: Any) -> dict[str, Any]:
         return error_row(exc)
 
 
+#: Ray's switch for multi-node clusters: "0" keeps a node's address on loopback (:func:`loopback_ray`).
+RAY_CLUSTER_SWITCH = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+#: Seconds a cluster's address has to accept a TCP connection before Ray is asked to join it (s).
+CONNECT_TIMEOUT = 5.0
+#: Host names of the loopback interface (a head there is joined on loopback).
+LOOPBACK_HOSTS = ("localhost", "::1", "[::1]")
+
+
+@contextmanager
+def loopback_ray() -> Iterator[None]:
+    """Ray started or joined inside listens on 127.0.0.1 only.
+
+    Ray binds its gRPC servers (GCS, raylet, each worker's) to loopback only when the node's
+    address is 127.0.0.1, and it replaces a loopback address by the machine's routable one (so
+    ``_node_ip_address="127.0.0.1"`` alone binds every interface) unless multi-node clusters are
+    switched off, ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` (Ray's default on Windows and macOS).
+    The switch is set in the environment, which the processes Ray starts from here inherit, and
+    in this process's copy of it, read when ``ray`` was imported; both are put back on exit.
+    """
+    import ray._private.ray_constants as ray_constants
+
+    was_env, was_flag = os.environ.get(RAY_CLUSTER_SWITCH), ray_constants.ENABLE_RAY_CLUSTER
+    os.environ[RAY_CLUSTER_SWITCH] = "0"
+    ray_constants.ENABLE_RAY_CLUSTER = False
+    try:
+        yield
+    finally:
+        ray_constants.ENABLE_RAY_CLUSTER = was_flag
+        if was_env is None:
+            del os.environ[RAY_CLUSTER_SWITCH]
+        else:
+            os.environ[RAY_CLUSTER_SWITCH] = was_env
+
+
+@contextmanager
+def python_signal_handlers() -> Iterator[None]:
+    """Put back this process's SIGINT and SIGTERM handlers on exit (main thread only).
+
+    ``ray.init`` starts a core worker in this process whose failure handler (C++) replaces
+    SIGTERM's, logging the signal and aborting: the command would end without unwinding, so
+    without ending the Ray processes it started or writing the rows it holds. The command line
+    turns SIGTERM into an :class:`~app.errors.Interrupted` (:mod:`app.cli`).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in handlers.items():
+            if handler is not None:
+                signal.signal(s, handler)
+
+
 def init_local_ray(cpus: int) -> None:
-    """Start a private local Ray instance of ``cpus`` CPUs (no dashboard, quiet).
+    """Start a private local Ray instance of ``cpus`` CPUs (no dashboard, quiet, on loopback).
+
+    ``address="local"``: a new instance even when another one's address is recorded on this
+    machine (``ray start`` leaves it in ``/tmp/ray/ray_current_cluster``, which a bare
+    ``ray.init()`` would join).
 
     Ray runs its worker processes at nice +15 by default, so that they yield to everything else
     on the machine: on a machine shared with other work that starves the sweep (its workers got
@@ -76,13 +146,74 @@ def init_local_ray(cpus: int) -> None:
     """
     import ray
 
-    ray.init(
-        num_cpus=cpus,
-        include_dashboard=False,
-        log_to_driver=False,
-        configure_logging=False,
-        _system_config={"worker_niceness": 0},
-    )
+    with loopback_ray(), python_signal_handlers():
+        ray.init(
+            address="local",
+            num_cpus=cpus,
+            include_dashboard=False,
+            log_to_driver=False,
+            configure_logging=False,
+            _node_ip_address="127.0.0.1",
+            _system_config={"worker_niceness": 0},
+        )
+
+
+def join_ray(address: str, source: str = "--address") -> None:
+    """Join the Ray cluster at ``address`` (its GCS ``host:port``, ``"auto"`` or ``ray://host:port``).
+
+    The address must accept a TCP connection within :data:`CONNECT_TIMEOUT` first, so a wrong
+    one fails at once instead of after Ray's retries (~20 s). A head on a loopback address is
+    joined on loopback (:func:`loopback_ray`; Ray would look for it on the routable address).
+
+    Args:
+        source: Where the address came from (``--address`` or ``RAY_ADDRESS``), named in errors.
+
+    Raises:
+        EngineError: one line naming ``source``: nothing answers at the address, the cluster
+            refused this process's token, or Ray could not join for another reason.
+    """
+    import ray
+    from ray.exceptions import AuthenticationError
+
+    where = f"{source} {address}"
+    loopback = False
+    if address != "auto":
+        host, _, port = address.removeprefix("ray://").rpartition(":")
+        if not host or not port.isdigit():
+            raise EngineError(f"{where}: not a Ray cluster address (host:port of its head, or 'auto')")
+        try:
+            socket.create_connection((host.strip("[]"), int(port)), CONNECT_TIMEOUT).close()
+        except OSError as exc:
+            reason = exc.strerror or str(exc) or type(exc).__name__
+            raise EngineError(
+                f"{where}: no Ray cluster answers there ({reason}); start one with 'ray start --head' (sweeps/README.md)"
+            ) from None
+        loopback = host.startswith("127.") or host in LOOPBACK_HOSTS
+    try:
+        with loopback_ray() if loopback else nullcontext(), python_signal_handlers():
+            ray.init(address=address, log_to_driver=False, configure_logging=False)
+    except Exception as exc:
+        causes = _causes(exc)
+        # Ray's connection loop keeps only the text of its last error (a formatted traceback).
+        last = str(causes[-1]).strip().splitlines() or [type(causes[-1]).__name__]
+        if any(isinstance(c, AuthenticationError) for c in causes) or "AuthenticationError" in last[-1]:
+            raise EngineError(
+                f"{where}: the Ray cluster refused this process's token; a cluster with token"
+                " authentication is joined with RAY_AUTH_MODE=token and its token in RAY_AUTH_TOKEN"
+                " or RAY_AUTH_TOKEN_PATH (sweeps/README.md)"
+            ) from None
+        reason = " ".join(
+            (last[-1] if "Traceback (most recent call last)" in str(causes[-1]) else " ".join(last)).split()
+        )
+        raise EngineError(f"{where}: cannot join the Ray cluster: {reason[:300]}") from None
+
+
+def _causes(exc: BaseException) -> list[BaseException]:
+    """``exc`` and the exceptions it was raised from, outermost first."""
+    chain = [exc]
+    while (nxt := chain[-1].__cause__ or chain[-1].__context__) is not None and nxt not in chain:
+        chain.append(nxt)
+    return chain
 
 
 def run_points(task: Task, points: Iterable[Point], workers: int = 1, address: str | None = None) -> Iterator[Point]:
@@ -113,7 +244,7 @@ class Engine:
     Args:
         workers: Parallel workers (1 = serially in this process, without Ray). With an
             ``address`` the default 0 means every CPU of the cluster.
-        address: A Ray cluster to join (``"auto"``, ``"ray://host:10001"``, ...); None = the
+        address: A Ray cluster to join (its head's ``"host:port"``, or ``"auto"``); None = the
             ``RAY_ADDRESS`` environment variable, else a private local instance (started here
             unless Ray is already initialised in this process, and shut down on exit).
 
@@ -123,6 +254,7 @@ class Engine:
 
     def __init__(self, workers: int = 1, address: str | None = None) -> None:
         self.address = address or os.environ.get("RAY_ADDRESS") or None
+        self._source = "--address" if address else "RAY_ADDRESS"
         self.serial = workers == 1 and self.address is None
         self._workers = workers
         self._started = False
@@ -146,14 +278,13 @@ class Engine:
         import ray
 
         if not ray.is_initialized():
-            try:
-                if self.address is None:
+            if self.address is not None:
+                join_ray(self.address, self._source)
+            else:
+                try:
                     init_local_ray(self._workers or os.cpu_count() or 1)
-                else:
-                    ray.init(address=self.address, log_to_driver=False, configure_logging=False)
-            except Exception as exc:
-                where = f"the Ray cluster at {self.address}" if self.address else "a local Ray instance"
-                raise EngineError(f"cannot start {where}: {' '.join(str(exc).split())}") from None
+                except Exception as exc:
+                    raise EngineError(f"cannot start a local Ray instance: {' '.join(str(exc).split())}") from None
             self._started = True
         n = self._workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         self._worker_cls = ray.remote(num_cpus=1)(_Worker)

@@ -9,6 +9,7 @@ Example::
 
 from __future__ import annotations
 
+import signal
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,9 +18,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from tqdm import tqdm
 
-from app.errors import ConfigError
+from app.errors import ConfigError, Interrupted
 from app.session.run import run_session
-from app.sweep.engine import run_points
+from app.sweep.engine import Engine
 from app.sweep.results import METRICS, ResultsWriter, arrow_schema, metrics_row
 from app.sweep.spec import SweepPlan
 
@@ -70,13 +71,15 @@ def run_sweep(
     Args:
         plan: From :func:`app.sweep.spec.load_sweep`.
         out_dir: Output directory; re-running into it skips the finished points.
-        workers: Parallel workers (1 = serially, without Ray); see :func:`app.sweep.engine.run_points`.
+        workers: Parallel workers (1 = serially, without Ray); see :class:`app.sweep.engine.Engine`.
         address: A Ray cluster to join (None = ``RAY_ADDRESS``, else local).
         metric: Metric to plot (default: the sweep file's ``metric``).
         progress: Show a progress bar.
 
     Raises:
         ConfigError: ``metric`` is unknown, or ``out_dir`` holds another sweep.
+        Interrupted: on SIGINT or SIGTERM (a ``KeyboardInterrupt``), once the finished rows are
+            written to ``out_dir/parts`` (a re-run resumes from them); it says how many.
     """
     metric = metric or plan.spec.metric
     if metric not in METRICS:
@@ -88,11 +91,23 @@ def run_sweep(
     points = plan.points()
     todo = [(i, p) for i, p in enumerate(points) if i not in done]
     ran = 0
-    with tqdm(total=len(points), initial=len(points) - len(todo), unit="point", disable=not progress) as bar:
-        for index, row in run_points(SweepPoint(plan), todo, workers, address):
-            writer.add({"point": index, **dict(zip(plan.fields, points[index], strict=True)), **row})
-            ran += 1
-            bar.update(1)
+    try:
+        with (
+            tqdm(total=len(points), initial=len(points) - len(todo), unit="point", disable=not progress) as bar,
+            Engine(workers, address) as engine,
+        ):
+            for index, row in engine.run(SweepPoint(plan), todo):
+                writer.add({"point": index, **dict(zip(plan.fields, points[index], strict=True)), **row})
+                ran += 1
+                bar.update(1)
+    except KeyboardInterrupt as exc:
+        # The engine has ended its workers (and its Ray instance) on the way here.
+        writer.flush()
+        signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
+        kept = (
+            f"{len(points) - len(todo) + ran} of {len(points)} points are in {writer.parts}; the same command resumes"
+        )
+        raise Interrupted(signum, kept) from None
     results = writer.close()
     table = pq.read_table(results)
     failed = sum(1 for s in table.column("status").to_pylist() if s != "ok")

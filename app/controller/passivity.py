@@ -24,9 +24,27 @@ direction), so that the next step the encoders can show cannot take ``E`` below 
     s = min(1, (max(E + E_r, 0) + credit sum_j d_j) / sum_j |tau_r,j| d_j),   d_j = max(step_j, |v_j| T)
 
 where ``step_j`` is the larger of the set ``step`` and ``step_counts`` counts of joint ``j``'s encoder, ``v_j``
-the low-passed joint velocity (it predicts steps of more than one count) and ``credit`` the torque
-the joints' own Coulomb friction dissipates over any step (Diolaiti et al. 2006: friction absorbs
-``f_c d`` per count moved; 0 = no credit).
+the low-passed joint velocity (it predicts steps of more than one count) and ``credit_j`` the
+torque joint ``j``'s own Coulomb friction dissipates over any step (Diolaiti et al. 2006: friction
+absorbs ``f_c d`` per count moved): ``friction_credit`` (0.5) times the device file's friction of
+that joint (:func:`device_dissipation`), not one constant for every device and joint. Half, not
+all: the simulated joints' friction is a soft constraint that dissipates less than ``f_c`` per
+unit of travel at low speed, and the full friction measured unstable with the hand let go (kraft
+at 3x the bound, freflex at 4x) where half held.
+
+**The bank is bounded** by a rule, not left infinite: ``energy_cap`` = ``energy_reserve``. What a
+long dissipative stretch (a stroke across a rough surface banks ~0.6 J) has absorbed then pays
+for at most ``energy_cap + energy_reserve`` (40 mJ) of later activity, so stored energy cannot
+fund an oscillation later, and no 300 ms window gives out more than that plus the friction credit
+of its travel (tested against an independent sum).
+
+**Pose mode: the hold** (:func:`coupling_hold`, ``hold_slave``). A PC on the master alone cannot
+keep a wall in pose mode: the slave follows the grip whatever the PC renders, so a cut force lets
+the hand push the slave in until it reaches its force limit (measured: coarse 10-12-bit encoders,
+the slave at 40 N at every multiple). The PC's other half therefore acts on the slave's command,
+as a position-type PC does on a teleoperator's slave port (Ryu, Kwon & Hannaford 2004): the
+share of the grip's push the PC cut does not reach the slave, up to the compression of a virtual
+coupling designed from the device alone (Adams & Hannaford 1999).
 
 ``E_r`` is an energy reserve: the port is passive with respect to an initial storage ``E_r``
 (it never gives out more than ``E_r`` plus what it has absorbed). Without one, the touch itself

@@ -34,6 +34,7 @@ def bench_controller(quick: bool = False) -> str:
     from dataclasses import replace
 
     from app.controller.frhc import FRHCController
+    from app.controller.layout import Mode
     from app.controller.passivity import PassivitySettings
     from app.controller.types import FTReading, Switches
     from app.device.spec import load_device
@@ -42,7 +43,7 @@ def bench_controller(quick: bool = False) -> str:
 
     device = load_device("kraft")
     slave = VirtualSlave(load_scene("probe")).slave_model()
-    modes = ("rate", "pose")
+    modes: tuple[Mode, ...] = ("rate", "pose")
     ctrls = [
         FRHCController(device, replace(device.data.gains, mode=mode), slave, passivity=PassivitySettings(enabled=on))
         for mode in modes

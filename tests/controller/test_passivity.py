@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 import pytest
@@ -150,7 +151,7 @@ def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits
 )
 def test_settings_outside_their_ranges_are_refused_naming_the_field(field: str, value: float) -> None:
     with pytest.raises(InvalidField) as exc:
-        PassivitySettings(**{field: value})
+        PassivitySettings(**dict[str, Any]({field: value}))
     assert exc.value.field == field
 
 

@@ -33,10 +33,14 @@ def _stats(ns: np.ndarray) -> str:
 
 
 def bench_controller(quick: bool = False) -> str:
-    """Controller step on the Kraft-like device, rate mode, reflecting a contact, >= 10k steps, with
-    the passivity controller off and on (interleaved blocks of the same walk, so both see the
-    same machine load); the PO/PC's cost is the difference of the medians."""
+    """Controller step on the Kraft-like device reflecting a contact, >= 10k steps, in rate mode and
+    in pose mode (where the PC also holds the slave's command, :func:`~app.controller.passivity.coupling_hold`),
+    with the passivity controller off and on (interleaved blocks of the same walk, so all four see
+    the same machine load); the PO/PC's cost is the difference of the medians in each mode."""
+    from dataclasses import replace
+
     from app.controller.frhc import FRHCController
+    from app.controller.layout import Mode
     from app.controller.passivity import PassivitySettings
     from app.controller.types import FTReading, Switches
     from app.device.spec import load_device
@@ -45,8 +49,10 @@ def bench_controller(quick: bool = False) -> str:
 
     device = load_device("kraft")
     slave = VirtualSlave(load_scene("probe")).slave_model()
+    modes: tuple[Mode, ...] = ("rate", "pose")
     ctrls = [
-        FRHCController(device, device.data.gains, slave, passivity=PassivitySettings(enabled=on))
+        FRHCController(device, replace(device.data.gains, mode=mode), slave, passivity=PassivitySettings(enabled=on))
+        for mode in modes
         for on in (False, True)
     ]
     n, block = (3000, 500) if quick else (20000, 1000)
@@ -55,18 +61,22 @@ def bench_controller(quick: bool = False) -> str:
     walk = q0 + np.cumsum(rng.normal(scale=2e-4, size=(n, device.n_joints)), axis=0) + 0.05
     ft = FTReading(wrench_S=np.array([0.5, -0.2, 4.0, 0.01, 0.02, 0.0]))
     sw = Switches(deadman=True, reflection=True)
-    ns = np.empty((2, n), dtype=np.int64)
+    ns = np.empty((len(ctrls), n), dtype=np.int64)
     for start in range(0, n, block):
         for c, ctrl in enumerate(ctrls):
             for i in range(start, min(start + block, n)):
                 t0 = time.perf_counter_ns()
                 ctrl.step(walk[i], sw, ft, 1e-3)
                 ns[c, i] = time.perf_counter_ns() - t0
-    added = (np.median(ns[1]) - np.median(ns[0])) / 1000.0
-    return (
-        f"controller step (kraft, rate mode, reflecting):          {_stats(ns[0])}\n"
-        f"controller step, PO/PC on (adds {added:+.2f} us to the median): {_stats(ns[1])}"
-    )
+    lines = []
+    for k, mode in enumerate(modes):
+        off, on = ns[2 * k], ns[2 * k + 1]
+        added = (np.median(on) - np.median(off)) / 1000.0
+        lines += [
+            f"controller step (kraft, {mode} mode, reflecting):          {_stats(off)}",
+            f"controller step, PO/PC on (adds {added:+.2f} us to the median): {_stats(on)}",
+        ]
+    return "\n".join(lines)
 
 
 def bench_tick(quick: bool = False) -> str:

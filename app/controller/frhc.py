@@ -27,7 +27,7 @@ from app.controller.gains import ControllerGains
 from app.controller.inputs import SHAPE_3, SHAPE_6, SHAPE_33, checked_arrays, checked_float
 from app.controller.kinematics import DeviceKinematics, RecordArray, topology_fields
 from app.controller.layout import GAIN_ROWS, RTC_LAWS, TORQUE_ROWS, vector_row_names
-from app.controller.passivity import PassivitySettings
+from app.controller.passivity import PassivitySettings, device_dissipation
 from app.controller.record import (
     ASSIST_SCALE,
     PC_CUT,
@@ -225,6 +225,7 @@ class FRHCController:
         R_0_W = kin.R_0_W
         rec["R_W_G"] = R_0_W.T @ kin.R_0_G
         rec["p_W_G"] = R_0_W.T @ (kin.p_0_G - kin.p_0_W)
+        self._friction, self._b_device = device_dissipation(device, kin)
         # The compiled tick's arguments that stay the same objects for this controller's life.
         self._fixed_args: tuple[object, ...] = (*kin.fk_arrays, rec)
         # Eq 1 before the compiled tick, and what the device's coordinates are called in errors.
@@ -271,8 +272,12 @@ class FRHCController:
         rec["po_cap"] = settings.energy_cap
         rec["pc_reserve"] = settings.energy_reserve
         rec["pc_step"] = np.maximum(settings.step, settings.step_counts * self.device.encoder_step)
-        rec["pc_credit"] = settings.friction_credit
+        rec["pc_credit"] = settings.friction_credit * self._friction
         rec["pc_filter"] = settings.velocity_filter
+        rec["pc_hold"] = settings.enabled and settings.hold_slave
+        rec["pc_b_device"] = self._b_device
+        if not rec["pc_hold"][0]:
+            rec["pc_offset"] = 0.0
 
     def reset(self, q: Array, T_w_MRF_home: Array | None = None) -> None:
         """Start over at joint angles ``q``: reference {G0} = FK(q), slave reference = home."""
@@ -284,7 +289,7 @@ class FRHCController:
         for flag in ("prev_reference", "prev_deadman", "prev_reflecting", "have_q_prev", "braking"):
             self._rec[flag] = False
         self.out.scalars[RAMP] = 0.0
-        for name in ("po_energy", "po_tau", "pc_velocity"):
+        for name in ("po_energy", "po_tau", "pc_velocity", "pc_offset", "pc_dx_prev"):
             self._rec[name] = 0.0
         self.out.scalars[PO_ENERGY] = self.out.scalars[PC_CUT] = 0.0
 

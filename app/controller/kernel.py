@@ -30,7 +30,7 @@ from numba import njit
 from app.controller.assist import constant_force_rtc, damping, deadband, hooke_rtc, saturate, uniform_scale
 from app.controller.calibration import curve_counts
 from app.controller.kinematics import RecordArray, gravity_torque, wrist_jacobian
-from app.controller.passivity import observe_energy, passivity_control
+from app.controller.passivity import coupling_hold, observe_energy, passivity_control
 from app.controller.payload import add_inertial_load, remove_weight
 from app.controller.record import (
     ASSIST_SCALE,
@@ -103,6 +103,9 @@ def set_reference(rec: RecordArray) -> None:
         for j in range(4):
             r.T_0_G0[i, j] = r.T_0_G[i, j]
             r.T_w_MRF0[i, j] = r.T_w_MRF[i, j]
+    for i in range(3):
+        r.pc_offset[i] = 0.0  # the PC's hold on the slave command starts over with the reference
+        r.pc_dx_prev[i] = 0.0
     r.restart_damping = True
 
 
@@ -228,7 +231,7 @@ def controller_tick(
             pc_velocity,
             dt,
             r.pc_step[:],
-            r.pc_credit,
+            r.pc_credit[:],
             r.pc_reserve,
             r.pc_limit[:],
             torques[TAU],
@@ -240,7 +243,13 @@ def controller_tick(
     for j in range(n):
         po_tau[j] = s * (torques[TAU, j] - torques[TAU_G, j])
     if deadman and not r.rate_mode:
-        pose_command(r.T_w_MRF0[:], r.gains[:][K_P], out.vectors[DELTA_X_CMD], r.T_w_MRF[:])
+        dx_cmd = out.vectors[DELTA_X_CMD]
+        if r.pc_hold:
+            cut = out.scalars[PC_CUT] if r.pc_on else 0.0
+            coupling_hold(
+                cut, T_0_G[0:3, 0:3], out.vectors[G_F_T], dx_cmd, r.pc_dx_prev[:], r.pc_offset[:], r.pc_b_device, dt
+            )
+        pose_command(r.T_w_MRF0[:], r.gains[:][K_P], dx_cmd, r.T_w_MRF[:])
     return 0
 
 

@@ -24,9 +24,27 @@ direction), so that the next step the encoders can show cannot take ``E`` below 
     s = min(1, (max(E + E_r, 0) + credit sum_j d_j) / sum_j |tau_r,j| d_j),   d_j = max(step_j, |v_j| T)
 
 where ``step_j`` is the larger of the set ``step`` and ``step_counts`` counts of joint ``j``'s encoder, ``v_j``
-the low-passed joint velocity (it predicts steps of more than one count) and ``credit`` the torque
-the joints' own Coulomb friction dissipates over any step (Diolaiti et al. 2006: friction absorbs
-``f_c d`` per count moved; 0 = no credit).
+the low-passed joint velocity (it predicts steps of more than one count) and ``credit_j`` the
+torque joint ``j``'s own Coulomb friction dissipates over any step (Diolaiti et al. 2006: friction
+absorbs ``f_c d`` per count moved): ``friction_credit`` (0.5) times the device file's friction of
+that joint (:func:`device_dissipation`), not one constant for every device and joint. Half, not
+all: the simulated joints' friction is a soft constraint that dissipates less than ``f_c`` per
+unit of travel at low speed, and the full friction measured unstable with the hand let go (kraft
+at 3x the bound, freflex at 4x) where half held.
+
+**The bank is bounded** by a rule, not left infinite: ``energy_cap`` = ``energy_reserve``. What a
+long dissipative stretch (a stroke across a rough surface banks ~0.6 J) has absorbed then pays
+for at most ``energy_cap + energy_reserve`` (40 mJ) of later activity, so stored energy cannot
+fund an oscillation later, and no 300 ms window gives out more than that plus the friction credit
+of its travel (tested against an independent sum).
+
+**Pose mode: the hold** (:func:`coupling_hold`, ``hold_slave``). A PC on the master alone cannot
+keep a wall in pose mode: the slave follows the grip whatever the PC renders, so a cut force lets
+the hand push the slave in until it reaches its force limit (measured: coarse 10-12-bit encoders,
+the slave at 40 N at every multiple). The PC's other half therefore acts on the slave's command,
+as a position-type PC does on a teleoperator's slave port (Ryu, Kwon & Hannaford 2004): the
+share of the grip's push the PC cut does not reach the slave, up to the compression of a virtual
+coupling designed from the device alone (Adams & Hannaford 1999).
 
 ``E_r`` is an energy reserve: the port is passive with respect to an initial storage ``E_r``
 (it never gives out more than ``E_r`` plus what it has absorbed). Without one, the touch itself
@@ -70,9 +88,12 @@ import math
 from dataclasses import dataclass
 from typing import Annotated
 
+import numpy as np
 from numba import njit
 
 from app.config import Checked, Range
+from app.controller.kinematics import DeviceKinematics
+from app.device.spec import DeviceSpec
 from app.spatial import Array
 
 
@@ -86,29 +107,60 @@ class PassivitySettings(Checked):
             because of the PC's correction (-).
         energy_reserve: Energy (J) the port may give out beyond what it has absorbed: the PC
             keeps the observed energy at or above ``-energy_reserve`` (0 = strict).
-        energy_cap: Largest energy (J) the observer may bank; inf = none. A cap keeps a long
-            dissipative stretch from paying for a long active one.
+        energy_cap: Largest energy (J) the observer may bank; inf = none. The default is the
+            reserve: what a long dissipative stretch banked can then pay for at most
+            ``energy_cap + energy_reserve`` of later activity (see the module docstring).
         step: Smallest joint step the PC predicts (rad, or m for slides).
         step_counts: Each joint predicts at least this many counts of its own encoder
             (``plant.encoder_counts_per_rev`` of the device file). One count is the least a
             joint can show (under-predicted, a chatter on it draws the whole port's energy: the
             Kraft's 13-bit wrist at 2^-14 rev did); several keep the PC's own force law soft
             enough not to chatter once the energy is spent (see the module docstring).
-        friction_credit: Torque (N m, or N for slides) the joints' Coulomb friction surely
-            dissipates on every step; 0 = none (strictly model-free).
+        friction_credit: Share [0, 1] of each joint's own Coulomb friction (the device file's
+            ``plant.frictionloss`` plus the MJCF's) the PC credits as surely dissipated on every
+            step; 0 = none (strictly model-free).
         velocity_filter: Time constant (s) of the first-order low-pass on the encoder velocity
             the PC predicts steps of more than one count with (0 = none). The observer always
             uses the exact difference.
+        hold_slave: Pose mode: the share of the grip's motion into the rendered force that the PC
+            cut does not reach the slave's command, up to the compression of a virtual coupling
+            designed from the device (:func:`coupling_hold`).
     """
 
     enabled: bool = False
     max_torque_fraction: Annotated[float, Range(0.0, 1.0, lo_open=True)] = 1.0
     energy_reserve: Annotated[float, Range(0.0, 1.0, "J")] = 0.02
-    energy_cap: Annotated[float, Range(0.0, 1e3, "J", inf_ok=True)] = math.inf
+    energy_cap: Annotated[float, Range(0.0, 1e3, "J", inf_ok=True)] = 0.02
     step: Annotated[float, Range(0.0, 0.1, "rad", lo_open=True)] = 2.0 * math.pi / 16384
     step_counts: Annotated[int, Range(1, 64)] = 3
-    friction_credit: Annotated[float, Range(0.0, 10.0, "N m")] = 0.03
+    friction_credit: Annotated[float, Range(0.0, 1.0)] = 0.5
     velocity_filter: Annotated[float, Range(0.0, 0.1, "s")] = 0.003
+    hold_slave: bool = True
+
+
+def device_dissipation(device: DeviceSpec, kin: DeviceKinematics) -> tuple[Array, float]:
+    """What the device's own hardware dissipates, from its file (the MJCF plus ``[plant]``).
+
+    Returns:
+        Each joint's Coulomb friction (N m, or N for slides), (n,): the PC's friction credit.
+        The least translational damping at the grip at the home pose (N s/m): the smallest
+        eigenvalue of the translational block of ``(J D^-1 J^T)^-1`` (``J`` the grip's 6 x n
+        Jacobian in {0}, ``D`` the joints' viscous damping), the ``b`` the coupling of
+        :func:`coupling_hold` is designed from; 0 if some joint has no damping. Leaves ``kin``
+        at the home pose.
+    """
+    model, n, plant = kin.model, device.n_joints, device.data.plant
+    dofs = model.jnt_dofadr[kin.joint_ids]
+    friction = model.dof_frictionloss[dofs] + plant.per_joint("frictionloss", n)
+    damping = model.dof_damping[dofs] + plant.per_joint("damping", n)
+    if not np.all(damping > 0.0):
+        return friction, 0.0
+    kin.update(np.array(device.data.home))
+    J = kin.jacobian_W(np.zeros((6, n)))
+    r = kin.p_0_G - kin.p_0_W  # v_G = v_W + w x r
+    J[0:3] -= np.cross(r, J[3:6].T).T
+    B = np.linalg.pinv(J @ (J.T / damping[:, None]))
+    return friction, float(np.linalg.eigvalsh(B[0:3, 0:3]).min())
 
 
 @njit(cache=True)
@@ -136,7 +188,7 @@ def passivity_control(
     velocity: Array,
     dt: float,
     step: Array,
-    credit: float,
+    credit: Array,
     reserve: float,
     limit: Array,
     tau: Array,
@@ -149,7 +201,7 @@ def passivity_control(
         tau_r: Rendered torque about to be applied (N m or N), (n,).
         velocity: Low-passed joint velocity (rad/s or m/s), (n,): predicts steps beyond one count.
         dt: Servo period (s). ``step``: smallest step predicted for each joint (rad or m), (n,).
-        credit: Torque (N m or N) per joint the device's own friction dissipates on any step.
+        credit: Torque (N m or N) each joint's own friction dissipates on any step, (n,).
         reserve: Energy (J) the port may give out beyond what it absorbed (``E >= -reserve``).
         limit: Largest ``|tau_j|`` the PC may lead to (N m or N), (n,).
         tau: The total joint torque (N m or N), (n,): the PC torque is added in place.
@@ -163,7 +215,7 @@ def passivity_control(
     for j in range(tau_r.shape[0]):
         d = max(step[j], abs(velocity[j]) * dt)
         worst += abs(tau_r[j]) * d
-        budget += credit * d
+        budget += credit[j] * d
     s = budget / worst if worst > budget else 1.0
     for j in range(tau_r.shape[0]):
         t = (s - 1.0) * tau_r[j]
@@ -176,3 +228,72 @@ def passivity_control(
         tau_pc[j] = t
         tau[j] += t
     return 1.0 - s
+
+
+@njit(cache=True)
+def coupling_hold(
+    cut: float,
+    R_0_G: Array,
+    G_F: Array,
+    dx_cmd: Array,
+    dx_prev: Array,
+    offset: Array,
+    b_device: float,
+    dt: float,
+) -> None:
+    """Pose mode's slave-side half of the PC: hold the slave's command back by what the PC cut.
+
+    In pose mode the slave follows the grip, so a force the PC cuts lets the hand push the grip,
+    and with it the slave, further in: the slave presses harder, the PC cuts more, and the wall
+    vanishes. Here the share ``cut`` of the grip's motion into the rendered force ``f_0`` does not
+    reach the slave: it accumulates in ``offset``, subtracted from the commanded Delta X, as the
+    compression of a virtual coupling between grip and slave (Adams & Hannaford 1999). The
+    coupling's stiffness is designed from the device alone: ``k_c = 2 b / T``, Colgate & Schenkel's
+    passivity condition ``b > K T / 2`` with ``b`` the device's own damping at the grip (no hand),
+    so ``|offset| <= |f_0| / k_c`` as it grows: the slave is held back by at most what a passive
+    coupling would compress under the force. The grip backing out of the force uses the hold up
+    before the slave backs out too, so a press in and out again leaves none, and the slave never
+    steps toward the surface by itself.
+
+    Args:
+        cut: The share of the rendered torque the PC removed this tick (0..1).
+        R_0_G: The grip's orientation in {0} (3, 3).
+        G_F: The rendered wrench at the grip before the PC, in {G} (N, N m), (6,): its force
+            in {0}, ``f_0 = R_0_G G_F[0:3]``, is the direction "into" is judged against.
+        dx_cmd: Delta X after the deadband (6,); its translations (m, {0}) are reduced in place.
+        dx_prev: Last tick's ``dx_cmd`` translations before the hold (3,), updated.
+        offset: The accumulated hold (m, {0}), (3,), updated.
+        b_device: The device's own least translational damping at the grip (N s/m).
+        dt: Servo period (s); 0 = no usable period (the hold is kept, not grown).
+    """
+    f0 = R_0_G[0, 0] * G_F[0] + R_0_G[0, 1] * G_F[1] + R_0_G[0, 2] * G_F[2]
+    f1 = R_0_G[1, 0] * G_F[0] + R_0_G[1, 1] * G_F[1] + R_0_G[1, 2] * G_F[2]
+    f2 = R_0_G[2, 0] * G_F[0] + R_0_G[2, 1] * G_F[1] + R_0_G[2, 2] * G_F[2]
+    norm = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+    into = 0.0
+    if norm > 0.0:
+        into = ((dx_cmd[0] - dx_prev[0]) * f0 + (dx_cmd[1] - dx_prev[1]) * f1 + (dx_cmd[2] - dx_prev[2]) * f2) / norm
+    for i in range(3):
+        dx_prev[i] = dx_cmd[i]
+    if into < 0.0 and cut > 0.0:
+        offset[0] += cut * into * f0 / norm
+        offset[1] += cut * into * f1 / norm
+        offset[2] += cut * into * f2 / norm
+        # The coupling's compression under f_0 bounds the hold.
+        most = norm * dt / (2.0 * b_device) if b_device > 0.0 and dt > 0.0 else 0.0
+        size = math.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2)
+        if size > most:
+            for i in range(3):
+                offset[i] *= most / size
+    elif into > 0.0:
+        # The grip backing out takes the hold up first: the slave stays until it is used up, so
+        # it never steps toward the surface on its own (a hold released when the force drops
+        # would: that steps the slave back in, and a released tool bounced on it).
+        held = -(offset[0] * f0 + offset[1] * f1 + offset[2] * f2) / norm
+        if held > 0.0:
+            back = min(into, held) / norm
+            offset[0] += back * f0
+            offset[1] += back * f1
+            offset[2] += back * f2
+    for i in range(3):
+        dx_cmd[i] -= offset[i]

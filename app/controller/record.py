@@ -116,8 +116,8 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         lock. gravity_compensation, remove_payload, remove_inertia: the options of the same
         names. min_period, max_period: accepted periods (s). ramp_rate (1/s), max_joint_speed and
         release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. pc_on, pc_limit
-        (n,) (N m or N), po_cap (J), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m), pc_filter (s):
-        :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
+        (n,) (N m or N), po_cap (J), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_filter (s),
+        pc_hold, pc_b_device (N s/m): :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
         (n,) each (N m or N; -). horner_pos, horner_neg: (n, n_coeffs) torque curves, highest
         order first; counts_max: the amplifier's range. payload_mass (kg), payload_com_S (m, in
         {S}), payload_inertia_S (kg m^2, about the centre of mass, {S} axes), gravity_w (m/s^2,
@@ -134,7 +134,9 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         back at ``ramp_rate``). po_energy:
         the passivity observer's energy of the whole port (J), (1,); po_tau: the rendered torque
         commanded last tick (N m or N), (n,); pc_velocity: the low-passed joint velocity the
-        passivity controller uses (n,).
+        passivity controller uses (n,); pc_offset: the PC's hold on
+        the slave's command (m, {0}, (3,)); pc_dx_prev: last tick's Delta X command translations
+        before it (m, (3,)).
 
     Outputs (see :class:`~app.controller.frhc.ControllerOutput`):
         T_0_G, T_0_G0 (4, 4); vectors (9, 6); torques (8, n); counts (n,) int64; scalars (6,);
@@ -161,8 +163,12 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("po_cap", f8),
             ("pc_reserve", f8),
             ("pc_step", f8, (n,)),
-            ("pc_credit", f8),
+            ("pc_credit", f8, (n,)),
             ("pc_filter", f8),
+            ("pc_hold", b1),
+            ("pc_b_device", f8),
+            ("pc_offset", f8, (3,)),
+            ("pc_dx_prev", f8, (3,)),
             ("assist_limit", f8, (n,)),
             ("joint_limit", f8, (n,)),
             ("gear_ratio", f8, (n,)),

@@ -138,13 +138,39 @@ def design_stiffness(k_t: float, surface: float = 1e5, device: str | Path = "kra
     return k_t * session.gains.k_p[2] * kp * surface / (kp + surface)
 
 
-#: Hand-target depths (m) below the grip's start of a pose-mode press: it holds the first, then
-#: the second, so the felt stiffness is a secant between two pushes (~2.5 N and ~8 N at the grip
-#: with the default hand and K_P; both within every device's motors and the slave's force limit).
-#: Every hand pushes to these depths: a 1000 N/m hand then pushes the slave to its 40 N limit
-#: (scaling the depths down by the hand's stiffness left it short of the surface: a depth has to
-#: cover the ~2.4 cm gap to the surface first).
+#: Hand-target depths (m) below the grip's start of a pose-mode press with the default hand: it
+#: holds the first, then the second, so the felt stiffness is a secant between two pushes (~3 N
+#: and ~9 N at the grip with the default hand and K_P; both within every device's motors and the
+#: slave's force limit). Other hands push to :func:`push_depths`.
 PUSH_DEPTHS = (0.03, 0.045)
+#: Largest share of the slave's force limit each push may ask of the slave (``|F_grip| / K_T``).
+PUSH_SLAVE_SHARE = (0.25, 0.75)
+
+
+def push_depths(session: Session) -> tuple[float, float]:
+    """The hand-target depths (m) of a pose-mode press ``session``: ``gap + F_i / k_hand``.
+
+    ``gap`` is the grip's travel to the surface (the translational deadband plus the tip's height
+    above the probe surface over ``K_P``), and ``F_i`` the smaller of the force the default hand
+    pushes with at :data:`PUSH_DEPTHS` and :data:`PUSH_SLAVE_SHARE` of the slave's force limit
+    times ``K_T`` (z): a stiff hand then pushes as hard as the default one instead of driving the
+    slave to its limit, and a low ``K_T`` never asks the slave for more than it can push. A hand
+    no stiffer than the default one keeps the fixed depths (softer hands push less). Depths are
+    along -z; the hand's stiffness is its translational one (N/m).
+    """
+    tool, gains = session.scene.tool, session.gains
+    tip = float(tool.T_w_MRF_home[2, 3] - tool.T_T_MRF[2, 3] + np.min(tool.centers_T[:, 2] - tool.radii))
+    gap = float(gains.deadband[2]) + tip / float(gains.k_p[2])
+    k_hand = session.data.hand.stiffness_trans
+    k_default = HandParams().stiffness_trans
+    limit = session.scene.spec.slave.force_limit * float(gains.k_t[2])
+    depths = []
+    for depth, share in zip(PUSH_DEPTHS, PUSH_SLAVE_SHARE, strict=True):
+        force = min(k_default * (depth - gap), share * limit)
+        depths.append(depth if k_hand <= 0.0 else min(depth, gap + force / k_hand))
+    return depths[0], depths[1]
+
+
 #: Simulated time (s) of a press: rate mode holds the probe session's push to the end; pose mode
 #: reaches the first depth at 1.0 s, the second at ``POSE_SECONDS - 2 SETTLE_WINDOW + 0.2``.
 RATE_SECONDS, POSE_SECONDS = 2.8, 3.4
@@ -203,11 +229,14 @@ class FeltStiffness:
 HOLD_SECONDS = 0.2
 
 
-def _pose_push(seconds: float, hold: float, released: bool = False) -> tuple[tuple[Waypoint, ...], tuple[float, float]]:
-    """The hand's waypoints of a pose-mode press lasting ``seconds`` that holds its second push
-    ``hold`` (s) before the judged window, and its plateaus' window ends. ``released``: the hand
-    holds only the first push, and lets go where the second would start (:func:`release_time`)."""
-    first, second = (Waypoint(0.0, (0.0, 0.0, -d)) for d in PUSH_DEPTHS)
+def _pose_push(
+    seconds: float, hold: float, released: bool = False, depths: tuple[float, float] = PUSH_DEPTHS
+) -> tuple[tuple[Waypoint, ...], tuple[float, float]]:
+    """The hand's waypoints of a pose-mode press lasting ``seconds`` to ``depths`` (m) that holds
+    its second push ``hold`` (s) before the judged window, and its plateaus' window ends.
+    ``released``: the hand holds only the first push, and lets go where the second would start
+    (:func:`release_time`)."""
+    first, second = (Waypoint(0.0, (0.0, 0.0, -d)) for d in depths)
     end_1 = release_time(seconds, hold)  # the second push starts here, reached 0.2 s later
     waypoints: tuple[Waypoint, ...] = (Waypoint(0.3), replace(first, t=1.0), replace(first, t=end_1))
     if not released:
@@ -232,14 +261,15 @@ def press_session(
     """The probe session's push (reflection on, the device's gains and the hand) on ``scene``, in
     ``mode``, for ``seconds`` of simulated time (default :data:`RATE_SECONDS`, or
     :data:`POSE_SECONDS` lengthened by the ``hold`` beyond :data:`HOLD_SECONDS`); in pose mode the
-    hand pushes in two steps (:data:`PUSH_DEPTHS`) and holds the second ``hold`` (s) before the
+    hand pushes in two steps (:func:`push_depths`) and holds the second ``hold`` (s) before the
     judged window; ``released`` (pose mode): it holds the first push, then lets go of the grip
     with the tool on the surface and the judged window comes ``hold`` + 0.2 s later.
     ``changes`` are further session-file fields."""
     base = load_session("probe_rate")
     if mode == "pose":
         seconds = seconds or POSE_SECONDS + hold - HOLD_SECONDS
-        changes.setdefault("waypoints", _pose_push(seconds, hold, released)[0])
+        depths = push_depths(base.with_changes(scene=str(scene), mode=mode, **changes))
+        changes.setdefault("waypoints", _pose_push(seconds, hold, released, depths)[0])
         if released:
             let_go = SwitchEvent(release_time(seconds, hold), hand=False)
             changes.setdefault("events", (*base.data.events, let_go))

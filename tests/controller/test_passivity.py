@@ -2,14 +2,26 @@
 
 from __future__ import annotations
 
+import dataclasses
+from typing import Any
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from app.controller.passivity import PassivitySettings, observe_energy, passivity_control
+from app.controller.kinematics import DeviceKinematics
+from app.controller.passivity import (
+    PassivitySettings,
+    coupling_hold,
+    device_dissipation,
+    observe_energy,
+    passivity_control,
+)
+from app.device.spec import load_device
 from app.errors import InvalidField
+from app.session.stability import RELEASED, grip_damping
 
 T = 1e-3
 INF = float("inf")
@@ -63,7 +75,9 @@ def test_an_active_sampled_wall_is_detected_and_the_pc_keeps_the_bounce_passive(
             lowest = min(lowest, e[0] + (f_c * travel if pc else 0.0))
             tau = np.array([-K * q - B * vel[0]]) if q > 0.0 else np.zeros(1)
             if pc:
-                passivity_control(e, tau.copy(), vel, T, np.array([step]), f_c, reserve, np.array([1e9]), tau, tau_pc)
+                passivity_control(
+                    e, tau.copy(), vel, T, np.array([step]), np.array([f_c]), reserve, np.array([1e9]), tau, tau_pc
+                )
             tau_prev[:] = tau
             f_max = max(f_max, abs(tau[0]))
             q_prev = q
@@ -102,7 +116,9 @@ def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits
     limit = np.full(4, 6.0)
     tau = tau_r + tau_g
     tau_pc = np.zeros(4)
-    cut = passivity_control(np.array([energy]), tau_r, velocity, T, step, credit, reserve, limit, tau, tau_pc)
+    cut = passivity_control(
+        np.array([energy]), tau_r, velocity, T, step, np.full(4, credit), reserve, limit, tau, tau_pc
+    )
     np.testing.assert_allclose(tau, tau_r + tau_g + tau_pc)
     rendered = tau_r + tau_pc
     assert np.all(rendered * tau_r >= -1e-15)  # never reverses a torque
@@ -135,5 +151,59 @@ def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits
 )
 def test_settings_outside_their_ranges_are_refused_naming_the_field(field: str, value: float) -> None:
     with pytest.raises(InvalidField) as exc:
-        PassivitySettings(**{field: value})
+        PassivitySettings(**dict[str, Any]({field: value}))
     assert exc.value.field == field
+
+
+def _hold(cut: float, f_0: np.ndarray, dx: float, prev: float, offset: float, R: np.ndarray | None = None) -> tuple:
+    """One :func:`coupling_hold` step along z, from a grip at ``prev`` (m) moving to ``dx`` under
+    the force ``f_0`` (N, {0}) with a hold ``offset`` (m); b = 0.4 N s/m, T = 1 ms (so the
+    coupling k_c = 2b/T = 800 N/m). Returns (command z, offset z, last grip z)."""
+    R = np.eye(3) if R is None else R
+    G_F = np.concatenate((R.T @ f_0, np.zeros(3)))
+    cmd = np.array([0.0, 0.0, dx, 0.0, 0.0, 0.0])
+    dx_prev, off = np.array([0.0, 0.0, prev]), np.array([0.0, 0.0, offset])
+    coupling_hold(cut, R, G_F, cmd, dx_prev, off, 0.4, T)
+    return cmd[2], off[2], dx_prev[2]
+
+
+def test_the_hold_keeps_the_cut_share_of_the_push_from_the_slave_up_to_the_coupling() -> None:
+    """The grip pushes 2 mm further into a 10 N force while the PC cuts half: the slave's command
+    goes 1 mm in, the hold is 1 mm. A 2 cm push with the whole force cut is held back by at most
+    the coupling's compression under 10 N, 10 / 800 = 12.5 mm."""
+    up = np.array([0.0, 0.0, 10.0])
+    assert _hold(0.5, up, -0.012, -0.010, 0.0) == pytest.approx((-0.011, -0.001, -0.012))
+    assert _hold(1.0, up, -0.020, 0.0, 0.0) == pytest.approx((-0.0075, -0.0125, -0.020))
+    # No cut, no hold; a push along the force (out of the wall) grows none either.
+    assert _hold(0.0, up, -0.012, -0.010, 0.0) == pytest.approx((-0.012, 0.0, -0.012))
+    assert _hold(1.0, up, -0.008, -0.010, 0.0) == pytest.approx((-0.008, 0.0, -0.008))
+    # The grip's axes do not matter: the force is judged in {0} (grip turned 90 degrees about x).
+    R_x = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    assert _hold(0.5, up, -0.012, -0.010, 0.0, R_x) == pytest.approx((-0.011, -0.001, -0.012))
+
+
+def test_backing_out_uses_the_hold_up_before_the_slave_moves_and_a_dropped_force_keeps_it() -> None:
+    """A grip 0.5 mm back out of the force with a 1 mm hold: the slave's command stays where it was
+    (-11 mm), the hold is halved; 1 mm further out the hold is gone and the command follows the
+    grip. The force dropping to nearly nothing does not release the hold (no step back in)."""
+    up = np.array([0.0, 0.0, 10.0])
+    assert _hold(0.0, up, -0.0115, -0.012, -0.001) == pytest.approx((-0.011, -0.0005, -0.0115))
+    assert _hold(0.0, up, -0.0105, -0.0115, -0.0005) == pytest.approx((-0.0105, 0.0, -0.0105))
+    assert _hold(0.0, 1e-6 * up, -0.012, -0.012, -0.001) == pytest.approx((-0.011, -0.001, -0.012))
+
+
+def test_the_device_dissipation_is_read_from_the_device_file() -> None:
+    """Kraft: each joint's Coulomb friction is the device file's ``plant.frictionloss`` (its MJCF
+    has none), and the least damping at the grip is the joints' damping seen there, the ``b`` of
+    the device-only bound (0.40 N s/m along z, the least direction at home). Freflex: the least
+    direction has less than z's 1.88 N s/m. A device without joint damping gives none."""
+    kraft = load_device("kraft")
+    friction, b = device_dissipation(kraft, DeviceKinematics(kraft))
+    np.testing.assert_array_equal(friction, kraft.data.plant.per_joint("frictionloss", 6))
+    assert b == pytest.approx(grip_damping("kraft", RELEASED), rel=1e-3)
+    freflex = load_device("freflex")
+    _, b_freflex = device_dissipation(freflex, DeviceKinematics(freflex))
+    assert 0.0 < b_freflex < grip_damping("freflex", RELEASED)
+    undamped = dataclasses.replace(kraft.data.plant, damping=(0.0,) * 6)
+    bare = dataclasses.replace(kraft, data=dataclasses.replace(kraft.data, plant=undamped))
+    assert device_dissipation(bare, DeviceKinematics(bare))[1] == 0.0

@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from app.controller.frhc import Fault
-from app.controller.passivity import PassivitySettings
+from app.controller.kinematics import DeviceKinematics
+from app.controller.passivity import PassivitySettings, device_dissipation
+from app.device.spec import load_device
 from app.session.run import run_session
 from app.session.stability import press_session, probe_scene_with_stiffness
 from app.session.tick import TickRecord
@@ -59,13 +61,17 @@ def test_the_observer_equals_an_independent_sum_of_torque_times_encoder_motion()
 
 
 def test_with_the_pc_no_300_ms_window_gives_out_more_than_the_bank_bound() -> None:
-    """With the PC on and the bank capped (``energy_cap`` = ``energy_reserve`` = 20 mJ), the energy
-    the port gave out over any 300 ms window, E(t) - E(t + 0.3 s), is at most cap + reserve plus
-    the friction credit of the travel (module docstring of app.controller.passivity)."""
-    settings = PassivitySettings(enabled=True, energy_cap=0.02)
+    """With the PC on as shipped (the bank capped at the reserve, ``energy_cap`` =
+    ``energy_reserve`` = 20 mJ), the energy the port gave out over any 300 ms window,
+    E(t) - E(t + 0.3 s), is at most cap + reserve plus the friction credit of the travel, each
+    joint's own Coulomb friction (module docstring of app.controller.passivity)."""
+    settings = PassivitySettings(enabled=True)
+    assert settings.energy_cap == settings.energy_reserve == 0.02
     ledger = _ledger(settings, k_t=16.0)
     e, t = np.array(ledger.energy), np.array(ledger.time)
-    travel = np.concatenate(([0.0], np.cumsum(np.abs(np.diff(np.array(ledger.q), axis=0)).sum(axis=1))))
+    device = load_device("kraft")
+    friction, _ = device_dissipation(device, DeviceKinematics(device))
+    travel = np.concatenate(([0.0], np.cumsum(np.abs(np.diff(np.array(ledger.q), axis=0)) @ friction)))
     late = np.searchsorted(t, t + 0.3)
     ok = late < len(t)
     given_out = e[ok] - e[late[ok]]

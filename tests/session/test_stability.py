@@ -12,7 +12,16 @@ from app.device.hand import HandParams
 from app.device.variants import DeviceVariant, write_variant
 from app.session.run import run_session
 from app.session.spec import load_session
-from app.session.stability import design_stiffness, device_bound, grip_damping, passivity_bound, press
+from app.session.stability import (
+    PUSH_DEPTHS,
+    design_stiffness,
+    device_bound,
+    grip_damping,
+    passivity_bound,
+    press,
+    probe_scene_with_stiffness,
+    push_depths,
+)
 from app.world.scene import available_scenes, load_scene
 
 ENC20 = DeviceVariant("enc20", encoder_bits=20)
@@ -115,7 +124,9 @@ def test_where_plain_holds_the_wall_the_pc_leaves_it_alone_and_without_a_reserve
     pc = press(1e5, "pose", gains=gains, passivity=PassivitySettings(enabled=True))
     assert pc.stable
     assert pc.felt_stiffness == pytest.approx(plain.felt_stiffness, rel=0.05)
-    strict = press(1e5, "pose", gains=gains, passivity=PassivitySettings(enabled=True, energy_reserve=0.0))
+    # Without the hold (which would keep the slave out), as a master-side PC alone.
+    strict_pc = PassivitySettings(enabled=True, energy_reserve=0.0, hold_slave=False)
+    strict = press(1e5, "pose", gains=gains, passivity=strict_pc)
     assert strict.felt_stiffness < 0.7 * plain.felt_stiffness
     assert strict.mean_force > 2.0 * plain.mean_force
 
@@ -128,7 +139,7 @@ def test_a_wall_the_hand_pushed_through_is_not_stable(tmp_path: Path) -> None:
     device = str(write_variant("freflex", ENC20, tmp_path))
     bound = passivity_bound(device)
     k_t = 3.0 * bound / design_stiffness(1.0, device=device)
-    settings = PassivitySettings(enabled=True, step=2.0 * math.pi / 2**20, step_counts=1)
+    settings = PassivitySettings(enabled=True, step=2.0 * math.pi / 2**20, step_counts=1, hold_slave=False)
     r = press(1e5, "pose", device=device, gains={"k_t": [k_t] * 3 + [1.0] * 3}, passivity=settings)
     assert r.settled
     assert r.pushed_through
@@ -160,3 +171,47 @@ def test_a_released_press_is_judged_after_the_hand_lets_go(tmp_path: Path) -> No
     bouncing = press(1e5, "pose", device=no_friction, gains=gains, released=True)
     assert bouncing.ripple > 1.0
     assert not bouncing.stable
+
+
+def test_a_stiff_hand_pushes_to_the_gap_plus_its_force_over_its_stiffness(tmp_path: Path) -> None:
+    """The probe's grip travels 1 cm of deadband plus the tip's 2.5 cm over K_P = 2 to the surface
+    (2.25 cm). The default hand keeps the fixed depths; a 1000 N/m hand pushes the default hand's
+    3 and 9 N (2.55, 3.15 cm); at K_T 0.12 at most 25 % and 75 % of the slave's 40 N limit times
+    K_T (1.2 and 3.6 N: 2.37, 2.61 cm). A softer hand keeps the fixed depths."""
+    scene = probe_scene_with_stiffness(1e5, 3.0, tmp_path)
+
+    def depths(k: float, k_t: float) -> tuple[float, float]:
+        hand = HandParams(stiffness_trans=k)
+        session = load_session("probe_rate").with_changes(
+            scene=str(scene), mode="pose", hand=hand, gains={"k_t": [k_t] * 3 + [1.0] * 3}
+        )
+        return push_depths(session)
+
+    assert depths(400.0, 1.0) == pytest.approx(PUSH_DEPTHS)
+    assert depths(1000.0, 1.0) == pytest.approx((0.0255, 0.0315))
+    assert depths(1000.0, 0.12) == pytest.approx((0.0237, 0.0261))
+    assert depths(100.0, 0.12) == pytest.approx(PUSH_DEPTHS)
+
+
+def test_a_stiff_hand_press_measures_the_wall_not_the_slave_limit() -> None:
+    """Kraft, a 1000 N/m hand, a wall at a quarter of the bound: plain rendering holds it with the
+    slave well inside its 40 N limit (at the fixed depths this hand pushed the slave to it)."""
+    hand = HandParams(stiffness_trans=1000.0, damping_trans=10.0)
+    k_t = 0.25 * passivity_bound("kraft", hand=hand) / design_stiffness(1.0)
+    r = press(1e5, "pose", gains={"k_t": [k_t] * 3 + [1.0] * 3}, hand=hand)
+    assert r.stable, r
+    assert 2.0 < r.mean_force < 20.0
+
+
+def test_on_a_coarse_encoder_the_hold_keeps_the_hand_from_pushing_the_slave_through(tmp_path: Path) -> None:
+    """Kraft with 10-bit encoders, the default hand, a wall at the bound: with the PC as a
+    master-side force bound alone the hand pushes the slave to its 40 N limit (the wall vanishes);
+    with the hold on the slave's command the slave stays well inside it and the press settles."""
+    device = str(write_variant("kraft", DeviceVariant("enc10", encoder_bits=10), tmp_path))
+    k_t = passivity_bound(device) / design_stiffness(1.0, device=device)
+    gains = {"k_t": [k_t] * 3 + [1.0] * 3}
+    alone = press(1e5, "pose", device=device, gains=gains, passivity=PassivitySettings(enabled=True, hold_slave=False))
+    assert alone.pushed_through
+    held = press(1e5, "pose", device=device, gains=gains, passivity=PassivitySettings(enabled=True))
+    assert held.stable, held
+    assert held.mean_force < 0.5 * 40.0

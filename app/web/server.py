@@ -190,7 +190,8 @@ class DemoApp:
         playing = self.rt.snapshot.playing
         if playing is not None:
             what = "scene" if scene_name != self._scene.spec.name else "device"
-            self._notice = f"**stopped `{playing.stem}`**: the {what} was changed"
+            # Not a loading notice any more: the redraw that sees the play start must not clear it.
+            self._notice, self._loading = f"**stopped `{playing.stem}`**: the {what} was changed", False
             for client in self.server.get_clients().values():  # viser notifies per browser
                 client.add_notification("Session stopped", f"{playing.stem}: the {what} was changed", color="yellow")
         try:

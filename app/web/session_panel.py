@@ -164,8 +164,7 @@ class SessionPanel:
         if table is None:
             self.experiment_result.content = f"running: {done} of {total} sessions"
             return
-        self.experiment_result.content = f"```\n{table}\n```"
-        if chart is not None:
+        if chart is not None:  # before the table: a page that shows the table has its chart
             self._chart_image = chart
             self.full_chart.visible = True
             if self.chart is None:
@@ -173,6 +172,7 @@ class SessionPanel:
                     self.chart = self.server.gui.add_image(chart, label="Table I (small: use the button above)")
             else:
                 self.chart.image = chart
+        self.experiment_result.content = f"```\n{table}\n```"
 
     def _open_chart(self, client: viser.ClientHandle | None) -> None:
         """Open the latest chart in a floating window of the page that asked (all pages if the click

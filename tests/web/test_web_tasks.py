@@ -211,7 +211,7 @@ def test_a_device_change_stops_the_session_and_says_so(demo: DemoApp, page: obje
     device = next(name for name in ("touch3", "kraft") if name != demo.rt.config.device.name)
     demo.controls.device.value = device  # what choosing it in the page's dropdown does
     assert demo.rt.config.device.name == device
-    page.get_by_text("the device was changed").first.wait_for(state="attached", timeout=STEP_TIMEOUT * 1000)  # type: ignore[attr-defined]
+    page.get_by_text("stopped peg_ntrfc").first.wait_for(state="attached", timeout=STEP_TIMEOUT * 1000)  # type: ignore[attr-defined]
     text = _body(page)
     assert "stopped peg_ntrfc" in text
     assert "Session stopped" in text  # the notification

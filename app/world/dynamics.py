@@ -47,9 +47,10 @@ import mujoco
 import numpy as np
 import trimesh
 
-from app.spatial import Array, invert_pose, matrix_to_quat, quat_to_matrix
+from app.spatial import Array, matrix_to_quat
 from app.world.contact import ContactModel, ContactResult
 from app.world.contact.force import V_SLIP
+from app.world.dynamics_kernel import add_reaction, body_frames
 from app.world.scene import Body, Scene, WorldObject
 
 #: Time constant (s) of MuJoCo's soft contacts between objects: a numerical choice (MuJoCo asks
@@ -210,9 +211,19 @@ class MovingWorld:
         self._qpos = self.data.qpos.reshape(n, 7)
         self._qvel = self.data.qvel.reshape(n, 6)
         self._xfrc = self.data.xfrc_applied[1 : n + 1]
-        self._com = np.array([b.com_B for b in scene.bodies])
+        self._com = np.array([b.com_B for b in scene.bodies]).reshape(n, 3)
+        self._reach = np.array([np.linalg.norm(b.object.mesh.vertices, axis=1).max() for b in scene.bodies])
+        tool = scene.tool
+        self._tool_reach = float(
+            np.max(np.linalg.norm(tool.centers_T - tool.T_T_MRF[0:3, 3], axis=1) + tool.radii) + scene.spec.margin
+        )
         self._pairs = self._fcl_pairs()
-        self._T = np.zeros((n, 4, 4))  # poses of {B} in {w}, refreshed from qpos before each use
+        # Buffers of body_frames: the objects' frames in {w} and the tool's last pose and twist in each.
+        self._T, self._T_B_MRF = np.zeros((n, 4, 4)), np.zeros((n, 4, 4))
+        self._c, self._vel, self._V_B = np.zeros((n, 3)), np.zeros((n, 6)), np.zeros((n, 6))
+        self._near = np.zeros(n, dtype=np.int64)
+        self._T_w_MRF = tool.T_w_MRF_home.copy()
+        self._no_twist = np.zeros(6)
         self.reset()
 
     def _fcl_pairs(self) -> list[FclPair]:
@@ -227,7 +238,7 @@ class MovingWorld:
             return k, max(o.damping for o in objs), max(o.friction for o in objs)
 
         bvh = [_bvh(b.object.mesh) for b in bodies]
-        reach = [float(np.linalg.norm(b.object.mesh.vertices, axis=1).max()) for b in bodies]
+        reach = self._reach.tolist()
         convex = [_convex(b.object, s) for b, s in zip(bodies, shapes, strict=True)]
         for o in scene.objects:
             static_convex = _convex(o, _shape(scene, o))
@@ -262,21 +273,24 @@ class MovingWorld:
         self.static.reset()
         for m in self.models:
             m.reset()
+        self._frames(self._T_w_MRF, self._no_twist)
+
+    def _frames(self, T_w_MRF: Array, V_w_MRF: Array) -> None:
+        """Refresh the objects' frames and the tool's pose and twist in each (the world's buffers)."""
+        body_frames(
+            self._qpos, self._qvel, self._com, self._reach, T_w_MRF, V_w_MRF, self._tool_reach,
+            self._T, self._c, self._vel, self._T_B_MRF, self._V_B, self._near,
+        )  # fmt: skip
 
     def poses(self) -> Array:
-        """Poses of the dynamic objects' frames {B} in {w}, (n, 4, 4) (the world's own buffer)."""
-        for b in range(len(self.models)):
-            T = self._T[b]
-            T[0:3, 0:3] = quat_to_matrix(self._qpos[b, 3:7])
-            T[0:3, 3] = self._qpos[b, 0:3]
-            T[3, 3] = 1.0
-        return self._T
+        """Poses of the dynamic objects' frames {B} in {w}, (n, 4, 4) (a new array)."""
+        self._frames(self._T_w_MRF, self._no_twist)
+        return self._T.copy()
 
     def twists(self) -> Array:
-        """Twists ``[v; w]`` of the {B} frames in {w} (v of the origin), (n, 6) (new array)."""
-        T = self.poses()
-        w = np.einsum("bij,bj->bi", T[:, 0:3, 0:3], self._qvel[:, 3:6])
-        return np.concatenate([self._qvel[:, 0:3], w], axis=1)
+        """Twists ``[v; w]`` of the {B} frames in {w} (v of the origin), (n, 6) (a new array)."""
+        self._frames(self._T_w_MRF, self._no_twist)
+        return self._vel.copy()
 
     # --- the tool's contact ------------------------------------------------------------------
     def wrench(self, T_w_MRF: Array, V_w_MRF: Array | None = None) -> ContactResult:
@@ -288,39 +302,24 @@ class MovingWorld:
         self._xfrc[:] = 0.0
         if not result.valid:
             return result
+        has_twist = V_w_MRF is not None
+        self._T_w_MRF[:] = T_w_MRF
+        self._frames(self._T_w_MRF, V_w_MRF if has_twist else self._no_twist)  # type: ignore[arg-type]
         w = result.w
         rows = [result.contacts] if result.count else []
-        T_all = self.poses()
-        V_all = self.twists()
-        p_mrf = T_w_MRF[0:3, 3]
-        m0 = len(self.scene.objects)
-        for b, model in enumerate(self.models):
-            T_w_B = T_all[b]
-            R, p = T_w_B[0:3, 0:3], T_w_B[0:3, 3]
-            T_B_MRF = invert_pose(T_w_B) @ T_w_MRF
-            V_rel = None
-            if V_w_MRF is not None:
-                v_o, w_o = V_all[b, 0:3], V_all[b, 3:6]
-                V_rel = np.concatenate(
-                    (R.T @ (V_w_MRF[0:3] - v_o - np.cross(w_o, p_mrf - p)), R.T @ (V_w_MRF[3:6] - w_o))
-                )
-            r = model.wrench(T_B_MRF, V_rel)
+        for b in np.flatnonzero(self._near):
+            r = self.models[b].wrench(self._T_B_MRF[b], self._V_B[b] if has_twist else None)
             if not r.valid:
                 self._xfrc[:] = 0.0
                 return r
             if not r.count:
                 continue
-            F_w = R @ r.force_w
-            M_w = T_w_MRF[0:3, 0:3] @ r.wrench_MRF[3:6]
-            w[0:12] += r.w[0:12]
-            w[12:15] += F_w
-            c_w = R @ self._com[b] + p
-            self._xfrc[b, 0:3] = -F_w
-            self._xfrc[b, 3:6] = -(M_w + np.cross(p_mrf - c_w, F_w))
+            add_reaction(b, self._T, self._c, self._T_w_MRF, r.w, w, self._xfrc)
+            T_w_B = self._T[b]
             moved = r.contacts.copy()
-            moved[:, 0:3] = moved[:, 0:3] @ R.T + p
-            moved[:, 3:6] = moved[:, 3:6] @ R.T
-            moved[:, 8] += m0 + b
+            moved[:, 0:3] = moved[:, 0:3] @ T_w_B[0:3, 0:3].T + T_w_B[0:3, 3]
+            moved[:, 3:6] = moved[:, 3:6] @ T_w_B[0:3, 0:3].T
+            moved[:, 8] += len(self.scene.objects) + b
             rows.append(moved)
         contacts = rows[0] if len(rows) == 1 else np.concatenate(rows) if rows else result.contacts
         return ContactResult(True, w, contacts, result.queries, result.gathers, None)
@@ -332,22 +331,21 @@ class MovingWorld:
         if h != self.model.opt.timestep:
             self.model.opt.timestep = h
         if self._pairs:
+            self._frames(self._T_w_MRF, self._no_twist)
             self._fcl_forces()
         mujoco.mj_step(self.model, self.data)
         self._xfrc[:] = 0.0
 
     def _fcl_forces(self) -> None:
-        """Add the FCL pairs' penalty forces to ``xfrc_applied`` (world force and torque at the centres of mass)."""
-        T_all = self.poses()
-        V_all = self.twists()
-        c_all = np.einsum("bij,bj->bi", T_all[:, 0:3, 0:3], self._com) + T_all[:, 0:3, 3]
+        """Add the FCL pairs' penalty forces to ``xfrc_applied`` (world force and torque at the
+        centres of mass), for the frames in the buffers."""
+        T_all, V_all, c_all = self._T, self._vel, self._c
         for pr in self._pairs:
             Ta = T_all[pr.a]
             if pr.b < 0:
                 assert pr.static_box is not None
-                gap = np.maximum(pr.static_box[0:3] - Ta[0:3, 3], 0.0) + np.maximum(
-                    Ta[0:3, 3] - pr.static_box[3:6], 0.0
-                )
+                lo, hi = pr.static_box[0:3], pr.static_box[3:6]
+                gap = np.maximum(lo - Ta[0:3, 3], 0.0) + np.maximum(Ta[0:3, 3] - hi, 0.0)
                 if np.linalg.norm(gap) > pr.reach[0]:
                     continue
             else:
@@ -356,8 +354,7 @@ class MovingWorld:
                     continue
                 pr.obj_b.setTransform(fcl.Transform(Tb[0:3, 0:3], Tb[0:3, 3]))
             pr.obj_a.setTransform(fcl.Transform(Ta[0:3, 0:3], Ta[0:3, 3]))
-            rows = fcl_contacts(pr.obj_a, pr.obj_b)
-            for row in rows:
+            for row in fcl_contacts(pr.obj_a, pr.obj_b):
                 q, n, depth = row[0:3], row[3:6], row[6]
                 u = -(V_all[pr.a, 0:3] + np.cross(V_all[pr.a, 3:6], q - Ta[0:3, 3]))
                 if pr.b >= 0:

@@ -29,14 +29,15 @@ Contact, per pair:
   shapes is therefore MuJoCo's.
 - **A pair with a non-convex mesh** (a block with holes, a peg with a head): MuJoCo would collide
   its convex hull, which fills the hole. python-fcl collides the two BVH meshes (the triangles
-  themselves) and each contact, merged where several triangle pairs report one point, pushes
-  with the penalty law of the tool's contacts (:mod:`app.world.contact.force`): stiffness the
+  themselves) and each contact pushes with the penalty law of the tool's contacts (:mod:`app.world.contact.force`): stiffness the
   two objects' in series, damping and friction the larger of the two. How many points FCL
   reports depends on the triangulation (a 64-section peg's end on a hole's floor: 32, more than
   the 1 ms step can hold as separate springs: a 61 g peg landing at 0.6 m/s exploded), so the
   contacts of a pair are grouped by normal (within :data:`FCL_SAME_NORMAL`) and each group is one
   contact: its deepest depth, its mean normal, at the depth-weighted mean of its points. A face
   on a face is one spring at its centre of pressure; a peg against a hole's floor and wall, two.
+  This path is slow: a step took tens of milliseconds once many triangle pairs touched (a peg
+  in its hole, a ball in a channel), so no shipped scene uses it yet.
 
 Frames: {w} the world, {B} a dynamic object's frame (the MuJoCo body frame; its centre of mass
 is ``Body.com_B`` in it). MuJoCo's free joint holds {B}'s origin (world) and orientation, its
@@ -47,6 +48,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import fcl
 import mujoco
@@ -83,11 +85,12 @@ def _shape(scene: Scene, obj: WorldObject) -> str:
     return next(s.shape for s in scene.spec.objects if s.name == obj.name)
 
 
-def _fmt(values: object) -> str:
-    return " ".join(repr(float(v)) for v in np.ravel(values))
+def _fmt(values: Array | tuple[float, ...]) -> str:
+    """Numbers as MJCF writes them: space-separated, exact."""
+    return " ".join(repr(float(v)) for v in np.ravel(np.asarray(values, dtype=float)))
 
 
-def _geom(name: str, obj: WorldObject, shape: str, spec_shape: object, T: Array, body: Body | None) -> str:
+def _geom(name: str, obj: WorldObject, shape: str, spec_shape: Any, T: Array, body: Body | None) -> str:
     """A MuJoCo geom for an object at pose T (its frame in the parent), or "" if not convex."""
     if not _convex(obj, shape):
         return ""
@@ -102,7 +105,7 @@ def _geom(name: str, obj: WorldObject, shape: str, spec_shape: object, T: Array,
     if shape == "sphere":
         return f'<geom type="sphere" size="{spec_shape!r}" {common}/>'
     if shape == "cylinder":
-        r, h = spec_shape  # type: ignore[misc]
+        r, h = spec_shape
         return f'<geom type="cylinder" size="{r!r} {h / 2!r}" {common}/>'
     return f'<geom type="mesh" mesh="{name}" {common}/>'
 
@@ -339,7 +342,7 @@ class MovingWorld:
         self._frames(self._T_w_MRF, V_w_MRF if has_twist else self._no_twist)  # type: ignore[arg-type]
         w = result.w
         rows = [result.contacts] if result.count else []
-        for b in np.flatnonzero(self._near):
+        for b in np.flatnonzero(self._near).tolist():
             r = self.models[b].wrench(self._T_B_MRF[b], self._V_B[b] if has_twist else None)
             if not r.valid:
                 self._xfrc[:] = 0.0

@@ -504,6 +504,62 @@ def _paced_round_trips(client: HaplyClient, push: Array, n: int, step_us: float)
     )
 
 
+def bench_moving(quick: bool = False) -> str:
+    """Dynamic objects (issue 30 bars). The whole tick of ``probe_rate`` (every object static) and
+    of ``stack_topple`` (three dynamic blocks, in contact with each other and the table
+    throughout, until the stylus topples them), alternated in rounds in one run so both see the
+    same machine load; then the object-object contact each way: MuJoCo's (the moving world's
+    step on the standing stack, tool away) and python-fcl's (``fcl_contacts``, a box on a slab)."""
+    import fcl
+    import trimesh
+
+    from app.session.run import run_session
+    from app.session.spec import load_session
+    from app.world.dynamics import MovingWorld, _bvh, fcl_contacts
+    from app.world.scene import load_scene
+
+    rounds, duration = (2, 1.5) if quick else (4, 3.0)
+    ticks: dict[str, list[float]] = {"probe_rate": [], "stack_topple": []}
+    for _ in range(rounds):
+        for name, got in ticks.items():
+            s = run_session(load_session(name).with_changes(duration=duration), out_dir=None).summary
+            got.append(s["timing"]["tick"]["median_us"])
+    probe, stack = float(np.median(ticks["probe_rate"])), float(np.median(ticks["stack_topple"]))
+    lines = [
+        f"whole tick, median of {rounds} alternated runs of {duration:g} s (headless, no logging):",
+        f"  probe_rate (all static)             median {probe:7.1f} us   rounds {ticks['probe_rate']}",
+        f"  stack_topple (3 dynamic in contact) median {stack:7.1f} us   rounds {ticks['stack_topple']}",
+        f"  ratio {stack / probe:.2f}x, real-time factor of the stack at 1 kHz {1000.0 / stack:.1f}",
+    ]
+    n = 500 if quick else 3000
+    world = MovingWorld(load_scene("stack_topple"), 1e-3)
+    lines.append(
+        f"moving world step, three stacked blocks (MuJoCo collision): {_stats(_timed(lambda: world.step(1e-3), n))}"
+    )
+    box = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    a, b = _bvh(box), _bvh(trimesh.creation.box(extents=(1.0, 1.0, 0.1)))
+    T = np.eye(4)
+    T[0:3, 3] = 0.01, 0.02, 0.098
+    a.setTransform(fcl.Transform(T[0:3, 0:3], T[0:3, 3]))
+    verts = np.asarray(box.vertices, dtype=float)
+    lines.append(
+        f"fcl_contacts, a box sunk 2 mm on a slab (BVH-BVH):           {_stats(_timed(lambda: fcl_contacts(a, b, verts, T), n))}"
+    )
+    return "\n".join(lines)
+
+
+def _timed(fn: Callable[[], object], n: int) -> np.ndarray:
+    """Nanoseconds of n calls of fn, after n // 10 untimed ones."""
+    for _ in range(n // 10):
+        fn()
+    ns = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        t0 = time.perf_counter_ns()
+        fn()
+        ns[i] = time.perf_counter_ns() - t0
+    return ns
+
+
 BENCHES: dict[str, Callable[[bool], str]] = {
     "controller": bench_controller,
     "plant": _plant,
@@ -513,6 +569,7 @@ BENCHES: dict[str, Callable[[bool], str]] = {
     "stability": bench_stability,
     "sweep": _sweep,
     "device": bench_device,
+    "moving": bench_moving,
 }
 
 

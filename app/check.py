@@ -93,7 +93,11 @@ def check_file(name: str) -> str:
         else:
             scene = load_scene(path)
             device = load_device(DEFAULT_DEVICE)
-            what = f"scene {scene.spec.name}: {len(scene.objects)} objects, {len(scene.tool.radii)} tool spheres"
+            moving = f" ({len(scene.bodies)} dynamic)" if scene.bodies else ""
+            what = (
+                f"scene {scene.spec.name}: {len(scene.objects) + len(scene.bodies)} objects{moving}, "
+                f"{len(scene.tool.radii)} tool spheres"
+            )
         with _model_errors(path):
             ServoLoop(LoopConfig(device, scene, device.data.gains, HandParams()))
         return f"{what} ({path})"

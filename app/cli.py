@@ -391,7 +391,7 @@ def build_parser() -> argparse.ArgumentParser:
         "what",
         nargs="?",
         default="all",
-        choices=["all", "controller", "plant", "contact", "tick", "arm", "stability", "sweep", "device"],
+        choices=["all", "controller", "plant", "contact", "tick", "arm", "stability", "sweep", "device", "moving"],
         help="what to time",
     )
     p.add_argument("--quick", action="store_true", help="fewer iterations")

@@ -55,7 +55,8 @@ from app.slave import arm_kernel as ak
 from app.slave.arm_model import ArmGeom, ArmParams, arm_record, arm_spec, link_contact_models, place_base
 from app.slave.tool import DEFAULT_PERIOD, SlaveBase, command_error, finite, invalid_contact
 from app.spatial import Array
-from app.world.contact import ContactModel, ContactResult
+from app.world.contact import ContactResult
+from app.world.dynamics import MovingWorld, world_contact
 from app.world.scene import Scene
 
 
@@ -109,7 +110,10 @@ class ArmSlave(SlaveBase):
         self.model = m = arm_spec(scene, g.kind, self._h).compile()
         self.data = d = mujoco.MjData(m)
         self.n = m.nu
-        self.contact_model = ContactModel(scene)
+        self.contact_model = world_contact(scene, self._h)
+        # The scene's dynamic objects, advanced with every substep (None: all static). The
+        # links touch only the static objects.
+        self._moving = self.contact_model if isinstance(self.contact_model, MovingWorld) else None
         self.q_home, self.T_w_base = place_base(m, d, scene)
         tool = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "tool")
         self._links, self._link_models, spheres = link_contact_models(m, tool, scene)
@@ -321,6 +325,8 @@ class ArmSlave(SlaveBase):
                 mujoco.mj_step2(m, d)
             elif self.link_contacts:
                 self.link_contacts = []
+            if self._moving is not None:
+                self._moving.step(h)
         self._contact = contact
         self.status = _STATUS[status]
         self._link_force = sum(float(np.linalg.norm(r.force_w)) for r in self.link_contacts if r.valid)

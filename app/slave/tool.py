@@ -58,7 +58,8 @@ from app.slave.tool_kernel import (
     tool_substep,
 )
 from app.spatial import Array, invert_pose, matrix_to_quat
-from app.world.contact import ContactModel, ContactResult
+from app.world.contact import ContactResult
+from app.world.dynamics import MovingWorld, world_contact
 from app.world.scene import Scene
 
 DEFAULT_PERIOD = 1e-3  # s, the servo period
@@ -218,10 +219,12 @@ class VirtualSlave(SlaveBase):
     def __init__(self, scene: Scene, accommodation: bool = True, period: float = DEFAULT_PERIOD) -> None:
         super().__init__(scene, accommodation)
         g = self.gains
-        self.contact_model = ContactModel(scene)
         tool = scene.tool
         self._substeps = g.substeps
         self._h = period / self._substeps
+        self.contact_model = world_contact(scene, self._h)
+        # The scene's dynamic objects, advanced with every substep (None: all static).
+        self._moving = self.contact_model if isinstance(self.contact_model, MovingWorld) else None
         self.model = mujoco.MjModel.from_xml_string(_tool_xml(scene, self._h))
         self.data = mujoco.MjData(self.model)
         body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "tool")
@@ -358,6 +361,8 @@ class VirtualSlave(SlaveBase):
                 contact.valid,
                 self._ft_buffer,
             )
+            if self._moving is not None:
+                self._moving.step(h)
             reference = KEEP
         self._fresh = True
         self._contact = contact

@@ -1,5 +1,7 @@
-"""The virtual world that replaces the paper's slave environment: scenes, static meshes and the
-contact wrench on the tool's sphere set.
+"""The virtual world that replaces the paper's slave environment: scenes, their meshes, the
+contact wrench on the tool's sphere set, and the objects that move (:mod:`app.world.dynamics`:
+one MuJoCo model; MuJoCo's collision between convex objects, python-fcl's where a mesh is not
+convex, chosen and measured as that module's docstring says).
 
 The slave that touches it (tool, arms, F/T sensor, NTRFC) is :mod:`app.slave`; the world never
 imports it.

@@ -10,8 +10,10 @@ before it (warnings are held back until the whole scene has loaded).
 
 Frames: {w} the slave world, {T} the tool body (the frame the tool geometry and inertia are
 written in), {MRF} the moving reference frame under Cartesian control, {S} the F/T sensor.
-Objects are static, so their pose is baked into their vertices at load time: every
-:class:`WorldObject` mesh is in {w}.
+Static objects' pose is baked into their vertices at load time: every :class:`WorldObject`
+mesh is in {w}. A dynamic object (``[objects.dynamic]``) is a :class:`Body` instead: its mesh
+stays in its own frame {B} (the file's object frame, moved by :mod:`app.world.dynamics`), with
+the mass properties of the solid mesh.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from app.world.scene_file import (
     MAX_MESH_FACES,
     BoxSpec,
     CapsuleSpec,
+    DynamicSpec,
     ObjectSpec,
     Pose,
     SceneFile,
@@ -49,8 +52,10 @@ __all__ = [
     "DEFAULT_SCENE",
     "ROOT_DIR",
     "SCENES_DIR",
+    "Body",
     "BoxSpec",
     "CapsuleSpec",
+    "DynamicSpec",
     "ObjectSpec",
     "Pose",
     "Scene",
@@ -97,6 +102,38 @@ class WorldObject:
 
 
 @dataclass(frozen=True)
+class Body:
+    """A loaded dynamic object: its mesh in its own frame {B} and its mass properties.
+
+    Attributes:
+        object: The object with its mesh in {B} (contact parameters as for a static object).
+        spec: Its file entry (shape, pose, :class:`DynamicSpec`).
+        mass: Mass (kg).
+        com_B: Centre of mass in {B} (m), (3,).
+        inertia_B: Inertia about the centre of mass in {B} axes (kg m^2), (3, 3).
+        T_w_B: Initial pose of {B} in {w}, (4, 4).
+        twist: Initial twist ``[v; w]`` of {B} in {w} (v of its origin), (6,).
+    """
+
+    object: WorldObject
+    spec: ObjectSpec
+    mass: float
+    com_B: Array
+    inertia_B: Array
+    T_w_B: Array
+    twist: Array
+
+    @property
+    def name(self) -> str:
+        return self.object.name
+
+    @property
+    def dynamic(self) -> DynamicSpec:
+        assert self.spec.dynamic is not None
+        return self.spec.dynamic
+
+
+@dataclass(frozen=True)
 class ToolGeometry:
     """The tool as a point shell of spheres, plus its frames and inertia.
 
@@ -136,6 +173,7 @@ class Scene:
         objects: Static objects with meshes in {w}.
         tool: The tool's sphere set, frames and inertia.
         gravity_w: Gravity in {w} (m/s^2), shape (3,).
+        bodies: Dynamic objects (meshes in their own frames), in file order.
     """
 
     path: Path | None
@@ -143,6 +181,7 @@ class Scene:
     objects: tuple[WorldObject, ...]
     tool: ToolGeometry
     gravity_w: Array
+    bodies: tuple[Body, ...] = ()
 
     @property
     def name(self) -> str:
@@ -236,8 +275,8 @@ def _load_mesh(path: Path, source: str | Path, field_name: str) -> trimesh.Trime
     return loaded
 
 
-def build_object(spec: ObjectSpec, source: str | Path, field_path: str) -> WorldObject:
-    """Make the {w} mesh of one object, checking it is usable for contact.
+def build_object(spec: ObjectSpec, source: str | Path, field_path: str, pose: bool = True) -> WorldObject:
+    """Make the {w} mesh of one object (its own frame's if not ``pose``), checking it is usable for contact.
 
     Raises:
         ConfigError: naming ``<field_path>.<shape>``: the mesh is missing, unreadable or too large,
@@ -251,8 +290,31 @@ def build_object(spec: ObjectSpec, source: str | Path, field_path: str) -> World
     else:
         mesh = _primitive_mesh(spec)
     mesh = checked_mesh(mesh, source, mesh_field)
-    mesh.apply_transform(spec.pose.matrix())
+    if pose:
+        mesh.apply_transform(spec.pose.matrix())
     return WorldObject(spec.name, mesh, spec.stiffness, spec.damping, spec.friction, CollisionMesh(mesh))
+
+
+def build_body(spec: ObjectSpec, source: str | Path, field_path: str) -> Body:
+    """A dynamic object: its mesh in {B} and the mass properties of the solid it bounds."""
+    assert spec.dynamic is not None
+    obj = build_object(spec, source, field_path, pose=False)
+    volume = float(obj.mesh.volume)
+    d = spec.dynamic
+    mass = d.mass if d.mass is not None else d.density * volume  # type: ignore[operator]
+    if not mass >= 1e-6:
+        raise ConfigError(source, f"{field_path}.dynamic.density", f"the mass {mass:.3g} kg is below 1e-6 kg")
+    # trimesh's moment_inertia is for its default density 1 kg/m^3: scale it to the mass.
+    inertia = np.asarray(obj.mesh.moment_inertia, dtype=float) * (mass / volume)
+    return Body(
+        obj,
+        spec,
+        mass,
+        np.asarray(obj.mesh.center_mass, dtype=float),
+        inertia,
+        spec.pose.matrix(),
+        np.array(d.twist, dtype=float),
+    )
 
 
 def build_scene(spec: SceneFile, source: str | Path = "<scene>", path: Path | None = None) -> Scene:
@@ -261,8 +323,14 @@ def build_scene(spec: SceneFile, source: str | Path = "<scene>", path: Path | No
     Warnings (a mesh that is not watertight) are issued only once the whole scene has built.
     """
     with deferred_warnings():
-        objects = tuple(build_object(o, source, f"objects[{i}]") for i, o in enumerate(spec.objects))
-        return Scene(path, spec, objects, _tool_geometry(spec.tool), np.array(spec.gravity, dtype=float))
+        objects = tuple(
+            build_object(o, source, f"objects[{i}]") for i, o in enumerate(spec.objects) if o.dynamic is None
+        )
+        bodies = tuple(
+            build_body(o, source, f"objects[{i}]") for i, o in enumerate(spec.objects) if o.dynamic is not None
+        )
+        tool = _tool_geometry(spec.tool)
+        return Scene(path, spec, objects, tool, np.array(spec.gravity, dtype=float), bodies)
 
 
 def with_slave(scene: Scene, kind: str) -> Scene:

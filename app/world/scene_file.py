@@ -98,6 +98,31 @@ SHAPES = ("mesh", "box", "sphere", "cylinder", "plane")
 
 
 @dataclass(frozen=True)
+class DynamicSpec(Checked):
+    """What makes an object move (simulated by :mod:`app.world.dynamics`). Exactly one of
+    ``mass`` and ``density``; the centre of mass and the inertia come from the closed mesh
+    (uniform density). Its initial pose is the object's ``pose``; its contact with the tool and,
+    through FCL, with other objects takes the object's ``stiffness``, ``damping`` and
+    ``friction`` (MuJoCo's contacts take the friction, see :mod:`app.world.dynamics`).
+
+    Attributes:
+        mass: Mass (kg).
+        density: Density (kg/m^3); the mass is density times the mesh's volume.
+        twist: Initial twist ``[v; w]`` (m/s, rad/s) of the object frame in {w} (v of its origin).
+    """
+
+    mass: Annotated[float | None, Range(1e-6, 1e4, "kg")] = None
+    density: Annotated[float | None, Range(1e-3, 1e5, "kg/m^3")] = None
+    twist: Annotated[tuple[float, float, float, float, float, float], Range(-100.0, 100.0, "m/s; rad/s")] = (
+        0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+    )  # fmt: skip
+
+    def validate(self) -> None:
+        if (self.mass is None) == (self.density is None):
+            raise InvalidField("mass", "give exactly one of mass and density")
+
+
+@dataclass(frozen=True)
 class ObjectSpec(Checked):
     """One static object. Exactly one of ``mesh``, ``box``, ``sphere``, ``cylinder``, ``plane``.
 
@@ -113,7 +138,9 @@ class ObjectSpec(Checked):
         pose: Pose of the object frame in {w}.
         stiffness: Contact stiffness (N/m), per tool sphere in contact.
         damping: Contact damping (N s/m) on the penetration rate.
-        friction: Coulomb coefficient (-) of a regularised friction force (0 = frictionless).
+        friction: Coulomb coefficient (-) of a regularised friction force (0 = frictionless); for a
+            dynamic object also its friction with other objects.
+        dynamic: Present for an object that moves (:class:`DynamicSpec`); absent for a static one.
     """
 
     name: str
@@ -127,6 +154,7 @@ class ObjectSpec(Checked):
     plane: Annotated[tuple[float, float] | None, OBJECT_SIZE] = None
     plane_thickness: Annotated[float, OBJECT_SIZE] = 0.01
     pose: Pose = field(default_factory=Pose)
+    dynamic: DynamicSpec | None = None
 
     def validate(self) -> None:
         given = [k for k in SHAPES if getattr(self, k) is not None]
@@ -134,6 +162,8 @@ class ObjectSpec(Checked):
             raise InvalidField(
                 "mesh", f"give exactly one of mesh, box, sphere, cylinder, plane (got {given or 'none'})"
             )
+        if self.dynamic is not None and self.plane is not None:
+            raise InvalidField("dynamic", "a plane cannot be dynamic (use a box)")
 
     @property
     def shape(self) -> str:

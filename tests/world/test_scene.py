@@ -13,7 +13,7 @@ from app.errors import ConfigError
 from app.world import available_scenes, contact_wrench, load_scene
 from app.world.scene import DEFAULT_SCENE
 
-SHIPPED = ["bowl", "large_mesh", "peg_in_hole", "probe"]
+SHIPPED = ["bowl", "box_push", "large_mesh", "peg_in_hole", "probe", "stack_topple"]
 
 GOOD = """
 name = "t"
@@ -92,6 +92,14 @@ def test_good_file_in_tmp_loads(tmp_path: Path) -> None:
         ({"mesh_line": 'mesh = "no_such_mesh.stl"'}, "objects[0].mesh"),
         ({"mesh_line": "box = [0.2, 0.2, 0.02]\nsphere = 0.1"}, "objects[0].mesh"),
         ({"extra": "[slave]\nkp_lin = 100.0\nki = 3.0\n"}, "slave.ki"),
+        ({"mesh_line": "box = [0.2, 0.2, 0.02]\ndynamic = { mass = -1.0 }"}, "objects[0].dynamic.mass"),
+        ({"mesh_line": "box = [0.2, 0.2, 0.02]\ndynamic = { mass = 1.0, density = 600.0 }"}, "objects[0].dynamic.mass"),
+        ({"mesh_line": "box = [0.2, 0.2, 0.02]\ndynamic = { density = 600.0, spin = 1 }"}, "objects[0].dynamic.spin"),
+        (
+            {"mesh_line": "box = [0.2, 0.2, 0.02]\ndynamic = { mass = 1.0, twist = [0, 0, 0] }"},
+            "objects[0].dynamic.twist",
+        ),
+        ({"mesh_line": "plane = [0.2, 0.2]\ndynamic = { mass = 1.0 }"}, "objects[0].dynamic"),
     ],
 )
 def test_bad_scene_names_file_and_field(tmp_path: Path, kwargs: dict, field: str) -> None:

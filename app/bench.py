@@ -138,7 +138,7 @@ def _web_loop_lines(quick: bool) -> list[str]:
         lines.append(
             f"  {name} at {rate / 1000:g} kHz ({scheduling}): compute median {st.tick_p50_us:6.1f} us "
             f"p99 {st.tick_p99_us:7.1f} us ({st.tick_p50_us / bare:.2f}x its bare tick, median {bare:.1f} us); "
-            f"rate {st.rate_hz:8.1f} Hz ({100 * (st.rate_hz * rate**-1 - 1):+.2f} %), jitter p99 {st.jitter_p99_us:6.1f} us"
+            f"rate {st.rate_hz:8.1f} Hz ({100 * (st.rate_hz / rate - 1):+.2f} %), jitter p99 {st.jitter_p99_us:6.1f} us"
         )
     return lines
 
@@ -306,17 +306,19 @@ def _rate_lines(quick: bool) -> list[str]:
     holds does not (kraft: 0.5 x the 1 kHz bound stable at 1 and 4 kHz, 1 x oscillating at both,
     ripple 5.7 and 4.7 N): in pose mode the limit of this position-force loop is the slave's
     tracking spring and mass between the grip and the wall, not the sampling."""
-    from app.session.stability import design_stiffness, device_bound, passivity_bound, press
+    from app.session.stability import RELEASED, design_stiffness, grip_damping, press
 
     lines = ["servo rate: plain pose-mode walls (default hand) designed at multiples of the 1 kHz bound, at each rate"]
+    rates = " / ".join(f"{rate / 1000:g}" for rate in RATES)
     for device in ("kraft",) if quick else ("kraft", "jpl", "freflex"):
-        with_hand = " / ".join(f"{passivity_bound(device, rate):,.0f}" for rate in RATES)
-        alone = " / ".join(f"{device_bound(device, rate):,.0f}" for rate in RATES)
-        rates = " / ".join(f"{rate / 1000:g}" for rate in RATES)
+        # The bound 2 b / T at each rate, b with the default hand and with the hand let go.
+        b_hand, b_alone = grip_damping(device), grip_damping(device, RELEASED)
+        with_hand = " / ".join(f"{2.0 * b_hand * rate:,.0f}" for rate in RATES)
+        alone = " / ".join(f"{2.0 * b_alone * rate:,.0f}" for rate in RATES)
         lines.append(f"  {device}: bound 2b/T at {rates} kHz: with the hand {with_hand} N/m, device only {alone} N/m")
         per_k_t = design_stiffness(1.0, device=device)
         for multiple in (1.0,) if quick else (0.5, 1.0, 2.0):
-            k_t = multiple * passivity_bound(device) / per_k_t
+            k_t = multiple * 2.0 * b_hand * RATES[0] / per_k_t
             cells = []
             for rate in RATES:
                 gains = {"k_t": [k_t] * 3 + [1.0] * 3}

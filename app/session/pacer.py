@@ -162,14 +162,12 @@ class Pacer:
     """
 
     def __init__(self, period: float, rings: TimingRings | None = None) -> None:
-        self.period_ns = round(period * 1e9)
-        self._spin_ns = min(SPIN_NS, round(SPIN_SHARE * self.period_ns))
         self.rings = rings if rings is not None else TimingRings.allocate()
         self._periods = self.rings.periods
         self._tick_ns = self.rings.tick_ns
         self._counters = self.rings.counters
         self._deadline = self._previous = self._start = 0
-        self.restart()
+        self.set_period(period)
 
     def set_period(self, period: float) -> None:
         """Pace at another wall-clock period (s) from now on (e.g. a replay speed)."""

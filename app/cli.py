@@ -80,7 +80,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         pace = s["pacing"]
         print(
             f"pacing: {pace['rate_hz']:.1f} Hz, jitter p99 {pace['jitter_p99_us']:.0f} us, "
-            f"max {pace['jitter_max_us']:.0f} us, slips {pace['slips']:.0f}"
+            f"max {pace['jitter_max_us']:.0f} us, slips {pace['slips']:.0f}, at {s['scheduling']}"
         )
     return 0
 

@@ -26,6 +26,7 @@ from numba import njit
 from app.compiled import entry_point, is_f8
 from app.controller.layout import SCALARS, TORQUE_ROWS, TWIST_AXES, VECTOR_ROWS, WRENCH_AXES
 from app.errors import ConfigError
+from app.session.pacer import ordinary_priority
 from app.session.tick import STAGES, TickRecord
 from app.spatial import Array, IntArray, quat_into
 
@@ -132,7 +133,8 @@ class TickLog:
         self._buf = np.zeros((max(1, round(flush_interval / period)), len(self.columns)))
         self._rows = 0
         self._parts = 0
-        self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ticklog")
+        # Ordinary scheduling: started by a loop at real-time priority, the writer would inherit it.
+        self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ticklog", initializer=ordinary_priority)
         self._pending: list[Future[None]] = []
 
     def on_tick(self, tick: TickRecord) -> None:

@@ -367,3 +367,35 @@ def test_web_loop_process_drives_touch3_and_publishes_its_link_state() -> None:
         assert snap.T_0_G[0, 3] - first.T_0_G[0, 3] > 0.01  # the hand pulled the grip along x
     finally:
         rt.stop()
+
+
+def test_realtime_run_against_a_served_device_raises_its_priority_for_the_ticks_only(
+    tmp_path: Path, served: DeviceServer, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``frhc run --realtime --device ws://...``: the ticks run at the priority the web demo's loop
+    asks for, and the run says which it got (summary and the pacing line); the log's writer
+    thread, started by the raised loop, runs at ordinary scheduling; the caller's scheduling is
+    back afterwards."""
+    import os
+
+    from app.cli import main
+    from app.session.log import TickLog
+    from app.session.pacer import SCHEDULING
+
+    writer_policies: list[int] = []
+    write = TickLog._write
+
+    def recording_write(self: TickLog, *args: object) -> None:
+        writer_policies.append(os.sched_getscheduler(0))
+        write(self, *args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(TickLog, "_write", recording_write)
+    before = os.sched_getscheduler(0), os.getpriority(os.PRIO_PROCESS, 0)
+    out = tmp_path / "out"
+    argv = ["run", str(session_file(tmp_path, 0.5)), "--out", str(out), "--no-plots", "--realtime"]
+    assert main([*argv, "--device", f"ws://127.0.0.1:{served.port}"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["scheduling"] in SCHEDULING[1:]  # SCHED_FIFO where permitted, else a lower niceness
+    assert f"at {summary['scheduling']}" in capsys.readouterr().out
+    assert set(writer_policies) == {os.SCHED_OTHER}  # parts were written, all at ordinary scheduling
+    assert (os.sched_getscheduler(0), os.getpriority(os.PRIO_PROCESS, 0)) == before

@@ -47,6 +47,7 @@ from app.device.cartesian_sim import SimCartesianDevice
 from app.device.guard import limited
 from app.device.plant import WATCHDOG
 from app.device.spec import DeviceSpec, load_device
+from app.device.vendors import vendor_device
 from app.device.wslink import WsLink
 from app.errors import FrhcError
 from app.spatial import Array, matrix_to_quat, quat_to_matrix
@@ -155,14 +156,16 @@ def parse_command(text: str | bytes) -> tuple[Array, Array | None, bool]:
     return force, target, sim is not None
 
 
-def served_device(url: str, fallback: DeviceSpec) -> DeviceSpec:
+def served_device(url: str, session_device: DeviceSpec | None) -> DeviceSpec:
     """The device file for the device at ``url``: for ``frhc device serve``, the served
     simulation's own (it names it); otherwise (a real Inverse Service, ``fd:``, ``openhaptics:``)
-    ``fallback``, which must have a ``[cartesian]`` table for the limits.
+    ``session_device`` if it is a Cartesian device (``interface = "cartesian"``), else the vendor's
+    shipped file (:func:`~app.device.vendors.vendor_device`: ``inverse3``, ``omega3``, ``touch3``).
+    A joint-space device's ``[cartesian]`` table (kraft's 15 N, for serving it) is not taken for
+    another device's limits.
 
     Raises:
-        DeviceUnreachable: nothing answers at a ``ws://`` address, or ``fallback`` has no
-            ``[cartesian]`` table.
+        DeviceUnreachable: nothing answers at a ``ws://`` address.
     """
     if url.startswith(("ws://", "wss://")):
         client = HaplyClient(url, period=CONNECT_TIMEOUT)
@@ -170,9 +173,12 @@ def served_device(url: str, fallback: DeviceSpec) -> DeviceSpec:
         client.disconnect()  # it sent no force: nothing to zero, and a served simulation stays put
         if served is not None:
             return load_device(str(served["device"]))
-    if fallback.data.cartesian is None:
-        raise DeviceUnreachable(f"{url}: device {fallback.name} has no [cartesian] table to give its limits")
-    return fallback
+    if session_device is not None and session_device.data.interface == "cartesian":
+        spec = session_device
+    else:
+        spec = load_device(vendor_device(url))
+    log.info("device %s: limits and gains from %s", url, spec.path)
+    return spec
 
 
 class HaplyClient:

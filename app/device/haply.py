@@ -33,6 +33,7 @@ import contextlib
 import json
 import logging
 import math
+import os
 import socket
 import threading
 import time
@@ -62,6 +63,14 @@ CONNECT_TIMEOUT = 1.0
 RETRY_INTERVAL = 0.1
 #: How often the server's accept loop looks whether it was shut down (s).
 ACCEPT_POLL = 0.1
+
+
+def realtime_thread() -> bool:
+    """Whether the calling thread runs under real-time scheduling (``SCHED_FIFO`` or ``SCHED_RR``)."""
+    try:
+        return os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR)
+    except (OSError, AttributeError):
+        return False
 
 
 class DeviceUnreachable(FrhcError):
@@ -188,6 +197,11 @@ class HaplyClient:
         url: ``ws://host:port``.
         period: The servo period (s): a state not received within it is a missed sample (the
             guard then sends zero).
+        spin: How long (s) each wait for a state polls the socket before blocking
+            (:meth:`WsLink.recv <app.device.wslink.WsLink.recv>`); None: the whole wait when the
+            calling thread runs at ordinary scheduling, none under real-time scheduling (a
+            real-time thread is woken at once, and spinning at real-time priority would keep a
+            device server at ordinary priority off that CPU).
 
     Attributes:
         device_id: The Inverse3's id, as the service named it.
@@ -199,9 +213,10 @@ class HaplyClient:
     #: The Inverse3 renders forces only.
     torque_capable = False
 
-    def __init__(self, url: str, period: float) -> None:
+    def __init__(self, url: str, period: float, spin: float | None = None) -> None:
         self.url = url
         self.period = period
+        self.spin = spin
         self.reading = CartesianReading()
         self.name = url
         self.device_id = ""
@@ -290,7 +305,10 @@ class HaplyClient:
             return r
         try:
             ws.send(force_command(self.device_id, wrench_0[:3], self._hand, self.served is not None))
-            self._take(parse_state(ws.recv_latest(self.period)))
+            spin = self.spin
+            if spin is None:
+                spin = 0.0 if realtime_thread() else self.period
+            self._take(parse_state(ws.recv_latest(self.period, spin)))
         except TimeoutError:
             r.fresh = False
         except (ConnectionClosed, OSError) as exc:

@@ -411,10 +411,11 @@ def bench_device(quick: bool = False) -> str:
     The client runs four ways, alternated in rounds of 1,000 periods so that all see the same
     machine load: at this process's scheduling and at the priority the web demo's loop process
     asks for (:func:`~app.session.pacer.raise_priority`), each blocking on the socket for the
-    reply and polling it first (``HaplyClient(spin=...)``: the default polls at ordinary
-    scheduling and blocks under real-time). Rate and jitter are the pacer's (period start to
-    start); the added latency is each round trip (command sent to state received) less the median
-    cost of the same device step in process. The load average is printed before and after.
+    reply and polling it first (``HaplyClient``'s default: the whole wait at ordinary scheduling,
+    up to :data:`~app.device.haply.REALTIME_SPIN` under real time). Rate and jitter are the
+    pacer's (period start to start); the added latency is each round trip (command sent to state
+    received) less the median cost of the same device step in process. The load average is
+    printed before and after.
     """
     import re
     import subprocess
@@ -444,8 +445,9 @@ def bench_device(quick: bool = False) -> str:
         f"{rounds} alternated rounds of {per_round} periods per row; added latency = round trip - "
         f"{step_us:.1f} us device step):"
     ]
-    # (raised, spin): spin None is the client's default (poll at ordinary scheduling, block under real time).
-    configs = [(False, 0.0), (False, None), (True, 0.0), (True, 1e-3)]
+    # (raised, spin): spin None is the client's default (poll the whole wait at ordinary scheduling,
+    # up to REALTIME_SPIN under real time).
+    configs = [(False, 0.0), (False, None), (True, 0.0), (True, None)]
     rtt: dict[tuple[bool, float | None], list[IntArray]] = {c: [] for c in configs}
     periods: dict[tuple[bool, float | None], list[IntArray]] = {c: [] for c in configs}
     stalls = dict.fromkeys(configs, 0)
@@ -477,7 +479,7 @@ def bench_device(quick: bool = False) -> str:
     load_after = os.getloadavg()
     for raise_client, spin in configs:
         label = SCHEDULING[got] if raise_client else "as started"
-        how = {0.0: "blocking", None: "polling (default)", 1e-3: "polling"}[spin]
+        how = "blocking" if spin == 0.0 else "polling (default)"
         lines.append(
             f"  client {label}, {how}:\n"
             + _round_trip_row(

@@ -228,7 +228,9 @@ class HaplyClient:
         spin: How long (s) each wait for a state polls the socket before blocking
             (:meth:`WsLink.recv <app.device.wslink.WsLink.recv>`; a real-time thread yields to
             its equals at each poll); None: the whole wait when the calling thread runs at
-            ordinary scheduling, at most :data:`REALTIME_SPIN` under real-time scheduling.
+            ordinary scheduling, at most :data:`REALTIME_SPIN` under real-time scheduling. A
+            device server in the same Python process needs the GIL that polling holds (for up
+            to the interpreter's 5 ms switch interval): give such a client 0.
 
     Attributes:
         device_id: The Inverse3's id, as the service named it.

@@ -15,7 +15,7 @@ from app.controller.types import Switches
 from app.device.boundary import CartesianReading, LinkStatus
 from app.device.cartesian_sim import SimCartesianDevice
 from app.device.guard import ForceGuard
-from app.device.haply import DeviceServer, force_command, parse_command, parse_state, state_message
+from app.device.haply import DeviceServer, HaplyClient, force_command, parse_command, parse_state, state_message
 from app.device.spec import CartesianSpec, load_device
 from app.session.cartesian_loop import CartesianServoLoop
 from app.session.log import read_log
@@ -266,9 +266,14 @@ def test_served_device_holds_its_own_force_limit_and_answers_each_command_once(s
 
 
 def make_served_loop(port: int) -> CartesianServoLoop:
+    """A loop driving the server of this process at one period's wait. Its client blocks for the
+    reply: polling would hold the GIL the server's thread needs (up to Python's 5 ms switch
+    interval), which a server in its own process, as deployed, does not need."""
     spec = load_device("touch3")
     loop = ServoLoop(LoopConfig(spec, load_scene("probe"), spec.data.gains, device_url=f"ws://127.0.0.1:{port}"))
     assert isinstance(loop, CartesianServoLoop)
+    assert isinstance(loop.device, HaplyClient)
+    loop.device.spin = 0.0
     return loop
 
 
@@ -288,6 +293,11 @@ def press_into_contact(loop: CartesianServoLoop) -> None:
 def test_dropped_connection_zeroes_the_force_the_next_period_and_ramps_back_on_reconnect(served: DeviceServer) -> None:
     loop = make_served_loop(served.port)
     press_into_contact(loop)
+    for _ in range(100):  # the device renders a force (a late reply makes the last one sent zero)
+        if np.any(served.log.commanded):
+            break
+        loop.tick()
+    assert np.any(served.log.commanded)
     served.zeroed.clear()
     served.drop_client()
     assert served.zeroed.wait(5.0)

@@ -5,9 +5,11 @@ Speed goals live here, not in timed tests: the figures depend on the machine.
 
 from __future__ import annotations
 
+import os
 import tempfile
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -17,11 +19,12 @@ from app.device.hand import HandParams
 from app.session.loop import STAGES
 from app.session.stability import PressResult
 from app.session.tick import TickRecord
-from app.spatial import Array
+from app.spatial import Array, IntArray
 from app.teleop.channel import Coupling
 
 if TYPE_CHECKING:
     from app.device.haply import HaplyClient
+    from app.session.pacer import Pacer
 
 #: The hand of a stability row unless another is given.
 DEFAULT_HAND = HandParams()
@@ -405,11 +408,14 @@ def bench_device(quick: bool = False) -> str:
     (touch3, in its own process, at the real-time priority it asks for), and connection loss to
     zero force (server in this process).
 
-    The client runs twice in the same run, first at this process's scheduling, then at the
-    priority the web demo's loop process asks for (:func:`~app.session.pacer.raise_priority`):
-    on a shared machine the first row is mostly the other processes' load. Rate and jitter are
-    the pacer's (period start to start); the added latency is each round trip (command sent to
-    state received) less the median cost of the same device step in process.
+    The client runs four ways, alternated in rounds of 1,000 periods so that all see the same
+    machine load: at this process's scheduling and at the priority the web demo's loop process
+    asks for (:func:`~app.session.pacer.raise_priority`), each blocking on the socket for the
+    reply and polling it first (``HaplyClient``'s default: the whole wait at ordinary scheduling,
+    up to :data:`~app.device.haply.REALTIME_SPIN` under real time). Rate and jitter are the
+    pacer's (period start to start); the added latency is each round trip (command sent to state
+    received) less the median cost of the same device step in process. The load average is
+    printed before and after.
     """
     import re
     import subprocess
@@ -418,7 +424,7 @@ def bench_device(quick: bool = False) -> str:
     from app.device.cartesian_sim import SimCartesianDevice
     from app.device.haply import DeviceServer, HaplyClient
     from app.device.spec import load_device
-    from app.session.pacer import SCHEDULING, raised_priority
+    from app.session.pacer import SCHEDULING, Pacer, raised_priority
 
     spec = load_device("touch3")
     local = SimCartesianDevice(spec)
@@ -429,14 +435,23 @@ def bench_device(quick: bool = False) -> str:
         local.step(push, 1e-3)
         step_ns[i] = time.perf_counter_ns() - t0
     step_us = float(np.median(step_ns)) / 1e3
-    n = 2000 if quick else 10000
+    rounds, per_round = (2, 1000) if quick else (8, 1000)
+    load_before = os.getloadavg()
 
     cmd = [sys.executable, "-m", "app.cli", "device", "serve", "--device", "touch3", "--port", "0"]
     server = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     lines = [
-        f"device boundary over loopback (touch3 served by `frhc device serve`, client paced at 1 kHz, {n} periods; "
-        f"added latency = round trip - {step_us:.1f} us device step):"
+        f"device boundary over loopback (touch3 served by `frhc device serve`, client paced at 1 kHz, "
+        f"{rounds} alternated rounds of {per_round} periods per row; added latency = round trip - "
+        f"{step_us:.1f} us device step):"
     ]
+    # (raised, spin): spin None is the client's default (poll the whole wait at ordinary scheduling,
+    # up to REALTIME_SPIN under real time).
+    configs = [(False, 0.0), (False, None), (True, 0.0), (True, None)]
+    rtt: dict[tuple[bool, float | None], list[IntArray]] = {c: [] for c in configs}
+    periods: dict[tuple[bool, float | None], list[IntArray]] = {c: [] for c in configs}
+    stalls = dict.fromkeys(configs, 0)
+    got = 0
     try:
         assert server.stdout is not None
         banner = server.stdout.readline()
@@ -445,19 +460,40 @@ def bench_device(quick: bool = False) -> str:
             raise RuntimeError(f"frhc device serve did not print its address: {banner!r}")
         client = HaplyClient(f"ws://127.0.0.1:{found.group(1)}", period=1e-3)
         lines[0] += f" server {found.group(2)}"
-        for raise_client in (False, True):
-            if raise_client:
-                with raised_priority() as got:
-                    row = _paced_round_trips(client, push, n, step_us)
-                label = SCHEDULING[got]
-            else:
-                row = _paced_round_trips(client, push, n, step_us)
-                label = "as started"
-            lines.append(f"  client {label}:\n{row}")
+        for _ in range(rounds):
+            for raise_client, spin in configs:
+                client.spin = spin
+                with raised_priority() if raise_client else nullcontext(0) as level:
+                    got = max(got, level)
+                    pacer = Pacer(1e-3)
+                    trips, late = _paced_round_trips(client, pacer, push, per_round)
+                stats = pacer.rings
+                count = min(int(stats.counters[0]), per_round)
+                periods[raise_client, spin].append(stats.periods[1:count].copy())
+                rtt[raise_client, spin].append(trips)
+                stalls[raise_client, spin] += late
         client.close()
     finally:
         server.terminate()
         server.wait(timeout=10)
+    load_after = os.getloadavg()
+    for raise_client, spin in configs:
+        label = SCHEDULING[got] if raise_client else "as started"
+        how = "blocking" if spin == 0.0 else "polling (default)"
+        lines.append(
+            f"  client {label}, {how}:\n"
+            + _round_trip_row(
+                np.concatenate(periods[raise_client, spin]), np.concatenate(rtt[raise_client, spin]),
+                stalls[raise_client, spin], step_us,
+            )
+        )  # fmt: skip
+    lines.append(
+        "  load average (1, 5, 15 min) before "
+        + ", ".join(f"{v:.2f}" for v in load_before)
+        + "; after "
+        + ", ".join(f"{v:.2f}" for v in load_after)
+        + f" ({os.cpu_count()} CPUs)"
+    )
 
     # The served device's thread is started raised, as `frhc device serve` runs (it inherits this
     # thread's scheduling): the device's own processor would zero its force whatever else runs.
@@ -483,25 +519,30 @@ def bench_device(quick: bool = False) -> str:
     return "\n".join(lines)
 
 
-def _paced_round_trips(client: HaplyClient, push: Array, n: int, step_us: float) -> str:
-    """``n`` periods of ``client.step`` paced at 1 kHz: rate, jitter, round trip and added latency."""
-    from app.session.pacer import Pacer
-
+def _paced_round_trips(client: HaplyClient, pacer: Pacer, push: Array, n: int) -> tuple[IntArray, int]:
+    """``n`` periods of ``client.step`` paced by ``pacer``: each round trip (ns) and how many
+    replies came later than the period (the watchdog's zero)."""
     rtt = np.empty(n, dtype=np.int64)
     stalls = 0
-    pacer = Pacer(1e-3)
     for i in range(n):
         pacer.wait()
         t0 = time.perf_counter_ns()
         stalls += not client.step(push, 1e-3).fresh
         rtt[i] = time.perf_counter_ns() - t0
         pacer.done()
-    stats = pacer.stats()
-    added = rtt / 1e3 - step_us
+    return rtt, stalls
+
+
+def _round_trip_row(periods_ns: IntArray, rtt_ns: IntArray, stalls: int, step_us: float) -> str:
+    """Rate, jitter, round trip and added latency of one client configuration (all its rounds)."""
+    periods = periods_ns / 1e3
+    rate = len(periods) / (periods.sum() * 1e-6)
+    jitter = np.abs(periods - 1000.0)
+    added = rtt_ns / 1e3 - step_us
     return (
-        f"    rate {stats.rate_hz:8.1f} Hz ({100 * (stats.rate_hz / 1000 - 1):+.2f} %)   "
-        f"jitter p99 {stats.jitter_p99_us:7.1f} us   slips {stats.slips}   late replies (watchdog) {stalls}/{n}\n"
-        f"    round trip median {np.median(rtt) / 1e3:7.1f} us   p99 {np.percentile(rtt, 99) / 1e3:7.1f} us   "
+        f"    rate {rate:8.1f} Hz ({100 * (rate / 1000 - 1):+.2f} %)   jitter p99 {np.percentile(jitter, 99):7.1f} us   "
+        f"late replies (watchdog) {stalls}/{len(rtt_ns)}\n"
+        f"    round trip median {np.median(rtt_ns) / 1e3:7.1f} us   p99 {np.percentile(rtt_ns, 99) / 1e3:7.1f} us   "
         f"added latency median {np.median(added):7.1f} us   p99 {np.percentile(added, 99):7.1f} us"
     )
 

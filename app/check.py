@@ -90,6 +90,8 @@ def check_file(name: str) -> str:
             device = load_device(path)
             scene = load_scene(DEFAULT_SCENE)
             what = f"device {device.name}: {device.n_joints} joints"
+            if device.data.cartesian is not None:
+                what += f"; Cartesian: {device.data.cartesian.figures()}"
         else:
             scene = load_scene(path)
             device = load_device(DEFAULT_DEVICE)

@@ -80,7 +80,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         pace = s["pacing"]
         print(
             f"pacing: {pace['rate_hz']:.1f} Hz, jitter p99 {pace['jitter_p99_us']:.0f} us, "
-            f"max {pace['jitter_max_us']:.0f} us, slips {pace['slips']:.0f}"
+            f"max {pace['jitter_max_us']:.0f} us, slips {pace['slips']:.0f}, at {s['scheduling']}"
         )
     return 0
 
@@ -346,7 +346,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=_device_url,
         default=None,
         help="drive a device outside this process: ws://host:port (frhc device serve, Haply's Inverse "
-        "Service), fd:N (Force Dimension), openhaptics:NAME (Touch); the session's device file gives its limits",
+        "Service), fd:N (Force Dimension), openhaptics:NAME (Touch); the session's device file gives its limits "
+        "if it is Cartesian, else inverse3's, omega3's or touch3's",
     )
     p.add_argument(
         "--rate",
@@ -433,7 +434,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="kraft",
         help="device name or path (default: kraft), or a device outside this process: ws://host:port "
         "(frhc device serve, Haply's Inverse Service), fd:N, openhaptics:NAME (limits from the session's "
-        "device file, else touch3's)",
+        "device file if it is Cartesian, else from inverse3, omega3 or touch3)",
     )
     p.add_argument("--session", default=None, help="start with this session's gains and mode")
     p.add_argument(

@@ -30,15 +30,18 @@ check them against ``docs/conventions.md`` before the first contact).
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import logging
 import math
+import os
 import socket
 import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+import msgspec
 import numpy as np
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
 
@@ -47,6 +50,7 @@ from app.device.cartesian_sim import SimCartesianDevice
 from app.device.guard import limited
 from app.device.plant import WATCHDOG
 from app.device.spec import DeviceSpec, load_device
+from app.device.vendors import vendor_device
 from app.device.wslink import WsLink
 from app.errors import FrhcError
 from app.spatial import Array, matrix_to_quat, quat_to_matrix
@@ -59,46 +63,80 @@ DEFAULT_URL = "ws://localhost:10001"
 CONNECT_TIMEOUT = 1.0
 #: Time between reconnection attempts while disconnected (s).
 RETRY_INTERVAL = 0.1
+#: The most a real-time client polls for a state before blocking (s). Polling (yielding to its
+#: equals) halved the median round trip against a served device at the same priority (``frhc
+#: bench device``: a blocked thread's wake-up, and an idle virtual CPU's, cost ~250 us on the
+#: 2-CPU VM); bounded because at real-time priority it keeps a device server at ordinary
+#: priority off this CPU meanwhile. 0.3 ms covers the median reply.
+REALTIME_SPIN = 300e-6
 #: How often the server's accept loop looks whether it was shut down (s).
 ACCEPT_POLL = 0.1
+
+
+def realtime_thread() -> bool:
+    """Whether the calling thread runs under real-time scheduling (``SCHED_FIFO`` or ``SCHED_RR``)."""
+    try:
+        return os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR)
+    except (OSError, AttributeError):
+        return False
 
 
 class DeviceUnreachable(FrhcError):
     """No device answered at a ``--device ws://...`` address."""
 
 
-def _xyz(v: Array) -> dict[str, float]:
-    return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
+# The messages are written from templates and read with msgspec's JSON decoder: per message a
+# few microseconds instead of the ~20 us of building dicts for json.dumps and of json.loads
+# (measured on touch3's state: ``frhc bench device``'s notes, issue 29). Floats are written as
+# ``repr`` writes them, as json.dumps does.
+_STATE = (
+    '{"inverse3":[{"device_id":%s,"state":{"cursor_position":{"x":%r,"y":%r,"z":%r}}}],'
+    '"wireless_verse_grip":[{"device_id":%s,"state":{"orientation":{"x":%r,"y":%r,"z":%r,"w":%r},'
+    '"buttons":{"a":%s,"b":%s,"c":%s}}}]'
+)
+_COMMAND = '{"inverse3":[{"device_id":%s,"commands":{"set_cursor_force":{"values":{"x":%r,"y":%r,"z":%r}}}}]'
+_decode = msgspec.json.Decoder().decode
+_encode = msgspec.json.Encoder().encode
+
+
+@functools.lru_cache(maxsize=16)
+def _quoted(text: str) -> str:
+    """``text`` as a JSON string (a device's id: the same few every message)."""
+    return json.dumps(text)
+
+
+def _bool(value: bool) -> str:
+    return "true" if value else "false"
+
+
+def _loads(text: str | bytes) -> Any:
+    """JSON text to Python values; ValueError if it is not JSON."""
+    try:
+        return _decode(text)
+    except msgspec.DecodeError as exc:
+        raise ValueError(f"not a JSON message ({exc})") from None
 
 
 def state_message(device_id: str, T_0_G: Array, buttons: tuple[bool, bool, bool], sim: dict[str, Any] | None) -> str:
     """A state message: the grip position (m) and orientation in {0}, and the buttons (a, b, c)."""
-    w, x, y, z = matrix_to_quat(T_0_G[:3, :3])
-    msg: dict[str, Any] = {
-        "inverse3": [{"device_id": device_id, "state": {"cursor_position": _xyz(T_0_G[:3, 3])}}],
-        "wireless_verse_grip": [
-            {
-                "device_id": f"{device_id}-grip",
-                "state": {
-                    "orientation": {"x": float(x), "y": float(y), "z": float(z), "w": float(w)},
-                    "buttons": {"a": buttons[0], "b": buttons[1], "c": buttons[2]},
-                },
-            }
-        ],
-    }
+    w, x, y, z = matrix_to_quat(T_0_G[:3, :3]).tolist()
+    px, py, pz = T_0_G[:3, 3].tolist()
+    a, b, c = buttons
+    grip = _quoted(f"{device_id}-grip")
+    text = _STATE % (_quoted(device_id), px, py, pz, grip, x, y, z, w, _bool(a), _bool(b), _bool(c))
     if sim is not None:
-        msg["frhc_sim"] = sim
-    return json.dumps(msg)
+        text += ',"frhc_sim":' + _encode(sim).decode()
+    return text + "}"
 
 
 def force_command(device_id: str, force: Array, hand_target: Array | None, sim: bool) -> str:
     """A command message setting the cursor force (N, {0}); with ``sim``, the hand target too."""
-    msg: dict[str, Any] = {
-        "inverse3": [{"device_id": device_id, "commands": {"set_cursor_force": {"values": _xyz(force)}}}]
-    }
+    fx, fy, fz = force[:3].tolist()
+    text = _COMMAND % (_quoted(device_id), fx, fy, fz)
     if sim:
-        msg["frhc_sim"] = {"hand_target": None if hand_target is None else hand_target.ravel().tolist()}
-    return json.dumps(msg)
+        target = "null" if hand_target is None else _encode(hand_target.ravel().tolist()).decode()
+        text += ',"frhc_sim":{"hand_target":' + target + "}"
+    return text + "}"
 
 
 @dataclass
@@ -114,7 +152,7 @@ class ParsedState:
 
 def parse_state(text: str | bytes) -> ParsedState:
     """Read a state message; raises ValueError naming the missing field."""
-    data = json.loads(text)
+    data = _loads(text)
     try:
         inv = data["inverse3"][0]
         pos = inv["state"]["cursor_position"]
@@ -142,7 +180,7 @@ def parse_state(text: str | bytes) -> ParsedState:
 def parse_command(text: str | bytes) -> tuple[Array, Array | None, bool]:
     """Read a command: the force (N, (3,)), the simulated hand target ((4, 4) or None) and
     whether the message carried the ``frhc_sim`` extension. Raises ValueError."""
-    data = json.loads(text)
+    data = _loads(text)
     try:
         values = data["inverse3"][0]["commands"]["set_cursor_force"]["values"]
         force = np.array([float(values[k]) for k in "xyz"])
@@ -155,14 +193,16 @@ def parse_command(text: str | bytes) -> tuple[Array, Array | None, bool]:
     return force, target, sim is not None
 
 
-def served_device(url: str, fallback: DeviceSpec) -> DeviceSpec:
+def served_device(url: str, session_device: DeviceSpec | None) -> DeviceSpec:
     """The device file for the device at ``url``: for ``frhc device serve``, the served
     simulation's own (it names it); otherwise (a real Inverse Service, ``fd:``, ``openhaptics:``)
-    ``fallback``, which must have a ``[cartesian]`` table for the limits.
+    ``session_device`` if it is a Cartesian device (``interface = "cartesian"``), else the vendor's
+    shipped file (:func:`~app.device.vendors.vendor_device`: ``inverse3``, ``omega3``, ``touch3``).
+    A joint-space device's ``[cartesian]`` table (kraft's 15 N, for serving it) is not taken for
+    another device's limits.
 
     Raises:
-        DeviceUnreachable: nothing answers at a ``ws://`` address, or ``fallback`` has no
-            ``[cartesian]`` table.
+        DeviceUnreachable: nothing answers at a ``ws://`` address.
     """
     if url.startswith(("ws://", "wss://")):
         client = HaplyClient(url, period=CONNECT_TIMEOUT)
@@ -170,9 +210,12 @@ def served_device(url: str, fallback: DeviceSpec) -> DeviceSpec:
         client.disconnect()  # it sent no force: nothing to zero, and a served simulation stays put
         if served is not None:
             return load_device(str(served["device"]))
-    if fallback.data.cartesian is None:
-        raise DeviceUnreachable(f"{url}: device {fallback.name} has no [cartesian] table to give its limits")
-    return fallback
+    if session_device is not None and session_device.data.interface == "cartesian":
+        spec = session_device
+    else:
+        spec = load_device(vendor_device(url))
+    log.info("device %s: limits and gains from %s", url, spec.path)
+    return spec
 
 
 class HaplyClient:
@@ -182,6 +225,12 @@ class HaplyClient:
         url: ``ws://host:port``.
         period: The servo period (s): a state not received within it is a missed sample (the
             guard then sends zero).
+        spin: How long (s) each wait for a state polls the socket before blocking
+            (:meth:`WsLink.recv <app.device.wslink.WsLink.recv>`; a real-time thread yields to
+            its equals at each poll); None: the whole wait when the calling thread runs at
+            ordinary scheduling, at most :data:`REALTIME_SPIN` under real-time scheduling. A
+            device server in the same Python process needs the GIL that polling holds (for up
+            to the interpreter's 5 ms switch interval): give such a client 0.
 
     Attributes:
         device_id: The Inverse3's id, as the service named it.
@@ -193,9 +242,10 @@ class HaplyClient:
     #: The Inverse3 renders forces only.
     torque_capable = False
 
-    def __init__(self, url: str, period: float) -> None:
+    def __init__(self, url: str, period: float, spin: float | None = None) -> None:
         self.url = url
         self.period = period
+        self.spin = spin
         self.reading = CartesianReading()
         self.name = url
         self.device_id = ""
@@ -284,7 +334,11 @@ class HaplyClient:
             return r
         try:
             ws.send(force_command(self.device_id, wrench_0[:3], self._hand, self.served is not None))
-            self._take(parse_state(ws.recv_latest(self.period)))
+            realtime = realtime_thread()
+            spin = self.spin
+            if spin is None:
+                spin = min(REALTIME_SPIN, self.period) if realtime else self.period
+            self._take(parse_state(ws.recv_latest(self.period, spin, yield_cpu=realtime)))
         except TimeoutError:
             r.fresh = False
         except (ConnectionClosed, OSError) as exc:

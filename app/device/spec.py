@@ -177,7 +177,9 @@ class CartesianSpec(Checked):
     Through this interface the device reports its grip pose {G} in its base {0} and takes a
     wrench at the grip in {0}; its SDK does the kinematics (Eq 1), J^T (Eq 7) and its own gravity
     compensation. The limits are the boundary's (:mod:`app.device.guard`), applied to every
-    wrench sent, whatever the controller asked.
+    wrench sent, whatever the controller asked. The vendor's figures for the real device
+    (``peak_force`` to ``update_rate``) are each cited in the device's NOTES.md, and left out where
+    no source gives them; ``force_limit`` and ``continuous_force`` may not exceed ``peak_force``.
 
     Attributes:
         force_limit: Largest force magnitude sent to the device (N).
@@ -186,12 +188,46 @@ class CartesianSpec(Checked):
         ramp_time: Time (s) the wrench takes to ramp from 0 to full after a (re)connect.
         gap_ramp_time: The same after a gap in the stream of a device that stayed connected (s):
             a missed sample or a stalled stream.
+        peak_force: The largest force the device renders (N); ``force_limit`` may not exceed it.
+        continuous_force: The force it sustains (N), at most ``peak_force``.
+        workspace_radius: Radius (m) of the sphere about the SDK's origin the grip reaches.
+        position_resolution: The smallest grip displacement the device reports (m).
+        update_rate: The rate of the device's own servo loop and state stream (Hz).
     """
 
     force_limit: Annotated[float, Range(0.0, 1e3, "N", lo_open=True)]
     torque_limit: Annotated[float, Range(0.0, 1e2, "N m")] = 0.0
     ramp_time: Annotated[float, Range(0.0, 10.0, "s")] = 0.5
     gap_ramp_time: Annotated[float, Range(0.0, 10.0, "s")] = 0.05
+    peak_force: Annotated[float | None, Range(0.0, 1e3, "N", lo_open=True)] = None
+    continuous_force: Annotated[float | None, Range(0.0, 1e3, "N", lo_open=True)] = None
+    workspace_radius: Annotated[float | None, Range(0.0, 10.0, "m", lo_open=True)] = None
+    position_resolution: Annotated[float | None, Range(0.0, 0.01, "m", lo_open=True)] = None
+    update_rate: Annotated[float | None, Range(0.0, 1e5, "Hz", lo_open=True)] = None
+
+    def figures(self) -> str:
+        """The limit and the vendor's figures in one line, "?" where not sourced (``frhc check``)."""
+
+        def shown(value: float | None, scale: float, unit: str) -> str:
+            return "?" if value is None else f"{value * scale:g} {unit}"
+
+        return (
+            f"force limit {self.force_limit:g} N, peak {shown(self.peak_force, 1.0, 'N')}, "
+            f"continuous {shown(self.continuous_force, 1.0, 'N')}, "
+            f"workspace radius {shown(self.workspace_radius, 1e3, 'mm')}, "
+            f"resolution {shown(self.position_resolution, 1e3, 'mm')}, rate {shown(self.update_rate, 1.0, 'Hz')}"
+        )
+
+    def validate(self) -> None:
+        peak = self.peak_force
+        if peak is None:
+            return
+        if self.force_limit > peak:
+            raise InvalidField("force_limit", f"{self.force_limit:g} N is above the device's peak_force {peak:g} N")
+        if self.continuous_force is not None and self.continuous_force > peak:
+            raise InvalidField(
+                "continuous_force", f"{self.continuous_force:g} N is above the device's peak_force {peak:g} N"
+            )
 
 
 @dataclass(frozen=True)

@@ -28,8 +28,9 @@ button 0 (FD) / button 1 (Touch) is the deadman, the next one the reference swit
 toggles reflection (``docs/conventions.md``, "Devices"); the gravity compensation is the SDK's.
 
 The devices are selected with ``--device fd:`` (``fd:N`` for the N-th device) or
-``--device openhaptics:`` (``openhaptics:NAME`` for a named device), next to the session's device
-file, whose ``[cartesian]`` table gives the limits.
+``--device openhaptics:`` (``openhaptics:NAME`` for a named device); the session's device file
+gives the ``[cartesian]`` limits if it has that table, else the vendor's shipped one
+(:func:`vendor_device`: ``omega3``, ``touch3``).
 """
 
 from __future__ import annotations
@@ -231,8 +232,24 @@ class TouchDevice:
         self.hd.close_device(self.handle)
 
 
-#: The ``--device`` prefixes of devices that are not simulated here.
-URL_PREFIXES = ("ws://", "wss://", "fd:", "openhaptics:")
+#: The ``--device`` prefixes of devices that are not simulated here, each with the shipped device
+#: file that gives such a device its ``[cartesian]`` limits and gains when the session names no
+#: Cartesian device: a Haply Inverse3 behind a ``ws://`` Inverse Service, a Force Dimension
+#: omega.3 for ``fd:``, a Touch for ``openhaptics:`` (``devices/README.md``).
+VENDOR_DEVICES = {"ws://": "inverse3", "wss://": "inverse3", "fd:": "omega3", "openhaptics:": "touch3"}
+URL_PREFIXES = tuple(VENDOR_DEVICES)
+
+
+def vendor_device(url: str) -> str:
+    """The shipped device file (a name) for the device at ``url`` (:data:`VENDOR_DEVICES`).
+
+    Raises:
+        InputError: ``url`` is not a device address.
+    """
+    for prefix, name in VENDOR_DEVICES.items():
+        if url.startswith(prefix):
+            return name
+    raise InputError(f"not a device address: {url!r} (ws://host:port, fd:N, openhaptics:NAME)")
 
 
 def is_device_url(name: str) -> bool:

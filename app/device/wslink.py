@@ -17,6 +17,7 @@ Not thread-safe: one thread uses a link at a time (a server may close it from an
 from __future__ import annotations
 
 import contextlib
+import os
 import socket
 import time
 from collections import deque
@@ -131,8 +132,16 @@ class WsLink:
         except OSError:
             raise self._lost() from None
 
-    def recv(self, timeout: float) -> str:
+    def recv(self, timeout: float, spin: float = 0.0, yield_cpu: bool = False) -> str:
         """The next text message, waiting up to ``timeout`` seconds (0: only what has arrived).
+
+        For the first ``spin`` seconds of the wait the socket is polled without blocking, so the
+        thread keeps its CPU: a blocked thread is woken when the bytes arrive, and on a loaded
+        machine a thread at ordinary priority may then wait a scheduler slice (milliseconds) for a
+        CPU (and an idle virtual CPU takes its time to wake). With ``yield_cpu`` each poll yields
+        the CPU to a thread of the same real-time priority waiting for it (a device server on
+        this CPU); only for a real-time thread: under the ordinary policy a yield hands the CPU
+        to any other task. The rest of the wait, if any, blocks.
 
         Raises:
             TimeoutError: none arrived in time.
@@ -140,25 +149,35 @@ class WsLink:
         """
         messages = self._messages
         sock = self.sock
-        deadline = time.monotonic() + timeout
+        clock = time.monotonic
+        now = clock()
+        deadline = now + timeout
+        spin_until = now + min(spin, timeout)
         while not messages:
             if self._closed:  # after the messages that came before the close
                 raise self._closed_exc()
-            remaining = deadline - time.monotonic()
-            sock.settimeout(remaining if remaining > 0.0 else 0.0)
+            now = clock()
+            spinning = now < spin_until
+            remaining = deadline - now
+            sock.settimeout(0.0 if spinning or remaining <= 0.0 else remaining)
             try:
                 data = sock.recv(READ_SIZE)
             except (TimeoutError, BlockingIOError):
+                if spinning:
+                    if yield_cpu:
+                        os.sched_yield()
+                    continue
                 raise TimeoutError("no message in time") from None
             except OSError:
                 raise self._lost() from None
             self._receive(data)
         return messages.popleft()
 
-    def recv_latest(self, timeout: float) -> str:
-        """The newest message: the next one (waiting up to ``timeout`` s), or a later one already
-        arrived behind it (a late message and its successor: only the successor counts)."""
-        text = self.recv(timeout)
+    def recv_latest(self, timeout: float, spin: float = 0.0, yield_cpu: bool = False) -> str:
+        """The newest message: the next one (waiting up to ``timeout`` s, polling for the first
+        ``spin`` s: :meth:`recv`), or a later one already arrived behind it (a late message and
+        its successor: only the successor counts)."""
+        text = self.recv(timeout, spin, yield_cpu)
         while True:
             try:
                 text = self.recv(0.0)

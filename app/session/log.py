@@ -26,6 +26,7 @@ from numba import njit
 from app.compiled import entry_point, is_f8
 from app.controller.layout import SCALARS, TORQUE_ROWS, TWIST_AXES, VECTOR_ROWS, WRENCH_AXES
 from app.errors import ConfigError
+from app.session.pacer import ordinary_priority
 from app.session.tick import STAGES, TickRecord
 from app.spatial import Array, IntArray, quat_into
 
@@ -34,7 +35,18 @@ if TYPE_CHECKING:
 
 XYZ = ("x", "y", "z")
 POSE = ("x", "y", "z", "qw", "qx", "qy", "qz")
-INT_COLUMNS = ("deadman", "reference", "reflection", "contacts", "faults", "watchdog_trips", "slave_status")
+#: ``device_link`` is :class:`~app.device.boundary.LinkStatus` (0 OK, 1 ramping, 2 stalled: the
+#: watchdog zeroed the force, 3 disconnected); 0 for a joint-space plant simulated in process.
+INT_COLUMNS = (
+    "deadman",
+    "reference",
+    "reflection",
+    "contacts",
+    "faults",
+    "watchdog_trips",
+    "slave_status",
+    "device_link",
+)
 
 
 def _group(prefix: str, names: tuple[str, ...] | list[str]) -> list[str]:
@@ -121,7 +133,7 @@ class TickLog:
         directory.mkdir(parents=True, exist_ok=True)
         for old in [*directory.glob("part-*.parquet"), *directory.glob(".part-*.tmp")]:
             old.unlink()
-        write_json(directory / META_FILE, {**(meta or {}), "servo_period": period, "columns_version": 3})
+        write_json(directory / META_FILE, {**(meta or {}), "servo_period": period, "columns_version": 4})
         self.columns = log_columns(n_joints)
         # Where each block of the row starts, in the order of _layout (what _fill_row writes).
         self._starts = np.array([b.start for b in _blocks(n_joints).values()], dtype=np.int64)
@@ -132,7 +144,8 @@ class TickLog:
         self._buf = np.zeros((max(1, round(flush_interval / period)), len(self.columns)))
         self._rows = 0
         self._parts = 0
-        self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ticklog")
+        # Ordinary scheduling: started by a loop at real-time priority, the writer would inherit it.
+        self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ticklog", initializer=ordinary_priority)
         self._pending: list[Future[None]] = []
 
     def on_tick(self, tick: TickRecord) -> None:
@@ -150,7 +163,7 @@ class TickLog:
             tick.hand_target is not None, out.vectors, out.command.twist, tick.T_w_MRF, tick.ft.wrench_S,
             tick.contact_wrench_MRF, reading.wrench_G, out.torques, out.counts, out.scalars, tick.deadman,
             tick.reference, tick.reflection, tick.contact.count, int(out.faults), reading.watchdog_trips,
-            tick.slave_status, tick.link_force, tick.stage_ns,
+            tick.slave_status, int(tick.device_link), tick.link_force, tick.stage_ns,
         )  # fmt: skip
         if self._fill is None:
             # The same buffers every tick: the compiled row writer for their types, once.
@@ -267,6 +280,7 @@ def _fill_row(
     faults: int,
     watchdog_trips: int,
     slave_status: int,
+    device_link: int,
     link_force: float,
     stage_ns: IntArray,
 ) -> None:
@@ -288,6 +302,7 @@ def _fill_row(
     at = starts[13]
     row[at], row[at + 1], row[at + 2] = 1.0 if deadman else 0.0, 1.0 if reference else 0.0, 1.0 if reflection else 0.0
     row[at + 3], row[at + 4], row[at + 5], row[at + 6] = contacts, faults, watchdog_trips, slave_status
+    row[at + 7] = device_link
     row[starts[14]] = link_force
     at = starts[15]
     for v in stage_ns:

@@ -2,7 +2,7 @@
 
 Used by headless sessions run with ``--realtime`` and by the web demo's loop process. A paced
 loop may also ask for real-time scheduling (:func:`raise_priority`), as the web demo's loop
-process and ``frhc device serve`` do.
+process, ``frhc run --realtime`` and ``frhc device serve`` do.
 
 Deadlines are absolute, ``t0 + k dt`` on ``time.perf_counter_ns``: the pacer sleeps most of the
 wait and spins the last :data:`SPIN_NS` (at most :data:`SPIN_SHARE` of a period), because ``time.sleep`` wakes up to ~0.1 ms late on
@@ -62,6 +62,17 @@ def raise_priority() -> int:
         return 1
     except OSError:
         return 0
+
+
+def ordinary_priority() -> None:
+    """Put the calling thread back under the ordinary time-sharing policy (``SCHED_OTHER``).
+
+    For helper threads of a loop that raised its priority: a thread inherits its creator's
+    policy, and a ``SCHED_FIFO`` helper pinned to the loop's CPU (the session log's writer) would
+    hold that CPU for the whole of its work (~5 ms per part) while the loop waits."""
+    with suppress(OSError, AttributeError):
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 
 
 @contextmanager

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,7 +21,7 @@ from tqdm import tqdm
 from app.session.log import TickLog, loop_meta, write_json
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.metrics import SessionMetrics
-from app.session.pacer import Pacer
+from app.session.pacer import SCHEDULING, Pacer, raised_priority
 from app.session.script import Operator, OperatorScript
 from app.session.spec import Session
 from app.session.tick import TickObserver, TickRecord
@@ -86,8 +86,10 @@ def run_session(
         out_dir: Where to write ``log/`` (Parquet parts), ``summary.json`` and plots; None = no files.
         plots: Write the PNG plots (needs ``out_dir``).
         progress: Show a progress bar.
-        realtime: Pace ticks to the wall clock instead of running as fast as possible; the
-            summary then has the pacing figures under ``pacing``.
+        realtime: Pace ticks to the wall clock instead of running as fast as possible, at raised
+            priority (:func:`~app.session.pacer.raise_priority`, for the ticks only); the
+            summary then has the pacing figures under ``pacing`` and the scheduling obtained
+            under ``scheduling``.
         flush_interval: Simulated seconds of ticks per log part: the most a crash can lose (s).
         operator: Makes the operator from the new loop (default: the session's script). An
             operator whose ``finished`` attribute turns true ends the session before its duration.
@@ -161,11 +163,16 @@ def _run(
     pacer = Pacer(loop.dt) if realtime else None
     bar = tqdm(total=n_ticks, unit="tick", disable=not progress, mininterval=0.5)
     actor = operator(loop) if operator is not None else OperatorScript.for_loop(d, loop)
+    scheduling = None
     try:
-        for _ in drive(loop, actor, n_ticks, pacer):
-            bar.update(1)
-            if getattr(actor, "finished", False):
-                break
+        # A paced loop holds a device (in process, or one it drives over a link) to its period:
+        # it keeps that period whatever else runs, as the web demo's loop process does.
+        with raised_priority() if realtime else nullcontext(None) as got:
+            scheduling = None if got is None else SCHEDULING[got]
+            for _ in drive(loop, actor, n_ticks, pacer):
+                bar.update(1)
+                if getattr(actor, "finished", False):
+                    break
     finally:
         bar.close()
         loop.close()
@@ -179,6 +186,7 @@ def _run(
     summary["accommodation"] = d.accommodation
     if pacer is not None:
         summary["pacing"] = pacer.stats().as_dict()
+        summary["scheduling"] = scheduling
     written: list[Path] = []
     if out_dir is not None:
         write_json(out_dir / "summary.json", summary)

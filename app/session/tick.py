@@ -14,7 +14,7 @@ from typing import Protocol
 
 from app.controller.frhc import ControllerOutput
 from app.controller.types import FTReading, SlaveCommand
-from app.device.boundary import CartesianReading
+from app.device.boundary import CartesianReading, LinkStatus
 from app.device.plant import PlantReading
 from app.slave.api import Slave
 from app.spatial import Array, IntArray
@@ -99,6 +99,14 @@ class TickRecord:
         """The slave's geoms in {w}: positions (ngeom, 3), orientations (ngeom, 9) (views; see
         :meth:`~app.slave.api.Slave.geom_poses`)."""
         return self._slave.geom_poses()
+
+    @property
+    def device_link(self) -> LinkStatus:
+        """The link to the device as of this tick's sample: a Cartesian device's, as the boundary's
+        guard set it (it decides the wrench sent next tick); OK for a joint-space plant, which is
+        simulated in this process."""
+        reading = self.reading
+        return reading.status if isinstance(reading, CartesianReading) else LinkStatus.OK
 
     @property
     def T_w_MRF(self) -> Array:

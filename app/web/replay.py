@@ -12,6 +12,7 @@ recomputed deterministically from what it does:
   shown;
 - the reference pose {G0}: from the grip pose and Delta X (Eq 2-4 inverted);
 - the hand target's orientation: the grip's (the log keeps the target's position);
+- a Cartesian device's link state: logged per tick (``device_link``), shown as live;
 - contact points: the scene's contact at the logged tool pose, evaluated afresh (stateless: a
   pop-through memory of the live run is not reproduced, the drawn points may then differ).
 
@@ -28,6 +29,7 @@ import mujoco
 import numpy as np
 
 from app.controller.layout import DELTA_X_AXES, WRENCH_AXES
+from app.device.boundary import LinkStatus
 from app.device.spec import load_device
 from app.errors import ConfigError
 from app.session.log import META_FILE, read_log
@@ -171,6 +173,8 @@ class LogReplay:
             pc_cut=float(c["pc_cut"][i]) if "pc_cut" in c else 0.0,
             watchdog_trips=int(c["watchdog_trips"][i]),
             slave_status=int(c["slave_status"][i]) if "slave_status" in c else 0,
+            # As live, a Cartesian device's link only (not in logs before columns_version 4).
+            device_link=LinkStatus(int(c["device_link"][i])).name if self.cartesian and "device_link" in c else "",
             slave_geom_xpos=_NO_GEOM_XPOS,
             slave_geom_xmat=_NO_GEOM_XMAT,
         )

@@ -53,9 +53,6 @@ DEFAULT_ASPECT = 1400 / 900
 #: colour (RGB) and intensity, chosen so the picture matches viser's default lighting by eye.
 FILL_GROUND = (90, 90, 100)
 FILL_INTENSITY = 1.5
-#: The device file that gives a device outside this process (``--device fd:``, a real Inverse
-#: Service) its limits and gains when no session names one: the shipped Cartesian device.
-DEFAULT_CARTESIAN_DEVICE = "touch3"
 #: Where the record button writes ``web-<timestamp>/log``.
 RUNS_DIR = ROOT_DIR / "runs"
 
@@ -488,7 +485,8 @@ def start_demo(
 
     ``device`` may be a device outside this process (``ws://host:port``, ``fd:N``,
     ``openhaptics:NAME``): a ``frhc device serve`` names its own device file; for another, the
-    session's device file, else ``touch3``'s, gives its limits (:func:`~app.device.haply.served_device`).
+    session's device file if it is Cartesian, else the vendor's shipped one (``inverse3``,
+    ``omega3``, ``touch3``), gives its limits (:func:`~app.device.haply.served_device`).
 
     Raises:
         ConfigError: for an unknown or malformed scene, device or session, before any server starts.
@@ -501,8 +499,7 @@ def start_demo(
     scene_obj = load_scene(scene)
     device_url = device if is_device_url(device) else None
     if device_url is not None:
-        fallback = loaded_session.device if loaded_session is not None else load_device(DEFAULT_CARTESIAN_DEVICE)
-        device_obj = served_device(device_url, fallback)
+        device_obj = served_device(device_url, loaded_session.device if loaded_session is not None else None)
     else:
         device_obj = load_device(device)
     loaded_replay = LogReplay(Path(replay)) if replay is not None else None

@@ -2,7 +2,18 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
+
+from app.device.spec import DEVICES_DIR
+
+
+def copy_device(folder: Path, name: str) -> Path:
+    """Path of ``device.toml`` in a fresh copy of ``devices/<name>`` (MJCF and calibration
+    included) under ``folder``."""
+    dest = folder / name
+    shutil.copytree(DEVICES_DIR / name, dest)
+    return dest / "device.toml"
 
 
 def replace_in(path: Path, old: str, new: str) -> None:

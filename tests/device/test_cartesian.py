@@ -15,11 +15,13 @@ from app.controller.types import Switches
 from app.device.boundary import CartesianReading, LinkStatus
 from app.device.cartesian_sim import SimCartesianDevice
 from app.device.guard import ForceGuard
-from app.device.haply import DeviceServer, force_command, parse_command, parse_state, state_message
+from app.device.haply import DeviceServer, HaplyClient, force_command, parse_command, parse_state, state_message
 from app.device.spec import CartesianSpec, load_device
 from app.session.cartesian_loop import CartesianServoLoop
+from app.session.log import read_log
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.run import run_session
+from app.session.script import Operator, OperatorScript
 from app.session.spec import load_session
 from app.world.scene import load_scene
 
@@ -264,9 +266,14 @@ def test_served_device_holds_its_own_force_limit_and_answers_each_command_once(s
 
 
 def make_served_loop(port: int) -> CartesianServoLoop:
+    """A loop driving the server of this process at one period's wait. Its client blocks for the
+    reply: polling would hold the GIL the server's thread needs (up to Python's 5 ms switch
+    interval), which a server in its own process, as deployed, does not need."""
     spec = load_device("touch3")
     loop = ServoLoop(LoopConfig(spec, load_scene("probe"), spec.data.gains, device_url=f"ws://127.0.0.1:{port}"))
     assert isinstance(loop, CartesianServoLoop)
+    assert isinstance(loop.device, HaplyClient)
+    loop.device.spin = 0.0
     return loop
 
 
@@ -286,6 +293,11 @@ def press_into_contact(loop: CartesianServoLoop) -> None:
 def test_dropped_connection_zeroes_the_force_the_next_period_and_ramps_back_on_reconnect(served: DeviceServer) -> None:
     loop = make_served_loop(served.port)
     press_into_contact(loop)
+    for _ in range(100):  # the device renders a force (a late reply makes the last one sent zero)
+        if np.any(served.log.commanded):
+            break
+        loop.tick()
+    assert np.any(served.log.commanded)
     served.zeroed.clear()
     served.drop_client()
     assert served.zeroed.wait(5.0)
@@ -367,3 +379,118 @@ def test_web_loop_process_drives_touch3_and_publishes_its_link_state() -> None:
         assert snap.T_0_G[0, 3] - first.T_0_G[0, 3] > 0.01  # the hand pulled the grip along x
     finally:
         rt.stop()
+
+
+def test_realtime_run_against_a_served_device_raises_its_priority_for_the_ticks_only(
+    tmp_path: Path, served: DeviceServer, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``frhc run --realtime --device ws://...``: the ticks run at the priority the web demo's loop
+    asks for, and the run says which it got (summary and the pacing line); the log's writer
+    thread, started by the raised loop, runs at ordinary scheduling; the caller's scheduling is
+    back afterwards."""
+    import os
+
+    from app.cli import main
+    from app.session.log import TickLog
+    from app.session.pacer import SCHEDULING
+
+    writer_policies: list[int] = []
+    write = TickLog._write
+
+    def recording_write(self: TickLog, *args: object) -> None:
+        writer_policies.append(os.sched_getscheduler(0))
+        write(self, *args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(TickLog, "_write", recording_write)
+    before = os.sched_getscheduler(0), os.getpriority(os.PRIO_PROCESS, 0)
+    out = tmp_path / "out"
+    argv = ["run", str(session_file(tmp_path, 0.5)), "--out", str(out), "--no-plots", "--realtime"]
+    assert main([*argv, "--device", f"ws://127.0.0.1:{served.port}"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["scheduling"] in SCHEDULING[1:]  # SCHED_FIFO where permitted, else a lower niceness
+    assert f"at {summary['scheduling']}" in capsys.readouterr().out
+    assert set(writer_policies) == {os.SCHED_OTHER}  # parts were written, all at ordinary scheduling
+    assert (os.sched_getscheduler(0), os.getpriority(os.PRIO_PROCESS, 0)) == before
+
+
+class LinkTrouble:
+    """The session's script, plus trouble on the served device's link before given rows' ticks:
+    its stream stalls for ``stall_ticks`` ticks from row ``stall_at``, and its connection is
+    pulled (as a cable would be) before row ``drop_at``."""
+
+    def __init__(self, script: Operator, served: DeviceServer, stall_at: int, stall_ticks: int, drop_at: int) -> None:
+        self.script = script
+        self.served = served
+        self.stall_at, self.stall_ticks, self.drop_at = stall_at, stall_ticks, drop_at
+        self.row = 0  # the log row the next tick writes
+
+    def before_tick(self, loop: ServoLoop) -> None:
+        self.script.before_tick(loop)
+        if self.row == self.stall_at:
+            self.served.pause_stream(True)
+        elif self.row == self.stall_at + self.stall_ticks:
+            self.served.pause_stream(False)
+        elif self.row == self.drop_at:
+            self.served.drop_client()
+        self.row += 1
+
+
+def runs(column: np.ndarray) -> list[tuple[int, int, int]]:
+    """``(value, first row, length)`` of each run of equal values in ``column``."""
+    edges = np.flatnonzero(np.diff(column)) + 1
+    starts = np.concatenate(([0], edges))
+    lengths = np.diff(np.concatenate((starts, [len(column)])))
+    return [(int(column[s]), int(s), int(n)) for s, n in zip(starts, lengths, strict=True)]
+
+
+def test_link_state_is_logged_per_tick_through_a_stall_and_a_dropped_connection_mid_contact(
+    tmp_path: Path, served: DeviceServer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The log's ``device_link`` column against ``frhc device serve`` (in this process): connect
+    ramp, OK in contact, three stalled ticks exactly where the stream stopped (the watchdog's
+    zero), the gap ramp, OK, DISCONNECTED from exactly the tick that met the pulled connection,
+    the connect ramp again on reconnect, OK. A replay's status line says the same."""
+    from app.device import haply
+    from app.web.replay import LogReplay
+
+    monkeypatch.setattr(haply, "RETRY_INTERVAL", 0.0)  # reconnect at the next tick (default 0.1 s of wall time)
+    session = load_session(session_file(tmp_path, 2.2))
+    stall_at, drop_at = 1400, 1600  # contact from 1.26 s on
+    spec = load_device("touch3").data.cartesian
+    assert spec is not None
+    run_session(
+        session,
+        out_dir=tmp_path / "run",
+        plots=False,
+        device_url=f"ws://127.0.0.1:{served.port}",
+        sample_wait=0.05,  # a reply is late only when the stream stopped (see the loopback test)
+        operator=lambda loop: LinkTrouble(OperatorScript.for_loop(session.data, loop), served, stall_at, 3, drop_at),
+    )
+    table = read_log(tmp_path / "run" / "log")
+    link = table["device_link"].to_numpy()
+    assert len(link) == 2200
+    ok, ramping, stalled, gone = (int(s) for s in LinkStatus)
+    connect_ramp, gap_ramp = round(spec.ramp_time / DT), round(spec.gap_ramp_time / DT)
+    got = runs(link)
+    # The ramp's last tick reaches level 1 (OK) or, by rounding of the sum, one tick later.
+    assert [(v, start) for v, start, _ in got[:3]] == [(ramping, 0), (ok, got[1][1]), (stalled, stall_at)]
+    assert got[0][2] in (connect_ramp - 1, connect_ramp)
+    assert got[2][2] == 3
+    assert got[3][:2] == (ramping, stall_at + 3)
+    assert got[3][2] in (gap_ramp - 1, gap_ramp)
+    assert got[4][0] == ok
+    assert got[5][:2] == (gone, drop_at)  # the first tick after the pull
+    assert got[6][0] == ramping  # reconnected (a tick or a few later: the server frees the device first)
+    assert got[6][2] in (connect_ramp - 1, connect_ramp)
+    assert got[7][0] == ok
+    assert len(got) == 8
+    contacts = table["contacts"].to_numpy()
+    assert contacts[stall_at - 1] > 0  # both happened mid-contact
+    assert contacts[drop_at - 1] > 0
+    assert table["tau_sat_2"].to_numpy()[drop_at - 1] > 0.0  # the device was pushing the hand back
+    replay = LogReplay(tmp_path / "run")
+    assert [replay.snapshot(i).device_link for i in (drop_at - 1, drop_at, stall_at)] == [
+        "OK",
+        "DISCONNECTED",
+        "STALLED",
+    ]

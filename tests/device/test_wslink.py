@@ -58,6 +58,12 @@ def test_client_link_talks_to_a_websockets_server(websockets_server: Server) -> 
     assert link.recv(WAIT) == "second"
     link.send("after")
     assert link.recv(WAIT) == "echo after"
+    link.send("polled")  # polling the socket first: the same messages, the same order
+    assert link.recv(WAIT, spin=WAIT) == "echo polled"
+    link.send("fragments")
+    assert link.recv_latest(WAIT, spin=WAIT) == "fragmented"
+    with pytest.raises(TimeoutError):
+        link.recv(0.01, spin=1.0)  # the poll ends with the wait: nothing came
     link.send("bye")
     with pytest.raises(ConnectionClosed) as closed:
         link.recv(WAIT)

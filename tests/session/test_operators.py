@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from app.session import load_session
@@ -60,13 +60,14 @@ def test_the_motor_bandwidth_left_every_other_value_of_the_population_as_it_was(
     assert (op.stiffness_trans, op.aim_error, op.seed) == (564.0250967589453, 0.0018237414024599961, 2881392816)
 
 
+@settings(max_examples=25)
 @given(bandwidth=st.floats(1.0, 30.0), rate=st.sampled_from([500.0, 1000.0, 4000.0]))
 def test_the_motor_low_pass_steps_as_a_critically_damped_second_order_system(bandwidth: float, rate: float) -> None:
     """A unit step held from tick 1: ``1 - (1 + w t) exp(-w t)`` at ``t = k dt`` exactly, with
     ``w = 2 pi bandwidth``; no overshoot. An infinite bandwidth passes the input through."""
     dt, w = 1.0 / rate, 2.0 * math.pi * bandwidth
     f = MotorLowPass(bandwidth, dt, np.zeros(2))
-    out = [f.push(np.array([1.0, -2.0])).copy() for _ in range(int(rate))]
+    out = [f.push(np.array([1.0, -2.0])).copy() for _ in range(int(0.3 * rate))]
     for k, y in enumerate(out, start=1):
         expect = 1.0 - (1.0 + w * k * dt) * math.exp(-w * k * dt)
         assert y == pytest.approx([expect, -2.0 * expect], abs=1e-12)

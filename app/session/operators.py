@@ -153,10 +153,6 @@ class OperatorParams(Checked):
     seed: Annotated[int, Range(0, 2**32 - 1)] = 0
     motor_bandwidth: Annotated[float, Range(0.0, 1e3, "Hz", lo_open=True, inf_ok=True)] = 7.5
 
-    def aim_offset(self) -> Array:
-        """Where this operator believes the goal is, relative to where it is (m, {w}, shape (3,))."""
-        return self.aim_error * np.array([math.cos(self.aim_angle), math.sin(self.aim_angle), 0.0])
-
 
 def sample_population(n: int, seed: int = 0) -> tuple[OperatorParams, ...]:
     """``n`` operators drawn uniformly from :data:`POPULATION` and :data:`MOTOR_BANDWIDTH` (the same
@@ -257,7 +253,7 @@ class ReactingOperator:
         self._home = tool
         self._goal = task.goal.matrix()[0:3, 3]
         self._tolerance = task.position_tolerance
-        self._aim = params.aim_offset()
+        self._aim = params.aim_error * np.array([math.cos(params.aim_angle), math.sin(params.aim_angle), 0.0])
         self._tilt = params.tilt_error * np.array([math.cos(params.tilt_axis), math.sin(params.tilt_axis), 0.0])
         self._R_home = loop.record.T_w_MRF[0:3, 0:3].copy()
         self._seen = _Delayed(params.visual_delay, loop.dt, tool)

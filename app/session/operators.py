@@ -27,7 +27,10 @@ The strategy, per tick, in the base frame {0} (its axes are the slave world's, `
 4. The hand target is the start grip pose displaced by the rate-mode inverse the operator has
    learned, ``d = v / K_V + DB tanh(v / V_DB)`` per axis (the deadband is crossed smoothly; for
    the rotation ``W_DB`` in place of ``V_DB``, and ``d`` as the grip's Z-Y-X angles from its start,
-   which Eq 5 maps to ``w`` for small angles), plus a seeded physiological tremor.
+   which Eq 5 maps to ``w`` for small angles), passed through the hand's motor bandwidth
+   (:class:`MotorLowPass`: a person's voluntary output cannot step, so a change of intent, e.g.
+   insert to hold, or a yield, moves the hand within a few tens of milliseconds, not in one tick),
+   plus a seeded physiological tremor.
 
 Parameter ranges of the population (:data:`POPULATION`) and their sources:
 
@@ -50,6 +53,14 @@ Parameter ranges of the population (:data:`POPULATION`) and their sources:
   after Whitney (1982), J. Dyn. Syst. Meas. Control 104:65-77, whose analysis takes the initial
   lateral and angular errors as the two inputs of an insertion). Here they are the operator's
   misjudgement of where the holes are and of upright, drawn uniformly up to those bounds.
+- Motor bandwidth 5-10 Hz (:data:`MOTOR_BANDWIDTH`): the band over which the human hand can
+  issue motion and force commands, Shimoga (1993), "A survey of perceptual feedback issues in
+  dexterous telemanipulation: Part I. Finger force feedback", Proc. IEEE VRAIS, pp. 263-270
+  (the hand's output bandwidth of 5-10 Hz against its sensing bandwidth of 20-30 Hz for force
+  and up to ~320 Hz for touch). The citation is from the lead's brief; the stored material
+  reached here confirms only that Shimoga's survey treats the hand's asymmetric input/output
+  bandwidths, not the figures. Drawn from its own random stream (:func:`sample_population`), so
+  adding it left every other value of every operator as it was.
 - Approach speed 20-50 mm/s: *not* from the literature; a task choice spanning a careful to a
   brisk insertion. Nothing here is fitted to the paper's Table I.
 """
@@ -100,6 +111,8 @@ POPULATION: dict[str, tuple[float, float]] = {
     "aim_error": (0.0, 0.0025),
     "tilt_error": (0.0, math.radians(1.0)),
 }
+#: Range (lo, hi) of the operators' motor bandwidth (Hz), drawn uniformly from its own stream.
+MOTOR_BANDWIDTH = (5.0, 10.0)
 
 
 @dataclass(frozen=True)
@@ -121,6 +134,8 @@ class OperatorParams(Checked):
             tilted by this about the horizontal axis at ``tilt_axis``.
         tilt_axis: Direction (rad) of that axis in the x-y plane.
         seed: Seed of their tremor.
+        motor_bandwidth: Corner frequency (Hz) of their voluntary hand motion
+            (:class:`MotorLowPass`); ``inf``: a hand that follows its intent within the tick.
     """
 
     name: str
@@ -136,17 +151,30 @@ class OperatorParams(Checked):
     tilt_error: Annotated[float, Range(0.0, 0.5, "rad")] = 0.0
     tilt_axis: Annotated[float, Range(-10.0, 10.0, "rad")] = 0.0
     seed: Annotated[int, Range(0, 2**32 - 1)] = 0
+    motor_bandwidth: Annotated[float, Range(0.0, 1e3, "Hz", lo_open=True, inf_ok=True)] = 7.5
 
 
 def sample_population(n: int, seed: int = 0) -> tuple[OperatorParams, ...]:
-    """``n`` operators drawn uniformly from :data:`POPULATION` (the same for the same seed)."""
+    """``n`` operators drawn uniformly from :data:`POPULATION` and :data:`MOTOR_BANDWIDTH` (the same
+    for the same seed). The bandwidth comes from a stream of its own (a child of ``seed``), so the
+    other values are those drawn before it was added."""
     rng = np.random.default_rng(seed)
+    motor = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0]).uniform(*MOTOR_BANDWIDTH, n)
     out = []
     for i in range(n):
         values = {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in POPULATION.items()}
         aim_angle, tilt_axis = (float(a) for a in rng.uniform(-math.pi, math.pi, 2))
-        seed = int(rng.integers(2**32))
-        out.append(OperatorParams(f"Operator {i + 1}", **values, aim_angle=aim_angle, tilt_axis=tilt_axis, seed=seed))
+        op_seed = int(rng.integers(2**32))
+        out.append(
+            OperatorParams(
+                f"Operator {i + 1}",
+                **values,
+                aim_angle=aim_angle,
+                tilt_axis=tilt_axis,
+                seed=op_seed,
+                motor_bandwidth=float(motor[i]),
+            )
+        )
     return tuple(out)
 
 
@@ -163,6 +191,36 @@ class _Delayed:
         ring[self._i] = value
         self._i = (self._i + 1) % len(ring)
         return ring[self._i]
+
+
+class MotorLowPass:
+    """A hand's voluntary motion: a critically damped second-order low-pass, both poles at
+    ``2 pi bandwidth`` (rad/s), on a vector signal (here the hand target's six displacements from
+    its start, m and rad).
+
+    The step is exact for an input held over the tick (the state ``(y - u, y')`` advances by
+    ``exp(A dt)``, ``A = [[0, 1], [-w^2, -2 w]]``), so a step of the input gives
+    ``y(t) = u (1 - (1 + w t) e^(-w t))`` at the ticks, with no overshoot and a continuous
+    velocity, at any rate. ``bandwidth = inf`` passes the input through.
+    """
+
+    def __init__(self, bandwidth: float, dt: float, first: Array) -> None:
+        w = 2.0 * math.pi * bandwidth
+        if math.isinf(w):
+            self._phi = np.zeros((2, 2))
+        else:
+            e = math.exp(-w * dt)
+            self._phi = e * np.array([[1.0 + w * dt, dt], [-w * w * dt, 1.0 - w * dt]])
+        self._y = np.array(first, dtype=float)
+        self._v = np.zeros_like(self._y)
+
+    def push(self, u: Array) -> Array:
+        """Advance one tick toward the input ``u``; return the output (a view valid until the next push)."""
+        (p00, p01), (p10, p11) = self._phi
+        z = self._y - u
+        self._y = u + p00 * z + p01 * self._v
+        self._v = p10 * z + p11 * self._v
+        return self._y
 
 
 class ReactingOperator:
@@ -202,6 +260,7 @@ class ReactingOperator:
         self._seen_R = _Delayed(params.visual_delay, loop.dt, self._R_home.ravel())
         self._felt = _Delayed(params.haptic_delay, loop.dt, np.zeros(3))
         self._tremor = _tremor(session.data.n_ticks, params.tremor, params.seed, 1.0 / loop.dt, 8.0)
+        self._motor = MotorLowPass(params.motor_bandwidth, loop.dt, np.zeros(6))
         self._since = 0.0
         self._best_depth = tool[2]
         self._stall_t = 0.0
@@ -222,6 +281,7 @@ class ReactingOperator:
         w = self._turn(seen_R)
         d = v / self._k_v[0:3] + self._db[0:3] * np.tanh(v / V_DB)
         a = w / self._k_v[3:6] + self._db[3:6] * np.tanh(w / W_DB)
+        d, a = np.split(self._motor.push(np.concatenate((d, a))), 2)
         hand = self._hand
         hand[0:3, 3] = self._T_start[0:3, 3] + d + self._tremor[min(loop.ticks, len(self._tremor) - 1)]
         hand[0:3, 0:3] = self._T_start[0:3, 0:3] @ zyx_to_matrix(a[0], a[1], a[2])

@@ -26,9 +26,10 @@ HOLE_DEPTH = 0.025
 # 45-degree entry chamfer on each hole, CHAMFER (m) wide and deep: Whitney (1982), "Quasi-static
 # assembly of compliantly supported rigid parts", J. Dyn. Syst. Meas. Control 104:65-77, analyses
 # the entry over 45-degree chamfers: a chamfer catches a lateral error up to its width plus the
-# clearance. The width is not from a source (the paper gives none): 1 mm catches 1.1 mm, less than
-# half of the operators' lateral misalignment range (app/session/operators.py); the others land on
-# the top face and search.
+# clearance. The width has no authoritative source (the paper gives none; a machining vendor's
+# chamfer guide, yqunique.com, gives 0.5 or 1 mm x 45 deg as the usual CNC default): 1 mm catches
+# 1.1 mm, less than half of the operators' lateral misalignment range (app/session/operators.py);
+# the others land on the top face and search.
 CHAMFER = 0.001
 #: Radius (m) of a hole's rim on the block's top face, where its chamfer starts.
 RIM_RADIUS = HOLE_RADIUS + CHAMFER

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from types import SimpleNamespace
@@ -9,23 +10,25 @@ from types import SimpleNamespace
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from app.session import load_session
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.operators import (
+    MOTOR_BANDWIDTH,
     POPULATION,
     SLOW_DISTANCE,
     V_DB,
     W_DB,
+    MotorLowPass,
     OperatorParams,
     ReactingOperator,
     _Delayed,
     sample_population,
 )
 from app.spatial import matrix_to_zyx
-from app.study.experiment import BLIND, NTRFC, run_experiment
+from app.study.experiment import BLIND, NTRFC, ExperimentPoint, run_experiment
 
 
 @given(delay=st.floats(0.0, 0.3), rate=st.sampled_from([500.0, 1000.0, 2000.0]))
@@ -46,6 +49,39 @@ def test_the_population_is_seeded_and_inside_its_ranges() -> None:
         values = [getattr(op, name) for op in a]
         assert all(lo <= v <= hi for v in values)
         assert max(values) - min(values) > 0.5 * (hi - lo)  # spread over the range, not one value
+    bandwidths = [op.motor_bandwidth for op in a]
+    assert all(MOTOR_BANDWIDTH[0] <= v <= MOTOR_BANDWIDTH[1] for v in bandwidths)
+    assert max(bandwidths) - min(bandwidths) > 0.5 * (MOTOR_BANDWIDTH[1] - MOTOR_BANDWIDTH[0])
+
+
+def test_the_motor_bandwidth_left_every_other_value_of_the_population_as_it_was() -> None:
+    """Operator 1 of seed 0 as drawn before the bandwidth was added (its own stream)."""
+    op = sample_population(100, seed=0)[0]
+    assert (op.stiffness_trans, op.aim_error, op.seed) == (564.0250967589453, 0.0018237414024599961, 2881392816)
+
+
+@settings(max_examples=25)
+@given(bandwidth=st.floats(1.0, 30.0), rate=st.sampled_from([500.0, 1000.0, 4000.0]))
+def test_the_motor_low_pass_steps_as_a_critically_damped_second_order_system(bandwidth: float, rate: float) -> None:
+    """A unit step held from tick 1: ``1 - (1 + w t) exp(-w t)`` at ``t = k dt`` exactly, with
+    ``w = 2 pi bandwidth``; no overshoot. An infinite bandwidth passes the input through."""
+    dt, w = 1.0 / rate, 2.0 * math.pi * bandwidth
+    f = MotorLowPass(bandwidth, dt, np.zeros(2))
+    out = [f.push(np.array([1.0, -2.0])).copy() for _ in range(int(0.3 * rate))]
+    for k, y in enumerate(out, start=1):
+        expect = 1.0 - (1.0 + w * k * dt) * math.exp(-w * k * dt)
+        assert y == pytest.approx([expect, -2.0 * expect], abs=1e-12)
+    assert MotorLowPass(math.inf, dt, np.zeros(2)).push(np.array([1.0, -2.0])).tolist() == [1.0, -2.0]
+
+
+def test_operators_whose_intent_switched_at_once_no_longer_trip_the_velocity_brake() -> None:
+    """Operators 23, 24, 87 and 89 of seed 0 stepped their hand target when they went from
+    inserting to holding or yielding: the hand spring snapped and the device's overspeed brake
+    tripped (12-24 fault ticks each with FRHC/NTRFC). With their motor bandwidth, none."""
+    pop = sample_population(100, seed=0)
+    for i in (23, 24, 87, 89):
+        row = ExperimentPoint()((pop[i - 1], NTRFC))
+        assert (row["fault_ticks"], row["completed"]) == (0, True), f"operator {i}"
 
 
 def stub(record_T_0_G: np.ndarray, tool: np.ndarray, force: np.ndarray, t: float, tick: int) -> SimpleNamespace:
@@ -64,7 +100,9 @@ def test_a_felt_force_above_the_threshold_is_yielded_to_after_the_haptic_delay()
     adds ``+speed`` upward: the two cancel and the hand returns to the start, ``haptic_delay`` later."""
     session = load_session("peg_ntrfc")
     loop = ServoLoop(LoopConfig.from_session(session))
-    params = OperatorParams("test", tremor=0.0, aim_error=0.0, haptic_delay=0.05, force_threshold=3.0, speed=0.03)
+    params = OperatorParams(
+        "test", tremor=0.0, aim_error=0.0, haptic_delay=0.05, force_threshold=3.0, speed=0.03, motor_bandwidth=math.inf
+    )
     op = ReactingOperator(params, session, loop)
     T_0_G = loop.reading.T_0_G.copy()
     home = loop.record.T_w_MRF[0:3, 3].copy()
@@ -90,7 +128,10 @@ def test_a_misjudged_upright_turns_the_grip_by_the_learned_rate_inverse() -> Non
     session = load_session("peg_ntrfc")
     loop = ServoLoop(LoopConfig.from_session(session))
     tilt = math.radians(1.0)
-    params = OperatorParams("test", tremor=0.0, aim_error=0.0, tilt_error=tilt, tilt_axis=0.0, speed=0.03)
+    # An unfiltered hand: the first tick's target is the learned inverse itself.
+    params = OperatorParams(
+        "test", tremor=0.0, aim_error=0.0, tilt_error=tilt, tilt_axis=0.0, speed=0.03, motor_bandwidth=math.inf
+    )
     op = ReactingOperator(params, session, loop)
     T_0_G = loop.reading.T_0_G.copy()
     s = stub(T_0_G, loop.record.T_w_MRF[0:3, 3].copy(), np.zeros(3), 0.0, 0)
@@ -100,7 +141,7 @@ def test_a_misjudged_upright_turns_the_grip_by_the_learned_rate_inverse() -> Non
     turned = matrix_to_zyx(T_0_G[0:3, 0:3].T @ s.targets[-1][0:3, 0:3])
     assert turned == pytest.approx((w / k_v + db * math.tanh(w / W_DB), 0.0, 0.0), abs=1e-12)
     # About y instead: the same angle on beta.
-    params_y = OperatorParams("test", tremor=0.0, aim_error=0.0, tilt_error=tilt, tilt_axis=math.pi / 2, speed=0.03)
+    params_y = dataclasses.replace(params, tilt_axis=math.pi / 2)
     op = ReactingOperator(params_y, session, loop)
     s = stub(T_0_G, loop.record.T_w_MRF[0:3, 3].copy(), np.zeros(3), 0.0, 0)
     op.before_tick(s)

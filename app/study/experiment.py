@@ -39,7 +39,8 @@ from tqdm import tqdm
 from app.session.log import write_json
 from app.session.operators import OperatorParams, ReactingOperator, sample_population
 from app.session.run import run_session
-from app.session.spec import load_session
+from app.session.spec import Session, load_session
+from app.world.scene import with_home_offset
 
 CONDITIONS = {"FRHC/NTRFC": "peg_ntrfc", "No Force Info": "peg_blind"}
 NTRFC, BLIND = CONDITIONS
@@ -58,11 +59,18 @@ class ExperimentPoint:
     time_limit: float = TIME_LIMIT
     slave: str | None = None
 
-    def __call__(self, payload: tuple[OperatorParams, str]) -> dict[str, Any]:
-        op, condition = payload
+    def session(self, op: OperatorParams, condition: str) -> Session:
+        """The session of ``op`` in ``condition``: their hand, the time limit, and the tool starting
+        over where they believe the holes are (the scene's home moved by their aim error), as a
+        person positions the pegs by eye before pushing them in."""
         base = load_session(CONDITIONS[condition]).with_changes(slave=self.slave)
         hand = dataclasses.replace(base.data.hand, stiffness_trans=op.stiffness_trans, damping_trans=op.damping_trans)
         session = base.with_changes(hand=hand, duration=self.time_limit, seed=op.seed)
+        return dataclasses.replace(session, scene=with_home_offset(session.scene, op.aim_offset()))
+
+    def __call__(self, payload: tuple[OperatorParams, str]) -> dict[str, Any]:
+        op, condition = payload
+        session = self.session(op, condition)
         s = run_session(
             session, out_dir=None, plots=False, operator=lambda loop: ReactingOperator(op, session, loop)
         ).summary

@@ -348,6 +348,27 @@ def with_slave(scene: Scene, kind: str) -> Scene:
     return out
 
 
+def with_home_offset(scene: Scene, offset_w: Array) -> Scene:
+    """``scene`` with the tool's home ({MRF}'s starting pose) translated by ``offset_w`` (m, {w}).
+
+    The experiment starts each operator's run with the pegs over where that operator believes the
+    holes are (:meth:`~app.session.operators.OperatorParams.aim_offset`)."""
+    offset = np.asarray(offset_w, dtype=float)
+    home = scene.spec.tool.home
+    x, y, z = (float(v) for v in np.array(home.position) + offset)
+    tool_spec = dataclasses.replace(scene.spec.tool, home=dataclasses.replace(home, position=(x, y, z)))
+    T_home = scene.tool.T_w_MRF_home.copy()
+    T_home[0:3, 3] += offset
+    out = dataclasses.replace(
+        scene,
+        spec=dataclasses.replace(scene.spec, tool=tool_spec),
+        tool=dataclasses.replace(scene.tool, T_w_MRF_home=T_home),
+    )
+    # The objects are the same: share their packed meshes (a cached property) rather than repack.
+    out.__dict__["packed"] = scene.packed
+    return out
+
+
 def resolve_scene_path(name_or_path: str | Path) -> Path:
     """A scene name (``"probe"``) or a path to a ``.toml`` file."""
     p = Path(name_or_path)

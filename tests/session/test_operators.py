@@ -175,6 +175,19 @@ def test_the_experiment_reports_both_conditions_and_finishes_early(tmp_path: Pat
     assert pq.read_table(report.results).num_rows == 2
 
 
+def test_each_run_starts_with_the_pegs_over_where_the_operator_believes_the_holes_are() -> None:
+    """The scene's home (tips 3 cm over the holes) moved by the operator's aim error: 2 mm at
+    90 degrees is +2 mm in y, the orientation unchanged."""
+    op = OperatorParams("test", aim_error=0.002, aim_angle=math.pi / 2)
+    point = ExperimentPoint()
+    scene = load_session("peg_blind").scene
+    for cond in (NTRFC, BLIND):
+        moved = point.session(op, cond).scene
+        assert moved.tool.T_w_MRF_home[0:3, 3] == pytest.approx([0.0, 0.002, 0.03], abs=1e-15)
+        assert moved.spec.tool.home.position == pytest.approx((0.0, 0.002, 0.03), abs=1e-15)
+        assert np.array_equal(moved.tool.T_w_MRF_home[0:3, 0:3], scene.tool.T_w_MRF_home[0:3, 0:3])
+
+
 def test_failed_runs_are_reported_not_averaged_and_ray_gives_the_serial_rows(tmp_path: Path, local_ray: None) -> None:
     """A 0.3 s limit is too short to insert anything: every run fails, no work is averaged."""
     ops = sample_population(2, seed=5)

@@ -113,12 +113,13 @@ class StateBlock:
         self._serial = tick.serial
         out, reading, ft = tick.out, tick.reading, tick.ft
         if out is not self._sources[0] or reading is not self._sources[1] or ft is not self._sources[2]:
-            # The rooms keep their output objects and those their arrays (views of the rooms'
-            # buffers, assigned once): fetch the arrays again only when an object changes.
+            # The rooms keep their output objects and those their array attributes (views of the
+            # rooms' buffers, assigned once): fetch these again only when an object changes. The
+            # reading's pose and hand wrench are properties that compute on access: every tick.
             self._sources = (out, reading, ft)
             self._arrays = (
-                self.row, self._starts, reading.q, reading.T_0_G, out.vectors, out.command.twist, ft.wrench_S,
-                reading.wrench_G, out.torques, out.counts, out.scalars, tick.stage_ns,
+                self.row, self._starts, reading.q, out.vectors, out.command.twist, ft.wrench_S, out.torques,
+                out.counts, out.scalars, tick.stage_ns,
             )  # fmt: skip
         hand_on = tick.hand_on
         hand = tick.hand_target if hand_on else self._no_hand
@@ -126,7 +127,8 @@ class StateBlock:
             self._hand[:] = hand
             hand = self._hand
         args = (
-            *self._arrays, tick.time, hand, hand_on, tick.T_w_MRF, tick.contact_wrench_MRF, tick.deadman,
+            *self._arrays, reading.T_0_G, reading.wrench_G, tick.time, hand, hand_on, tick.T_w_MRF,
+            tick.contact_wrench_MRF, tick.deadman,
             tick.reference, tick.reflection, tick.contact.count, int(out.faults), reading.watchdog_trips,
             tick.slave_status, tick.link_force, out.reflecting,
         )  # fmt: skip
@@ -158,15 +160,15 @@ def _fill_state(
     row: Array,
     starts: IntArray,
     q: Array,
-    T_0_G: Array,
     vectors: Array,
     twist: Array,
     F_S: Array,
-    wrench_G: Array,
     torques: Array,
     counts: IntArray,
     scalars: Array,
     stage_ns: IntArray,
+    T_0_G: Array,
+    wrench_G: Array,
     t: float,
     hand: Array,
     hand_on: bool,

@@ -34,6 +34,7 @@ from app.device.hand import HandParams
 from app.device.plant import WATCHDOG, DevicePlant
 from app.device.spec import DeviceSpec, load_device
 from app.errors import ConfigError
+from app.session.state import StateBlock
 from app.session.tick import STAGES, TickObserver, TickRecord
 from app.slave.api import make_slave
 from app.spatial import Array, IntArray
@@ -182,6 +183,7 @@ class ServoLoop:
         self.record = TickRecord(
             self.reading, self.controller.out, self.slave, self._hand, np.zeros(len(STAGES), dtype=np.int64)
         )
+        self.record.block = StateBlock(self.controller.out.n)
         self.reset()
 
     def _open_device(self) -> None:
@@ -231,6 +233,7 @@ class ServoLoop:
         self._connect()
         rec = self.record
         rec.index, rec.time, rec.ft, rec.contact = 0, 0.0, self.ft, self.slave.contact
+        rec.serial += 1
         rec.slave_status = 0
         rec.deadman = rec.reference = rec.reflection = False
         rec.stage_ns[:] = 0
@@ -325,6 +328,7 @@ class ServoLoop:
         ns[2] = t3 - t2
         ns[3] = t3 - t0
         rec.index = self.ticks
+        rec.serial += 1
         rec.time = self.time
         rec.ft = ft
         rec.contact = self.slave.contact

@@ -10,10 +10,11 @@ import numpy as np
 from numba import njit
 
 from app.compiled import entry_point
+from app.controller.layout import SCALARS
 from app.controller.types import Fault
 from app.session.tick import STAGES, TickRecord
 from app.slave.arm import ArmStatus
-from app.spatial import Array, rotation_log
+from app.spatial import Array, IntArray, rotation_log
 from app.world.scene import TaskSpec
 from app.world.scene_file import within_goal
 
@@ -58,12 +59,59 @@ def _add_work(T_prev: Array, T: Array, F_prev: Array, F: Array, work: Array) -> 
         work[a] += 0.5 * (F[a] + F_prev[a]) * dxi[a]
 
 
+# Slots of SessionMetrics' accumulator (see _reduce).
+_WORK, _PEAK_F, _PEAK_M, _SUM_F2, _SUM_M2, _MIN_ENERGY, _MAX_PC, _PC_TICKS = 0, 6, 7, 8, 9, 10, 11, 12
+_CONTACT_TICKS, _SATURATED, _RAMPING, _WATCHDOG, _PEAK_LINK, _DONE_AT, _TIME = 13, 14, 15, 16, 17, 18, 19
+_T_PREV, _F_PREV, _T_NOW, _GOAL, _TOLERANCES, _N_ACC = 20, 36, 42, 58, 74, 76
+# Where _reduce finds its values in the state row (SessionMetrics fills these from the block).
+_AT_T, _AT_TOOL, _AT_R, _AT_F, _AT_SCALARS, _AT_SWITCHES, _AT_LINK, _AT_REFLECTING, _N_AT = range(9)
+# Then, in the same int array, the ticks per bit of the controller's faults and the slave's status.
+_N_BITS = 63
+_FAULT_BITS, _STATUS_BITS, _N_INTS = _N_AT, _N_AT + _N_BITS, _N_AT + 2 * _N_BITS
+_SATURATION_SCALE, _RAMP, _PO_ENERGY, _PC_CUT = (
+    SCALARS.index(name) for name in ("saturation_scale", "ramp", "po_energy", "pc_cut")
+)
+
+
 @njit(cache=True)
-def _accumulate(
-    acc: Array, tail: Array, T_prev: Array, F_prev: Array, T: Array, F: Array, tick: int, po_energy: float, pc: float
+def _count_bits_into(value: int, counts: IntArray) -> None:
+    """Add one to ``counts[b]`` for every bit b set in ``value``."""
+    b = 0
+    while value and b < counts.shape[0]:
+        if value & 1:
+            counts[b] += 1
+        value >>= 1
+        b += 1
+
+
+@njit(cache=True)
+def _reduce(
+    acc: Array, tail: Array, row: Array, ints: IntArray, tick: int, stage_table: IntArray, stage_ns: IntArray
 ) -> None:
-    """One tick of :class:`SessionMetrics`' sums, in ``acc`` (slots ``_WORK`` ... ``_PC_TICKS``);
-    the contact force magnitude into the ring ``tail``; ``T_prev``, ``F_prev`` become ``T``, ``F``."""
+    """One tick of :class:`SessionMetrics` from the tick's state row ``row``: the sums in ``acc``
+    (slots ``_WORK`` ... ``_TIME``), the contact force magnitude into the ring ``tail``, the stage
+    durations into ``stage_table[tick]``, the fault and slave-status bits counted in ``ints``.
+
+    ``acc`` also holds the last pose and contact wrench (``_T_PREV``, ``_F_PREV``; they become this
+    tick's), scratch for this tick's pose (``_T_NOW``), the task's goal pose (``_GOAL``) and its
+    position (m) and angle (rad) tolerances (``_TOLERANCES``, NaN without a task); ``ints`` holds
+    where the row's blocks start (``_AT_*``) and the per-bit tick counts (``_FAULT_BITS``,
+    ``_STATUS_BITS``). Few arguments: each array costs its unboxing on every call.
+    """
+    at = ints[0:_N_AT]
+    fault_ticks = ints[_FAULT_BITS : _FAULT_BITS + _N_BITS]
+    status_ticks = ints[_STATUS_BITS : _STATUS_BITS + _N_BITS]
+    T_prev = acc[_T_PREV : _T_PREV + 16].reshape((4, 4))
+    F_prev = acc[_F_PREV : _F_PREV + 6]
+    T = acc[_T_NOW : _T_NOW + 16].reshape((4, 4))
+    goal = acc[_GOAL : _GOAL + 16].reshape((4, 4))
+    tolerances = acc[_TOLERANCES : _TOLERANCES + 2]
+    p, r = at[_AT_TOOL], at[_AT_R]
+    for a in range(3):
+        T[a, 3] = row[p + a]
+        for b in range(3):
+            T[a, b] = row[r + 3 * a + b]
+    F = row[at[_AT_F] : at[_AT_F] + 6]
     _add_work(T_prev, T, F_prev, F, acc[_WORK : _WORK + 6])
     T_prev[:] = T
     F_prev[:] = F
@@ -74,22 +122,45 @@ def _accumulate(
     acc[_SUM_F2] += f * f
     acc[_SUM_M2] += m * m
     tail[tick % tail.shape[0]] = f
-    acc[_MIN_ENERGY] = min(acc[_MIN_ENERGY], po_energy)
+    scalars = at[_AT_SCALARS]
+    acc[_MIN_ENERGY] = min(acc[_MIN_ENERGY], row[scalars + _PO_ENERGY])
+    pc = row[scalars + _PC_CUT]
     acc[_MAX_PC] = max(acc[_MAX_PC], pc)
     if pc > 0.0:
         acc[_PC_TICKS] += 1.0
+    sw = at[_AT_SWITCHES]
+    if row[sw + 3] > 0.0:
+        acc[_CONTACT_TICKS] += 1.0
+    _count_bits_into(int(row[sw + 4]), fault_ticks)
+    if row[scalars + _SATURATION_SCALE] < 1.0:
+        acc[_SATURATED] += 1.0
+    if row[at[_AT_REFLECTING]] > 0.0 and row[scalars + _RAMP] < 1.0:
+        acc[_RAMPING] += 1.0
+    acc[_WATCHDOG] = row[sw + 5]
+    status = int(row[sw + 6])
+    if status:
+        _count_bits_into(status, status_ticks)
+        # A link force comes with the LINK_CONTACT bit: the ticks without bits have none.
+        acc[_PEAK_LINK] = max(acc[_PEAK_LINK], row[at[_AT_LINK]])
+    if tick < stage_table.shape[0]:
+        stage_table[tick, :] = stage_ns
+    acc[_TIME] = row[at[_AT_T]]
+    # Not done yet (NaN), with a task (finite tolerances), and within its goal now.
+    if (
+        math.isnan(acc[_DONE_AT])
+        and not math.isnan(tolerances[0])
+        and within_goal(T, goal, tolerances[0], tolerances[1])
+    ):
+        acc[_DONE_AT] = acc[_TIME]
 
 
-# Slots of SessionMetrics' accumulator (see _accumulate).
-_WORK, _PEAK_F, _PEAK_M, _SUM_F2, _SUM_M2, _MIN_ENERGY, _MAX_PC, _PC_TICKS = 0, 6, 7, 8, 9, 10, 11, 12
-
-
-def _count_bits(flags: type[Fault] | type[ArmStatus], value: int, counts: dict[str, int]) -> None:
-    """Add one tick to ``counts[name]`` for every flag of ``flags`` set in ``value``."""
-    for flag in flags:
-        if flag and value & flag:
-            name = str(flag.name)
-            counts[name] = counts.get(name, 0) + 1
+def _bit_counts(flags: type[Fault] | type[ArmStatus], counts: IntArray) -> dict[str, int]:
+    """Ticks per flag of ``flags`` (single-bit flags) from per-bit tick counts, the flags seen only."""
+    return {
+        str(flag.name): int(counts[int(flag).bit_length() - 1])
+        for flag in flags
+        if flag and counts[int(flag).bit_length() - 1]
+    }
 
 
 class SessionMetrics:
@@ -114,57 +185,46 @@ class SessionMetrics:
 
     def __init__(self, start: TickRecord, task: TaskSpec | None, n_ticks: int, dt: float) -> None:
         self._dt = dt
-        self._time = start.time
-        self._acc = np.zeros(_PC_TICKS + 1)
-        self._T_prev = start.T_w_MRF.copy()
-        self._F_prev = start.contact_wrench_MRF.copy()
-        self._contact_ticks = 0
+        self._acc = acc = np.zeros(_N_ACC)
+        acc[_DONE_AT] = math.nan
+        acc[_TIME] = start.time
+        acc[_T_PREV : _T_PREV + 16] = start.T_w_MRF.ravel()
+        acc[_F_PREV : _F_PREV + 6] = start.contact_wrench_MRF
+        acc[_TOLERANCES : _TOLERANCES + 2] = math.nan
+        if task is not None:
+            acc[_GOAL : _GOAL + 16] = task.goal.matrix().ravel()
+            acc[_TOLERANCES : _TOLERANCES + 2] = task.position_tolerance, math.radians(task.angle_tolerance_deg)
         self._ticks = 0
-        self._fault_ticks: dict[str, int] = {}
-        self._saturated_ticks = 0
-        self._ramping_ticks = 0
-        self._watchdog_trips = 0
-        self._slave_ticks: dict[str, int] = {}
-        self._peak_link_force = 0.0
         self._stage_ns = np.zeros((n_ticks, len(STAGES)), dtype=np.int64)
         # The contact force of the last SETTLE_WINDOW of ticks (a ring).
         self._tail = np.full(max(1, round(SETTLE_WINDOW / dt)), np.nan)
-        self.task_done_at: float | None = None
         self._task = task
-        self._accumulate: Callable[..., None] | None = None
-        if task is not None:
-            # The task's test (TaskSpec.done) without its per-call typing: goal and tolerances kept.
-            self._goal = (task.goal.matrix(), task.position_tolerance, math.radians(task.angle_tolerance_deg))
-            self._within = entry_point(within_goal, self._T_prev, *self._goal)
+        assert start.block is not None, "the loop sets the record's state block"
+        starts = start.block.starts
+        self._ints = ints = np.zeros(_N_INTS, dtype=np.int64)
+        ints[_AT_T], ints[_AT_TOOL], ints[_AT_R] = starts["t"], starts["tool"], starts["R_w_MRF"]
+        ints[_AT_F], ints[_AT_SCALARS], ints[_AT_SWITCHES] = (
+            starts["contact_MRF"],
+            starts["scalars"],
+            starts["switches"],
+        )
+        ints[_AT_LINK], ints[_AT_REFLECTING] = starts["link_force"], starts["reflecting"]
+        self._reduce: Callable[..., None] | None = None
 
     def on_tick(self, tick: TickRecord) -> None:
-        out = tick.out
-        T = tick.T_w_MRF
-        self._time = tick.time
-        args = (
-            self._acc, self._tail, self._T_prev, self._F_prev, T, tick.contact_wrench_MRF, self._ticks,
-            out.po_energy, out.pc_cut,
-        )  # fmt: skip
-        if self._accumulate is None:
+        """Reduce the tick's state row (one compiled pass: :func:`_reduce`)."""
+        args = (self._acc, self._tail, tick.state(), self._ints, self._ticks, self._stage_ns, tick.stage_ns)
+        if self._reduce is None:
             # The same kinds of arguments every tick: the compiled specialisation, once.
-            self._accumulate = entry_point(_accumulate, *args)
-        self._accumulate(*args)
-        self._contact_ticks += tick.contact.count > 0
-        if out.faults:
-            _count_bits(Fault, int(out.faults), self._fault_ticks)
-        self._saturated_ticks += out.saturation_scale < 1.0
-        self._ramping_ticks += out.reflecting and out.ramp < 1.0
-        self._watchdog_trips = tick.reading.watchdog_trips
-        if tick.slave_status:
-            _count_bits(ArmStatus, tick.slave_status, self._slave_ticks)
-            # A link force comes with the LINK_CONTACT bit: the ticks without bits have none.
-            self._peak_link_force = max(self._peak_link_force, tick.link_force)
-        if self._ticks < len(self._stage_ns):
-            self._stage_ns[self._ticks] = tick.stage_ns
+            self._reduce = entry_point(_reduce, *args)
+        self._reduce(*args)
         self._ticks += 1
-        task = self._task
-        if task is not None and self.task_done_at is None and self._within(T, *self._goal):
-            self.task_done_at = tick.time
+
+    @property
+    def task_done_at(self) -> float | None:
+        """Simulated time (s) at which the tool was first within the task's goal, or None."""
+        done = float(self._acc[_DONE_AT])
+        return None if math.isnan(done) else done
 
     @property
     def work_per_axis(self) -> Array:
@@ -206,7 +266,7 @@ class SessionMetrics:
             "peak_contact_moment_Nm": float(self._acc[_PEAK_M]),
             "rms_contact_force_N": math.sqrt(self._acc[_SUM_F2] / n),
             "rms_contact_moment_Nm": math.sqrt(self._acc[_SUM_M2] / n),
-            "contact_fraction": self._contact_ticks / n,
+            "contact_fraction": int(self._acc[_CONTACT_TICKS]) / n,
             "task": None
             if self._task is None
             else {
@@ -214,15 +274,15 @@ class SessionMetrics:
                 "completed": self.task_done_at is not None,
                 "time_s": self.task_done_at,
             },
-            "faults": self._fault_ticks,
-            "saturated_ticks": self._saturated_ticks,
-            "ramping_ticks": self._ramping_ticks,
-            "watchdog_trips": self._watchdog_trips,
+            "faults": _bit_counts(Fault, self._ints[_FAULT_BITS : _FAULT_BITS + _N_BITS]),
+            "saturated_ticks": int(self._acc[_SATURATED]),
+            "ramping_ticks": int(self._acc[_RAMPING]),
+            "watchdog_trips": int(self._acc[_WATCHDOG]),
             "settling": self.settling(),
-            "slave_status_ticks": self._slave_ticks,
-            "peak_link_force_N": self._peak_link_force,
+            "slave_status_ticks": _bit_counts(ArmStatus, self._ints[_STATUS_BITS : _STATUS_BITS + _N_BITS]),
+            "peak_link_force_N": float(self._acc[_PEAK_LINK]),
             "ticks": self._ticks,
-            "simulated_s": self._time,
+            "simulated_s": float(self._acc[_TIME]),
             "timing": timing,
             "real_time_factor": (self._dt / tick_median_s) if timing else None,
         }

@@ -73,35 +73,27 @@ from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 
+from app.compiled import entry_point, is_f8
 from app.config import Checked, Range
+from app.session import operator_kernel as kernel
+from app.session.operator_kernel import (  # noqa: F401 (the strategy's constants, documented there)
+    BOTTOM_S,
+    CLEAR,
+    HOLD_S,
+    OVERSHOOT,
+    SLOW_DISTANCE,
+    STALL_DEPTH,
+    STALL_S,
+    V_DB,
+    W_DB,
+    YIELD_MAX,
+)
 from app.session.script import OperatorScript, _tremor
 from app.session.spec import Session
-from app.spatial import Array, rotation_exp, rotation_log, zyx_to_matrix
+from app.spatial import Array
 
 if TYPE_CHECKING:
     from app.session.loop import ServoLoop
-
-#: Distance (m) below which the intended tool speed falls in proportion to the distance left.
-SLOW_DISTANCE = 0.01
-#: How far (m) past the task's goal depth the operator pushes: to the bottom of the holes.
-OVERSHOOT = 0.01
-#: Time (s) without seen progress, past the goal depth, after which the pegs are seen to have bottomed out.
-BOTTOM_S = 0.3
-#: Height (m) above the goal at which the withdrawn tool is seen clear and the operator is done.
-CLEAR = 0.025
-#: Time (s) the operator holds the pegs at depth once they see them there.
-HOLD_S = 0.3
-#: Seen depth gain (m) below which, for STALL_S (s), an insertion counts as stuck.
-STALL_DEPTH = 0.001
-STALL_S = 1.0
-#: Fastest deliberate yield, in units of the operator's own speed: a person gives way to a felt
-#: force no faster than they move by choice (a modelling bound, not from a source). Unbounded, a
-#: 1.35 N threshold meeting 15 N sent the hand target 0.38 m out and tripped the velocity brake.
-YIELD_MAX = 1.0
-#: Tool speed (m/s) over which the learned rate inverse crosses the deadband.
-V_DB = 0.002
-#: Tool angular speed (rad/s) over which the learned rate inverse crosses the rotational deadband.
-W_DB = 0.02
 
 #: Ranges (lo, hi) the population is drawn from, uniformly (sources in the module docstring).
 POPULATION: dict[str, tuple[float, float]] = {
@@ -187,18 +179,16 @@ def sample_population(n: int, seed: int = 0) -> tuple[OperatorParams, ...]:
 
 
 class _Delayed:
-    """What a sense reports ``delay`` seconds late: a ring of the last samples, shape (n, 3)."""
+    """What a sense reports ``delay`` seconds late: a ring of the last samples, shape (n, 3)
+    (advanced by :func:`~app.session.operator_kernel.push`, in the operator's compiled tick)."""
 
     def __init__(self, delay: float, dt: float, first: Array) -> None:
-        self._ring = np.tile(first, (max(1, round(delay / dt)) + 1, 1))
-        self._i = 0
+        self.ring = np.tile(first, (max(1, round(delay / dt)) + 1, 1))
+        self.index = np.zeros(1, dtype=np.int64)
 
     def push(self, value: Array) -> Array:
         """Store this tick's sample; return the one from ``delay`` ago."""
-        ring = self._ring
-        ring[self._i] = value
-        self._i = (self._i + 1) % len(ring)
-        return ring[self._i]
+        return kernel.push(self.ring, self.index, value)
 
 
 class MotorLowPass:
@@ -209,30 +199,36 @@ class MotorLowPass:
     The step is exact for an input held over the tick (the state ``(y - u, y')`` advances by
     ``exp(A dt)``, ``A = [[0, 1], [-w^2, -2 w]]``), so a step of the input gives
     ``y(t) = u (1 - (1 + w t) e^(-w t))`` at the ticks, with no overshoot and a continuous
-    velocity, at any rate. ``bandwidth = inf`` passes the input through.
+    velocity, at any rate. ``bandwidth = inf`` passes the input through. The operator's compiled
+    tick advances the same arrays (:func:`~app.session.operator_kernel.low_pass`).
+
+    Attributes:
+        state: Output and its rate, shape (2, n).
+        phi: The transition ``exp(A dt)``, row-major, shape (4,).
     """
 
     def __init__(self, bandwidth: float, dt: float, first: Array) -> None:
         w = 2.0 * math.pi * bandwidth
         if math.isinf(w):
-            self._phi = np.zeros((2, 2))
+            self.phi = np.zeros(4)
         else:
             e = math.exp(-w * dt)
-            self._phi = e * np.array([[1.0 + w * dt, dt], [-w * w * dt, 1.0 - w * dt]])
-        self._y = np.array(first, dtype=float)
-        self._v = np.zeros_like(self._y)
+            self.phi = e * np.array([1.0 + w * dt, dt, -w * w * dt, 1.0 - w * dt])
+        first = np.asarray(first, dtype=float)
+        self.state = np.zeros((2, first.shape[0]))
+        self.state[0] = first
 
     def push(self, u: Array) -> Array:
         """Advance one tick toward the input ``u``; return the output (a view valid until the next push)."""
-        (p00, p01), (p10, p11) = self._phi
-        z = self._y - u
-        self._y = u + p00 * z + p01 * self._v
-        self._v = p10 * z + p11 * self._v
-        return self._y
+        kernel.low_pass(self.state, self.phi, np.asarray(u, dtype=float))
+        return self.state[0]
 
 
 class ReactingOperator:
     """A person driving the tool to the scene's task goal in rate mode (see the module docstring).
+
+    The per-tick strategy runs compiled (:func:`app.session.operator_kernel.react`) on the
+    operator's own arrays.
 
     Args:
         params: Who.
@@ -252,89 +248,61 @@ class ReactingOperator:
             raise ValueError("a reacting operator drives the tool in rate mode")
         self.params = params
         self._switches = OperatorScript.for_loop(session.data, loop)
-        self._dt = loop.dt
         self._T_start = loop.reading.T_0_G.copy()
         self._hand = self._T_start.copy()
-        self._k_v = np.array(session.gains.k_v)
-        self._db = np.array(session.gains.deadband)
         tool = loop.record.T_w_MRF[0:3, 3].copy()
-        self._home = tool
-        self._goal = task.goal.matrix()[0:3, 3]
-        self._tolerance = task.position_tolerance
+        prm = np.zeros(kernel.N_PRM)
+        prm[kernel.K_V : kernel.K_V + 6] = session.gains.k_v
+        prm[kernel.DB : kernel.DB + 6] = session.gains.deadband
+        prm[kernel.GOAL : kernel.GOAL + 3] = task.goal.matrix()[0:3, 3]
+        prm[kernel.HOME : kernel.HOME + 3] = tool
+        prm[kernel.TOLERANCE], prm[kernel.SPEED] = task.position_tolerance, params.speed
+        prm[kernel.THRESHOLD] = params.force_threshold
         self._aim = params.aim_offset()
         self._tilt = params.tilt_error * np.array([math.cos(params.tilt_axis), math.sin(params.tilt_axis), 0.0])
-        self._R_home = loop.record.T_w_MRF[0:3, 0:3].copy()
-        self._seen = _Delayed(params.visual_delay, loop.dt, tool)
-        self._seen_R = _Delayed(params.visual_delay, loop.dt, self._R_home.ravel())
-        self._felt = _Delayed(params.haptic_delay, loop.dt, np.zeros(3))
-        self._tremor = _tremor(session.data.n_ticks, params.tremor, params.seed, 1.0 / loop.dt, 8.0)
-        self._motor = MotorLowPass(params.motor_bandwidth, loop.dt, np.zeros(6))
-        self._since = 0.0
-        self._best_depth = tool[2]
-        self._stall_t = 0.0
-        self.phase = "insert"
-        self.finished = False
+        R_home = loop.record.T_w_MRF[0:3, 0:3].copy()
+        seen = _Delayed(params.visual_delay, loop.dt, tool)
+        seen_R = _Delayed(params.visual_delay, loop.dt, R_home.ravel())
+        felt = _Delayed(params.haptic_delay, loop.dt, np.zeros(3))
+        tremor = _tremor(session.data.n_ticks, params.tremor, params.seed, 1.0 / loop.dt, 8.0)
+        motor = MotorLowPass(params.motor_bandwidth, loop.dt, np.zeros(6))
+        self._phase = np.array([kernel.INSERT], dtype=np.int64)
+        state = np.zeros(kernel.N_STATE)
+        state[kernel.BEST_DEPTH] = tool[2]
+        # Every argument but the record's arrays, the time and the tick: the operator's own arrays.
+        self._own = (
+            seen.ring, seen.index, seen_R.ring, seen_R.index, felt.ring, felt.index, self._phase, state,
+            self._aim, self._tilt, prm, self._T_start, R_home, tremor, motor.state, motor.phi,
+        )  # fmt: skip
+        # Where the record's arrays are copied when they are not C-contiguous float64 (a kernel
+        # compiled for those would misread them).
+        self._copies = (np.empty((4, 4)), np.empty((4, 4)), np.empty(6))
+        self._react = entry_point(kernel.react, *self._own, *self._copies, 0.0, 0, self._hand)
+
+    @property
+    def phase(self) -> str:
+        """``"insert"``, ``"hold"``, ``"withdraw"`` or ``"done"``."""
+        return kernel.PHASES[int(self._phase[0])]
+
+    @property
+    def finished(self) -> bool:
+        """True once withdrawn."""
+        return bool(self._phase[0] == kernel.DONE)
 
     def before_tick(self, loop: ServoLoop) -> None:
         """Perceive (delayed), decide the intended tool velocity, set the hand target."""
         self._switches.update_switches(loop.time)
         rec = loop.record
-        seen = self._seen.push(rec.T_w_MRF[0:3, 3])
-        seen_R = self._seen_R.push(rec.T_w_MRF[0:3, 0:3].ravel()).reshape(3, 3)
-        felt = self._felt.push(rec.reading.T_0_G[0:3, 0:3] @ rec.out.G_F_T[0:3])
-        f = float(np.linalg.norm(felt))
-        v = self._intent(seen, f, loop.time)
-        if f > self.params.force_threshold:
-            v = v + felt / f * self.params.speed * min(f / self.params.force_threshold - 1.0, YIELD_MAX)
-        w = self._turn(seen_R)
-        d = v / self._k_v[0:3] + self._db[0:3] * np.tanh(v / V_DB)
-        a = w / self._k_v[3:6] + self._db[3:6] * np.tanh(w / W_DB)
-        d, a = np.split(self._motor.push(np.concatenate((d, a))), 2)
-        hand = self._hand
-        hand[0:3, 3] = self._T_start[0:3, 3] + d + self._tremor[min(loop.ticks, len(self._tremor) - 1)]
-        hand[0:3, 0:3] = self._T_start[0:3, 0:3] @ zyx_to_matrix(a[0], a[1], a[2])
-        loop.set_hand_target(hand)
-
-    def _turn(self, seen_R: Array) -> Array:
-        """The tool angular velocity (rad/s, {MRF} axes) the operator wants while inserting, from the
-        seen tool orientation ``seen_R`` (3, 3): toward upright as they misjudge it; none after."""
-        if self.phase != "insert":
-            return np.zeros(3)
-        e = rotation_log(seen_R.T @ rotation_exp(self._tilt) @ self._R_home)
-        return e * (self.params.speed / SLOW_DISTANCE)
-
-    def _intent(self, seen: Array, felt: float, t: float) -> Array:
-        """The tool velocity (m/s, {w}) the operator wants, from the seen tool position ``seen`` (m)
-        and the felt force magnitude ``felt`` (N)."""
-        if self.phase == "insert":
-            e = self._goal + self._aim - seen
-            e[2] -= OVERSHOOT
-            deep = seen[2] <= self._goal[2] + self._tolerance
-            if seen[2] < self._best_depth - STALL_DEPTH:
-                self._best_depth, self._stall_t = float(seen[2]), t
-            elif deep and (t - self._stall_t > BOTTOM_S or felt > self.params.force_threshold):
-                self.phase, self._since = "hold", t
-            elif not deep and t - self._stall_t > STALL_S:
-                # Stuck above the holes: look again, misjudge by half as much, lift a little, push again.
-                self._aim = self._aim * 0.5
-                self._tilt = self._tilt * 0.5
-                self._stall_t, self._best_depth = t, float(seen[2]) + STALL_DEPTH
-                return np.array([0.0, 0.0, self.params.speed])
-            return self._toward(e)
-        if self.phase == "hold":
-            if t - self._since >= HOLD_S:
-                self.phase = "withdraw"
-            return np.zeros(3)
-        if self.phase == "withdraw":
-            e = self._home - seen
-            if seen[2] >= self._goal[2] + CLEAR:
-                self.phase = "done"
-                self.finished = True
-            return self._toward(np.array([0.0, 0.0, e[2]]))
-        return np.zeros(3)
-
-    def _toward(self, e: Array) -> Array:
-        """Velocity (m/s) toward error ``e`` (m): proportional near, capped at the operator's speed."""
-        n = float(np.linalg.norm(e))
-        gain = self.params.speed / SLOW_DISTANCE
-        return e * gain if n * gain <= self.params.speed else e * (self.params.speed / n)
+        T_w_MRF, T_0_G, G_F_T = rec.T_w_MRF, rec.reading.T_0_G, rec.out.G_F_T
+        copies = self._copies
+        if not is_f8(T_w_MRF, (4, 4)):
+            copies[0][:] = T_w_MRF
+            T_w_MRF = copies[0]
+        if not is_f8(T_0_G, (4, 4)):
+            copies[1][:] = T_0_G
+            T_0_G = copies[1]
+        if not is_f8(G_F_T, (6,)):
+            copies[2][:] = G_F_T
+            G_F_T = copies[2]
+        self._react(*self._own, T_w_MRF, T_0_G, G_F_T, float(loop.time), int(loop.ticks), self._hand)
+        loop.set_hand_target(self._hand)

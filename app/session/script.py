@@ -135,10 +135,19 @@ def _tremor(n: int, sigma: float, seed: int, rate: float, cutoff_hz: float) -> A
     rng = np.random.default_rng(seed)
     white = rng.standard_normal((n, 3))
     alpha = 1.0 - math.exp(-2.0 * math.pi * cutoff_hz / rate)
-    out = np.empty_like(white)
-    acc = np.zeros(3)
-    for i in range(n):
-        acc += alpha * (white[i] - acc)
-        out[i] = acc
+    out = _low_pass(white, alpha)
     # Stationary standard deviation of that filter on unit white noise.
     return out * (sigma / math.sqrt(alpha / (2.0 - alpha)))
+
+
+@njit(cache=True)
+def _low_pass(x: Array, alpha: float) -> Array:
+    """First-order low-pass of the rows of ``x`` (n, k) from zero, gain ``alpha`` a sample
+    (compiled: a session's tremor is tens of thousands of rows, built at every start)."""
+    out = np.empty_like(x)
+    acc = np.zeros(x.shape[1])
+    for i in range(x.shape[0]):
+        for a in range(x.shape[1]):
+            acc[a] += alpha * (x[i, a] - acc[a])
+            out[i, a] = acc[a]
+    return out

@@ -10,7 +10,7 @@ rooms.
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from app.controller.frhc import ControllerOutput
 from app.controller.types import FTReading, SlaveCommand
@@ -19,6 +19,9 @@ from app.device.plant import PlantReading
 from app.slave.api import Slave
 from app.spatial import Array, IntArray
 from app.world.contact import ContactResult
+
+if TYPE_CHECKING:
+    from app.session.state import StateBlock
 
 STAGES = ("plant", "controller", "slave", "tick")
 """Stages of one tick timed in :attr:`TickRecord.stage_ns`, in order (``tick`` is their sum)."""
@@ -48,11 +51,15 @@ class TickRecord:
         slave_status: Why the slave did not follow the command exactly this tick: bits of
             :class:`~app.slave.arm.ArmStatus` (joint limit, singularity, ...); 0 for the ideal tool.
         stage_ns: Durations (ns) of the stages in :data:`STAGES`, (4,) int64.
+        serial: Counts every tick and reset of the loop (never repeats): what the state block
+            compares to fill its row once a tick.
+        block: The loop's state block (:mod:`app.session.state`), set by the loop: :meth:`state`.
     """
 
     __slots__ = (
         "_hand",
         "_slave",
+        "block",
         "command",
         "contact",
         "deadman",
@@ -63,6 +70,7 @@ class TickRecord:
         "reading",
         "reference",
         "reflection",
+        "serial",
         "slave_status",
         "stage_ns",
         "time",
@@ -89,6 +97,14 @@ class TickRecord:
         self.contact: ContactResult = slave.contact
         self.slave_status = 0
         self.stage_ns = stage_ns
+        self.serial = 0
+        self.block: StateBlock | None = None
+
+    def state(self) -> Array:
+        """Every value of this tick as one row (:class:`~app.session.state.StateBlock`; the log's
+        columns first), filled on the first call of the tick. Read-only; valid until the next tick."""
+        assert self.block is not None, "the loop sets the record's state block"
+        return self.block.fill(self)
 
     @property
     def hand_target(self) -> Array | None:

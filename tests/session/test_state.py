@@ -1,0 +1,71 @@
+"""The tick's state block: the row every observer reads holds this tick's values, once a tick."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.controller.types import Fault
+from app.session.loop import LoopConfig, ServoLoop
+from app.session.metrics import _bit_counts
+from app.session.script import OperatorScript
+from app.session.spec import load_session
+from app.session.state import StateBlock
+from app.slave.arm import ArmStatus
+from app.spatial import matrix_to_quat
+
+
+def test_the_row_holds_each_ticks_values_even_when_only_one_observer_reads_it() -> None:
+    """Read on every tick (and by nothing else), the row's grip pose, hand wrench, tool pose and
+    contact wrench are the record's of that tick: the reading's pose and hand wrench are computed
+    on access, so a row that kept last tick's arrays would fall behind as the hand moves."""
+    session = load_session("probe_rate")
+    loop = ServoLoop(LoopConfig.from_session(session))
+    op = OperatorScript.for_loop(session.data, loop)
+    block = loop.record.block
+    assert block is not None
+    grip, hand, tool, contact = (block.starts[k] for k in ("grip", "hand_G", "tool", "contact_MRF"))
+    moved = 0
+    last = None
+    for _ in range(1500):
+        op.before_tick(loop)
+        rec = loop.tick()
+        row = rec.state()
+        T_0_G = rec.reading.T_0_G
+        np.testing.assert_array_equal(row[grip : grip + 3], T_0_G[0:3, 3])
+        np.testing.assert_allclose(row[grip + 3 : grip + 7], matrix_to_quat(T_0_G[0:3, 0:3]), atol=1e-12)
+        np.testing.assert_array_equal(row[hand : hand + 6], rec.reading.wrench_G)
+        np.testing.assert_array_equal(row[tool : tool + 3], rec.T_w_MRF[0:3, 3])
+        np.testing.assert_array_equal(row[contact : contact + 6], rec.contact_wrench_MRF)
+        assert row[block.starts["t"]] == rec.time
+        moved += last is not None and not np.array_equal(last, row[grip : grip + 3])
+        last = row[grip : grip + 3].copy()
+    assert moved > 100  # the script moves the grip: the comparison above saw changing values
+
+
+def test_the_row_is_filled_once_a_tick_and_again_after_a_reset() -> None:
+    session = load_session("probe_rate")
+    loop = ServoLoop(LoopConfig.from_session(session))
+    t = loop.record.block.starts["t"]  # type: ignore[union-attr]
+    loop.tick()
+    row = loop.record.state()
+    assert row[t] == loop.dt
+    row[t] = -1.0  # a second read in the same tick does not fill it again
+    assert loop.record.state()[t] == -1.0
+    loop.reset()
+    assert loop.record.state()[t] == 0.0
+
+
+def test_the_logged_columns_come_first_and_the_rest_is_named() -> None:
+    block = StateBlock(3)
+    assert block.names[0] == "t"
+    assert block.names[block.n_logged :] == [f"R_w_MRF_{a}{b}" for a in range(3) for b in range(3)] + ["reflecting"]
+    assert len(block.view("q")) == 3
+    assert len(block.row) == len(block.names)
+
+
+def test_bit_counts_name_the_flags_seen() -> None:
+    counts = np.zeros(63, dtype=np.int64)
+    counts[int(Fault.BAD_PERIOD).bit_length() - 1] = 4
+    counts[int(Fault.OVERSPEED).bit_length() - 1] = 1
+    assert _bit_counts(Fault, counts) == {"BAD_PERIOD": 4, "OVERSPEED": 1}
+    assert _bit_counts(ArmStatus, np.zeros(63, dtype=np.int64)) == {}

@@ -9,9 +9,16 @@ angular velocity in {B}]``.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
+
+from app.mjcall import call_model_data
+from app.world.contact.step import contact_step_bundled
+
+#: The pose of the static objects' contacts (already in {w}).
+_IDENTITY = np.eye(4)
 
 
 @njit(cache=True)
@@ -107,3 +114,96 @@ def add_reaction(
     xfrc[b, 3] = -(M[0] + dy * F[2] - dz * F[1])
     xfrc[b, 4] = -(M[1] + dz * F[0] - dx * F[2])
     xfrc[b, 5] = -(M[2] + dx * F[1] - dy * F[0])
+
+
+@njit(cache=True)
+def _copy_contacts(src: Any, count: int, T_w_B: np.ndarray, obj_offset: float, rows: np.ndarray, at: int) -> int:
+    """Append a contact model's first ``count`` output records ``src`` to ``rows`` (k, 9) from row
+    ``at``, points and normals taken from {B} to {w} by ``T_w_B`` (the identity for the static
+    model), object ids shifted by ``obj_offset``; returns the new row count."""
+    for k in range(count):
+        c = src[k]
+        row = rows[at + k]
+        for a in range(3):
+            row[a] = T_w_B[a, 0] * c.p[0] + T_w_B[a, 1] * c.p[1] + T_w_B[a, 2] * c.p[2] + T_w_B[a, 3]
+            row[3 + a] = T_w_B[a, 0] * c.n[0] + T_w_B[a, 1] * c.n[1] + T_w_B[a, 2] * c.n[2]
+        row[6] = c.depth
+        row[7] = c.sphere
+        row[8] = c.obj + obj_offset
+    return at + count
+
+
+@njit(cache=True)
+def moving_wrench(
+    T_w_MRF: np.ndarray,
+    V_w_MRF: np.ndarray,
+    has_twist: bool,
+    static: Any,
+    bodies: Any,
+    qpos: np.ndarray,
+    qvel: np.ndarray,
+    com_B: np.ndarray,
+    reach: np.ndarray,
+    tool_reach: float,
+    T_w_B: np.ndarray,
+    c_w: np.ndarray,
+    vel_w: np.ndarray,
+    T_B_MRF: np.ndarray,
+    V_B: np.ndarray,
+    near: np.ndarray,
+    xfrc: np.ndarray,
+    n_static: int,
+    w: np.ndarray,
+    rows: np.ndarray,
+    counts: np.ndarray,
+) -> int:
+    """The tool's contact with the static objects and every dynamic one near it, in one call.
+
+    Evaluates the static contact model (``static``, a
+    :class:`~app.world.contact.bundle.KernelArrays`) at ``T_w_MRF``, refreshes the objects'
+    frames (:func:`body_frames`, same buffers), evaluates each near object's model (``bodies``,
+    a tuple of them, each built on its object in {B}) at the tool's pose and relative twist in
+    {B}, and sums: ``w`` (15,) the tool's total (as ``ContactResult.w``), ``rows`` the contacts in
+    {w} (static first; object ids of dynamic object b are ``n_static + b``), ``xfrc`` (n, 6) the
+    reaction on each object (:func:`add_reaction`; zero for the others), ``counts`` (3,) the
+    models' summed queries and gathers.
+
+    Returns the number of contact rows, or a model's ``ERR_*`` code (< 0) with ``counts[2]`` the
+    model that failed (-1 the static one, else the object's index); ``xfrc`` is then zero.
+    """
+    xfrc[:] = 0.0
+    counts[2] = -1
+    code = contact_step_bundled(T_w_MRF, V_w_MRF, has_twist, static)
+    if code < 0:
+        return code
+    tool = static.tool[0]
+    for a in range(15):
+        w[a] = tool.out[a]
+    counts[0], counts[1] = tool.counts[0], tool.counts[1]
+    n_rows = _copy_contacts(static.out, code, _IDENTITY, 0.0, rows, 0)
+    body_frames(qpos, qvel, com_B, reach, T_w_MRF, V_w_MRF, tool_reach, T_w_B, c_w, vel_w, T_B_MRF, V_B, near)
+    for b in range(len(bodies)):
+        if not near[b]:
+            continue
+        model = bodies[b]
+        code = contact_step_bundled(T_B_MRF[b], V_B[b], has_twist, model)
+        if code < 0:
+            xfrc[:] = 0.0
+            counts[2] = b
+            return code
+        tool = model.tool[0]
+        counts[0] += tool.counts[0]
+        counts[1] += tool.counts[1]
+        if code == 0:
+            continue
+        add_reaction(b, T_w_B, c_w, T_w_MRF, tool.out, w, xfrc)
+        n_rows = _copy_contacts(model.out, code, T_w_B[b], n_static + b, rows, n_rows)
+    return n_rows
+
+
+@njit(cache=True)
+def world_step(mj: np.ndarray, xfrc: np.ndarray) -> None:
+    """One MuJoCo step of the objects' world (``mj``: ``[mj_step, mjModel*, mjData*]`` addresses,
+    :mod:`app.mjcall`), then the tool's reaction ``xfrc`` (n, 6) cleared: it acts for one step."""
+    call_model_data(mj[0], mj[1], mj[2])
+    xfrc[:] = 0.0

@@ -7,12 +7,15 @@ the impact): the world's contact with it and the objects' motion are the real co
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 import trimesh
 
+from app.errors import ContactInputError
+from app.world.contact import ContactModel
 from app.world.dynamics import MovingWorld, _bvh, fcl_contacts
 from app.world.scene import (
     DynamicSpec,
@@ -178,3 +181,51 @@ def test_the_slave_topples_the_stack_and_feels_it() -> None:
         felt = min(felt, slave.step(command).wrench_S[0])
     assert world.poses()[2][2, 3] < 0.05  # the top block (centre 0.15 m up at the start) is down
     assert felt < -0.05  # the sensor felt the push (the force on the tool is along -x)
+
+
+def test_the_moving_world_reads_a_resting_object_as_the_static_model_does() -> None:
+    """One compiled call evaluates the static model and each object's own (in its frame {B}):
+    with the box at rest at its initial pose, the tool's wrench and contacts in {w} are those of
+    the same scene with the box static (its object id shifted past the static objects)."""
+    moving = load_scene("box_push")
+    spec = moving.spec
+    static = build_scene(
+        dataclasses.replace(spec, objects=tuple(dataclasses.replace(o, dynamic=None) for o in spec.objects))
+    )
+    world, model = MovingWorld(moving, DT), ContactModel(static)
+    # The stylus's tip 1 mm into the box's -x face, tilted 30 deg about y (so the capsule's
+    # spheres touch too), moving along +x and turning.
+    T = pose(-0.029, 0.005, 0.02)
+    T[0:3, 0:3] = np.array([[0.866, 0.0, 0.5], [0.0, 1.0, 0.0], [-0.5, 0.0, 0.866]])
+    T[0:3, 0:3] /= np.linalg.norm(T[0:3, 0:3], axis=0)
+    V = np.array([0.01, 0.002, 0.0, 0.0, 0.3, 0.0])
+    got, want = world.wrench(T, V), model.wrench(T, V)
+    assert (want.object_ids == 1).sum() >= 2  # the tip and a capsule sphere on the box
+    assert got.w == pytest.approx(want.w, abs=1e-12)
+
+    def ordered(rows: np.ndarray) -> np.ndarray:  # by object, sphere, point (the models' orders differ)
+        return rows[np.lexsort((*np.round(rows[:, 0:3].T, 9), rows[:, 7], rows[:, 8]))]
+
+    # The box is object 1 in both: after the one static object, and second in the file.
+    assert ordered(got.contacts) == pytest.approx(ordered(want.contacts), abs=1e-12)
+    # The reaction on the box is the tool's force, opposite.
+    assert world._xfrc[0, 0:3] == pytest.approx(-got.force_w, abs=1e-12)
+
+
+def test_the_moving_world_refuses_bad_poses_as_the_contact_model_does() -> None:
+    world = MovingWorld(load_scene("box_push"), DT)
+    T = pose(-0.029, 0.0, 0.02)
+    assert world.wrench(T.tolist()).w == pytest.approx(world.wrench(T).w)  # nested lists are read
+    T_nan = T.copy()
+    T_nan[0, 3] = np.nan
+    bad = world.wrench(T_nan, np.zeros(6))
+    assert not bad.valid
+    assert bad.error == "non-finite tool pose"
+    assert not bad.w.any()
+    assert not world._xfrc.any()
+    skew = T.copy()
+    skew[0, 0] = 1.1
+    with pytest.raises(ContactInputError, match="not a rigid transform"):
+        world.wrench(skew)
+    with pytest.raises(ContactInputError, match=r"V_w_MRF must have shape \(6,\)"):
+        world.wrench(T, np.zeros(3))

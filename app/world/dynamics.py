@@ -74,6 +74,12 @@ from app.world.scene import Body, Scene, WorldObject
 #: sinks 4 um.
 TIMECONST = 0.004
 _SHAPE_T, _SHAPE_V = (4, 4), (6,)
+#: The grip's natural frequency times the step (-): the held object follows the tool as a
+#: critically damped oscillator of this frequency in every direction (its stiffness ``m omega^2``
+#: and ``I omega^2`` scale with its mass and inertia), as stiff as the explicit coupling at the
+#: step keeps well stable (it sags ``g / omega^2`` = 0.25 mm under its own weight at 1 kHz). A
+#: numerical choice, not a gripper's.
+GRIP_OMEGA_H = 0.2
 #: Most contacts read from one FCL pair per step (before merging duplicates).
 FCL_MAX_CONTACTS = 64
 #: FCL contacts whose normals' cosine exceeds this are one group (one contact).
@@ -277,13 +283,21 @@ class MovingWorld:
         self._no_contacts = self._rows[:0]
         self._no_contacts.flags.writeable = False
         self._counts = np.zeros(3, dtype=np.int64)
+        self._last_count = 0
+        # The grip: [held object or -1, omega, its mass, its inertia in {B} (9)] and the held
+        # object's pose in {MRF} (add_grip).
+        self._grip = np.zeros(12)
+        self._grip[0] = -1.0
+        self._T_MRF_H = np.eye(4)
+        self._T_w_MRF = tool.T_w_MRF_home.copy()  # the tool's pose at the last wrench
         # moving_wrench's arguments after the pose, twist and flag, the same objects every call:
         # the compiled call is entered without numba's typing of its arguments (app.compiled);
         # ``wrench`` checks the pose and twist.
         self._args = (
             self.static.arrays, tuple(m.arrays for m in self.models), self._qpos, self._qvel, self._com,
             self._reach, self._tool_reach, self._T, self._c, self._vel, self._T_B_MRF, self._V_B, self._near,
-            self._xfrc, len(scene.objects), self._w, self._rows, self._counts,
+            self._xfrc, len(scene.objects), self._grip, self._T_MRF_H, tool.T_MRF_S.copy(), self._w, self._rows,
+            self._counts,
         )  # fmt: skip
         self._wrench = entry_point(moving_wrench, np.eye(4), self._no_twist, False, *self._args)
         self._step = entry_point(world_step, self._mj, self._xfrc)
@@ -337,6 +351,7 @@ class MovingWorld:
         self.static.reset()
         for m in self.models:
             m.reset()
+        self._grip[0] = -1.0
         self._frames()
 
     def _frames(self) -> None:
@@ -369,12 +384,45 @@ class MovingWorld:
             code = self._wrench(T_w_MRF, self._no_twist, False, *self._args)
         else:
             code = self._wrench(T_w_MRF, V_w_MRF, True, *self._args)
+        self._T_w_MRF = T_w_MRF
         queries, gathers, which = self._counts.tolist()
+        self._last_count = max(code, 0)
         if code < 0:
             (self.static if which < 0 else self.models[which]).reset()
             return failed(code)
         rows = self._rows[:code].copy() if code else self._no_contacts
         return ContactResult(True, self._w.copy(), rows, queries, gathers, None)
+
+    # --- the grip ----------------------------------------------------------------------------
+    @property
+    def held(self) -> int:
+        """Index of the dynamic object the grip holds, or -1."""
+        return int(self._grip[0])
+
+    def grip(self, on: bool) -> int:
+        """Close the grip on the dynamic object the tool touches (or open it: ``on`` False).
+
+        Closing holds the object the tool's last :meth:`wrench` touched (the one with the most
+        contacts) where it is in {MRF} then; from the next :meth:`wrench` it follows the tool
+        through a critically damped spring (:data:`GRIP_OMEGA_H`, module docstring) instead of
+        the tool's spheres. Returns the object held, or -1 (nothing touched, or opened).
+        """
+        self._grip[0] = -1.0
+        if not on:
+            return -1
+        touched = self._rows[: int(self._last_count)]
+        ids = touched[:, 8].astype(np.int64) - len(self.scene.objects)
+        ids = ids[ids >= 0]
+        if not len(ids):
+            return -1
+        b = int(np.bincount(ids).argmax())
+        body = self.scene.bodies[b]
+        self._grip[1], self._grip[2] = GRIP_OMEGA_H / self._h, body.mass
+        self._grip[3:12] = body.inertia_B.ravel()
+        self._frames()
+        self._T_MRF_H[:] = np.linalg.solve(self._T_w_MRF, self._T[b])
+        self._grip[0] = b
+        return b
 
     # --- the objects' motion -----------------------------------------------------------------
     def step(self, h: float) -> None:

@@ -153,6 +153,9 @@ def moving_wrench(
     near: np.ndarray,
     xfrc: np.ndarray,
     n_static: int,
+    grip: np.ndarray,
+    T_MRF_H: np.ndarray,
+    T_MRF_S: np.ndarray,
     w: np.ndarray,
     rows: np.ndarray,
     counts: np.ndarray,
@@ -166,7 +169,9 @@ def moving_wrench(
     {B}, and sums: ``w`` (15,) the tool's total (as ``ContactResult.w``), ``rows`` the contacts in
     {w} (static first; object ids of dynamic object b are ``n_static + b``), ``xfrc`` (n, 6) the
     reaction on each object (:func:`add_reaction`; zero for the others), ``counts`` (3,) the
-    models' summed queries and gathers.
+    models' summed queries and gathers. ``grip`` ``[held object or -1, its gains]``: an
+    object held is not touched by the tool's spheres but by the grip (:func:`add_grip`, its
+    pose in {MRF} held ``T_MRF_H``; ``T_MRF_S`` the sensor's pose in {MRF}).
 
     Returns the number of contact rows, or a model's ``ERR_*`` code (< 0) with ``counts[2]`` the
     model that failed (-1 the static one, else the object's index); ``xfrc`` is then zero.
@@ -182,6 +187,10 @@ def moving_wrench(
     counts[0], counts[1] = tool.counts[0], tool.counts[1]
     n_rows = _copy_contacts(static.out, code, _IDENTITY, 0.0, rows, 0)
     body_frames(qpos, qvel, com_B, reach, T_w_MRF, V_w_MRF, tool_reach, T_w_B, c_w, vel_w, T_B_MRF, V_B, near)
+    held = int(grip[0])
+    if held >= 0:
+        near[held] = 0
+        add_grip(held, grip, T_MRF_H, T_MRF_S, T_w_B, c_w, vel_w, com_B, T_w_MRF, V_w_MRF, w, xfrc)
     for b in range(len(bodies)):
         if not near[b]:
             continue
@@ -199,6 +208,86 @@ def moving_wrench(
         add_reaction(b, T_w_B, c_w, T_w_MRF, tool.out, w, xfrc)
         n_rows = _copy_contacts(model.out, code, T_w_B[b], n_static + b, rows, n_rows)
     return n_rows
+
+
+@njit(cache=True)
+def add_grip(
+    b: int,
+    grip: np.ndarray,
+    T_MRF_H: np.ndarray,
+    T_MRF_S: np.ndarray,
+    T_w_B: np.ndarray,
+    c_w: np.ndarray,
+    vel_w: np.ndarray,
+    com_B: np.ndarray,
+    T_w_MRF: np.ndarray,
+    V_w_MRF: np.ndarray,
+    w: np.ndarray,
+    xfrc: np.ndarray,
+) -> None:
+    """The grip holding object b at ``T_MRF_H`` (its frame {B} held in {MRF}): a spring-damper
+    between the object and where the tool carries it, critically damped at the natural frequency
+    ``grip[1]`` (rad/s) in every direction: on the centre of mass ``F = m (omega^2 e + 2 omega
+    de/dt)`` (``grip[2]`` = m, kg), about it ``M = I (omega^2 theta + 2 omega dtheta/dt)`` with
+    I the inertia in {w} (from ``grip[3:12]``, the inertia in {B}, kg m^2) and theta the rotation
+    error. F and M (on the object at its centre of mass, {w}) are added to ``xfrc[b]``, and -F
+    at the same point and -M to the tool's ``w`` (15,): equal and opposite at the same instant,
+    as a contact's."""
+    R, P = T_w_B[b], T_w_MRF
+    omega, mass = grip[1], grip[2]
+    # Target pose of {B}: T_w_MRF T_MRF_H (Rt, pt); its centre of mass ct.
+    Rt = np.empty((3, 3))
+    ct = np.empty(3)
+    for a in range(3):
+        for c in range(3):
+            Rt[a, c] = P[a, 0] * T_MRF_H[0, c] + P[a, 1] * T_MRF_H[1, c] + P[a, 2] * T_MRF_H[2, c]
+    for a in range(3):
+        pt = P[a, 0] * T_MRF_H[0, 3] + P[a, 1] * T_MRF_H[1, 3] + P[a, 2] * T_MRF_H[2, 3] + P[a, 3]
+        ct[a] = Rt[a, 0] * com_B[b, 0] + Rt[a, 1] * com_B[b, 1] + Rt[a, 2] * com_B[b, 2] + pt
+    # Velocities of the target and of the centre of mass; rotation error: the axis-angle vector
+    # of Rt R^T from its skew part (the grip holds it to small angles).
+    rt = ct - P[0:3, 3]
+    r = c_w[b] - R[0:3, 3]
+    vt = V_w_MRF[0:3] + np.cross(V_w_MRF[3:6], rt)
+    vb = vel_w[b, 0:3] + np.cross(vel_w[b, 3:6], r)
+    E = np.empty((3, 3))
+    for a in range(3):
+        for c in range(3):
+            E[a, c] = Rt[a, 0] * R[c, 0] + Rt[a, 1] * R[c, 1] + Rt[a, 2] * R[c, 2]
+    theta = (0.5 * (E[2, 1] - E[1, 2]), 0.5 * (E[0, 2] - E[2, 0]), 0.5 * (E[1, 0] - E[0, 1]))
+    # The angular acceleration the spring asks for, in {B} axes, then M = R I_B alpha_B.
+    alpha = np.empty(3)
+    for a in range(3):
+        alpha[a] = omega * omega * theta[a] + 2.0 * omega * (V_w_MRF[3 + a] - vel_w[b, 3 + a])
+    F = np.empty(3)
+    M = np.empty(3)
+    for a in range(3):
+        F[a] = mass * (omega * omega * (ct[a] - c_w[b, a]) + 2.0 * omega * (vt[a] - vb[a]))
+        M[a] = 0.0
+        for c in range(3):
+            # (R I_B R^T alpha)_a
+            ia = 0.0
+            for e in range(3):
+                ia += grip[3 + 3 * c + e] * (R[0, e] * alpha[0] + R[1, e] * alpha[1] + R[2, e] * alpha[2])
+            M[a] += R[a, c] * ia
+    for a in range(3):
+        xfrc[b, a] += F[a]
+        xfrc[b, 3 + a] += M[a]
+    # On the tool: -F at the object's centre of mass and -M, about {MRF}'s origin in {w}; then
+    # w's blocks as app.world.contact.force.write_wrench makes them ({S}, {MRF}, {w}).
+    M_w = -M - np.cross(r + R[0:3, 3] - P[0:3, 3], F)
+    f_m = np.empty(3)
+    m_m = np.empty(3)
+    for a in range(3):
+        f_m[a] = -(P[0, a] * F[0] + P[1, a] * F[1] + P[2, a] * F[2])
+        m_m[a] = P[0, a] * M_w[0] + P[1, a] * M_w[1] + P[2, a] * M_w[2]
+    m_o = m_m - np.cross(T_MRF_S[0:3, 3], f_m)
+    for a in range(3):
+        w[a] += T_MRF_S[0, a] * f_m[0] + T_MRF_S[1, a] * f_m[1] + T_MRF_S[2, a] * f_m[2]
+        w[3 + a] += T_MRF_S[0, a] * m_o[0] + T_MRF_S[1, a] * m_o[1] + T_MRF_S[2, a] * m_o[2]
+        w[6 + a] += f_m[a]
+        w[9 + a] += m_m[a]
+        w[12 + a] -= F[a]
 
 
 @njit(cache=True)

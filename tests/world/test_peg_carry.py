@@ -8,6 +8,7 @@ code.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -37,7 +38,7 @@ GRIP, RELEASE = 0.5, 4.0
 def _tip(t: float) -> tuple[np.ndarray, np.ndarray]:
     """Pose and twist of {MRF} at time t on PATH (straight segments at constant speed)."""
     T = np.eye(4)
-    for (t0, p0), (t1, p1) in zip(PATH, PATH[1:], strict=False):
+    for (t0, p0), (t1, p1) in itertools.pairwise(PATH):
         if t <= t1:
             a, b = np.array(p0), np.array(p1)
             T[0:3, 3] = a + (t - t0) / (t1 - t0) * (b - a)

@@ -144,9 +144,15 @@ def _world_xml(scene: Scene, timestep: float) -> str:
     for j, o in enumerate(scene.objects):
         spec = next(s for s in scene.spec.objects if s.name == o.name)
         shape = spec.shape
-        if shape in ("mesh", "plane") and _convex(o, shape):
+        if shape == "mesh" and _convex(o, shape):
             assets.append(_mesh_asset(f"s{j}", o.mesh))  # in {w}: the pose is in its vertices
             statics.append(_geom(f"s{j}", o, "mesh", None, np.eye(4), None))
+        elif shape == "plane":
+            # The thin box it is (top face at the pose's z = 0) as MuJoCo's box, whose box-box
+            # collider beat the same box as a mesh (stack_topple's step 6.8 against 7.4 us).
+            t = spec.plane_thickness
+            below = spec.pose.matrix() @ np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, -t / 2], [0, 0, 0, 1.0]])
+            statics.append(_geom(f"s{j}", o, "box", (*spec.plane, t), below, None))
         else:
             statics.append(_geom(f"s{j}", o, shape, getattr(spec, shape), spec.pose.matrix(), None))
     for b, body in enumerate(scene.bodies):
@@ -303,11 +309,14 @@ class MovingWorld:
         # moving_wrench's arguments after the pose, twist and flag, the same objects every call:
         # the compiled call is entered without numba's typing of its arguments (app.compiled);
         # ``wrench`` checks the pose and twist.
+        # body_frames's arguments after the pose and twist.
+        self._frame_args = (
+            self._qpos, self._qvel, self._com, self._reach, self._tool_reach, self._T, self._c, self._vel,
+            self._T_B_MRF, self._V_B, self._near,
+        )  # fmt: skip
         self._args = (
-            self.static.arrays, tuple(m.arrays for m in self.models), self._qpos, self._qvel, self._com,
-            self._reach, self._tool_reach, self._T, self._c, self._vel, self._T_B_MRF, self._V_B, self._near,
-            self._xfrc, len(scene.objects), self._grip, self._T_MRF_H, tool.T_MRF_S.copy(), self._w, self._rows,
-            self._counts,
+            self.static.arrays, tuple(m.arrays for m in self.models), self._frame_args, self._xfrc,
+            len(scene.objects), self._grip, self._T_MRF_H, tool.T_MRF_S.copy(), self._w, self._rows, self._counts,
         )  # fmt: skip
         self._wrench = entry_point(moving_wrench, np.eye(4), self._no_twist, False, *self._args)
         self._step = entry_point(world_step, self._mj, self._xfrc)
@@ -366,10 +375,7 @@ class MovingWorld:
 
     def _frames(self) -> None:
         """Refresh the objects' frames, centres of mass and twists in {w} (the world's buffers)."""
-        body_frames(
-            self._qpos, self._qvel, self._com, self._reach, self._any_pose, self._no_twist, self._tool_reach,
-            self._T, self._c, self._vel, self._T_B_MRF, self._V_B, self._near,
-        )  # fmt: skip
+        body_frames(self._any_pose, self._no_twist, *self._frame_args)
 
     def poses(self) -> Array:
         """Poses of the dynamic objects' frames {B} in {w}, (n, 4, 4) (a new array)."""

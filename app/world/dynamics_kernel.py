@@ -23,12 +23,12 @@ _IDENTITY = np.eye(4)
 
 @njit(cache=True)
 def body_frames(
+    T_w_MRF: np.ndarray,
+    V_w_MRF: np.ndarray,
     qpos: np.ndarray,
     qvel: np.ndarray,
     com_B: np.ndarray,
     reach: np.ndarray,
-    T_w_MRF: np.ndarray,
-    V_w_MRF: np.ndarray,
     tool_reach: float,
     T_w_B: np.ndarray,
     c_w: np.ndarray,
@@ -40,10 +40,10 @@ def body_frames(
     """Every object's pose, centre of mass and twist in {w}, and the tool seen from it.
 
     Args:
+        T_w_MRF, V_w_MRF: The tool's pose (4, 4) and twist ``[v; w]`` in {w} (6,).
         qpos, qvel: MuJoCo's free-joint state, (n, 7), (n, 6).
         com_B: Centres of mass in {B} (m), (n, 3).
         reach: Each object's bounding-sphere radius about {B}'s origin (m), (n,).
-        T_w_MRF, V_w_MRF: The tool's pose (4, 4) and twist ``[v; w]`` in {w} (6,).
         tool_reach: Radius (m) about {MRF}'s origin within which the tool's spheres lie.
         T_w_B, c_w, vel_w: Out: poses (n, 4, 4), centres of mass (n, 3), twists ``[v of the
             origin; w]`` in {w} (n, 6).
@@ -140,17 +140,7 @@ def moving_wrench(
     has_twist: bool,
     static: Any,
     bodies: Any,
-    qpos: np.ndarray,
-    qvel: np.ndarray,
-    com_B: np.ndarray,
-    reach: np.ndarray,
-    tool_reach: float,
-    T_w_B: np.ndarray,
-    c_w: np.ndarray,
-    vel_w: np.ndarray,
-    T_B_MRF: np.ndarray,
-    V_B: np.ndarray,
-    near: np.ndarray,
+    frames: Any,
     xfrc: np.ndarray,
     n_static: int,
     grip: np.ndarray,
@@ -164,7 +154,7 @@ def moving_wrench(
 
     Evaluates the static contact model (``static``, a
     :class:`~app.world.contact.bundle.KernelArrays`) at ``T_w_MRF``, refreshes the objects'
-    frames (:func:`body_frames`, same buffers), evaluates each near object's model (``bodies``,
+    frames (``frames``: :func:`body_frames`'s arguments after the pose and twist), evaluates each near object's model (``bodies``,
     a tuple of them, each built on its object in {B}) at the tool's pose and relative twist in
     {B}, and sums: ``w`` (15,) the tool's total (as ``ContactResult.w``), ``rows`` the contacts in
     {w} (static first; object ids of dynamic object b are ``n_static + b``), ``xfrc`` (n, 6) the
@@ -186,7 +176,8 @@ def moving_wrench(
         w[a] = tool.out[a]
     counts[0], counts[1] = tool.counts[0], tool.counts[1]
     n_rows = _copy_contacts(static.out, code, _IDENTITY, 0.0, rows, 0)
-    body_frames(qpos, qvel, com_B, reach, T_w_MRF, V_w_MRF, tool_reach, T_w_B, c_w, vel_w, T_B_MRF, V_B, near)
+    body_frames(T_w_MRF, V_w_MRF, *frames)
+    _, _, com_B, _, _, T_w_B, c_w, vel_w, T_B_MRF, V_B, near = frames
     held = int(grip[0])
     if held >= 0:
         near[held] = 0

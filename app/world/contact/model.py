@@ -225,24 +225,25 @@ class ContactModel:
             ContactInputError: The pose or twist has the wrong shape or type, or the pose is not
                 a rigid transform (a reflection, a scaled or sheared rotation): misuse, not data.
         """
-        if (
-            T_w_MRF.__class__ is not np.ndarray
-            or T_w_MRF.dtype is not F8
-            or not T_w_MRF.flags.c_contiguous
-            or T_w_MRF.shape != _SHAPE_T
+        if not (
+            T_w_MRF.__class__ is np.ndarray
+            and T_w_MRF.dtype is F8
+            and T_w_MRF.flags.c_contiguous
+            and T_w_MRF.shape == _SHAPE_T
+            and (
+                V_w_MRF is None
+                or (
+                    V_w_MRF.__class__ is np.ndarray
+                    and V_w_MRF.dtype is F8
+                    and V_w_MRF.flags.c_contiguous
+                    and V_w_MRF.shape == _SHAPE_V
+                )
+            )
         ):
             T_w_MRF, V_w_MRF = contact_inputs(T_w_MRF, V_w_MRF)
         if V_w_MRF is None:
             code = self._step(T_w_MRF, self._no_twist, False, self.arrays)
         else:
-            if (
-                V_w_MRF.__class__ is not np.ndarray
-                or V_w_MRF.dtype is not F8
-                or not V_w_MRF.flags.c_contiguous
-                or V_w_MRF.shape != _SHAPE_V
-            ):
-                T_w_MRF, V_w_MRF = contact_inputs(T_w_MRF, V_w_MRF)
-                assert V_w_MRF is not None
             code = self._step(T_w_MRF, V_w_MRF, True, self.arrays)
         if code < 0:
             self.reset()

@@ -151,6 +151,7 @@ def _world_xml(scene: Scene, timestep: float) -> str:
             # The thin box it is (top face at the pose's z = 0) as MuJoCo's box, whose box-box
             # collider beat the same box as a mesh (stack_topple's step 6.8 against 7.4 us).
             t = spec.plane_thickness
+            assert spec.plane is not None
             below = spec.pose.matrix() @ np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, -t / 2], [0, 0, 0, 1.0]])
             statics.append(_geom(f"s{j}", o, "box", (*spec.plane, t), below, None))
         else:

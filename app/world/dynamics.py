@@ -294,13 +294,12 @@ class MovingWorld:
         self._any_pose = tool.T_w_MRF_home.copy()
         self._no_twist = np.zeros(6)
         # Outputs of moving_wrench: the tool's wrench, the contacts of every model in {w} (each
-        # model's capacity), the summed queries and gathers and which model failed.
+        # model's capacity), the summed queries and gathers, which model failed and the row count.
         self._w = np.zeros(15)
         self._rows = np.zeros((MAX_PER_PAIR * len(tool.radii) * (len(scene.objects) + n) + 1, 9))
         self._no_contacts = self._rows[:0]
         self._no_contacts.flags.writeable = False
-        self._counts = np.zeros(3, dtype=np.int64)
-        self._last_count = 0
+        self._counts = np.zeros(4, dtype=np.int64)
         # The grip: [held object or -1, omega, its mass, its inertia in {B} (9)] and the held
         # object's pose in {MRF} (add_grip).
         self._grip = np.zeros(12)
@@ -402,8 +401,7 @@ class MovingWorld:
         else:
             code = self._wrench(T_w_MRF, V_w_MRF, True, *self._args)
         self._T_w_MRF = T_w_MRF
-        queries, gathers, which = self._counts.tolist()
-        self._last_count = max(code, 0)
+        queries, gathers, which, _ = self._counts.tolist()
         if code < 0:
             (self.static if which < 0 else self.models[which]).reset()
             return failed(code)
@@ -427,7 +425,7 @@ class MovingWorld:
         self._grip[0] = -1.0
         if not on:
             return -1
-        touched = self._rows[: int(self._last_count)]
+        touched = self._rows[: int(self._counts[3])]
         ids = touched[:, 8].astype(np.int64) - len(self.scene.objects)
         ids = ids[ids >= 0]
         if not len(ids):

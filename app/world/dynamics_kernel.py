@@ -158,16 +158,18 @@ def moving_wrench(
     a tuple of them, each built on its object in {B}) at the tool's pose and relative twist in
     {B}, and sums: ``w`` (15,) the tool's total (as ``ContactResult.w``), ``rows`` the contacts in
     {w} (static first; object ids of dynamic object b are ``n_static + b``), ``xfrc`` (n, 6) the
-    reaction on each object (:func:`add_reaction`; zero for the others), ``counts`` (3,) the
-    models' summed queries and gathers. ``grip`` ``[held object or -1, its gains]``: an
+    reaction on each object (:func:`add_reaction`; zero for the others), ``counts`` (4,) the
+    models' summed queries and gathers, and (below) the model that failed and the row count. ``grip`` ``[held object or -1, its gains]``: an
     object held is not touched by the tool's spheres but by the grip (:func:`add_grip`, its
     pose in {MRF} held ``T_MRF_H``; ``T_MRF_S`` the sensor's pose in {MRF}).
 
-    Returns the number of contact rows, or a model's ``ERR_*`` code (< 0) with ``counts[2]`` the
-    model that failed (-1 the static one, else the object's index); ``xfrc`` is then zero.
+    Returns the number of contact rows (also ``counts[3]``), or a model's ``ERR_*`` code (< 0)
+    with ``counts[2]`` the model that failed (-1 the static one, else the object's index);
+    ``xfrc`` and ``counts[3]`` are then zero.
     """
     xfrc[:] = 0.0
     counts[2] = -1
+    counts[3] = 0
     code = contact_step_bundled(T_w_MRF, V_w_MRF, has_twist, static)
     if code < 0:
         return code
@@ -198,6 +200,7 @@ def moving_wrench(
             continue
         add_reaction(b, T_w_B, c_w, T_w_MRF, tool.out, w, xfrc)
         n_rows = _copy_contacts(model.out, code, T_w_B[b], n_static + b, rows, n_rows)
+    counts[3] = n_rows
     return n_rows
 
 

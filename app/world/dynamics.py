@@ -306,14 +306,14 @@ class MovingWorld:
         self._grip[0] = -1.0
         self._T_MRF_H = np.eye(4)
         self._T_w_MRF = tool.T_w_MRF_home.copy()  # the tool's pose at the last wrench
-        # moving_wrench's arguments after the pose, twist and flag, the same objects every call:
-        # the compiled call is entered without numba's typing of its arguments (app.compiled);
-        # ``wrench`` checks the pose and twist.
         # body_frames's arguments after the pose and twist.
         self._frame_args = (
             self._qpos, self._qvel, self._com, self._reach, self._tool_reach, self._T, self._c, self._vel,
             self._T_B_MRF, self._V_B, self._near,
         )  # fmt: skip
+        # moving_wrench's arguments after the pose, twist and flag, the same objects every call:
+        # the compiled call is entered without numba's typing of its arguments (app.compiled);
+        # ``wrench`` checks the pose and twist.
         self._args = (
             self.static.arrays, tuple(m.arrays for m in self.models), self._frame_args, self._xfrc,
             len(scene.objects), self._grip, self._T_MRF_H, tool.T_MRF_S.copy(), self._w, self._rows, self._counts,

@@ -14,7 +14,11 @@ Contact, per pair:
   tool's material points as seen from {B}), so its memory, caches and culling work as for a
   static mesh and nothing is rebuilt per tick. The wrench it returns on the tool is applied,
   equal and opposite, to the object at the same instant (``xfrc_applied`` for the substep that
-  follows): the F/T sensor and the object feel the same impulse.
+  follows): the F/T sensor and the object feel the same impulse. The static model, the
+  objects' frames and every near object's model are evaluated in one compiled call
+  (:func:`~app.world.dynamics_kernel.moving_wrench`, entered without numba's argument typing):
+  a call into each model from Python cost ~2 us of crossing apiece, and the frame arithmetic
+  around them as much again (stack_topple's wrench: 8.8 us median, 5.3 us in one call).
 - **Object - object and object - static, convex shapes**: MuJoCo's own collision (boxes,
   spheres, cylinders, planes as its primitives, a convex mesh as itself), with its elliptic
   friction cone (a pair's coefficient is the larger of the two, MuJoCo's rule) and soft
@@ -37,7 +41,17 @@ Contact, per pair:
   contact: its deepest depth, its mean normal, at the depth-weighted mean of its points. A face
   on a face is one spring at its centre of pressure; a peg against a hole's floor and wall, two.
   This path is slow: a step took tens of milliseconds once many triangle pairs touched (a peg
-  in its hole, a ball in a channel), so no shipped scene uses it yet.
+  in its hole, a ball in a channel), so no shipped scene uses it yet: ``peg_carry`` authors its
+  holed collar as convex boxes, which MuJoCo collides with the peg (a cylinder) in 8.7 us a
+  step with the peg in the bore (median, measured).
+- **The grip** (:meth:`MovingWorld.grip`): the tool holds the dynamic object it touches where
+  it is in {MRF}, through a spring-damper computed with the tool's contacts
+  (:func:`~app.world.dynamics_kernel.add_grip`): critically damped at ``omega = GRIP_OMEGA_H /
+  h`` in every direction (stiffness ``m omega^2`` on the centre of mass, ``I omega^2`` about it,
+  so a light peg's spin, 12 times less inertia than its tilt, is as stable as the rest; equal
+  gains on all axes made the 15 g peg unstable at 1 ms, measured), its force on the tool equal
+  and opposite at the same instant: carried still, the F/T reads the peg's weight. The held
+  object leaves the tool's sphere contact (the grip is that contact).
 
 Frames: {w} the world, {B} a dynamic object's frame (the MuJoCo body frame; its centre of mass
 is ``Body.com_B`` in it). MuJoCo's free joint holds {B}'s origin (world) and orientation, its
@@ -55,16 +69,27 @@ import mujoco
 import numpy as np
 import trimesh
 
+from app.compiled import entry_point, is_f8
+from app.mjcall import address, pointers
 from app.spatial import Array, matrix_to_quat
 from app.world.contact import ContactModel, ContactResult
 from app.world.contact.force import V_SLIP
-from app.world.dynamics_kernel import add_reaction, body_frames
+from app.world.contact.layout import MAX_PER_PAIR
+from app.world.contact.model import contact_inputs, failed
+from app.world.dynamics_kernel import body_frames, moving_wrench, world_step
 from app.world.scene import Body, Scene, WorldObject
 
 #: Time constant (s) of MuJoCo's soft contacts between objects: a numerical choice (MuJoCo asks
 #: for at least two timesteps; four at the 1 ms servo period). A 0.2 kg box resting on a plane
 #: sinks 4 um.
 TIMECONST = 0.004
+_SHAPE_T, _SHAPE_V = (4, 4), (6,)
+#: The grip's natural frequency times the step (-): the held object follows the tool as a
+#: critically damped oscillator of this frequency in every direction (its stiffness ``m omega^2``
+#: and ``I omega^2`` scale with its mass and inertia), as stiff as the explicit coupling at the
+#: step keeps well stable (it sags ``g / omega^2`` = 0.25 mm under its own weight at 1 kHz). A
+#: numerical choice, not a gripper's.
+GRIP_OMEGA_H = 0.2
 #: Most contacts read from one FCL pair per step (before merging duplicates).
 FCL_MAX_CONTACTS = 64
 #: FCL contacts whose normals' cosine exceeds this are one group (one contact).
@@ -119,9 +144,16 @@ def _world_xml(scene: Scene, timestep: float) -> str:
     for j, o in enumerate(scene.objects):
         spec = next(s for s in scene.spec.objects if s.name == o.name)
         shape = spec.shape
-        if shape in ("mesh", "plane") and _convex(o, shape):
+        if shape == "mesh" and _convex(o, shape):
             assets.append(_mesh_asset(f"s{j}", o.mesh))  # in {w}: the pose is in its vertices
             statics.append(_geom(f"s{j}", o, "mesh", None, np.eye(4), None))
+        elif shape == "plane":
+            # The thin box it is (top face at the pose's z = 0) as MuJoCo's box, whose box-box
+            # collider beat the same box as a mesh (stack_topple's step 6.8 against 7.4 us).
+            t = spec.plane_thickness
+            assert spec.plane is not None
+            below = spec.pose.matrix() @ np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, -t / 2], [0, 0, 0, 1.0]])
+            statics.append(_geom(f"s{j}", o, "box", (*spec.plane, t), below, None))
         else:
             statics.append(_geom(f"s{j}", o, shape, getattr(spec, shape), spec.pose.matrix(), None))
     for b, body in enumerate(scene.bodies):
@@ -241,6 +273,8 @@ class MovingWorld:
         self.models = [ContactModel(dataclasses.replace(scene, objects=(b.object,), bodies=())) for b in scene.bodies]
         self.model = mujoco.MjModel.from_xml_string(_world_xml(scene, timestep))
         self.data = mujoco.MjData(self.model)
+        self._h = timestep
+        self._mj = np.array((address("mj_step"), *pointers(self.model, self.data)), dtype=np.int64)
         n = len(scene.bodies)
         self._qpos = self.data.qpos.reshape(n, 7)
         self._qvel = self.data.qvel.reshape(n, 6)
@@ -256,8 +290,36 @@ class MovingWorld:
         self._T, self._T_B_MRF = np.zeros((n, 4, 4)), np.zeros((n, 4, 4))
         self._c, self._vel, self._V_B = np.zeros((n, 3)), np.zeros((n, 6)), np.zeros((n, 6))
         self._near = np.zeros(n, dtype=np.int64)
-        self._T_w_MRF = tool.T_w_MRF_home.copy()
+        # A tool pose for body_frames when only the objects' frames are wanted (poses, FCL).
+        self._any_pose = tool.T_w_MRF_home.copy()
         self._no_twist = np.zeros(6)
+        # Outputs of moving_wrench: the tool's wrench, the contacts of every model in {w} (each
+        # model's capacity), the summed queries and gathers, which model failed and the row count.
+        self._w = np.zeros(15)
+        self._rows = np.zeros((MAX_PER_PAIR * len(tool.radii) * (len(scene.objects) + n) + 1, 9))
+        self._no_contacts = self._rows[:0]
+        self._no_contacts.flags.writeable = False
+        self._counts = np.zeros(4, dtype=np.int64)
+        # The grip: [held object or -1, omega, its mass, its inertia in {B} (9)] and the held
+        # object's pose in {MRF} (add_grip).
+        self._grip = np.zeros(12)
+        self._grip[0] = -1.0
+        self._T_MRF_H = np.eye(4)
+        self._T_w_MRF = tool.T_w_MRF_home.copy()  # the tool's pose at the last wrench
+        # body_frames's arguments after the pose and twist.
+        self._frame_args = (
+            self._qpos, self._qvel, self._com, self._reach, self._tool_reach, self._T, self._c, self._vel,
+            self._T_B_MRF, self._V_B, self._near,
+        )  # fmt: skip
+        # moving_wrench's arguments after the pose, twist and flag, the same objects every call:
+        # the compiled call is entered without numba's typing of its arguments (app.compiled);
+        # ``wrench`` checks the pose and twist.
+        self._args = (
+            self.static.arrays, tuple(m.arrays for m in self.models), self._frame_args, self._xfrc,
+            len(scene.objects), self._grip, self._T_MRF_H, tool.T_MRF_S.copy(), self._w, self._rows, self._counts,
+        )  # fmt: skip
+        self._wrench = entry_point(moving_wrench, np.eye(4), self._no_twist, False, *self._args)
+        self._step = entry_point(world_step, self._mj, self._xfrc)
         self.reset()
 
     def _fcl_pairs(self) -> list[FclPair]:
@@ -308,68 +370,85 @@ class MovingWorld:
         self.static.reset()
         for m in self.models:
             m.reset()
-        self._frames(self._T_w_MRF, self._no_twist)
+        self._grip[0] = -1.0
+        self._frames()
 
-    def _frames(self, T_w_MRF: Array, V_w_MRF: Array) -> None:
-        """Refresh the objects' frames and the tool's pose and twist in each (the world's buffers)."""
-        body_frames(
-            self._qpos, self._qvel, self._com, self._reach, T_w_MRF, V_w_MRF, self._tool_reach,
-            self._T, self._c, self._vel, self._T_B_MRF, self._V_B, self._near,
-        )  # fmt: skip
+    def _frames(self) -> None:
+        """Refresh the objects' frames, centres of mass and twists in {w} (the world's buffers)."""
+        body_frames(self._any_pose, self._no_twist, *self._frame_args)
 
     def poses(self) -> Array:
         """Poses of the dynamic objects' frames {B} in {w}, (n, 4, 4) (a new array)."""
-        self._frames(self._T_w_MRF, self._no_twist)
+        self._frames()
         return self._T.copy()
 
     def twists(self) -> Array:
         """Twists ``[v; w]`` of the {B} frames in {w} (v of the origin), (n, 6) (a new array)."""
-        self._frames(self._T_w_MRF, self._no_twist)
+        self._frames()
         return self._vel.copy()
 
     # --- the tool's contact ------------------------------------------------------------------
     def wrench(self, T_w_MRF: Array, V_w_MRF: Array | None = None) -> ContactResult:
         """The tool's contact wrench with {MRF} at ``T_w_MRF`` against static and dynamic objects
-        (as :meth:`ContactModel.wrench`; dynamic objects' contacts have object ids
-        ``len(scene.objects) + b``). Its reaction on each dynamic object is applied during the
-        next :meth:`step`."""
-        result = self.static.wrench(T_w_MRF, V_w_MRF)
-        self._xfrc[:] = 0.0
-        if not result.valid:
-            return result
-        has_twist = V_w_MRF is not None
-        self._T_w_MRF[:] = T_w_MRF
-        self._frames(self._T_w_MRF, V_w_MRF if has_twist else self._no_twist)  # type: ignore[arg-type]
-        w = result.w
-        rows = [result.contacts] if result.count else []
-        for b in np.flatnonzero(self._near).tolist():
-            r = self.models[b].wrench(self._T_B_MRF[b], self._V_B[b] if has_twist else None)
-            if not r.valid:
-                self._xfrc[:] = 0.0
-                return r
-            if not r.count:
-                continue
-            add_reaction(b, self._T, self._c, self._T_w_MRF, r.w, w, self._xfrc)
-            T_w_B = self._T[b]
-            moved = r.contacts.copy()
-            moved[:, 0:3] = moved[:, 0:3] @ T_w_B[0:3, 0:3].T + T_w_B[0:3, 3]
-            moved[:, 3:6] = moved[:, 3:6] @ T_w_B[0:3, 0:3].T
-            moved[:, 8] += len(self.scene.objects) + b
-            rows.append(moved)
-        contacts = rows[0] if len(rows) == 1 else np.concatenate(rows) if rows else result.contacts
-        return ContactResult(True, w, contacts, result.queries, result.gathers, None)
+        (as :meth:`ContactModel.wrench`; dynamic object b's contacts have object id
+        ``len(scene.objects) + b``; ``queries`` and ``gathers`` are summed over the models). Its
+        reaction on each dynamic object is applied during the next :meth:`step`. One compiled
+        call (:func:`~app.world.dynamics_kernel.moving_wrench`) evaluates every model."""
+        if not (is_f8(T_w_MRF, _SHAPE_T) and (V_w_MRF is None or is_f8(V_w_MRF, _SHAPE_V))):
+            T_w_MRF, V_w_MRF = contact_inputs(T_w_MRF, V_w_MRF)
+        if V_w_MRF is None:
+            code = self._wrench(T_w_MRF, self._no_twist, False, *self._args)
+        else:
+            code = self._wrench(T_w_MRF, V_w_MRF, True, *self._args)
+        self._T_w_MRF = T_w_MRF
+        queries, gathers, which, _ = self._counts.tolist()
+        if code < 0:
+            (self.static if which < 0 else self.models[which]).reset()
+            return failed(code)
+        rows = self._rows[:code].copy() if code else self._no_contacts
+        return ContactResult(True, self._w.copy(), rows, queries, gathers, None)
+
+    # --- the grip ----------------------------------------------------------------------------
+    @property
+    def held(self) -> int:
+        """Index of the dynamic object the grip holds, or -1."""
+        return int(self._grip[0])
+
+    def grip(self, on: bool) -> int:
+        """Close the grip on the dynamic object the tool touches (or open it: ``on`` False).
+
+        Closing holds the object the tool's last :meth:`wrench` touched (the one with the most
+        contacts) where it is in {MRF} then; from the next :meth:`wrench` it follows the tool
+        through a critically damped spring (:data:`GRIP_OMEGA_H`, module docstring) instead of
+        the tool's spheres. Returns the object held, or -1 (nothing touched, or opened).
+        """
+        self._grip[0] = -1.0
+        if not on:
+            return -1
+        touched = self._rows[: int(self._counts[3])]
+        ids = touched[:, 8].astype(np.int64) - len(self.scene.objects)
+        ids = ids[ids >= 0]
+        if not len(ids):
+            return -1
+        b = int(np.bincount(ids).argmax())
+        body = self.scene.bodies[b]
+        self._grip[1], self._grip[2] = GRIP_OMEGA_H / self._h, body.mass
+        self._grip[3:12] = body.inertia_B.ravel()
+        self._frames()
+        self._T_MRF_H[:] = np.linalg.solve(self._T_w_MRF, self._T[b])
+        self._grip[0] = b
+        return b
 
     # --- the objects' motion -----------------------------------------------------------------
     def step(self, h: float) -> None:
         """Advance the objects by ``h`` (s) under gravity, their contacts (MuJoCo's and FCL's) and
         the reaction of the tool's last :meth:`wrench`."""
-        if h != self.model.opt.timestep:
-            self.model.opt.timestep = h
+        if h != self._h:
+            self.model.opt.timestep = self._h = h
         if self._pairs:
-            self._frames(self._T_w_MRF, self._no_twist)
+            self._frames()
             self._fcl_forces()
-        mujoco.mj_step(self.model, self.data)
-        self._xfrc[:] = 0.0
+        self._step(self._mj, self._xfrc)
 
     def _fcl_forces(self) -> None:
         """Add the FCL pairs' penalty forces to ``xfrc_applied`` (world force and torque at the

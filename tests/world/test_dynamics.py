@@ -7,12 +7,15 @@ the impact): the world's contact with it and the objects' motion are the real co
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 import trimesh
 
+from app.errors import ContactInputError
+from app.world.contact import ContactModel
 from app.world.dynamics import MovingWorld, _bvh, fcl_contacts
 from app.world.scene import (
     DynamicSpec,
@@ -115,6 +118,72 @@ def test_damped_impact_rebounds_within_the_models_restitution() -> None:
     assert e - 0.01 <= measured <= 1.0
 
 
+def test_a_closed_sequence_of_impacts_does_not_gain_energy() -> None:
+    """A free 50 g tool between two free 1 kg boxes, no gravity, damping and friction off: sent
+    at 0.3 m/s towards the right box, 15 mm off its centre line (so the boxes spin), it bounces
+    between them until all three separate. The system is closed: its momentum is constant and
+    its energy (kinetic, the boxes' rotation included, measured whenever nothing touches) stays
+    that of the start.
+
+    Tolerance: semi-implicit Euler samples each contact's linear spring, and an impact's energy
+    error depends on where the contact starts within a step: at most 1.01 (omega h)^2 / 4 of
+    the energy, worst over the entry phase (computed for the one-dimensional spring), with omega
+    = sqrt(k / m_red) largest for the smallest effective mass of a box at its face (the lever
+    arm up to its half-diagonal). The bound is taken 1.05 times that per impact, summed.
+    """
+    m_t, mass, k, v0 = 0.05, 1.0, 1000.0, 0.3
+    far = ObjectSpec(name="far", box=(0.1, 0.1, 0.1), stiffness=1000.0, pose=Pose(position=(10.0, 0.0, 0.0)))
+
+    def box(name: str, x: float) -> ObjectSpec:
+        return ObjectSpec(
+            name=name,
+            box=(0.05, 0.05, 0.05),
+            stiffness=k,
+            damping=0.0,
+            friction=0.0,
+            pose=Pose(position=(x, 0.0, 0.0)),
+            dynamic=DynamicSpec(mass=mass),
+        )
+
+    scene = build_scene(tool_scene((far, box("left", -0.06), box("right", 0.06)), gravity=(0.0, 0.0, 0.0)))
+    world = MovingWorld(scene, DT)
+    p, v = np.array([0.0, 0.015, 0.0]), np.array([v0, 0.0, 0.0])
+
+    def energy() -> float:
+        T, twist = world.poses(), world.twists()
+        e = 0.5 * m_t * v @ v
+        for b, body in enumerate(scene.bodies):
+            R, w = T[b][0:3, 0:3], twist[b, 3:6]
+            v_c = twist[b, 0:3] + np.cross(w, R @ body.com_B)
+            e += 0.5 * body.mass * v_c @ v_c + 0.5 * w @ (R @ body.inertia_B @ R.T) @ w
+        return float(e)
+
+    def momentum() -> np.ndarray:
+        return m_t * v + sum(body.mass * (world.twists()[b, 0:3]) for b, body in enumerate(scene.bodies))
+
+    e0, p0 = energy(), momentum()
+    after, touching = [], False
+    for _ in range(30_000):
+        r = world.wrench(pose(*p), np.concatenate([v, np.zeros(3)]))
+        if touching and not r.count:
+            after.append(energy())
+        touching = r.count > 0
+        world.step(DT)
+        v = v + r.force_w / m_t * DT  # the same semi-implicit Euler as MuJoCo's for the boxes
+        p = p + v * DT
+    assert not touching
+    box_body = scene.bodies[0]
+    i_min = float(np.linalg.eigvalsh(box_body.inertia_B).min())
+    m_eff = 1.0 / (1.0 / mass + (0.025 * math.sqrt(3.0)) ** 2 / i_min)
+    omega = math.sqrt(k * (1.0 / m_t + 1.0 / m_eff))
+    per_impact = 1.05 * 1.01 * (omega * DT) ** 2 / 4  # 0.68 %
+    assert len(after) == 3  # right, left, right again; then all three part
+    for n, e in enumerate(after, start=1):
+        assert abs(e / e0 - 1.0) <= n * per_impact  # measured 0.48 %, 0.39 %, 0.31 %
+    assert momentum() == pytest.approx(p0, abs=1e-12 * m_t * v0 + 1e-15)
+    assert abs(world.twists()[:, 5]).max() > 0.1  # the boxes spin: the reaction's torque is in play
+
+
 def test_box_at_rest_on_the_table_does_not_drift_in_10_s() -> None:
     world = MovingWorld(load_scene("box_push"), DT)  # the tool at home, 3 cm away
     for _ in range(500):
@@ -178,3 +247,51 @@ def test_the_slave_topples_the_stack_and_feels_it() -> None:
         felt = min(felt, slave.step(command).wrench_S[0])
     assert world.poses()[2][2, 3] < 0.05  # the top block (centre 0.15 m up at the start) is down
     assert felt < -0.05  # the sensor felt the push (the force on the tool is along -x)
+
+
+def test_the_moving_world_reads_a_resting_object_as_the_static_model_does() -> None:
+    """One compiled call evaluates the static model and each object's own (in its frame {B}):
+    with the box at rest at its initial pose, the tool's wrench and contacts in {w} are those of
+    the same scene with the box static (its object id shifted past the static objects)."""
+    moving = load_scene("box_push")
+    spec = moving.spec
+    static = build_scene(
+        dataclasses.replace(spec, objects=tuple(dataclasses.replace(o, dynamic=None) for o in spec.objects))
+    )
+    world, model = MovingWorld(moving, DT), ContactModel(static)
+    # The stylus's tip 1 mm into the box's -x face, tilted 30 deg about y (so the capsule's
+    # spheres touch too), moving along +x and turning.
+    T = pose(-0.029, 0.005, 0.02)
+    T[0:3, 0:3] = np.array([[0.866, 0.0, 0.5], [0.0, 1.0, 0.0], [-0.5, 0.0, 0.866]])
+    T[0:3, 0:3] /= np.linalg.norm(T[0:3, 0:3], axis=0)
+    V = np.array([0.01, 0.002, 0.0, 0.0, 0.3, 0.0])
+    got, want = world.wrench(T, V), model.wrench(T, V)
+    assert (want.object_ids == 1).sum() >= 2  # the tip and a capsule sphere on the box
+    assert got.w == pytest.approx(want.w, abs=1e-12)
+
+    def ordered(rows: np.ndarray) -> np.ndarray:  # by object, sphere, point (the models' orders differ)
+        return rows[np.lexsort((*np.round(rows[:, 0:3].T, 9), rows[:, 7], rows[:, 8]))]
+
+    # The box is object 1 in both: after the one static object, and second in the file.
+    assert ordered(got.contacts) == pytest.approx(ordered(want.contacts), abs=1e-12)
+    # The reaction on the box is the tool's force, opposite.
+    assert world._xfrc[0, 0:3] == pytest.approx(-got.force_w, abs=1e-12)
+
+
+def test_the_moving_world_refuses_bad_poses_as_the_contact_model_does() -> None:
+    world = MovingWorld(load_scene("box_push"), DT)
+    T = pose(-0.029, 0.0, 0.02)
+    assert world.wrench(T.tolist()).w == pytest.approx(world.wrench(T).w)  # nested lists are read
+    T_nan = T.copy()
+    T_nan[0, 3] = np.nan
+    bad = world.wrench(T_nan, np.zeros(6))
+    assert not bad.valid
+    assert bad.error == "non-finite tool pose"
+    assert not bad.w.any()
+    assert not world._xfrc.any()
+    skew = T.copy()
+    skew[0, 0] = 1.1
+    with pytest.raises(ContactInputError, match="not a rigid transform"):
+        world.wrench(skew)
+    with pytest.raises(ContactInputError, match=r"V_w_MRF must have shape \(6,\)"):
+        world.wrench(T, np.zeros(3))

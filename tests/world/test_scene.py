@@ -13,7 +13,7 @@ from app.errors import ConfigError
 from app.world import available_scenes, contact_wrench, load_scene
 from app.world.scene import DEFAULT_SCENE
 
-SHIPPED = ["bowl", "box_push", "large_mesh", "peg_in_hole", "probe", "stack_topple"]
+SHIPPED = ["bowl", "box_push", "large_mesh", "peg_carry", "peg_in_hole", "probe", "stack_topple"]
 
 GOOD = """
 name = "t"

@@ -170,15 +170,16 @@ class ContactModel:
         # Gather scratch: which triangles the current gather has seen, then its vertex-cone
         # tests (F + V,).
         stamp = np.zeros(len(geo.tris) + len(geo.verts), dtype=np.int64)
-        # The kernel's arguments after the pose and twist, bound once.
-        self._arrays = bundle(
+        # The kernel's arguments after the pose and twist, bound once (a compiled caller that
+        # evaluates several models in one call, :mod:`app.world.dynamics`, passes them itself).
+        self.arrays = bundle(
             self._tool, objs, self._pairs, self._pool, out, geo.verts, geo.tris, geo.edges, geo.cells, geo.lists, stamp
         )
         # ``wrench`` checks the pose and twist (C-contiguous float64 of their shapes) and passes
         # the model's own arrays, bundled as one argument, for the rest, so the compiled step is
         # called without numba's typing of its arguments (~1.5 us a call) and unboxes one object
         # instead of eleven arrays (~0.45 us).
-        self._step = entry_point(contact_step_bundled, np.eye(4), np.zeros(6), False, self._arrays)
+        self._step = entry_point(contact_step_bundled, np.eye(4), np.zeros(6), False, self.arrays)
         self.reset()
 
     def reset(self) -> None:
@@ -224,26 +225,29 @@ class ContactModel:
             ContactInputError: The pose or twist has the wrong shape or type, or the pose is not
                 a rigid transform (a reflection, a scaled or sheared rotation): misuse, not data.
         """
-        if T_w_MRF.__class__ is not np.ndarray or T_w_MRF.dtype is not F8 or not T_w_MRF.flags.c_contiguous:
-            T_w_MRF = _as_array(T_w_MRF, "T_w_MRF")
-        if T_w_MRF.shape != _SHAPE_T:
-            raise ContactInputError(f"T_w_MRF must have shape (4, 4), got {T_w_MRF.shape}")
+        if not (
+            T_w_MRF.__class__ is np.ndarray
+            and T_w_MRF.dtype is F8
+            and T_w_MRF.flags.c_contiguous
+            and T_w_MRF.shape == _SHAPE_T
+            and (
+                V_w_MRF is None
+                or (
+                    V_w_MRF.__class__ is np.ndarray
+                    and V_w_MRF.dtype is F8
+                    and V_w_MRF.flags.c_contiguous
+                    and V_w_MRF.shape == _SHAPE_V
+                )
+            )
+        ):
+            T_w_MRF, V_w_MRF = contact_inputs(T_w_MRF, V_w_MRF)
         if V_w_MRF is None:
-            code = self._step(T_w_MRF, self._no_twist, False, self._arrays)
+            code = self._step(T_w_MRF, self._no_twist, False, self.arrays)
         else:
-            if V_w_MRF.__class__ is not np.ndarray or V_w_MRF.dtype is not F8 or not V_w_MRF.flags.c_contiguous:
-                V_w_MRF = _as_array(V_w_MRF, "V_w_MRF")
-            if V_w_MRF.shape != _SHAPE_V:
-                raise ContactInputError(f"V_w_MRF must have shape (6,), got {V_w_MRF.shape}")
-            code = self._step(T_w_MRF, V_w_MRF, True, self._arrays)
+            code = self._step(T_w_MRF, V_w_MRF, True, self.arrays)
         if code < 0:
             self.reset()
-            if code == layout.ERR_ROTATION:
-                raise ContactInputError(
-                    "T_w_MRF is not a rigid transform (rotation not orthonormal within 1e-6, a reflection, "
-                    "or last row not [0, 0, 0, 1])"
-                )
-            return ContactResult(False, np.zeros(15), error=_INVALID[code])
+            return failed(code)
         w = self._out_w.copy()
         queries, gathers = self._counts.tolist()
         if code == 0:
@@ -262,6 +266,32 @@ def _as_array(x: object, name: str) -> Array:
     if a.dtype.kind not in "iuf":  # complex, bool, object, strings: not a pose
         raise ContactInputError(f"{name} must be an array of real numbers, got dtype {a.dtype}")
     return np.ascontiguousarray(a, dtype=float)
+
+
+def contact_inputs(T_w_MRF: object, V_w_MRF: object | None) -> tuple[Array, Array | None]:
+    """The pose (4, 4) and optional twist (6,) of :meth:`ContactModel.wrench` as C-contiguous
+    float64 arrays (what the compiled step may be handed), or a :class:`ContactInputError`."""
+    T = _as_array(T_w_MRF, "T_w_MRF")
+    if T.shape != _SHAPE_T:
+        raise ContactInputError(f"T_w_MRF must have shape (4, 4), got {T.shape}")
+    if V_w_MRF is None:
+        return T, None
+    V = _as_array(V_w_MRF, "V_w_MRF")
+    if V.shape != _SHAPE_V:
+        raise ContactInputError(f"V_w_MRF must have shape (6,), got {V.shape}")
+    return T, V
+
+
+def failed(code: int) -> ContactResult:
+    """The invalid result of the compiled step's error ``code`` (< 0); raises
+    :class:`ContactInputError` for a pose that is not a rigid transform (misuse, not data). The
+    caller resets the model that failed."""
+    if code == layout.ERR_ROTATION:
+        raise ContactInputError(
+            "T_w_MRF is not a rigid transform (rotation not orthonormal within 1e-6, a reflection, "
+            "or last row not [0, 0, 0, 1])"
+        )
+    return ContactResult(False, np.zeros(15), error=_INVALID[code])
 
 
 def contact_wrench(scene: Scene, T_w_MRF: Array, V_w_MRF: Array | None = None) -> ContactResult:

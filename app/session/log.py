@@ -31,10 +31,11 @@ if TYPE_CHECKING:
     from app.session.loop import LoopConfig
 
 
-def log_columns(n_joints: int) -> list[str]:
-    """Column names of the log for a device with ``n_joints`` joints, in row order: the logged
-    blocks of the tick's state row (:func:`~app.session.state.state_layout`)."""
-    block = StateBlock(n_joints)
+def log_columns(n_joints: int, objects: tuple[str, ...] = ()) -> list[str]:
+    """Column names of the log for a device with ``n_joints`` joints and a scene whose dynamic
+    objects are named ``objects``, in row order: the logged blocks of the tick's state row
+    (:func:`~app.session.state.state_layout`)."""
+    block = StateBlock(n_joints, objects)
     return block.names[: block.n_logged]
 
 
@@ -60,6 +61,8 @@ class TickLog:
         flush_interval: Simulated seconds of ticks per part: the most a crash can lose.
         meta: What produced the log (scene, device, session files...), written to ``_meta.json``
             beside the parts: a replay rebuilds the view from it (:func:`loop_meta`).
+        objects: Names of the scene's dynamic objects (``scene.bodies`` order): one pose block
+            each, as in the loop's state row.
     """
 
     def __init__(
@@ -69,6 +72,7 @@ class TickLog:
         period: float = 1e-3,
         flush_interval: float = 0.1,
         meta: dict[str, Any] | None = None,
+        objects: tuple[str, ...] = (),
     ) -> None:
         if not (flush_interval > 0 and period > 0):
             raise ValueError(f"flush_interval and period must be positive, got {flush_interval}, {period}")
@@ -77,7 +81,7 @@ class TickLog:
         for old in [*directory.glob("part-*.parquet"), *directory.glob(".part-*.tmp")]:
             old.unlink()
         write_json(directory / META_FILE, {**(meta or {}), "servo_period": period, "columns_version": 4})
-        self.columns = log_columns(n_joints)
+        self.columns = log_columns(n_joints, objects)
         self._width = len(self.columns)
         self._int_columns = [name in INT_COLUMNS or name.startswith("counts_") for name in self.columns]
         self._buf = np.zeros((max(1, round(flush_interval / period)), len(self.columns)))
@@ -130,18 +134,19 @@ class TickLog:
         self._writer.shutdown()
 
 
-def read_log(directory: Path, n_joints: int | None = None) -> pa.Table:
+def read_log(directory: Path, n_joints: int | None = None, objects: tuple[str, ...] = ()) -> pa.Table:
     """The whole log as one Arrow table (``.to_pandas()`` for a DataFrame): every complete part.
 
     Args:
         directory: The log directory.
-        n_joints: If given, every part must hold exactly :func:`log_columns` of this many joints.
+        n_joints: If given, every part must hold exactly :func:`log_columns` of this many joints
+            and of the dynamic objects named ``objects``.
 
     Raises:
         ConfigError: Naming the first part that is not a readable Parquet file (truncated, empty,
             random bytes) or, with ``n_joints``, whose columns are not this log's.
     """
-    expected = None if n_joints is None else log_columns(n_joints)
+    expected = None if n_joints is None else log_columns(n_joints, objects)
     tables = []
     for part in sorted(directory.glob("part-*.parquet")):
         try:

@@ -183,7 +183,7 @@ class ServoLoop:
         self.record = TickRecord(
             self.reading, self.controller.out, self.slave, self._hand, np.zeros(len(STAGES), dtype=np.int64)
         )
-        self.record.block = StateBlock(self.controller.out.n)
+        self.record.block = StateBlock(self.controller.out.n, tuple(b.name for b in self.slave.scene.bodies))
         self.reset()
 
     def _open_device(self) -> None:

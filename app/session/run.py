@@ -157,7 +157,8 @@ def _run(
     log = None
     if out_dir is not None:
         meta = loop_meta(loop.config, session.path)
-        log = loop.observe(TickLog(out_dir / "log", loop.controller.out.n, loop.dt, flush_interval, meta))
+        objects = tuple(b.name for b in loop.slave.scene.bodies)
+        log = loop.observe(TickLog(out_dir / "log", loop.controller.out.n, loop.dt, flush_interval, meta, objects))
     for observer in observers:
         loop.observe(observer)
     pacer = Pacer(loop.dt) if realtime else None

@@ -50,12 +50,14 @@ def _group(prefix: str, names: tuple[str, ...] | list[str]) -> list[str]:
     return [f"{prefix}_{s}" for s in names]
 
 
-def state_layout(n_joints: int) -> list[tuple[str, list[str]]]:
+def state_layout(n_joints: int, objects: tuple[str, ...] = ()) -> list[tuple[str, list[str]]]:
     """The row's blocks in order: each block's name and its value names (the log's column names
     for the logged blocks).
 
     The controller's blocks (every row of its vectors and torques, and its scale factors) are
-    named from :mod:`app.controller.layout`, so the columns follow the kernel's layout.
+    named from :mod:`app.controller.layout`, so the columns follow the kernel's layout. The last
+    logged block holds the pose in {w} of each dynamic object named in ``objects`` (the scene's
+    ``bodies`` order): ``object_<name>_x, _y, _z, _qw, _qx, _qy, _qz``; none for a static scene.
     """
     joints = [f"{i}" for i in range(n_joints)]
     return [
@@ -75,6 +77,7 @@ def state_layout(n_joints: int) -> list[tuple[str, list[str]]]:
         ("switches", list(INT_COLUMNS)),
         ("link_force", ["link_force"]),
         ("stages", [f"{s}_us" for s in STAGES]),
+        ("objects", [c for name in objects for c in _group(f"object_{name}", POSE)]),
         # Not logged: the tool's rotation R_w_MRF (row-major) and whether the wrench was reflected.
         (FIRST_UNLOGGED, [f"R_w_MRF_{a}{b}" for a in range(3) for b in range(3)]),
         ("reflecting", ["reflecting"]),
@@ -86,6 +89,7 @@ class StateBlock:
 
     Args:
         n_joints: Joints of the device (sets the blocks' sizes).
+        objects: Names of the scene's dynamic objects (``scene.bodies`` order).
 
     Attributes:
         names: Every value's name, in row order. n_logged: How many of them the log writes.
@@ -93,8 +97,8 @@ class StateBlock:
         row: The row (filled by :meth:`fill`).
     """
 
-    def __init__(self, n_joints: int) -> None:
-        layout = state_layout(n_joints)
+    def __init__(self, n_joints: int, objects: tuple[str, ...] = ()) -> None:
+        layout = state_layout(n_joints, objects)
         self.names = [c for _, columns in layout for c in columns]
         self.starts: dict[str, int] = {}
         self._sizes = {name: len(columns) for name, columns in layout}
@@ -111,6 +115,7 @@ class StateBlock:
         self._serial = -1
         self._sources: tuple[object, ...] = (None, None, None)
         self._arrays: tuple[object, ...] = ()
+        self._objects = self.view("objects").reshape(len(objects), len(POSE)) if objects else None
 
     def view(self, name: str) -> Array:
         """The block ``name`` of the row (a view)."""
@@ -147,6 +152,9 @@ class StateBlock:
             # The same kinds of arguments every tick: the compiled row writer for their types, once.
             self._fill = entry_point(_fill_state, *args)
         self._fill(*args)
+        if self._objects is not None:
+            # A (n, 7) view of MuJoCo's coordinates; only scenes with dynamic objects pay the copy.
+            np.copyto(self._objects, tick.object_poses())
         return self.row
 
 
@@ -220,8 +228,9 @@ def _fill_state(
     for v in stage_ns:
         row[at] = v * 1e-3
         at += 1
-    at = starts[16]
+    # starts[16], the dynamic objects' poses, is filled by StateBlock.fill after this call.
+    at = starts[17]
     for a in range(3):
         for b in range(3):
             row[at + 3 * a + b] = T_w_MRF[a, b]
-    row[starts[17]] = 1.0 if reflecting else 0.0
+    row[starts[18]] = 1.0 if reflecting else 0.0

@@ -116,6 +116,11 @@ class TickRecord:
         :meth:`~app.slave.api.Slave.geom_poses`)."""
         return self._slave.geom_poses()
 
+    def object_poses(self) -> Array:
+        """The dynamic objects' poses in {w}, rows ``[x, y, z, qw, qx, qy, qz]`` in
+        ``scene.bodies`` order, (n, 7) (a view; see :meth:`~app.slave.api.Slave.object_poses`)."""
+        return self._slave.object_poses()
+
     @property
     def device_link(self) -> LinkStatus:
         """The link to the device as of this tick's sample: a Cartesian device's, as the boundary's

@@ -50,6 +50,10 @@ class Slave(Protocol):
         """Positions (ngeom, 3) and orientations (ngeom, 9, row-major) in {w} of :attr:`model`'s
         geoms: views, overwritten by the next step."""
 
+    def object_poses(self) -> Array:
+        """The dynamic objects' poses in {w}, rows ``[x, y, z, qw, qx, qy, qz]``, (n, 7) (a view,
+        overwritten by the next step; (0, 7) when every object is static)."""
+
     @property
     def T_w_MRF(self) -> Array:
         """Pose of {MRF} in {w} (4, 4), a new array."""

@@ -69,6 +69,8 @@ _ZERO6.flags.writeable = False
 # A contact result's ``w`` with no wrench: no accommodation. Left writeable (the kernel only reads
 # it) because numba compiles a separate kernel for read-only arrays.
 _ZERO15 = np.zeros(15)
+# The dynamic objects' poses of a scene with none (left writeable for the same reason).
+_NO_OBJECTS = np.zeros((0, 7))
 SHAPE_6, SHAPE_44 = (6,), (4, 4)
 
 
@@ -139,6 +141,7 @@ class SlaveBase:
 
     _contact: ContactResult
     _reading: FTReading
+    _moving: MovingWorld | None
     model: mujoco.MjModel
     data: mujoco.MjData
 
@@ -177,6 +180,14 @@ class SlaveBase:
         """Positions (ngeom, 3) and orientations (ngeom, 9, row-major) in {w} of :attr:`model`'s
         geoms (an arm's links; none for the ideal tool): MuJoCo's views, overwritten by the next step."""
         return self.data.geom_xpos, self.data.geom_xmat
+
+    def object_poses(self) -> Array:
+        """Poses of the scene's dynamic objects' frames {B} in {w} as rows ``[x, y, z, qw, qx, qy,
+        qz]`` (m, unit quaternion), (n, 7) in ``scene.bodies`` order, (0, 7) when all are static:
+        a view of MuJoCo's free-joint coordinates, overwritten by the next step."""
+        if self._moving is None:
+            return _NO_OBJECTS
+        return self._moving.data.qpos.reshape(-1, 7)
 
     @property
     def wrench_MRF_contact(self) -> Array:

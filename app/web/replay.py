@@ -14,7 +14,9 @@ recomputed deterministically from what it does:
 - the hand target's orientation: the grip's (the log keeps the target's position);
 - a Cartesian device's link state: logged per tick (``device_link``), shown as live;
 - contact points: the scene's contact at the logged tool pose, evaluated afresh (stateless: a
-  pop-through memory of the live run is not reproduced, the drawn points may then differ).
+  pop-through memory of the live run is not reproduced, the drawn points may then differ); only
+  the static objects' contacts: the dynamic objects are drawn at their logged poses
+  (``object_<name>_*`` columns) but their contact with the tool is not re-evaluated.
 
 The live servo loop is never touched: the replay has its own never-ticked copy of the loop for the
 geometry and kinematics.
@@ -34,6 +36,7 @@ from app.device.spec import load_device
 from app.errors import ConfigError
 from app.session.log import META_FILE, read_log
 from app.session.loop import LoopConfig, ServoLoop
+from app.session.state import POSE
 from app.spatial import Array, make_pose, quat_to_matrix, zyx_to_matrix
 from app.web.controls import PLOT_SAMPLES
 from app.web.snapshot import Snapshot
@@ -100,13 +103,20 @@ class LogReplay:
         self.loop = ServoLoop(LoopConfig(device, scene, device.data.gains))
         # A Cartesian device's controller has six "joints", the wrench axes (docs/conventions.md).
         self._n_joints = len(WRENCH_AXES) if cartesian else device.n_joints
-        table = read_log(directory, self._n_joints)
+        #: Names of the scene's dynamic objects, whose poses the log holds.
+        self.objects = tuple(b.name for b in scene.bodies)
+        table = read_log(directory, self._n_joints, self.objects)
         if table.num_rows == 0:
             raise ConfigError(directory, "<file>", "the log has no ticks")
         order = np.argsort(table.column("t").to_numpy(), kind="stable")
         self._cols: dict[str, Array] = {name: table.column(name).to_numpy()[order] for name in table.column_names}
         self.t: Array = self._cols["t"]
         self._T_MRF_S = self.loop.controller.slave.T_MRF_S
+        # Every row's object poses, (rows, n, 7): a snapshot takes one row.
+        self._object_poses = np.empty((len(self.t), len(self.objects), len(POSE)))
+        for b, name in enumerate(self.objects):
+            for k, axis in enumerate(POSE):
+                self._object_poses[:, b, k] = self._cols[f"object_{name}_{axis}"]
 
     def __len__(self) -> int:
         return len(self.t)
@@ -177,6 +187,7 @@ class LogReplay:
             device_link=LinkStatus(int(c["device_link"][i])).name if self.cartesian and "device_link" in c else "",
             slave_geom_xpos=_NO_GEOM_XPOS,
             slave_geom_xmat=_NO_GEOM_XMAT,
+            object_poses=self._object_poses[i].copy(),
         )
 
 

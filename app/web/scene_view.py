@@ -74,6 +74,9 @@ WRENCH_ARROWS = (
 )
 #: Contact points and their normals (magenta).
 CONTACT_COLOR = (255, 0, 200)
+#: Static objects (grey) and dynamic ones (teal: no other node of the world has that hue).
+STATIC_COLOR = (170, 175, 185)
+DYNAMIC_COLOR = (20, 150, 160)
 
 
 def device_box(loop: ServoLoop) -> Array:
@@ -119,6 +122,12 @@ def viser_to_device(wxyz: Array, position: Array) -> Array:
     return T_0_V @ make_pose(quat_to_matrix(np.asarray(wxyz, dtype=float)), np.asarray(position, dtype=float))
 
 
+#: Sections of a drawn capsule (round, along each end cap): trimesh's default 32 x 32 made a
+#: capsule of 4096 triangles, 20k for the Kraft's links, which the page re-renders every frame
+#: (in software WebGL on a machine without a GPU) and resends whenever the view is rebuilt.
+CAPSULE_SECTIONS = (16, 8)
+
+
 def _geom_mesh(model: mujoco.MjModel, g: int) -> trimesh.Trimesh | None:
     """Geom ``g`` of ``model`` as a mesh in the geom's own frame, or None for planes/height fields."""
     size = model.geom_size[g]
@@ -127,7 +136,7 @@ def _geom_mesh(model: mujoco.MjModel, g: int) -> trimesh.Trimesh | None:
     if kind == geom.mjGEOM_SPHERE:
         return trimesh.creation.icosphere(subdivisions=2, radius=size[0])
     if kind == geom.mjGEOM_CAPSULE:
-        return trimesh.creation.capsule(height=2 * size[1], radius=size[0])
+        return trimesh.creation.capsule(height=2 * size[1], radius=size[0], count=list(CAPSULE_SECTIONS))
     if kind == geom.mjGEOM_CYLINDER:
         return trimesh.creation.cylinder(radius=size[0], height=2 * size[1])
     if kind == geom.mjGEOM_BOX:
@@ -165,10 +174,15 @@ class SceneView:
         server: The viser server (scene shared by every browser).
         loop: The servo loop whose device and scene are drawn (only read at construction).
         on_hand_moved: Called with ``T_0_H`` (4, 4, device base) when a browser drags the gizmo.
+
+    Attributes:
+        on_hand_moved: As given; replaced when the view is reused for another loop of the same
+            files (a replay of a log of the live scene and device).
     """
 
     def __init__(self, server: viser.ViserServer, loop: ServoLoop, on_hand_moved: Callable[[Array], None]) -> None:
         self.server = server
+        self.on_hand_moved = on_hand_moved
         scene = server.scene
         self._handles: list[viser.SceneNodeHandle] = []
         self._last: dict[str, tuple[Array, Array]] = {}
@@ -205,14 +219,24 @@ class SceneView:
 
         @self.hand_target.on_update
         def _(event: viser.TransformControlsEvent) -> None:
-            on_hand_moved(viser_to_device(event.target.wxyz, event.target.position))
+            self.on_hand_moved(viser_to_device(event.target.wxyz, event.target.position))
 
         for i, obj in enumerate(loop.slave.scene.objects):
             self._add(
                 scene.add_mesh_simple(
-                    f"/world/object_{i}", obj.mesh.vertices, obj.mesh.faces, color=(170, 175, 185), opacity=0.9
+                    f"/world/object_{i}", obj.mesh.vertices, obj.mesh.faces, color=STATIC_COLOR, opacity=0.9
                 )
             )
+        # The dynamic objects: meshes in their own frames {B}, placed at {B}'s pose in {w} (their
+        # parent /world is {w}) from each snapshot.
+        self.bodies: list[viser.MeshHandle] = []
+        for b, body in enumerate(loop.slave.scene.bodies):
+            wxyz, position = pose_to_wxyz_position(body.T_w_B)
+            mesh = body.object.mesh
+            handle = scene.add_mesh_simple(
+                f"/world/body_{b}", mesh.vertices, mesh.faces, color=DYNAMIC_COLOR, wxyz=wxyz, position=position
+            )
+            self.bodies.append(self._add(handle))
         slave_model = loop.slave.model
         self.slave_geoms: dict[int, viser.MeshHandle] = {}
         for g in range(slave_model.ngeom):
@@ -364,6 +388,8 @@ class SceneView:
         self._place("tool", self.tool, T_v_MRF @ self._T_MRF_T, "world")
         self._place("mrf", self.mrf, T_v_MRF, "world")
         self._place("sensor", self.sensor, T_V_W @ snap.T_w_S, "world")
+        for b, (handle, pose) in enumerate(zip(self.bodies, snap.object_poses, strict=True)):
+            self._place(f"body_{b}", handle, make_pose(quat_to_matrix(pose[3:7]), pose[0:3]), "world")
 
         points = snap.contact_points_w
         shown = len(points) > 0

@@ -67,6 +67,13 @@ def light_without_shadows(server: viser.ViserServer) -> None:
     server.scene.add_light_hemisphere("/fill_light", ground_color=FILL_GROUND, intensity=FILL_INTENSITY)
 
 
+def _view_files(loop: ServoLoop) -> tuple[Path, Path, str] | None:
+    """What a :class:`SceneView` of ``loop`` is built from: its scene and device files and its
+    slave's kind (None for a scene made in code, which is never taken for another)."""
+    path = loop.config.scene.path
+    return None if path is None else (path, loop.config.device.path, loop.slave.scene.spec.slave.kind)
+
+
 class DemoApp:
     """The demo: one servo loop in real time, its 3D view and the control panel, on one viser server.
 
@@ -97,17 +104,21 @@ class DemoApp:
         self.session = self._at_rate(session) if session is not None else None
         self._lock = threading.Lock()  # the UI thread redraws; a selection change rebuilds
         self._scene, self._device = scene, device
+        # The guide first: a browser that connects at once shows it while the loop is built
+        # (its buttons act once the loop exists, a fraction of a second later).
+        self.panel = SessionPanel(server, self, RUNS_DIR)
         self.rt = RealtimeLoop(self._loop_config(device, scene, self._start_gains(device)))
         server.scene.set_up_direction("+z")
         light_without_shadows(server)
         self.view = SceneView(server, self.rt.loop, self.rt.set_hand_target)
+        #: The loop the view was built for (its scene and device files).
+        self.view_loop = self.rt.loop
         self._fitted: set[int] = set()  # clients whose camera was fitted to their canvas
         self._frame_initial_camera()
         server.on_client_connect(self._on_connect)
         self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
         self.rt.set_hand_target(self._home_T_0_G)
         self._recording = False
-        self.panel = SessionPanel(server, self, RUNS_DIR)
         self.controls = Controls(server, self, available_scenes(), available_devices(), scene.spec.name, device.name)
         self.player: ReplayPlayer | None = None
         self._showing_selection = False
@@ -268,9 +279,17 @@ class DemoApp:
     def _show_view(self, loop: ServoLoop, on_hand_moved: Callable[[Array], None]) -> None:
         """Replace the 3D view by one of ``loop``; every browser's camera is refitted when what
         it frames changed (another scene or device: each has its own framing)."""
+        files = _view_files(loop)
+        if files is not None and files == _view_files(self.view_loop):
+            # The same scene and device (a replay of a log of the live loop, or back to live):
+            # the nodes stay, and the browsers get only what moves, not every mesh again.
+            self.view.on_hand_moved = on_hand_moved
+            self.view_loop = loop
+            return
         before = self.preset_box("both")
         self.view.remove()
         self.view = SceneView(self.server, loop, on_hand_moved)
+        self.view_loop = loop
         self._drawn = None  # a snapshot of the view before: another device's links
         if not np.allclose(before, self.preset_box("both")):
             self._frame_initial_camera()

@@ -9,16 +9,17 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
-import matplotlib.image as mpimg
 import numpy as np
 import viser
 
 from app.session.log import META_FILE
 from app.session.spec import SESSIONS_DIR
-from app.study.experiment import ExperimentReport, run_experiment
 from app.web.commands import MAX_SPEED, MIN_SPEED
+
+if TYPE_CHECKING:
+    from app.study.experiment import ExperimentReport
 
 #: The button that opens the experiment's chart full size.
 FULL_CHART = "Show the chart full size"
@@ -209,6 +210,10 @@ class ExperimentJob:
         def progress(done: int, total: int) -> None:
             self.done, self.total = done, total
 
+        # Imported here, not at start: the experiment and matplotlib are not needed before the
+        # first click, and the page's first panel waits for the server's imports.
+        from app.study.experiment import run_experiment
+
         try:
             self.report = run_experiment(out_dir, n_operators=operators, on_run=progress)
         except Exception as exc:  # shown in the page; the server must live on
@@ -222,5 +227,7 @@ class ExperimentJob:
         """The bar chart as an RGB image (h, w, 3) uint8, once finished."""
         if self.report is None:
             return None
+        import matplotlib.image as mpimg  # see _run
+
         rgba = mpimg.imread(self.report.chart)
         return np.asarray(rgba[..., :3] * 255.0, dtype=np.uint8)

@@ -63,6 +63,8 @@ class Snapshot:
             (:class:`~app.slave.arm.ArmStatus` bits; 0 = it did, always for the ideal tool).
         slave_geom_xpos, slave_geom_xmat: The slave's own geoms (an arm's links) in {w}, (k, 3)
             and (k, 3, 3); empty for the ideal tool and in a replay (the log keeps no arm angles).
+        object_poses: The scene's dynamic objects' frames {B} in {w}, rows ``[x, y, z, qw, qx,
+            qy, qz]`` (m, unit quaternion) in ``scene.bodies`` order, (n, 7); (0, 7) if none.
         recording: The log directory being written, or None.
         playing: The session file whose script drives the loop, or None.
         play_left: Simulated seconds the playing script has still to run.
@@ -99,6 +101,7 @@ class Snapshot:
     watchdog_trips: int
     slave_geom_xpos: Array
     slave_geom_xmat: Array
+    object_poses: Array
     slave_status: int = 0
     device_link: str = ""
     recording: Path | None = None
@@ -149,6 +152,7 @@ def take_snapshot(
         device_link=reading.status.name if isinstance(reading, CartesianReading) else "",
         slave_geom_xpos=slave_xpos.copy(),
         slave_geom_xmat=slave_xmat.reshape(-1, 3, 3).copy(),
+        object_poses=tick.object_poses().copy(),
         recording=recording,
         playing=playing,
     )

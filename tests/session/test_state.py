@@ -37,6 +37,11 @@ def test_the_row_holds_each_ticks_values_even_when_only_one_observer_reads_it() 
         np.testing.assert_array_equal(row[tool : tool + 3], rec.T_w_MRF[0:3, 3])
         np.testing.assert_array_equal(row[contact : contact + 6], rec.contact_wrench_MRF)
         assert row[block.starts["t"]] == rec.time
+        # The blocks past the logged ones, and every switch, at their own names.
+        R = block.starts["R_w_MRF"]
+        np.testing.assert_array_equal(row[R : R + 9], rec.T_w_MRF[0:3, 0:3].ravel())
+        assert row[block.starts["reflecting"]] == float(rec.out.reflecting)
+        assert row[block.starts["link_force"]] == rec.link_force
         moved += last is not None and not np.array_equal(last, row[grip : grip + 3])
         last = row[grip : grip + 3].copy()
     assert moved > 100  # the script moves the grip: the comparison above saw changing values
@@ -53,6 +58,21 @@ def test_the_row_is_filled_once_a_tick_and_again_after_a_reset() -> None:
     assert loop.record.state()[t] == -1.0
     loop.reset()
     assert loop.record.state()[t] == 0.0
+
+
+def test_a_scenes_dynamic_objects_are_a_logged_block_of_the_row() -> None:
+    """box_push has one dynamic object: its pose is in the row (logged) as the slave has it."""
+    session = load_session("box_push")
+    loop = ServoLoop(LoopConfig.from_session(session))
+    block = loop.record.block
+    assert block is not None
+    at = block.starts["objects"]
+    assert block.names[at : at + 7] == [f"object_box_{a}" for a in ("x", "y", "z", "qw", "qx", "qy", "qz")]
+    assert at + 7 == block.n_logged
+    for _ in range(50):
+        rec = loop.tick()
+    np.testing.assert_array_equal(rec.state()[at : at + 7], loop.slave.object_poses()[0])
+    assert rec.state()[block.starts["reflecting"]] == float(rec.out.reflecting)
 
 
 def test_the_logged_columns_come_first_and_the_rest_is_named() -> None:

@@ -19,6 +19,7 @@ from app.session.log import read_log
 from app.session.run import run_session
 from app.session.spec import load_session
 from app.web.controls import PLOT_EVERY, PLOT_SECONDS
+from app.web.scene_view import WORLD_ORIGIN_V
 from app.web.server import UI_RATE, DemoApp
 from app.web.session_panel import FULL_CHART
 from app.world.scene import load_scene
@@ -236,3 +237,52 @@ def test_a_device_change_stops_the_session_and_says_so(demo: DemoApp, page: obje
         f"the page's Delta X axis {x_scale()} is not the {times[0]:.3f}-{times[-1]:.3f} s it was sent",
     )
     demo.pause(False)
+
+
+#: A camera straight above the box's path, looking down (viser's camera: x right, y down, z
+#: forward, so a half turn about x), and the render it asks the page for.
+TOP_HEIGHT, TOP_X, TOP_FOV = 0.35, 0.015, np.radians(40.0)  # m above the table, m in {w}, rad
+RENDER_H, RENDER_W = 240, 320  # px
+BOX_TOP = 0.05  # m: box_push's 5 cm box on the table (z = 0)
+
+
+def _box_drawn_x(demo: DemoApp) -> float:
+    """The box's centre along {w} x (m) as the page draws it: the centroid column of the teal
+    pixels (the dynamic objects' colour) in a render from the top camera, back-projected at the
+    box's top face."""
+    client = next(iter(demo.server.get_clients().values()))
+    position = WORLD_ORIGIN_V + np.array([TOP_X, 0.0, TOP_HEIGHT])
+    image = client.get_render(RENDER_H, RENDER_W, wxyz=(0.0, 1.0, 0.0, 0.0), position=position, fov=TOP_FOV)
+    rgb = image[..., 0:3].astype(float)
+    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    teal = (g > 2.0 * r + 20.0) & (b > 2.0 * r + 20.0)  # lit or shaded, teal keeps g, b >> r
+    assert teal.sum() > 100, "the box is not in the render"
+    f = 0.5 * RENDER_H / np.tan(0.5 * TOP_FOV)  # px per unit of x / depth
+    u = float(np.nonzero(teal)[1].mean())
+    return TOP_X + (u - 0.5 * RENDER_W) * (TOP_HEIGHT - BOX_TOP) / f
+
+
+def test_a_pushed_box_is_drawn_where_it_is_live_and_replayed(demo: DemoApp, page: object, tmp_path: Path) -> None:
+    """box_push played live: the box the page draws (a render read back from the browser) starts
+    and ends where the simulation has it; its recorded log replayed: drawn at the logged poses."""
+    demo.play_session("box_push")
+    _wait_for(lambda: demo.rt.snapshot.playing is not None, "the session did not start playing")
+    assert demo.rt.snapshot.object_poses.shape == (1, 7)
+    _wait_for(lambda: demo.rt.snapshot.playing is None, "the session did not end")
+    moved = float(demo.rt.snapshot.object_poses[0, 0])
+    assert moved > 0.01  # the stylus pushed the box along x (the script moves the hand 3 cm)
+    _wait_for(lambda: abs(_box_drawn_x(demo) - moved) < 2e-3, f"the page does not draw the box at x = {moved:.4f} m")
+
+    run_session(load_session("box_push"), out_dir=tmp_path / "run", plots=False)
+    log = read_log(tmp_path / "run" / "log")
+    xs = log["object_box_x"].to_numpy()
+    demo.open_replay(str(tmp_path / "run"))
+    try:
+        for t in (0.0, float(log["t"][-1].as_py())):
+            demo.panel.timeline.value = t
+            i = int(np.searchsorted(log["t"].to_numpy(), t, side="right")) - 1
+            x = float(xs[max(i, 0)])
+            _wait_for(lambda x=x: abs(_box_drawn_x(demo) - x) < 2e-3, f"replay at {t} s: the box is not at {x:.4f} m")
+        assert xs[-1] - xs[0] > 0.01
+    finally:
+        demo.close_replay()

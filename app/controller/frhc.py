@@ -225,7 +225,7 @@ class FRHCController:
         R_0_W = kin.R_0_W
         rec["R_W_G"] = R_0_W.T @ kin.R_0_G
         rec["p_W_G"] = R_0_W.T @ (kin.p_0_G - kin.p_0_W)
-        self._friction, self._b_device = device_dissipation(device, kin)
+        self._friction, self._b_device = device_dissipation(device)
         # The compiled tick's arguments that stay the same objects for this controller's life.
         self._fixed_args: tuple[object, ...] = (*kin.fk_arrays, rec)
         # Eq 1 before the compiled tick, and what the device's coordinates are called in errors.

@@ -92,7 +92,7 @@ import numpy as np
 from numba import njit
 
 from app.config import Checked, Range
-from app.controller.kinematics import DeviceKinematics
+from app.device.dissipation import grip_damping_matrix, joint_friction
 from app.device.spec import DeviceSpec
 from app.spatial import Array
 
@@ -138,29 +138,18 @@ class PassivitySettings(Checked):
     hold_slave: bool = True
 
 
-def device_dissipation(device: DeviceSpec, kin: DeviceKinematics) -> tuple[Array, float]:
-    """What the device's own hardware dissipates, from its file (the MJCF plus ``[plant]``).
+def device_dissipation(device: DeviceSpec) -> tuple[Array, float]:
+    """What the device's own hardware dissipates (:mod:`app.device.dissipation`).
 
     Returns:
         Each joint's Coulomb friction (N m, or N for slides), (n,): the PC's friction credit.
         The least translational damping at the grip at the home pose (N s/m): the smallest
-        eigenvalue of the translational block of ``(J D^-1 J^T)^-1`` (``J`` the grip's 6 x n
-        Jacobian in {0}, ``D`` the joints' viscous damping), the ``b`` the coupling of
-        :func:`coupling_hold` is designed from; 0 if some joint has no damping. Leaves ``kin``
-        at the home pose.
+        eigenvalue of the translational block of :func:`~app.device.dissipation.grip_damping_matrix`
+        (no hand), the ``b`` the coupling of :func:`coupling_hold` is designed from; 0 if some
+        joint has no damping.
     """
-    model, n, plant = kin.model, device.n_joints, device.data.plant
-    dofs = model.jnt_dofadr[kin.joint_ids]
-    friction = model.dof_frictionloss[dofs] + plant.per_joint("frictionloss", n)
-    damping = model.dof_damping[dofs] + plant.per_joint("damping", n)
-    if not np.all(damping > 0.0):
-        return friction, 0.0
-    kin.update(np.array(device.data.home))
-    J = kin.jacobian_W(np.zeros((6, n)))
-    r = kin.p_0_G - kin.p_0_W  # v_G = v_W + w x r
-    J[0:3] -= np.cross(r, J[3:6].T).T
-    B = np.linalg.pinv(J @ (J.T / damping[:, None]))
-    return friction, float(np.linalg.eigvalsh(B[0:3, 0:3]).min())
+    B = grip_damping_matrix(device)
+    return joint_friction(device), 0.0 if B is None else float(np.linalg.eigvalsh(B[0:3, 0:3]).min())
 
 
 @njit(cache=True)

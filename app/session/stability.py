@@ -23,11 +23,10 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import mujoco
 import numpy as np
 
+from app.device.dissipation import grip_damping_matrix
 from app.device.hand import HandParams
-from app.device.plant import DevicePlant
 from app.device.spec import load_device
 from app.session.metrics import SETTLE_RIPPLE, SETTLE_WINDOW
 from app.session.run import run_session
@@ -83,20 +82,13 @@ def probe_scene_with_stiffness(stiffness: float, damping: float, folder: Path) -
 def grip_damping(device: str | Path, hand: HandParams | None = None) -> float:
     """Physical damping (N s/m) that resists the grip moving along z of the device base {0}.
 
-    The device's joint damping ``D`` (the plant's, i.e. the simulated hardware's, N m s/rad) seen
-    at the grip at the home pose, ``B = (J D^-1 J^T)^-1`` with ``J`` the grip's 6 x n Jacobian
-    (the least damping any joint motion giving that grip twist meets), its z-z entry, plus the
-    hand's translational damping: the ``b`` of the sampled-wall bound ``K < 2 b / T``.
+    The z-z entry of the device's joint damping seen at the grip at the home pose
+    (:func:`~app.device.dissipation.grip_damping_matrix`) plus the hand's translational damping:
+    the ``b`` of the sampled-wall bound ``K < 2 b / T``. A device with an undamped joint has none
+    of its own.
     """
-    plant = DevicePlant(load_device(device), hand)
-    m, d = plant.model, plant.data
-    mujoco.mj_kinematics(m, d)
-    mujoco.mj_comPos(m, d)
-    J = np.zeros((6, m.nv))
-    mujoco.mj_jacSite(m, d, J[:3], J[3:], plant.grip_site_id)
-    J = J[:, plant.dof_slice]
-    B = np.linalg.inv(J @ (J.T / m.dof_damping[plant.dof_slice][:, None]))
-    return float(B[2, 2]) + (hand or HandParams()).damping_trans
+    B = grip_damping_matrix(load_device(device))
+    return (0.0 if B is None else float(B[2, 2])) + (hand or HandParams()).damping_trans
 
 
 def passivity_bound(device: str | Path, servo_rate: float = 1000.0, hand: HandParams | None = None) -> float:

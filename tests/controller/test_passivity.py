@@ -11,7 +11,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from app.controller.kinematics import DeviceKinematics
 from app.controller.passivity import (
     PassivitySettings,
     coupling_hold,
@@ -198,12 +197,12 @@ def test_the_device_dissipation_is_read_from_the_device_file() -> None:
     the device-only bound (0.40 N s/m along z, the least direction at home). Freflex: the least
     direction has less than z's 1.88 N s/m. A device without joint damping gives none."""
     kraft = load_device("kraft")
-    friction, b = device_dissipation(kraft, DeviceKinematics(kraft))
+    friction, b = device_dissipation(kraft)
     np.testing.assert_array_equal(friction, kraft.data.plant.per_joint("frictionloss", 6))
     assert b == pytest.approx(grip_damping("kraft", RELEASED), rel=1e-3)
     freflex = load_device("freflex")
-    _, b_freflex = device_dissipation(freflex, DeviceKinematics(freflex))
+    _, b_freflex = device_dissipation(freflex)
     assert 0.0 < b_freflex < grip_damping("freflex", RELEASED)
     undamped = dataclasses.replace(kraft.data.plant, damping=(0.0,) * 6)
     bare = dataclasses.replace(kraft, data=dataclasses.replace(kraft.data, plant=undamped))
-    assert device_dissipation(bare, DeviceKinematics(bare))[1] == 0.0
+    assert device_dissipation(bare)[1] == 0.0

@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 
 from app.controller.frhc import Fault
-from app.controller.kinematics import DeviceKinematics
 from app.controller.passivity import PassivitySettings, device_dissipation
 from app.device.spec import load_device
 from app.session.run import run_session
@@ -70,7 +69,7 @@ def test_with_the_pc_no_300_ms_window_gives_out_more_than_the_bank_bound() -> No
     ledger = _ledger(settings, k_t=16.0)
     e, t = np.array(ledger.energy), np.array(ledger.time)
     device = load_device("kraft")
-    friction, _ = device_dissipation(device, DeviceKinematics(device))
+    friction, _ = device_dissipation(device)
     travel = np.concatenate(([0.0], np.cumsum(np.abs(np.diff(np.array(ledger.q), axis=0)) @ friction)))
     late = np.searchsorted(t, t + 0.3)
     ok = late < len(t)

@@ -200,7 +200,16 @@ def controller_tick(
         faults |= OVERSPEED
     # The observer runs on every tick, faults included: the device moved under last tick's torque.
     po_energy, qdot = r.po_energy[:], r.qdot[:]
-    out.scalars[PO_ENERGY] = observe_energy(po_energy, r.po_tau[:], qdot, dt if period_ok else 0.0, r.po_cap)
+    out.scalars[PO_ENERGY] = observe_energy(
+        po_energy,
+        r.po_tau[:],
+        qdot,
+        dt if period_ok else 0.0,
+        r.po_cap,
+        r.po_friction[:],
+        r.po_damping[:],
+        r.po_count[:],
+    )
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]
     lowpass(qdot, lowpass_gain(dt if period_ok else 0.0, r.pc_filter), pc_velocity)

@@ -92,7 +92,7 @@ import numpy as np
 from numba import njit
 
 from app.config import Checked, Range
-from app.device.dissipation import grip_damping_matrix, joint_friction
+from app.device.dissipation import grip_damping_matrix, joint_damping, joint_friction
 from app.device.spec import DeviceSpec
 from app.spatial import Array
 
@@ -125,6 +125,9 @@ class PassivitySettings(Checked):
         hold_slave: Pose mode: the share of the grip's motion into the rendered force that the PC
             cut does not reach the slave's command, up to the compression of a virtual coupling
             designed from the device (:func:`coupling_hold`).
+        observe_device: The observer credits what the device's own hardware surely dissipated
+            (friction and damping from its file, see "The observed port" in the module
+            docstring): the port it watches is the one the hand holds, not the motors'.
     """
 
     enabled: bool = False
@@ -136,37 +139,70 @@ class PassivitySettings(Checked):
     friction_credit: Annotated[float, Range(0.0, 1.0)] = 0.5
     velocity_filter: Annotated[float, Range(0.0, 0.1, "s")] = 0.003
     hold_slave: bool = True
+    observe_device: bool = True
 
 
-def device_dissipation(device: DeviceSpec) -> tuple[Array, float]:
+def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
     """What the device's own hardware dissipates (:mod:`app.device.dissipation`).
 
     Returns:
-        Each joint's Coulomb friction (N m, or N for slides), (n,): the PC's friction credit.
+        Each joint's Coulomb friction (N m, or N for slides), (n,): the friction credit.
+        Each joint's viscous damping (N m s/rad, or N s/m), (n,): the observer's damping credit.
         The least translational damping at the grip at the home pose (N s/m): the smallest
         eigenvalue of the translational block of :func:`~app.device.dissipation.grip_damping_matrix`
         (no hand), the ``b`` the coupling of :func:`coupling_hold` is designed from; 0 if some
         joint has no damping.
     """
     B = grip_damping_matrix(device)
-    return joint_friction(device), 0.0 if B is None else float(np.linalg.eigvalsh(B[0:3, 0:3]).min())
+    b = 0.0 if B is None else float(np.linalg.eigvalsh(B[0:3, 0:3]).min())
+    return joint_friction(device), joint_damping(device), b
+
+
+def bank_bounds(settings: PassivitySettings, limit: Array, step: Array) -> tuple[float, float]:
+    """The reserve and the cap (J) the controller applies: each the larger of its setting and
+    ``sum_j limit_j step_j``, the energy the motors' whole torque ``limit`` (N m or N, (n,))
+    exchanges over the predicted step ``step`` (rad or m, (n,)) (see "The bank" in the module
+    docstring)."""
+    exchange = float(np.sum(limit * step))
+    reserve = max(settings.energy_reserve, exchange)
+    return reserve, max(settings.energy_cap, reserve)
 
 
 @njit(cache=True)
-def observe_energy(energy: Array, tau_prev: Array, qdot: Array, dt: float, cap: float) -> float:
-    """PO step: ``E -= dt * sum_j tau_prev_j qdot_j`` (then capped at ``cap``); returns ``E``.
+def observe_energy(
+    energy: Array,
+    tau_prev: Array,
+    qdot: Array,
+    dt: float,
+    cap: float,
+    friction: Array,
+    damping: Array,
+    count: Array,
+) -> float:
+    """PO step: the port's work plus the device's own sure dissipation, capped; returns ``E``.
+
+    ``E += -dt sum_j tau_prev_j qdot_j + sum_j (friction_j |dq_j| + damping_j max(|dq_j| - count_j, 0)^2 / dt)``
+    with ``dq = qdot dt``, then ``E = min(E, cap)`` (see the module docstring, "The observed port").
 
     Args:
-        energy: Energy the controller has absorbed through the device port (J), (1,), updated.
+        energy: Energy the port has absorbed (J), (1,), updated.
         tau_prev: Rendered joint torque held over the last period (N m or N), (n,).
         qdot: Joint velocity over that period, ``dq / dt`` (rad/s or m/s), (n,).
         dt: The period (s); 0 when there is no usable velocity (nothing is added).
         cap: The most energy the observer may bank (J).
+        friction: Coulomb torque (N m or N) credited per unit of encoder travel, (n,).
+        damping: Each joint's viscous damping (N m s/rad or N s/m), (n,).
+        count: One encoder count of each joint (rad or m; 0 for ideal encoders), (n,).
     """
-    power = 0.0
+    if dt <= 0.0:
+        energy[0] = min(energy[0], cap)
+        return energy[0]
+    change = 0.0
     for j in range(tau_prev.shape[0]):
-        power += tau_prev[j] * qdot[j]
-    energy[0] = min(energy[0] - power * dt, cap)
+        dq = qdot[j] * dt
+        sure = max(abs(dq) - count[j], 0.0)
+        change += -tau_prev[j] * dq + friction[j] * abs(dq) + damping[j] * sure * sure / dt
+    energy[0] = min(energy[0] + change, cap)
     return energy[0]
 
 

@@ -21,7 +21,7 @@ def joint_friction(device: DeviceSpec) -> Array:
     return device.model.dof_frictionloss[dofs] + device.data.plant.per_joint("frictionloss", device.n_joints)
 
 
-def _joint_damping(device: DeviceSpec) -> Array:
+def joint_damping(device: DeviceSpec) -> Array:
     """Each joint's viscous damping (N m s/rad, or N s/m for slides), (n,): the MJCF's plus ``plant.damping``."""
     dofs = list(device.dof_ids)
     return device.model.dof_damping[dofs] + device.data.plant.per_joint("damping", device.n_joints)
@@ -31,12 +31,12 @@ def grip_damping_matrix(device: DeviceSpec) -> Array | None:
     """The joints' viscous damping seen at the grip at the home pose, ``B = (J D^-1 J^T)^-1``.
 
     ``J`` is the grip site's 6 x n Jacobian in the device base {0} (rows: linear, then angular
-    velocity of the grip point), ``D`` the diagonal of the joints' viscous damping (the MJCF's plus ``plant.damping``): ``B`` is the least
+    velocity of the grip point), ``D`` the diagonal of :func:`joint_damping`: ``B`` is the least
     damping any joint motion producing a given grip twist meets (a pseudo-inverse for a device
     with fewer than six joints). Units: N s/m in the translational block ``B[0:3, 0:3]``, N m s
     in the rotational one. None if some joint has no damping (``D`` has no inverse).
     """
-    damping = _joint_damping(device)
+    damping = joint_damping(device)
     if not np.all(damping > 0.0):
         return None
     model = device.model

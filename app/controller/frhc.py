@@ -279,6 +279,7 @@ class FRHCController:
         rec["pc_filter"] = settings.velocity_filter
         rec["pc_hold"] = settings.enabled and settings.hold_slave
         rec["pc_b_device"] = self._b_device
+        rec["pc_bleed"] = settings.hold_bleed
         if not rec["pc_hold"][0]:
             rec["pc_offset"] = 0.0
 

@@ -256,7 +256,15 @@ def controller_tick(
         if r.pc_hold:
             cut = out.scalars[PC_CUT] if r.pc_on else 0.0
             coupling_hold(
-                cut, T_0_G[0:3, 0:3], out.vectors[G_F_T], dx_cmd, r.pc_dx_prev[:], r.pc_offset[:], r.pc_b_device, dt
+                cut,
+                T_0_G[0:3, 0:3],
+                out.vectors[G_F_T],
+                dx_cmd,
+                r.pc_dx_prev[:],
+                r.pc_offset[:],
+                r.pc_b_device,
+                dt,
+                r.pc_bleed,
             )
         pose_command(r.T_w_MRF0[:], r.gains[:][K_P], dx_cmd, r.T_w_MRF[:])
     return 0

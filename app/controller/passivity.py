@@ -5,14 +5,29 @@ The controller, seen from the device, is a one-port: the motors put the rendered
 balances a conservative field) into the joints while the joints move. Passive means it never
 gives out more energy than it took in.
 
-**Observer (PO)**, one for the whole port, from measured quantities only, no model: the torque
-commanded in the last tick was held over the period (zero-order hold) while the joints moved by
-``dq`` (encoder differences), so that tick's work on the controller is exactly ``-tau_r . dq``;
+**Observer (PO)**, one for the whole port: the torque commanded in the last tick was held over
+the period (zero-order hold) while the joints moved by ``dq`` (encoder differences), so that
+tick's work on the controller is exactly ``-tau_r . dq``;
 
-    E(n) = min(E(n-1) - sum_j tau_r,j(n-1) (q_j(n) - q_j(n-1)), energy_cap)      (J)
+    E(n) = min(E(n-1) - sum_j tau_r,j(n-1) dq_j + sum_j D_j(dq_j), energy_cap)      (J)
 
-is the energy the controller has absorbed (>= 0 while it is passive). It runs always, so the
-trace shows how active plain rendering is. Summed over the joints, not per joint: joint power
+is the energy the port has absorbed (>= 0 while it is passive). It runs always, so the trace
+shows how active plain rendering is.
+
+*The observed port* is the one the hand holds, not the motors' (``observe_device``): what the
+controller gives out and the device's own hardware dissipates on the way never reaches the hand,
+so ``D_j`` credits what joint ``j`` surely dissipated, from the device file and the encoder
+alone: its Coulomb friction ``f_c,j |dq_j|`` and its viscous damping's least dissipation over
+the counts it surely moved, ``d_j (|dq_j| - count_j)^2 / T`` (Cauchy-Schwarz: moving ``x``
+within ``T`` through damping ``d`` dissipates at least ``d x^2 / T``; the energy bounding
+algorithm of Kim & Ryu 2004 bounds the controller's output by the same ``b x^2 / T``; one count
+is taken off because the true motion behind a one-count step may be any fraction of it). The
+friction is credited whole per count, as in Abbott & Okamura 2005 (IEEE Trans. Robotics 21(5)):
+a quantised wall's one-count limit cycle generates ``K count^2`` per cycle, which the friction's
+``2 f_c count`` removes when ``K count < 2 f_c``; it is their passivity condition, not a tuned
+share. Without this credit, plain rendering that the device's own friction keeps stable reads as
+active (a coarse encoder's one-count dither drains the bank), the PC cuts a wall plain rendering
+holds, and the wall vanishes (measured: the stability matrix in the module's history). Summed over the joints, not per joint: joint power
 sums to the grip's power (``tau . qdot = F . J qdot``), so this is the passivity of the port the
 operator holds; per joint, a Cartesian push that one joint absorbs while another gives some back
 starves the giving joint, and the wall collapses.
@@ -26,17 +41,19 @@ direction), so that the next step the encoders can show cannot take ``E`` below 
 where ``step_j`` is the larger of the set ``step`` and ``step_counts`` counts of joint ``j``'s encoder, ``v_j``
 the low-passed joint velocity (it predicts steps of more than one count) and ``credit_j`` the
 torque joint ``j``'s own Coulomb friction dissipates over any step (Diolaiti et al. 2006: friction
-absorbs ``f_c d`` per count moved): ``friction_credit`` (0.5) times the device file's friction of
-that joint (:func:`device_dissipation`), not one constant for every device and joint. Half, not
-all: the simulated joints' friction is a soft constraint that dissipates less than ``f_c`` per
-unit of travel at low speed, and the full friction measured unstable with the hand let go (kraft
-at 3x the bound, freflex at 4x) where half held.
+absorbs ``f_c d`` per count moved): ``friction_credit`` (1, the whole friction, as the observer
+credits it) times the device file's friction of that joint (:func:`device_dissipation`).
 
-**The bank is bounded** by a rule, not left infinite: ``energy_cap`` = ``energy_reserve``. What a
-long dissipative stretch (a stroke across a rough surface banks ~0.6 J) has absorbed then pays
-for at most ``energy_cap + energy_reserve`` (40 mJ) of later activity, so stored energy cannot
-fund an oscillation later, and no 300 ms window gives out more than that plus the friction credit
-of its travel (tested against an independent sum).
+**The bank is bounded** by a rule derived from the device (:func:`bank_bounds`): the reserve
+and the cap are each the larger of their setting (20 mJ) and ``sum_j limit_j step_j``, the
+energy the motors' whole torque exchanges over the predicted step (kraft / jpl / freflex 27.6 /
+33.8 / 78.2 mJ; 0.39 J on a 10-bit Kraft). Less than that, and the PC cuts a wall the hand holds
+still as soon as the bank is empty, because the next predicted step at that force could overdraw
+it (measured on 10-12-bit encoders: the wall felt at 0.04-0.2x plain's); with it, the PC acts
+only once the port has given out more than the device dissipated. What a long dissipative
+stretch (a stroke across a rough surface banks ~0.6 J) absorbed then pays for at most ``cap +
+reserve`` of later activity, so stored energy cannot fund an oscillation later, and no 300 ms
+window gives the hand more than that (tested against an independent sum).
 
 **Pose mode: the hold** (:func:`coupling_hold`, ``hold_slave``). A PC on the master alone cannot
 keep a wall in pose mode: the slave follows the grip whatever the PC renders, so a cut force lets
@@ -105,11 +122,12 @@ class PassivitySettings(Checked):
         enabled: The PC bounds the rendered torque (else the energy is only observed).
         max_torque_fraction: Share (0, 1] of each joint's torque limit the total may reach
             because of the PC's correction (-).
-        energy_reserve: Energy (J) the port may give out beyond what it has absorbed: the PC
-            keeps the observed energy at or above ``-energy_reserve`` (0 = strict).
-        energy_cap: Largest energy (J) the observer may bank; inf = none. The default is the
-            reserve: what a long dissipative stretch banked can then pay for at most
-            ``energy_cap + energy_reserve`` of later activity (see the module docstring).
+        energy_reserve: Least energy (J) the port may give out beyond what it has absorbed: the
+            PC keeps the observed energy at or above ``-reserve``, the reserve being the larger
+            of this and what the motors exchange over the predicted step (:func:`bank_bounds`).
+        energy_cap: Least cap (J) on the energy the observer may bank (inf = none); the cap
+            applied is the larger of this and the reserve applied: what a long dissipative
+            stretch banked then pays for at most ``cap + reserve`` of later activity.
         step: Smallest joint step the PC predicts (rad, or m for slides).
         step_counts: Each joint predicts at least this many counts of its own encoder
             (``plant.encoder_counts_per_rev`` of the device file). One count is the least a
@@ -117,14 +135,17 @@ class PassivitySettings(Checked):
             Kraft's 13-bit wrist at 2^-14 rev did); several keep the PC's own force law soft
             enough not to chatter once the energy is spent (see the module docstring).
         friction_credit: Share [0, 1] of each joint's own Coulomb friction (the device file's
-            ``plant.frictionloss`` plus the MJCF's) the PC credits as surely dissipated on every
-            step; 0 = none (strictly model-free).
+            ``plant.frictionloss`` plus the MJCF's) the observer and the PC credit as dissipated
+            per unit of travel; 1 = the whole friction (Abbott & Okamura 2005, see the module
+            docstring), 0 = none.
         velocity_filter: Time constant (s) of the first-order low-pass on the encoder velocity
             the PC predicts steps of more than one count with (0 = none). The observer always
             uses the exact difference.
         hold_slave: Pose mode: the share of the grip's motion into the rendered force that the PC
             cut does not reach the slave's command, up to the compression of a virtual coupling
             designed from the device (:func:`coupling_hold`).
+        hold_bleed: Time constant (s) with which the hold decays while no force is rendered
+            (out of contact): no offset between slave and grip outlives the contact.
         observe_device: The observer credits what the device's own hardware surely dissipated
             (friction and damping from its file, see "The observed port" in the module
             docstring): the port it watches is the one the hand holds, not the motors'.
@@ -136,9 +157,10 @@ class PassivitySettings(Checked):
     energy_cap: Annotated[float, Range(0.0, 1e3, "J", inf_ok=True)] = 0.02
     step: Annotated[float, Range(0.0, 0.1, "rad", lo_open=True)] = 2.0 * math.pi / 16384
     step_counts: Annotated[int, Range(1, 64)] = 3
-    friction_credit: Annotated[float, Range(0.0, 1.0)] = 0.5
+    friction_credit: Annotated[float, Range(0.0, 1.0)] = 1.0
     velocity_filter: Annotated[float, Range(0.0, 0.1, "s")] = 0.003
     hold_slave: bool = True
+    hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
 
 
@@ -265,6 +287,7 @@ def coupling_hold(
     offset: Array,
     b_device: float,
     dt: float,
+    bleed: float,
 ) -> None:
     """Pose mode's slave-side half of the PC: hold the slave's command back by what the PC cut.
 
@@ -290,6 +313,8 @@ def coupling_hold(
         offset: The accumulated hold (m, {0}), (3,), updated.
         b_device: The device's own least translational damping at the grip (N s/m).
         dt: Servo period (s); 0 = no usable period (the hold is kept, not grown).
+        bleed: Time constant (s) with which the hold decays while no force is rendered (the
+            tool out of contact): with nothing to hold against, the slave rejoins the grip.
     """
     f0 = R_0_G[0, 0] * G_F[0] + R_0_G[0, 1] * G_F[1] + R_0_G[0, 2] * G_F[2]
     f1 = R_0_G[1, 0] * G_F[0] + R_0_G[1, 1] * G_F[1] + R_0_G[1, 2] * G_F[2]
@@ -320,5 +345,11 @@ def coupling_hold(
             offset[0] += back * f0
             offset[1] += back * f1
             offset[2] += back * f2
+    if norm == 0.0 and dt > 0.0:
+        # Out of contact the hold has no wall to keep: it bleeds out (not at once, so a tool
+        # bouncing off the surface is not stepped back into it).
+        decay = math.exp(-dt / bleed)
+        for i in range(3):
+            offset[i] *= decay
     for i in range(3):
         dx_cmd[i] -= offset[i]

@@ -117,7 +117,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         names. min_period, max_period: accepted periods (s). ramp_rate (1/s), max_joint_speed and
         release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. pc_on, pc_limit
         (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), po_count (rad, (n,)), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_filter (s),
-        pc_hold, pc_b_device (N s/m): :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
+        pc_hold, pc_b_device (N s/m), pc_bleed (s): :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
         (n,) each (N m or N; -). horner_pos, horner_neg: (n, n_coeffs) torque curves, highest
         order first; counts_max: the amplifier's range. payload_mass (kg), payload_com_S (m, in
         {S}), payload_inertia_S (kg m^2, about the centre of mass, {S} axes), gravity_w (m/s^2,
@@ -170,6 +170,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("pc_filter", f8),
             ("pc_hold", b1),
             ("pc_b_device", f8),
+            ("pc_bleed", f8),
             ("pc_offset", f8, (3,)),
             ("pc_dx_prev", f8, (3,)),
             ("assist_limit", f8, (n,)),

@@ -184,7 +184,7 @@ def _hold(cut: float, f_0: np.ndarray, dx: float, prev: float, offset: float, R:
     G_F = np.concatenate((R.T @ f_0, np.zeros(3)))
     cmd = np.array([0.0, 0.0, dx, 0.0, 0.0, 0.0])
     dx_prev, off = np.array([0.0, 0.0, prev]), np.array([0.0, 0.0, offset])
-    coupling_hold(cut, R, G_F, cmd, dx_prev, off, 0.4, T)
+    coupling_hold(cut, R, G_F, cmd, dx_prev, off, 0.4, T, 0.3)
     return cmd[2], off[2], dx_prev[2]
 
 

@@ -144,8 +144,8 @@ class PassivitySettings(Checked):
         hold_slave: Pose mode: the share of the grip's motion into the rendered force that the PC
             cut does not reach the slave's command, up to the compression of a virtual coupling
             designed from the device (:func:`coupling_hold`).
-        hold_bleed: Time constant (s) with which the hold decays while no force is rendered
-            (out of contact): no offset between slave and grip outlives the contact.
+        hold_bleed: Time constant (s) with which a hold beyond the coupling's compression under
+            the force rendered now decays: no offset between slave and grip outlives the force.
         observe_device: The observer credits what the device's own hardware surely dissipated
             (friction and damping from its file, see "The observed port" in the module
             docstring): the port it watches is the one the hand holds, not the motors'.
@@ -313,8 +313,8 @@ def coupling_hold(
         offset: The accumulated hold (m, {0}), (3,), updated.
         b_device: The device's own least translational damping at the grip (N s/m).
         dt: Servo period (s); 0 = no usable period (the hold is kept, not grown).
-        bleed: Time constant (s) with which the hold decays while no force is rendered (the
-            tool out of contact): with nothing to hold against, the slave rejoins the grip.
+        bleed: Time constant (s) with which a hold beyond the coupling's compression under the
+            force rendered now decays (the force dropped, or the tool left the surface).
     """
     f0 = R_0_G[0, 0] * G_F[0] + R_0_G[0, 1] * G_F[1] + R_0_G[0, 2] * G_F[2]
     f1 = R_0_G[1, 0] * G_F[0] + R_0_G[1, 1] * G_F[1] + R_0_G[1, 2] * G_F[2]
@@ -325,12 +325,12 @@ def coupling_hold(
         into = ((dx_cmd[0] - dx_prev[0]) * f0 + (dx_cmd[1] - dx_prev[1]) * f1 + (dx_cmd[2] - dx_prev[2]) * f2) / norm
     for i in range(3):
         dx_prev[i] = dx_cmd[i]
+    # The coupling's compression under f_0 bounds the hold.
+    most = norm * dt / (2.0 * b_device) if b_device > 0.0 and dt > 0.0 else 0.0
     if into < 0.0 and cut > 0.0:
         offset[0] += cut * into * f0 / norm
         offset[1] += cut * into * f1 / norm
         offset[2] += cut * into * f2 / norm
-        # The coupling's compression under f_0 bounds the hold.
-        most = norm * dt / (2.0 * b_device) if b_device > 0.0 and dt > 0.0 else 0.0
         size = math.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2)
         if size > most:
             for i in range(3):
@@ -345,11 +345,13 @@ def coupling_hold(
             offset[0] += back * f0
             offset[1] += back * f1
             offset[2] += back * f2
-    if norm == 0.0 and dt > 0.0:
-        # Out of contact the hold has no wall to keep: it bleeds out (not at once, so a tool
-        # bouncing off the surface is not stepped back into it).
-        decay = math.exp(-dt / bleed)
+    # Beyond the coupling's compression under the force rendered now (the force dropped: out of
+    # contact, or the F/T's residue) the hold bleeds out, not at once, so a tool bouncing off the
+    # surface is not stepped back into it; with nothing to hold against the slave rejoins the grip.
+    size = math.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2)
+    if size > most and dt > 0.0:
+        scale = (most + (size - most) * math.exp(-dt / bleed)) / size
         for i in range(3):
-            offset[i] *= decay
+            offset[i] *= scale
     for i in range(3):
         dx_cmd[i] -= offset[i]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import numpy as np
@@ -206,11 +207,16 @@ def test_the_hold_keeps_the_cut_share_of_the_push_from_the_slave_up_to_the_coupl
 def test_backing_out_uses_the_hold_up_before_the_slave_moves_and_a_dropped_force_keeps_it() -> None:
     """A grip 0.5 mm back out of the force with a 1 mm hold: the slave's command stays where it was
     (-11 mm), the hold is halved; 1 mm further out the hold is gone and the command follows the
-    grip. The force dropping to nearly nothing does not release the hold (no step back in)."""
+    grip. The force dropping to nearly nothing bleeds the hold out slowly (no step back in)."""
     up = np.array([0.0, 0.0, 10.0])
     assert _hold(0.0, up, -0.0115, -0.012, -0.001) == pytest.approx((-0.011, -0.0005, -0.0115))
     assert _hold(0.0, up, -0.0105, -0.0115, -0.0005) == pytest.approx((-0.0105, 0.0, -0.0105))
-    assert _hold(0.0, 1e-6 * up, -0.012, -0.012, -0.001) == pytest.approx((-0.011, -0.001, -0.012))
+    # The force nearly gone: the hold beyond the coupling's compression bleeds out over 0.3 s, by
+    # 1 - exp(-T / 0.3 s) a tick (no step back in).
+    kept = math.exp(-T / 0.3)
+    assert _hold(0.0, 1e-6 * up, -0.012, -0.012, -0.001) == pytest.approx(
+        (-0.012 + 0.001 * kept, -0.001 * kept, -0.012)
+    )
 
 
 def test_the_device_dissipation_is_read_from_the_device_file() -> None:

@@ -61,7 +61,9 @@ the hand push the slave in until it reaches its force limit (measured: coarse 10
 the slave at 40 N at every multiple). The PC's other half therefore acts on the slave's command,
 as a position-type PC does on a teleoperator's slave port (Ryu, Kwon & Hannaford 2004): the
 share of the grip's push the PC cut does not reach the slave, up to the compression of a virtual
-coupling designed from the device alone (Adams & Hannaford 1999).
+coupling designed from the device alone (Adams & Hannaford 1999). A hold beyond that compression
+under the force rendered now (the force dropped, or the tool left the surface) bleeds out with
+``hold_bleed``, so no offset between slave and grip outlives the force.
 
 ``E_r`` is an energy reserve: the port is passive with respect to an initial storage ``E_r``
 (it never gives out more than ``E_r`` plus what it has absorbed). Without one, the touch itself

@@ -277,16 +277,8 @@ def _wall_rows(
         for name, enabled in (("plain", False), ("PO/PC", True)):
             gains = {"k_t": [k_t] * 3 + [1.0] * 3}
             passivity = PassivitySettings(enabled=enabled)
-            released = hand is None
             r = press(
-                1e5,
-                "pose",
-                device=device,
-                gains=gains,
-                passivity=passivity,
-                hand=held,
-                released=released,
-                window=window,
+                1e5, "pose", gains, released=hand is None, window=window, device=device, passivity=passivity, hand=held
             )
             if r.stable:
                 stable[name].append(multiple)

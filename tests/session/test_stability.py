@@ -137,14 +137,23 @@ def test_where_plain_holds_the_wall_the_pc_leaves_it_alone(tmp_path: Path) -> No
 
 
 def test_a_wall_the_hand_pushed_through_is_not_stable(tmp_path: Path) -> None:
-    """Freflex with 20-bit encoders at 3x the bound, PO/PC predicting steps of one 20-bit count:
+    """Freflex with 20-bit encoders at 3x the bound, a strict master-side PO/PC predicting steps of one 20-bit count:
     so short a step buys so little force per joule that once the touch has drawn the reserve the
     energy bound holds the force down, and the hand pushes the slave to its 40 N limit. The force
     is steady there, but that is the slave's limit, not a wall."""
     device = str(write_variant("freflex", ENC20, tmp_path))
     bound = passivity_bound(device)
     k_t = 3.0 * bound / design_stiffness(1.0, device=device)
-    settings = PassivitySettings(enabled=True, step=2.0 * math.pi / 2**20, step_counts=1, hold_slave=False)
+    # A master-side bound alone: no hold, half the friction credited, none of the device's
+    # dissipation observed (the layer before issue 26's third pass).
+    settings = PassivitySettings(
+        enabled=True,
+        step=2.0 * math.pi / 2**20,
+        step_counts=1,
+        hold_slave=False,
+        friction_credit=0.5,
+        observe_device=False,
+    )
     r = press(1e5, "pose", device=device, gains={"k_t": [k_t] * 3 + [1.0] * 3}, passivity=settings)
     assert r.settled
     assert r.pushed_through

@@ -199,7 +199,7 @@ def _device_url(text: str) -> str:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from app import bench
 
-    print(bench.run(args.what, quick=args.quick))
+    print(bench.run(args.what, quick=args.quick, window=args.window))
     return 0
 
 
@@ -396,6 +396,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="what to time",
     )
     p.add_argument("--quick", action="store_true", help="fewer iterations")
+    p.add_argument(
+        "--window",
+        type=_positive_seconds,
+        default=None,
+        help="stability: how long (s) each pose-mode wall's force is judged while the hand holds it "
+        "(default 0.6, the settling window; the bar of issue 26: 8)",
+    )
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser(

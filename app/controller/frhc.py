@@ -27,7 +27,7 @@ from app.controller.gains import ControllerGains
 from app.controller.inputs import SHAPE_3, SHAPE_6, SHAPE_33, checked_arrays, checked_float
 from app.controller.kinematics import DeviceKinematics, RecordArray, topology_fields
 from app.controller.layout import GAIN_ROWS, RTC_LAWS, TORQUE_ROWS, vector_row_names
-from app.controller.passivity import PassivitySettings, device_dissipation
+from app.controller.passivity import PassivitySettings, bank_bounds, device_dissipation
 from app.controller.record import (
     ASSIST_SCALE,
     PC_CUT,
@@ -225,7 +225,7 @@ class FRHCController:
         R_0_W = kin.R_0_W
         rec["R_W_G"] = R_0_W.T @ kin.R_0_G
         rec["p_W_G"] = R_0_W.T @ (kin.p_0_G - kin.p_0_W)
-        self._friction, self._b_device = device_dissipation(device, kin)
+        self._friction, self._damping, self._b_device = device_dissipation(device)
         # The compiled tick's arguments that stay the same objects for this controller's life.
         self._fixed_args: tuple[object, ...] = (*kin.fk_arrays, rec)
         # Eq 1 before the compiled tick, and what the device's coordinates are called in errors.
@@ -268,14 +268,18 @@ class FRHCController:
         self.passivity = settings
         rec = self._rec
         rec["pc_on"] = settings.enabled
-        rec["pc_limit"] = settings.max_torque_fraction * self.joint_limit
-        rec["po_cap"] = settings.energy_cap
-        rec["pc_reserve"] = settings.energy_reserve
-        rec["pc_step"] = np.maximum(settings.step, settings.step_counts * self.device.encoder_step)
+        rec["pc_limit"] = limit = settings.max_torque_fraction * self.joint_limit
+        rec["pc_step"] = step = np.maximum(settings.step, settings.step_counts * self.device.encoder_step)
+        rec["pc_reserve"], rec["po_cap"] = bank_bounds(settings, limit, step)
         rec["pc_credit"] = settings.friction_credit * self._friction
+        observed = settings.observe_device
+        rec["po_friction"] = settings.friction_credit * self._friction if observed else 0.0
+        rec["po_damping"] = self._damping if observed else 0.0
+        rec["po_count"] = self.device.encoder_step
         rec["pc_filter"] = settings.velocity_filter
         rec["pc_hold"] = settings.enabled and settings.hold_slave
         rec["pc_b_device"] = self._b_device
+        rec["pc_bleed"] = settings.hold_bleed
         if not rec["pc_hold"][0]:
             rec["pc_offset"] = 0.0
 

@@ -200,7 +200,16 @@ def controller_tick(
         faults |= OVERSPEED
     # The observer runs on every tick, faults included: the device moved under last tick's torque.
     po_energy, qdot = r.po_energy[:], r.qdot[:]
-    out.scalars[PO_ENERGY] = observe_energy(po_energy, r.po_tau[:], qdot, dt if period_ok else 0.0, r.po_cap)
+    out.scalars[PO_ENERGY] = observe_energy(
+        po_energy,
+        r.po_tau[:],
+        qdot,
+        dt if period_ok else 0.0,
+        r.po_cap,
+        r.po_friction[:],
+        r.po_damping[:],
+        r.po_count[:],
+    )
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]
     lowpass(qdot, lowpass_gain(dt if period_ok else 0.0, r.pc_filter), pc_velocity)
@@ -247,7 +256,15 @@ def controller_tick(
         if r.pc_hold:
             cut = out.scalars[PC_CUT] if r.pc_on else 0.0
             coupling_hold(
-                cut, T_0_G[0:3, 0:3], out.vectors[G_F_T], dx_cmd, r.pc_dx_prev[:], r.pc_offset[:], r.pc_b_device, dt
+                cut,
+                T_0_G[0:3, 0:3],
+                out.vectors[G_F_T],
+                dx_cmd,
+                r.pc_dx_prev[:],
+                r.pc_offset[:],
+                r.pc_b_device,
+                dt,
+                r.pc_bleed,
             )
         pose_command(r.T_w_MRF0[:], r.gains[:][K_P], dx_cmd, r.T_w_MRF[:])
     return 0

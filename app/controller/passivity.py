@@ -5,14 +5,29 @@ The controller, seen from the device, is a one-port: the motors put the rendered
 balances a conservative field) into the joints while the joints move. Passive means it never
 gives out more energy than it took in.
 
-**Observer (PO)**, one for the whole port, from measured quantities only, no model: the torque
-commanded in the last tick was held over the period (zero-order hold) while the joints moved by
-``dq`` (encoder differences), so that tick's work on the controller is exactly ``-tau_r . dq``;
+**Observer (PO)**, one for the whole port: the torque commanded in the last tick was held over
+the period (zero-order hold) while the joints moved by ``dq`` (encoder differences), so that
+tick's work on the controller is exactly ``-tau_r . dq``;
 
-    E(n) = min(E(n-1) - sum_j tau_r,j(n-1) (q_j(n) - q_j(n-1)), energy_cap)      (J)
+    E(n) = min(E(n-1) - sum_j tau_r,j(n-1) dq_j + sum_j D_j(dq_j), energy_cap)      (J)
 
-is the energy the controller has absorbed (>= 0 while it is passive). It runs always, so the
-trace shows how active plain rendering is. Summed over the joints, not per joint: joint power
+is the energy the port has absorbed (>= 0 while it is passive). It runs always, so the trace
+shows how active plain rendering is.
+
+*The observed port* is the one the hand holds, not the motors' (``observe_device``): what the
+controller gives out and the device's own hardware dissipates on the way never reaches the hand,
+so ``D_j`` credits what joint ``j`` surely dissipated, from the device file and the encoder
+alone: its Coulomb friction ``f_c,j |dq_j|`` and its viscous damping's least dissipation over
+the counts it surely moved, ``d_j (|dq_j| - count_j)^2 / T`` (Cauchy-Schwarz: moving ``x``
+within ``T`` through damping ``d`` dissipates at least ``d x^2 / T``; the energy bounding
+algorithm of Kim & Ryu 2004 bounds the controller's output by the same ``b x^2 / T``; one count
+is taken off because the true motion behind a one-count step may be any fraction of it). The
+friction is credited whole per count, as in Abbott & Okamura 2005 (IEEE Trans. Robotics 21(5)):
+a quantised wall's one-count limit cycle generates ``K count^2`` per cycle, which the friction's
+``2 f_c count`` removes when ``K count < 2 f_c``; it is their passivity condition, not a tuned
+share. Without this credit, plain rendering that the device's own friction keeps stable reads as
+active (a coarse encoder's one-count dither drains the bank), the PC cuts a wall plain rendering
+holds, and the wall vanishes (measured: the stability matrix in the module's history). Summed over the joints, not per joint: joint power
 sums to the grip's power (``tau . qdot = F . J qdot``), so this is the passivity of the port the
 operator holds; per joint, a Cartesian push that one joint absorbs while another gives some back
 starves the giving joint, and the wall collapses.
@@ -26,17 +41,19 @@ direction), so that the next step the encoders can show cannot take ``E`` below 
 where ``step_j`` is the larger of the set ``step`` and ``step_counts`` counts of joint ``j``'s encoder, ``v_j``
 the low-passed joint velocity (it predicts steps of more than one count) and ``credit_j`` the
 torque joint ``j``'s own Coulomb friction dissipates over any step (Diolaiti et al. 2006: friction
-absorbs ``f_c d`` per count moved): ``friction_credit`` (0.5) times the device file's friction of
-that joint (:func:`device_dissipation`), not one constant for every device and joint. Half, not
-all: the simulated joints' friction is a soft constraint that dissipates less than ``f_c`` per
-unit of travel at low speed, and the full friction measured unstable with the hand let go (kraft
-at 3x the bound, freflex at 4x) where half held.
+absorbs ``f_c d`` per count moved): ``friction_credit`` (1, the whole friction, as the observer
+credits it) times the device file's friction of that joint (:func:`device_dissipation`).
 
-**The bank is bounded** by a rule, not left infinite: ``energy_cap`` = ``energy_reserve``. What a
-long dissipative stretch (a stroke across a rough surface banks ~0.6 J) has absorbed then pays
-for at most ``energy_cap + energy_reserve`` (40 mJ) of later activity, so stored energy cannot
-fund an oscillation later, and no 300 ms window gives out more than that plus the friction credit
-of its travel (tested against an independent sum).
+**The bank is bounded** by a rule derived from the device (:func:`bank_bounds`): the reserve
+and the cap are each the larger of their setting (20 mJ) and ``sum_j limit_j step_j``, the
+energy the motors' whole torque exchanges over the predicted step (kraft / jpl / freflex 27.6 /
+33.8 / 78.2 mJ; 0.39 J on a 10-bit Kraft). Less than that, and the PC cuts a wall the hand holds
+still as soon as the bank is empty, because the next predicted step at that force could overdraw
+it (measured on 10-12-bit encoders: the wall felt at 0.04-0.2x plain's); with it, the PC acts
+only once the port has given out more than the device dissipated. What a long dissipative
+stretch (a stroke across a rough surface banks ~0.6 J) absorbed then pays for at most ``cap +
+reserve`` of later activity, so stored energy cannot fund an oscillation later, and no 300 ms
+window gives the hand more than that (tested against an independent sum).
 
 **Pose mode: the hold** (:func:`coupling_hold`, ``hold_slave``). A PC on the master alone cannot
 keep a wall in pose mode: the slave follows the grip whatever the PC renders, so a cut force lets
@@ -44,7 +61,9 @@ the hand push the slave in until it reaches its force limit (measured: coarse 10
 the slave at 40 N at every multiple). The PC's other half therefore acts on the slave's command,
 as a position-type PC does on a teleoperator's slave port (Ryu, Kwon & Hannaford 2004): the
 share of the grip's push the PC cut does not reach the slave, up to the compression of a virtual
-coupling designed from the device alone (Adams & Hannaford 1999).
+coupling designed from the device alone (Adams & Hannaford 1999). A hold beyond that compression
+under the force rendered now (the force dropped, or the tool left the surface) bleeds out with
+``hold_bleed``, so no offset between slave and grip outlives the force.
 
 ``E_r`` is an energy reserve: the port is passive with respect to an initial storage ``E_r``
 (it never gives out more than ``E_r`` plus what it has absorbed). Without one, the touch itself
@@ -92,7 +111,7 @@ import numpy as np
 from numba import njit
 
 from app.config import Checked, Range
-from app.controller.kinematics import DeviceKinematics
+from app.device.dissipation import grip_damping_matrix, joint_damping, joint_friction
 from app.device.spec import DeviceSpec
 from app.spatial import Array
 
@@ -105,11 +124,12 @@ class PassivitySettings(Checked):
         enabled: The PC bounds the rendered torque (else the energy is only observed).
         max_torque_fraction: Share (0, 1] of each joint's torque limit the total may reach
             because of the PC's correction (-).
-        energy_reserve: Energy (J) the port may give out beyond what it has absorbed: the PC
-            keeps the observed energy at or above ``-energy_reserve`` (0 = strict).
-        energy_cap: Largest energy (J) the observer may bank; inf = none. The default is the
-            reserve: what a long dissipative stretch banked can then pay for at most
-            ``energy_cap + energy_reserve`` of later activity (see the module docstring).
+        energy_reserve: Least energy (J) the port may give out beyond what it has absorbed: the
+            PC keeps the observed energy at or above ``-reserve``, the reserve being the larger
+            of this and what the motors exchange over the predicted step (:func:`bank_bounds`).
+        energy_cap: Least cap (J) on the energy the observer may bank (inf = none); the cap
+            applied is the larger of this and the reserve applied: what a long dissipative
+            stretch banked then pays for at most ``cap + reserve`` of later activity.
         step: Smallest joint step the PC predicts (rad, or m for slides).
         step_counts: Each joint predicts at least this many counts of its own encoder
             (``plant.encoder_counts_per_rev`` of the device file). One count is the least a
@@ -117,14 +137,20 @@ class PassivitySettings(Checked):
             Kraft's 13-bit wrist at 2^-14 rev did); several keep the PC's own force law soft
             enough not to chatter once the energy is spent (see the module docstring).
         friction_credit: Share [0, 1] of each joint's own Coulomb friction (the device file's
-            ``plant.frictionloss`` plus the MJCF's) the PC credits as surely dissipated on every
-            step; 0 = none (strictly model-free).
+            ``plant.frictionloss`` plus the MJCF's) the observer and the PC credit as dissipated
+            per unit of travel; 1 = the whole friction (Abbott & Okamura 2005, see the module
+            docstring), 0 = none.
         velocity_filter: Time constant (s) of the first-order low-pass on the encoder velocity
             the PC predicts steps of more than one count with (0 = none). The observer always
             uses the exact difference.
         hold_slave: Pose mode: the share of the grip's motion into the rendered force that the PC
             cut does not reach the slave's command, up to the compression of a virtual coupling
             designed from the device (:func:`coupling_hold`).
+        hold_bleed: Time constant (s) with which a hold beyond the coupling's compression under
+            the force rendered now decays: no offset between slave and grip outlives the force.
+        observe_device: The observer credits what the device's own hardware surely dissipated
+            (friction and damping from its file, see "The observed port" in the module
+            docstring): the port it watches is the one the hand holds, not the motors'.
     """
 
     enabled: bool = False
@@ -133,51 +159,74 @@ class PassivitySettings(Checked):
     energy_cap: Annotated[float, Range(0.0, 1e3, "J", inf_ok=True)] = 0.02
     step: Annotated[float, Range(0.0, 0.1, "rad", lo_open=True)] = 2.0 * math.pi / 16384
     step_counts: Annotated[int, Range(1, 64)] = 3
-    friction_credit: Annotated[float, Range(0.0, 1.0)] = 0.5
+    friction_credit: Annotated[float, Range(0.0, 1.0)] = 1.0
     velocity_filter: Annotated[float, Range(0.0, 0.1, "s")] = 0.003
     hold_slave: bool = True
+    hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
+    observe_device: bool = True
 
 
-def device_dissipation(device: DeviceSpec, kin: DeviceKinematics) -> tuple[Array, float]:
-    """What the device's own hardware dissipates, from its file (the MJCF plus ``[plant]``).
+def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
+    """What the device's own hardware dissipates (:mod:`app.device.dissipation`).
 
     Returns:
-        Each joint's Coulomb friction (N m, or N for slides), (n,): the PC's friction credit.
+        Each joint's Coulomb friction (N m, or N for slides), (n,): the friction credit.
+        Each joint's viscous damping (N m s/rad, or N s/m), (n,): the observer's damping credit.
         The least translational damping at the grip at the home pose (N s/m): the smallest
-        eigenvalue of the translational block of ``(J D^-1 J^T)^-1`` (``J`` the grip's 6 x n
-        Jacobian in {0}, ``D`` the joints' viscous damping), the ``b`` the coupling of
-        :func:`coupling_hold` is designed from; 0 if some joint has no damping. Leaves ``kin``
-        at the home pose.
+        eigenvalue of the translational block of :func:`~app.device.dissipation.grip_damping_matrix`
+        (no hand), the ``b`` the coupling of :func:`coupling_hold` is designed from; 0 if some
+        joint has no damping.
     """
-    model, n, plant = kin.model, device.n_joints, device.data.plant
-    dofs = model.jnt_dofadr[kin.joint_ids]
-    friction = model.dof_frictionloss[dofs] + plant.per_joint("frictionloss", n)
-    damping = model.dof_damping[dofs] + plant.per_joint("damping", n)
-    if not np.all(damping > 0.0):
-        return friction, 0.0
-    kin.update(np.array(device.data.home))
-    J = kin.jacobian_W(np.zeros((6, n)))
-    r = kin.p_0_G - kin.p_0_W  # v_G = v_W + w x r
-    J[0:3] -= np.cross(r, J[3:6].T).T
-    B = np.linalg.pinv(J @ (J.T / damping[:, None]))
-    return friction, float(np.linalg.eigvalsh(B[0:3, 0:3]).min())
+    B = grip_damping_matrix(device)
+    b = 0.0 if B is None else float(np.linalg.eigvalsh(B[0:3, 0:3]).min())
+    return joint_friction(device), joint_damping(device), b
+
+
+def bank_bounds(settings: PassivitySettings, limit: Array, step: Array) -> tuple[float, float]:
+    """The reserve and the cap (J) the controller applies: each the larger of its setting and
+    ``sum_j limit_j step_j``, the energy the motors' whole torque ``limit`` (N m or N, (n,))
+    exchanges over the predicted step ``step`` (rad or m, (n,)) (see "The bank" in the module
+    docstring)."""
+    exchange = float(np.sum(limit * step))
+    reserve = max(settings.energy_reserve, exchange)
+    return reserve, max(settings.energy_cap, reserve)
 
 
 @njit(cache=True)
-def observe_energy(energy: Array, tau_prev: Array, qdot: Array, dt: float, cap: float) -> float:
-    """PO step: ``E -= dt * sum_j tau_prev_j qdot_j`` (then capped at ``cap``); returns ``E``.
+def observe_energy(
+    energy: Array,
+    tau_prev: Array,
+    qdot: Array,
+    dt: float,
+    cap: float,
+    friction: Array,
+    damping: Array,
+    count: Array,
+) -> float:
+    """PO step: the port's work plus the device's own sure dissipation, capped; returns ``E``.
+
+    ``E += -dt sum_j tau_prev_j qdot_j + sum_j (friction_j |dq_j| + damping_j max(|dq_j| - count_j, 0)^2 / dt)``
+    with ``dq = qdot dt``, then ``E = min(E, cap)`` (see the module docstring, "The observed port").
 
     Args:
-        energy: Energy the controller has absorbed through the device port (J), (1,), updated.
+        energy: Energy the port has absorbed (J), (1,), updated.
         tau_prev: Rendered joint torque held over the last period (N m or N), (n,).
         qdot: Joint velocity over that period, ``dq / dt`` (rad/s or m/s), (n,).
         dt: The period (s); 0 when there is no usable velocity (nothing is added).
         cap: The most energy the observer may bank (J).
+        friction: Coulomb torque (N m or N) credited per unit of encoder travel, (n,).
+        damping: Each joint's viscous damping (N m s/rad or N s/m), (n,).
+        count: One encoder count of each joint (rad or m; 0 for ideal encoders), (n,).
     """
-    power = 0.0
+    if dt <= 0.0:
+        energy[0] = min(energy[0], cap)
+        return energy[0]
+    change = 0.0
     for j in range(tau_prev.shape[0]):
-        power += tau_prev[j] * qdot[j]
-    energy[0] = min(energy[0] - power * dt, cap)
+        dq = qdot[j] * dt
+        sure = max(abs(dq) - count[j], 0.0)
+        change += -tau_prev[j] * dq + friction[j] * abs(dq) + damping[j] * sure * sure / dt
+    energy[0] = min(energy[0] + change, cap)
     return energy[0]
 
 
@@ -240,6 +289,7 @@ def coupling_hold(
     offset: Array,
     b_device: float,
     dt: float,
+    bleed: float,
 ) -> None:
     """Pose mode's slave-side half of the PC: hold the slave's command back by what the PC cut.
 
@@ -265,6 +315,8 @@ def coupling_hold(
         offset: The accumulated hold (m, {0}), (3,), updated.
         b_device: The device's own least translational damping at the grip (N s/m).
         dt: Servo period (s); 0 = no usable period (the hold is kept, not grown).
+        bleed: Time constant (s) with which a hold beyond the coupling's compression under the
+            force rendered now decays (the force dropped, or the tool left the surface).
     """
     f0 = R_0_G[0, 0] * G_F[0] + R_0_G[0, 1] * G_F[1] + R_0_G[0, 2] * G_F[2]
     f1 = R_0_G[1, 0] * G_F[0] + R_0_G[1, 1] * G_F[1] + R_0_G[1, 2] * G_F[2]
@@ -275,12 +327,12 @@ def coupling_hold(
         into = ((dx_cmd[0] - dx_prev[0]) * f0 + (dx_cmd[1] - dx_prev[1]) * f1 + (dx_cmd[2] - dx_prev[2]) * f2) / norm
     for i in range(3):
         dx_prev[i] = dx_cmd[i]
+    # The coupling's compression under f_0 bounds the hold.
+    most = norm * dt / (2.0 * b_device) if b_device > 0.0 and dt > 0.0 else 0.0
     if into < 0.0 and cut > 0.0:
         offset[0] += cut * into * f0 / norm
         offset[1] += cut * into * f1 / norm
         offset[2] += cut * into * f2 / norm
-        # The coupling's compression under f_0 bounds the hold.
-        most = norm * dt / (2.0 * b_device) if b_device > 0.0 and dt > 0.0 else 0.0
         size = math.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2)
         if size > most:
             for i in range(3):
@@ -295,5 +347,13 @@ def coupling_hold(
             offset[0] += back * f0
             offset[1] += back * f1
             offset[2] += back * f2
+    # Beyond the coupling's compression under the force rendered now (the force dropped: out of
+    # contact, or the F/T's residue) the hold bleeds out, not at once, so a tool bouncing off the
+    # surface is not stepped back into it; with nothing to hold against the slave rejoins the grip.
+    size = math.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2)
+    if size > most and dt > 0.0:
+        scale = (most + (size - most) * math.exp(-dt / bleed)) / size
+        for i in range(3):
+            offset[i] *= scale
     for i in range(3):
         dx_cmd[i] -= offset[i]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import numpy as np
@@ -11,7 +12,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from app.controller.kinematics import DeviceKinematics
 from app.controller.passivity import (
     PassivitySettings,
     coupling_hold,
@@ -25,13 +25,15 @@ from app.session.stability import RELEASED, grip_damping
 
 T = 1e-3
 INF = float("inf")
+#: The observer's device credit left out (friction, damping, count of one joint): the motors' port alone.
+NO_DEVICE = (np.zeros(1), np.zeros(1), np.zeros(1))
 
 
 def observed(q: np.ndarray, tau_held: np.ndarray) -> np.ndarray:
     """The observer's energy after each step of the trajectory ``q`` (m,) under the held torques (m-1,)."""
     e, out = np.zeros(1), []
     for k in range(1, len(q)):
-        out.append(observe_energy(e, tau_held[k - 1 : k], np.array([(q[k] - q[k - 1]) / T]), T, INF))
+        out.append(observe_energy(e, tau_held[k - 1 : k], np.array([(q[k] - q[k - 1]) / T]), T, INF, *NO_DEVICE))
     return np.array(out)
 
 
@@ -54,6 +56,26 @@ def test_a_passive_spring_damper_port_observes_exactly_its_stored_plus_dissipate
     assert e.min() >= -1e-12
 
 
+def test_the_observer_credits_the_device_friction_per_count_and_its_damping_beyond_one_count() -> None:
+    """One joint, no torque, friction 0.06 N m, damping 0.04 N m s/rad, counts of 1 mrad: a
+    one-count step is credited its friction only (the true motion may have been any fraction of
+    the count, so damping is sure of nothing); three counts in one tick add the damping's least
+    dissipation over the two sure counts, d (2 mrad)^2 / T; a torque's work still counts; the
+    cap still bounds the bank."""
+    friction, damping, count = np.array([0.06]), np.array([0.04]), np.array([1e-3])
+    e = np.zeros(1)
+    observe_energy(e, np.zeros(1), np.array([1e-3 / T]), T, INF, friction, damping, count)
+    assert e[0] == pytest.approx(0.06e-3, rel=1e-12)
+    observe_energy(e, np.zeros(1), np.array([-3e-3 / T]), T, INF, friction, damping, count)
+    assert e[0] == pytest.approx(0.06e-3 + 0.18e-3 + 0.04 * 4e-6 / T, rel=1e-12)
+    before = e[0]
+    observe_energy(e, np.array([2.0]), np.array([1e-3 / T]), T, INF, friction, damping, count)
+    assert e[0] == pytest.approx(before - 2e-3 + 0.06e-3, rel=1e-12)
+    e[0] = 0.0
+    observe_energy(e, np.zeros(1), np.array([-3e-3 / T]), T, 1e-4, friction, damping, count)
+    assert e[0] == 1e-4
+
+
 def test_an_active_sampled_wall_is_detected_and_the_pc_keeps_the_bounce_passive() -> None:
     """A 1-dof mass with a little Coulomb friction f_c flies into a sampled one-sided wall K
     (zero-order hold, read through an encoder of 1e-5 m) with a little virtual damping B; the PC
@@ -70,7 +92,7 @@ def test_an_active_sampled_wall_is_detected_and_the_pc_keeps_the_bounce_passive(
             q = step * np.round(x / step)
             vel[0] = (q - q_prev) / T
             travel += abs(q - q_prev)
-            observe_energy(e, tau_prev, vel, T, INF)
+            observe_energy(e, tau_prev, vel, T, INF, *NO_DEVICE)
             # The controller's energy plus what friction surely took on the observed travel.
             lowest = min(lowest, e[0] + (f_c * travel if pc else 0.0))
             tau = np.array([-K * q - B * vel[0]]) if q > 0.0 else np.zeros(1)
@@ -163,7 +185,7 @@ def _hold(cut: float, f_0: np.ndarray, dx: float, prev: float, offset: float, R:
     G_F = np.concatenate((R.T @ f_0, np.zeros(3)))
     cmd = np.array([0.0, 0.0, dx, 0.0, 0.0, 0.0])
     dx_prev, off = np.array([0.0, 0.0, prev]), np.array([0.0, 0.0, offset])
-    coupling_hold(cut, R, G_F, cmd, dx_prev, off, 0.4, T)
+    coupling_hold(cut, R, G_F, cmd, dx_prev, off, 0.4, T, 0.3)
     return cmd[2], off[2], dx_prev[2]
 
 
@@ -185,25 +207,32 @@ def test_the_hold_keeps_the_cut_share_of_the_push_from_the_slave_up_to_the_coupl
 def test_backing_out_uses_the_hold_up_before_the_slave_moves_and_a_dropped_force_keeps_it() -> None:
     """A grip 0.5 mm back out of the force with a 1 mm hold: the slave's command stays where it was
     (-11 mm), the hold is halved; 1 mm further out the hold is gone and the command follows the
-    grip. The force dropping to nearly nothing does not release the hold (no step back in)."""
+    grip. The force dropping to nearly nothing bleeds the hold out slowly (no step back in)."""
     up = np.array([0.0, 0.0, 10.0])
     assert _hold(0.0, up, -0.0115, -0.012, -0.001) == pytest.approx((-0.011, -0.0005, -0.0115))
     assert _hold(0.0, up, -0.0105, -0.0115, -0.0005) == pytest.approx((-0.0105, 0.0, -0.0105))
-    assert _hold(0.0, 1e-6 * up, -0.012, -0.012, -0.001) == pytest.approx((-0.011, -0.001, -0.012))
+    # The force nearly gone: the hold beyond the coupling's compression bleeds out over 0.3 s, by
+    # 1 - exp(-T / 0.3 s) a tick (no step back in).
+    kept = math.exp(-T / 0.3)
+    assert _hold(0.0, 1e-6 * up, -0.012, -0.012, -0.001) == pytest.approx(
+        (-0.012 + 0.001 * kept, -0.001 * kept, -0.012)
+    )
 
 
 def test_the_device_dissipation_is_read_from_the_device_file() -> None:
     """Kraft: each joint's Coulomb friction is the device file's ``plant.frictionloss`` (its MJCF
     has none), and the least damping at the grip is the joints' damping seen there, the ``b`` of
-    the device-only bound (0.40 N s/m along z, the least direction at home). Freflex: the least
-    direction has less than z's 1.88 N s/m. A device without joint damping gives none."""
+    the device-only bound (0.40 N s/m along z, the least direction at home), and each joint's
+    damping is the file's ``plant.damping``. Freflex: the least direction has less than z's
+    1.88 N s/m. A device without joint damping gives none."""
     kraft = load_device("kraft")
-    friction, b = device_dissipation(kraft, DeviceKinematics(kraft))
+    friction, damping, b = device_dissipation(kraft)
     np.testing.assert_array_equal(friction, kraft.data.plant.per_joint("frictionloss", 6))
+    np.testing.assert_array_equal(damping, kraft.data.plant.per_joint("damping", 6))
     assert b == pytest.approx(grip_damping("kraft", RELEASED), rel=1e-3)
     freflex = load_device("freflex")
-    _, b_freflex = device_dissipation(freflex, DeviceKinematics(freflex))
+    *_, b_freflex = device_dissipation(freflex)
     assert 0.0 < b_freflex < grip_damping("freflex", RELEASED)
     undamped = dataclasses.replace(kraft.data.plant, damping=(0.0,) * 6)
     bare = dataclasses.replace(kraft, data=dataclasses.replace(kraft.data, plant=undamped))
-    assert device_dissipation(bare, DeviceKinematics(bare))[1] == 0.0
+    assert device_dissipation(bare)[2] == 0.0

@@ -112,11 +112,12 @@ def test_a_saturated_plateau_is_not_a_stable_wall() -> None:
     assert not r.stable
 
 
-def test_where_plain_holds_the_wall_the_pc_leaves_it_alone_and_without_a_reserve_it_gives_way() -> None:
-    """Kraft as shipped, a wall at half the bound: plain rendering holds it. PO/PC with its energy
-    reserve renders the same wall (the touch's ~3 mJ comes out of the reserve); with no reserve
-    the touch leaves no energy to hold the force with: the wall is felt far softer and the hand
-    pushes the slave in far deeper."""
+def test_where_plain_holds_the_wall_the_pc_leaves_it_alone(tmp_path: Path) -> None:
+    """Kraft as shipped, a wall at half the bound: plain rendering holds it, and PO/PC renders the
+    same wall (the touch's ~3 mJ comes out of the reserve). An 11-bit Kraft, a 250/2 hand, a wall
+    at a quarter of its bound: plain holds it, and so does PO/PC at the same felt stiffness within
+    20 % (with a 20 mJ reserve alone, less than its motors exchange over three 11-bit counts, the
+    PC cut the still wall to 0.37x of plain's)."""
     k_t = 0.5 * passivity_bound("kraft") / design_stiffness(1.0)
     gains = {"k_t": [k_t] * 3 + [1.0] * 3}
     plain = press(1e5, "pose", gains=gains)
@@ -124,22 +125,35 @@ def test_where_plain_holds_the_wall_the_pc_leaves_it_alone_and_without_a_reserve
     pc = press(1e5, "pose", gains=gains, passivity=PassivitySettings(enabled=True))
     assert pc.stable
     assert pc.felt_stiffness == pytest.approx(plain.felt_stiffness, rel=0.05)
-    # Without the hold (which would keep the slave out), as a master-side PC alone.
-    strict_pc = PassivitySettings(enabled=True, energy_reserve=0.0, hold_slave=False)
-    strict = press(1e5, "pose", gains=gains, passivity=strict_pc)
-    assert strict.felt_stiffness < 0.7 * plain.felt_stiffness
-    assert strict.mean_force > 2.0 * plain.mean_force
+    device = str(write_variant("kraft", DeviceVariant("enc11", encoder_bits=11), tmp_path))
+    hand = HandParams(stiffness_trans=250.0, damping_trans=2.0)
+    k_t = 0.25 * passivity_bound(device, hand=hand) / design_stiffness(1.0, device=device)
+    gains = {"k_t": [k_t] * 3 + [1.0] * 3}
+    plain = press(1e5, "pose", device=device, gains=gains, hand=hand)
+    assert plain.stable
+    pc = press(1e5, "pose", device=device, gains=gains, hand=hand, passivity=PassivitySettings(enabled=True))
+    assert pc.stable
+    assert pc.felt_stiffness == pytest.approx(plain.felt_stiffness, rel=0.2)
 
 
 def test_a_wall_the_hand_pushed_through_is_not_stable(tmp_path: Path) -> None:
-    """Freflex with 20-bit encoders at 3x the bound, PO/PC predicting steps of one 20-bit count:
+    """Freflex with 20-bit encoders at 3x the bound, a strict master-side PO/PC predicting steps of one 20-bit count:
     so short a step buys so little force per joule that once the touch has drawn the reserve the
     energy bound holds the force down, and the hand pushes the slave to its 40 N limit. The force
     is steady there, but that is the slave's limit, not a wall."""
     device = str(write_variant("freflex", ENC20, tmp_path))
     bound = passivity_bound(device)
     k_t = 3.0 * bound / design_stiffness(1.0, device=device)
-    settings = PassivitySettings(enabled=True, step=2.0 * math.pi / 2**20, step_counts=1, hold_slave=False)
+    # A master-side bound alone: no hold, half the friction credited, none of the device's
+    # dissipation observed (the layer before issue 26's third pass).
+    settings = PassivitySettings(
+        enabled=True,
+        step=2.0 * math.pi / 2**20,
+        step_counts=1,
+        hold_slave=False,
+        friction_credit=0.5,
+        observe_device=False,
+    )
     r = press(1e5, "pose", device=device, gains={"k_t": [k_t] * 3 + [1.0] * 3}, passivity=settings)
     assert r.settled
     assert r.pushed_through

@@ -76,6 +76,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     print(
         f"tick: median {tick['median_us']:.1f} us, p99 {tick['p99_us']:.1f} us, real-time factor {s['real_time_factor']:.1f}"
     )
+    for g in s["grips"]:
+        print(f"grip {'close' if g['grip'] else 'open'} at {g['t']:.3f} s: {g['note']}")
     if "pacing" in s:
         pace = s["pacing"]
         print(

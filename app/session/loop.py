@@ -139,6 +139,28 @@ class LoopConfig:
         return (_rebuild_config, (self.scene.path, self.scene.spec.slave.kind, self.device.path, *values))
 
 
+@dataclass(frozen=True)
+class GripEvent:
+    """What one :meth:`ServoLoop.set_grip` did.
+
+    Attributes:
+        t: Simulated time (s) of the loop when it acted (between ticks).
+        on: Closing (True) or opening (False).
+        held: Name of the dynamic object the grip then holds, or None.
+        note: Why, in words: ``"holds peg"``, ``"opened"``, ``"nothing touched"``, ``"no dynamic
+            objects in the scene"``.
+    """
+
+    t: float
+    on: bool
+    held: str | None
+    note: str
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able, for the session summary."""
+        return {"t": self.t, "grip": self.on, "held": self.held, "note": self.note}
+
+
 def _rebuild_config(scene: Path, slave: str, device: Path, *values: Any) -> LoopConfig:
     return LoopConfig(load_device(device), with_slave(load_scene(scene), slave), *values)
 
@@ -158,6 +180,7 @@ class ServoLoop:
         observers: Called with :attr:`record` after every tick, in order.
         time: Simulated time (s).
         ticks: Ticks run since the last reset.
+        grips: What each :meth:`set_grip` since the last reset did, in order.
         link: The master-slave channel (:mod:`app.teleop`), or None when controller and slave
             are joined directly (no delay: the default).
     """
@@ -180,6 +203,7 @@ class ServoLoop:
         self.switches = Switches()
         self.observers: list[TickObserver] = []
         self._hand = np.eye(4)
+        self.grips: list[GripEvent] = []
         self.record = TickRecord(
             self.reading, self.controller.out, self.slave, self._hand, np.zeros(len(STAGES), dtype=np.int64)
         )
@@ -230,6 +254,7 @@ class ServoLoop:
         self.switches.deadman = self.switches.reference = self.switches.reflection = False
         self.time = 0.0
         self.ticks = 0
+        self.grips.clear()
         self._connect()
         rec = self.record
         rec.index, rec.time, rec.ft, rec.contact = 0, 0.0, self.ft, self.slave.contact
@@ -250,6 +275,30 @@ class ServoLoop:
         if T_0_H is not None:
             self._hand[:] = T_0_H
         self.plant.set_hand_target(T_0_H)
+
+    def set_grip(self, on: bool) -> GripEvent:
+        """Close the slave tool's grip on the dynamic object it touches now, or open it (``on``
+        False), between ticks: :meth:`~app.world.dynamics.MovingWorld.grip`. A scene without
+        dynamic objects, or a tool touching none, holds nothing; either way the event is kept in
+        :attr:`grips` and returned.
+
+        The grip acts on the slave at once, not through :attr:`link`: a delayed channel delays
+        the command and the reading, not this switch.
+        """
+        b = self.slave.grip(on)
+        bodies = self.slave.scene.bodies
+        held = bodies[b].name if b >= 0 else None
+        if held is not None:
+            note = f"holds {held}"
+        elif not on:
+            note = "opened"
+        elif not bodies:
+            note = "no dynamic objects in the scene"
+        else:
+            note = "nothing touched"
+        event = GripEvent(self.time, on, held, note)
+        self.grips.append(event)
+        return event
 
     def press_reference(self) -> None:
         """Press the momentary reference switch: on for the next tick only (Sec 4.1)."""

@@ -291,7 +291,7 @@ class ReactingOperator:
 
     def before_tick(self, loop: ServoLoop) -> None:
         """Perceive (delayed), decide the intended tool velocity, set the hand target."""
-        self._switches.update_switches(loop.time)
+        self._switches.apply_events(loop)
         rec = loop.record
         T_w_MRF, T_0_G, G_F_T = rec.T_w_MRF, rec.reading.T_0_G, rec.out.G_F_T
         copies = self._copies

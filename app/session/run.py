@@ -185,6 +185,7 @@ def _run(
     summary["device"] = loop.config.device.name
     summary["mode"] = d.mode
     summary["accommodation"] = d.accommodation
+    summary["grips"] = [g.as_dict() for g in loop.grips]
     if pacer is not None:
         summary["pacing"] = pacer.stats().as_dict()
         summary["scheduling"] = scheduling

@@ -61,6 +61,8 @@ class OperatorScript:
         self._next_event = 0
         self.switches = Switches() if switches is None else switches
         self.hand_on = True
+        # A grip event due and not yet applied to a loop (apply_events): True closes, False opens.
+        self._grip: bool | None = None
         self._rate = data.servo_rate
         self._tremor = _tremor(data.n_ticks, data.tremor, data.seed, data.servo_rate, self.TREMOR_CUTOFF_HZ)
         self._T = np.eye(4)
@@ -88,8 +90,16 @@ class OperatorScript:
     def before_tick(self, loop: ServoLoop) -> None:
         """Apply the events due by ``loop.time`` and move the hand (:class:`Operator`)."""
         t, tick = loop.time, loop.ticks
-        self.update_switches(t)
+        self.apply_events(loop)
         loop.set_hand_target(self.hand_target(t, tick) if self.hand_on else None)
+
+    def apply_events(self, loop: ServoLoop) -> None:
+        """Apply the events due by ``loop.time``: the switches, and the last grip event due to
+        the loop's slave (:meth:`~app.session.loop.ServoLoop.set_grip`)."""
+        self.update_switches(loop.time)
+        if self._grip is not None:
+            loop.set_grip(self._grip)
+            self._grip = None
 
     def update_switches(self, t: float) -> Switches:
         """Apply the events due by time ``t`` (s). A reference press sets the switch; the loop
@@ -108,6 +118,8 @@ class OperatorScript:
             sw.reflection = e.reflection
         if e.hand is not None:
             self.hand_on = e.hand
+        if e.grip is not None:
+            self._grip = e.grip
         if e.reference:
             sw.reference = True
 

@@ -58,6 +58,9 @@ class SwitchEvent(Checked):
     """Switch changes at time ``t`` (s). ``reference = true`` is a press: it releases one tick later.
 
     ``hand = false`` lets go of the grip (the hand target is ignored until ``hand = true``).
+    ``grip = true`` closes the slave tool's grip on the dynamic object it touches, ``false`` opens
+    it (:meth:`~app.session.loop.ServoLoop.set_grip`; the session summary's ``grips`` says what
+    each did).
     """
 
     t: Annotated[float, TIME]
@@ -65,6 +68,7 @@ class SwitchEvent(Checked):
     reflection: bool | None = None
     reference: bool | None = None
     hand: bool | None = None
+    grip: bool | None = None
 
 
 @dataclass(frozen=True)

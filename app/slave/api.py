@@ -54,6 +54,10 @@ class Slave(Protocol):
         """The dynamic objects' poses in {w}, rows ``[x, y, z, qw, qx, qy, qz]``, (n, 7) (a view,
         overwritten by the next step; (0, 7) when every object is static)."""
 
+    def grip(self, on: bool) -> int:
+        """Close the grip on the dynamic object the tool touches (``on`` False: open it); the
+        index in ``scene.bodies`` of the object held, or -1."""
+
     @property
     def T_w_MRF(self) -> Array:
         """Pose of {MRF} in {w} (4, 4), a new array."""

@@ -189,6 +189,12 @@ class SlaveBase:
             return _NO_OBJECTS
         return self._moving.data.qpos.reshape(-1, 7)
 
+    def grip(self, on: bool) -> int:
+        """Close the tool's grip on the dynamic object it touches, or open it (``on`` False):
+        :meth:`~app.world.dynamics.MovingWorld.grip`. Returns the index in ``scene.bodies`` of
+        the object held, or -1 (opened, nothing touched, or no dynamic object in the scene)."""
+        return -1 if self._moving is None else self._moving.grip(on)
+
     @property
     def wrench_MRF_contact(self) -> Array:
         """Contact wrench at the {MRF} origin in {MRF} (N, N m), (6,): for the work metric (Eq 13)."""

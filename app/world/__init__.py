@@ -11,7 +11,8 @@ threw the peg through the wall. The tool carries it in a grip (``MovingWorld.gri
 critically damped spring computed with the tool's contacts, so the F/T sensor reads the held
 peg's weight and its contacts at the same instant the peg feels them (a MuJoCo weld to a mocap
 body would be solved implicitly, but its force is known only after the step, inside MuJoCo's
-constraint forces; not measured against this).
+constraint forces; not measured against this). A session closes and opens it with ``grip``
+events (``sessions/peg_carry.toml``), through the loop's ``set_grip`` and the slave's ``grip``.
 
 The slave that touches it (tool, arms, F/T sensor, NTRFC) is :mod:`app.slave`; the world never
 imports it.

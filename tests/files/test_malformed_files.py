@@ -236,6 +236,9 @@ CASES: dict[str, dict[str, Case]] = {
         ),
     },
     "wrong shape or type": {
+        "event grip a string": P(
+            "t = 0.0\ndeadman", 't = 0.0\ngrip = "on"\ndeadman', "events[0].grip", "true or false"
+        ),
         "home 5 values": D("home = [0.0, 0.2,", "home = [0.2,", "home", "expected 6 values"),
         "plant damping 3 values": D(
             "damping = [0.04, 0.04, 0.03, 0.004, 0.004, 0.004]",

@@ -56,9 +56,9 @@ PLOT_SECONDS = 10.0
 #: area. A live plot keeps the first snapshot in each ``PLOT_SECONDS / PLOT_SAMPLES`` (67 ms) slot
 #: of simulated time, whatever the speed.
 PLOT_SAMPLES = 150
-#: UI frames between plot refreshes (5 Hz at 30 frames/s). Plots are the heaviest messages: viser
+#: UI frames between plot refreshes (5 Hz at 40 frames/s). Plots are the heaviest messages: viser
 #: sends every refresh whole, as float64 (13 columns x 150 samples = 15.6 kB).
-PLOT_EVERY = 6
+PLOT_EVERY = 8
 #: Width / height of each plot (the panel is ~380 px wide: ~240 px high plots).
 PLOT_ASPECT = 1.6
 

@@ -19,6 +19,8 @@ FRHC = [sys.executable, "-m", "app.cli"]
         (["web", "--replay", "{tmp}/no-log-here"], "not a replayable log"),
         (["web", "--rate", "50"], "--rate: expected a servo rate in Hz: servo_rate: must be"),
         (["run", "probe_rate", "--rate", "fast"], "--rate: expected a servo rate in Hz"),
+        (["bench", "stability", "--window", "-1"], "--window: must be between 0.001 and 3600 s, got -1"),
+        (["bench", "stability", "--window", "long"], "--window: not a number"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(tmp_path: Path, args: list[str], expected: str) -> None:

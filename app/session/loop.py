@@ -177,6 +177,8 @@ class ServoLoop:
         switches: The switch state the next tick uses (set by a script or the UI). The
             reference switch is momentary: the loop releases it after the tick that used it.
         record: The :class:`TickRecord` of the last tick (or of the reset state).
+        objects: Names of the scene's dynamic objects (``scene.bodies`` order), whose poses the
+            tick's state row and the log hold.
         observers: Called with :attr:`record` after every tick, in order.
         time: Simulated time (s).
         ticks: Ticks run since the last reset.
@@ -207,7 +209,8 @@ class ServoLoop:
         self.record = TickRecord(
             self.reading, self.controller.out, self.slave, self._hand, np.zeros(len(STAGES), dtype=np.int64)
         )
-        self.record.block = StateBlock(self.controller.out.n, tuple(b.name for b in self.slave.scene.bodies))
+        self.objects = tuple(b.name for b in self.slave.scene.bodies)
+        self.record.block = StateBlock(self.controller.out.n, self.objects)
         self.reset()
 
     def _open_device(self) -> None:

@@ -157,8 +157,7 @@ def _run(
     log = None
     if out_dir is not None:
         meta = loop_meta(loop.config, session.path)
-        objects = tuple(b.name for b in loop.slave.scene.bodies)
-        log = loop.observe(TickLog(out_dir / "log", loop.controller.out.n, loop.dt, flush_interval, meta, objects))
+        log = loop.observe(TickLog(out_dir / "log", loop.controller.out.n, loop.dt, flush_interval, meta, loop.objects))
     for observer in observers:
         loop.observe(observer)
     pacer = Pacer(loop.dt) if realtime else None

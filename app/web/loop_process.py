@@ -161,8 +161,7 @@ class LoopHost:
         if directory is not None:
             config = dataclasses.replace(self.loop.config, gains=self.loop.controller.gains)
             meta = loop_meta(config, self.publisher.playing)
-            objects = tuple(b.name for b in self.loop.slave.scene.bodies)
-            log = TickLog(directory, self.loop.controller.out.n, self.loop.dt, meta=meta, objects=objects)
+            log = TickLog(directory, self.loop.controller.out.n, self.loop.dt, meta=meta, objects=self.loop.objects)
             self.log = self.loop.observe(log)
         self.publisher.recording = directory
         self._log_ends_with_play = False

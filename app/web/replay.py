@@ -104,7 +104,7 @@ class LogReplay:
         # A Cartesian device's controller has six "joints", the wrench axes (docs/conventions.md).
         self._n_joints = len(WRENCH_AXES) if cartesian else device.n_joints
         #: Names of the scene's dynamic objects, whose poses the log holds.
-        self.objects = tuple(b.name for b in scene.bodies)
+        self.objects = self.loop.objects
         table = read_log(directory, self._n_joints, self.objects)
         if table.num_rows == 0:
             raise ConfigError(directory, "<file>", "the log has no ticks")

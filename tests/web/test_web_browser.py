@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import viser
 from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT
 
 from app.web.camera import PANEL_SHARE, CameraPose, box_corners, fit_camera, project
@@ -208,7 +209,7 @@ def test_every_scene_is_framed_beside_the_panel(demo: DemoApp, page: object) -> 
     demo.frame_camera(client, "both")
 
 
-def _camera_reports(demo: DemoApp) -> tuple[object, list[CameraPose]]:
+def _camera_reports(demo: DemoApp) -> tuple[viser.ClientHandle, list[CameraPose]]:
     """The page's client and the camera poses it reports from now on (appended as they come)."""
     client = next(iter(demo.server.get_clients().values()))
     reports: list[CameraPose] = []
@@ -233,9 +234,9 @@ def _settled(reports: list[CameraPose], quiet: float = 1.0) -> CameraPose:
         time.sleep(quiet)
 
 
-def _on_screen(page: object, demo: DemoApp, client: object, point: np.ndarray) -> tuple[float, float]:
+def _on_screen(page: object, client: viser.ClientHandle, point: np.ndarray) -> tuple[float, float]:
     """Where ``point`` (viser frame) is on the page (CSS px), seen by the browser's camera."""
-    c = client.camera  # type: ignore[attr-defined]
+    c = client.camera
     css = page.viewport_size  # type: ignore[attr-defined]
     pose = CameraPose(c.position.copy(), c.look_at.copy())
     x, y = project(point[None], pose, c.fov, css["width"], css["height"])[0]
@@ -251,17 +252,16 @@ CORNER_POINT_V = np.array([-0.12, -0.12, 0.0]) + WORLD_ORIGIN_V
 def test_click_on_the_world_sets_the_orbit_centre(demo: DemoApp, page: object) -> None:
     """A click on the probe surface moves the browser's camera to look at the point clicked, from
     the same direction and distance; a click on empty space leaves the camera where it was."""
-    client = next(iter(demo.server.get_clients().values()))
-    demo.frame_camera(client, "world")  # type: ignore[arg-type]
     client, reports = _camera_reports(demo)
+    demo.frame_camera(client, "world")
     before = _settled(reports)
     n = len(reports)
     page.mouse.click(30, 30)  # type: ignore[attr-defined]  # the world preset leaves the top-left corner empty
-    x, y = _on_screen(page, demo, client, SURFACE_POINT_V)
+    x, y = _on_screen(page, client, SURFACE_POINT_V)
     page.mouse.click(x, y)  # type: ignore[attr-defined]
     end = time.monotonic() + STEP_TIMEOUT
-    while np.linalg.norm(client.camera.look_at - SURFACE_POINT_V) > 0.003:  # type: ignore[attr-defined]
-        assert time.monotonic() < end, f"the camera looks at {client.camera.look_at}, not {SURFACE_POINT_V}"  # type: ignore[attr-defined]
+    while np.linalg.norm(client.camera.look_at - SURFACE_POINT_V) > 0.003:
+        assert time.monotonic() < end, f"the camera looks at {client.camera.look_at}, not {SURFACE_POINT_V}"
         time.sleep(0.1)
     after = _settled(reports)
     # One pixel at this zoom is ~0.4 mm of the surface.
@@ -277,11 +277,10 @@ def test_click_on_the_world_sets_the_orbit_centre(demo: DemoApp, page: object) -
 def test_wheel_zooms_toward_the_cursor(demo: DemoApp, page: object) -> None:
     """The wheel over a point off the view's centre zooms in about that point: it stays (nearly)
     under the cursor, where a zoom toward the view's centre would push it outward."""
-    client = next(iter(demo.server.get_clients().values()))
-    demo.frame_camera(client, "world")  # type: ignore[arg-type]
     client, reports = _camera_reports(demo)
+    demo.frame_camera(client, "world")
     before = _settled(reports)
-    x0, y0 = _on_screen(page, demo, client, CORNER_POINT_V)
+    x0, y0 = _on_screen(page, client, CORNER_POINT_V)
     page.mouse.move(x0, y0)  # type: ignore[attr-defined]
     for _ in range(5):
         page.mouse.wheel(0, -120)  # type: ignore[attr-defined]
@@ -290,7 +289,7 @@ def test_wheel_zooms_toward_the_cursor(demo: DemoApp, page: object) -> None:
     d0 = np.linalg.norm(before.position - before.look_at)
     d1 = np.linalg.norm(after.position - after.look_at)
     assert d1 < 0.9 * d0, "the wheel did not zoom in"
-    x1, y1 = _on_screen(page, demo, client, CORNER_POINT_V)
+    x1, y1 = _on_screen(page, client, CORNER_POINT_V)
     # The same zoom toward the centre: the point would move out from the middle of the canvas.
     forward = (before.look_at - before.position) / d0
     central = CameraPose(before.look_at - d1 * forward, before.look_at)
@@ -299,4 +298,4 @@ def test_wheel_zooms_toward_the_cursor(demo: DemoApp, page: object) -> None:
     moved, centre_moved = np.hypot(x1 - x0, y1 - y0), np.hypot(xc - x0, yc - y0)
     assert centre_moved > 20.0, "the test point is too near the centre to tell"
     assert moved < 0.25 * centre_moved, (moved, centre_moved)
-    demo.frame_camera(client, "both")  # type: ignore[arg-type]
+    demo.frame_camera(client, "both")

@@ -10,6 +10,7 @@ Starts the demo on a free port and opens it in headless chromium (1400x900), the
 3. the same while the hand drags the grip round a 2 cm circle once every 2 s (everything in the
    3D view moves every frame, so each frame costs the page a 3D render);
 4. replays a recorded probe session playing at 1x and counts the same bytes (same run, side by side);
+   for each of the three, what the server sent by kind of message (:class:`SentByKind`);
 5. with ``--screenshots``, writes the README's screenshots to ``assets/web/`` (palette PNGs).
 
 Run from the repository root:
@@ -20,7 +21,9 @@ within 2x of the live page's.
 
 from __future__ import annotations
 
+import collections
 import math
+import os
 import sys
 import tempfile
 import threading
@@ -30,7 +33,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import msgspec
 from PIL import Image
+from viser.infra._messages import Message
 
 from app.session.run import run_session
 from app.session.spec import load_session
@@ -79,6 +84,48 @@ class ByteCounter:
         return (self.bytes - before) / seconds, (self.frames - frames) / seconds
 
 
+class SentByKind:
+    """Bytes the server sends, by kind of message: the message's class and, for an update, the
+    properties it changes (``GuiUpdateMessage:content``). Counted as each message is serialized
+    for a page's websocket (what the message buffer keeps after culling superseded updates):
+    its msgpack size before the window's zstd plus its raw arrays. viser has no hook for this,
+    so ``Message.as_serializable_dict`` is wrapped while the bench runs."""
+
+    def __init__(self) -> None:
+        self.bytes: collections.Counter[str] = collections.Counter()
+        self.count: collections.Counter[str] = collections.Counter()
+        self._lock = threading.Lock()
+        original = Message.as_serializable_dict
+        counter = self
+
+        def counted(message: Message, binary_buffers: list[memoryview] | None = None) -> dict[str, Any]:
+            start = len(binary_buffers) if binary_buffers is not None else 0
+            out = original(message, binary_buffers)
+            size = len(msgspec.msgpack.encode(out))
+            if binary_buffers is not None:
+                size += sum(b.nbytes for b in binary_buffers[start:])
+            kind = type(message).__name__
+            updates = getattr(message, "updates", None)
+            if isinstance(updates, dict):
+                kind += ":" + ",".join(sorted(updates))
+            with counter._lock:
+                counter.bytes[kind] += size
+                counter.count[kind] += 1
+            return out
+
+        Message.as_serializable_dict = counted  # type: ignore[method-assign]
+
+    def snapshot(self) -> tuple[collections.Counter[str], collections.Counter[str]]:
+        with self._lock:
+            return collections.Counter(self.bytes), collections.Counter(self.count)
+
+    def since(self, before: tuple[collections.Counter[str], collections.Counter[str]], seconds: float) -> str:
+        """Lines of kB/s and messages/s by kind since ``before`` (a :meth:`snapshot`), largest first."""
+        now_bytes, now_count = self.snapshot()
+        rows = sorted(((now_bytes[k] - before[0][k], now_count[k] - before[1][k], k) for k in now_bytes), reverse=True)
+        return "\n".join(f"    {b / seconds / 1000:8.1f} kB/s {n / seconds:6.1f} /s  {k}" for b, n, k in rows if b > 0)
+
+
 def drag_circle(app: DemoApp, stop: threading.Event, radius: float = 0.02, period: float = 2.0) -> None:
     """Move the hand target round a horizontal circle about where it is, at the UI rate, until ``stop``."""
     assert app.rt.snapshot.T_0_H is not None
@@ -108,6 +155,7 @@ def screenshot(page: Any, name: str) -> Path:
 
 
 def main(seconds: float, shots: bool) -> None:
+    sent = SentByKind()
     with running_demo() as app:
         with open_page(f"http://127.0.0.1:{app.server.get_port()}/") as page:
             page.get_by_text("Deadman [D]").first.wait_for(timeout=60_000)
@@ -119,7 +167,9 @@ def main(seconds: float, shots: bool) -> None:
             page.get_by_text("Hz simulated").first.wait_for(timeout=60_000)
             press_probe(app)
             time.sleep(SETTLE_SECONDS)
+            mark = sent.snapshot()
             live, live_messages = counter.rate(seconds)
+            live_kinds = sent.since(mark, seconds)
             update_hz = float(page.evaluate(COUNT_STATUS_JS, seconds))
             if shots:
                 print("wrote", screenshot(page, "probe_contact"))
@@ -127,7 +177,9 @@ def main(seconds: float, shots: bool) -> None:
             dragger = threading.Thread(target=drag_circle, args=(app, stop), daemon=True)
             dragger.start()
             time.sleep(1.0)
+            mark = sent.snapshot()
             moving, _ = counter.rate(seconds)
+            moving_kinds = sent.since(mark, seconds)
             moving_hz = float(page.evaluate(COUNT_STATUS_JS, seconds))
             stop.set()
             dragger.join()
@@ -137,7 +189,10 @@ def main(seconds: float, shots: bool) -> None:
             assert app.player is not None
             app.player.playing = True
             time.sleep(SETTLE_SECONDS)
+            mark, cursor = sent.snapshot(), app.player.cursor
             replay, _ = counter.rate(seconds)
+            replay_kinds = sent.since(mark, seconds)
+            replayed = (cursor, app.player.cursor, app.player.duration)
             if shots:
                 print("wrote", screenshot(page, "replay"))
                 app.close_replay()
@@ -158,8 +213,13 @@ def main(seconds: float, shots: bool) -> None:
         print(f"  while dragging     {moving / 1000:8.1f} kB/s")
         print(
             f"replay at 1x         {replay / 1000:8.1f} kB/s = {replay / live:.2f}x live pressed, "
-            f"{replay / moving:.2f}x live dragging (same run)"
+            f"{replay / moving:.2f}x live dragging (same run); log t {replayed[0]:.2f} -> {replayed[1]:.2f} s "
+            f"of {replayed[2]:.2f} s"
         )
+        print(f"sent by kind (msgpack before zstd + arrays), live pressed:\n{live_kinds}")
+        print(f"  live dragging:\n{moving_kinds}")
+        print(f"  replay:\n{replay_kinds}")
+        print(f"load average {os.getloadavg()[0]:.2f} (1 min) at the end")
 
 
 if __name__ == "__main__":

@@ -436,12 +436,16 @@ class DemoApp:
         tens of ms), but a panel-only window at once, so the status does not wait for the 3D view.
         """
         half = 0.5 / UI_RATE
-        next_step = time.perf_counter()
+        next_step = last_panel = time.perf_counter()
         panel = True
         while not self._stop.is_set():
             with self._lock:
                 if panel:
-                    self._draw_panel(2 * half)
+                    # The wall time since the last panel, not the nominal period: frames the loop
+                    # drops under load must not slow a replay below its speed.
+                    now = time.perf_counter()
+                    self._draw_panel(now - last_panel)
+                    last_panel = now
                 elif self._drawn is not None:
                     self.view.update(self._drawn)
             panel = not panel

@@ -9,7 +9,9 @@ Starts the demo on a free port and opens it in headless chromium (1400x900), the
    bytes the page's websocket receives;
 3. the same while the hand drags the grip round a 2 cm circle once every 2 s (everything in the
    3D view moves every frame, so each frame costs the page a 3D render);
-4. replays a recorded probe session playing at 1x and counts the same bytes (same run, side by side);
+4. records the live page's loop during 2 and 3, replays the same stretches of that log at 1x and
+   counts the same bytes (same run, side by side); for each, what the server sent by kind of
+   message (:class:`SentByKind`);
 5. with ``--screenshots``, writes the README's screenshots to ``assets/web/`` (palette PNGs).
 
 Run from the repository root:
@@ -20,9 +22,11 @@ within 2x of the live page's.
 
 from __future__ import annotations
 
+import collections
 import math
+import os
+import shutil
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -30,11 +34,13 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import msgspec
 from PIL import Image
+from viser.infra._messages import Message
 
-from app.session.run import run_session
-from app.session.spec import load_session
+from app.errors import ConfigError
 from app.web.headless import open_page, press_probe, running_demo
+from app.web.replay import LogReplay
 from app.web.server import UI_RATE, DemoApp
 from app.world.scene import ASSETS_DIR
 
@@ -42,6 +48,9 @@ from app.world.scene import ASSETS_DIR
 SHOT_DIR = ASSETS_DIR / "web"
 #: Seconds to let the tool reach the surface (or a replay start) before measuring.
 SETTLE_SECONDS = 3.0
+
+#: Milliseconds of waiting in playwright that deliver the frame events already received.
+DRAIN_MS = 300
 
 #: Counts the status block's text changes (each a redraw the page received and showed).
 COUNT_STATUS_JS = """(seconds) => new Promise((done) => {
@@ -74,9 +83,55 @@ class ByteCounter:
     def rate(self, seconds: float) -> tuple[float, float]:
         """Bytes and websocket messages per second over the next ``seconds`` (waiting in
         playwright, which delivers the frame events only while one of its calls runs)."""
+        # Frames received since the last playwright call are delivered first: they belong to
+        # before the window (counting them inflated every figure by whatever came in while the
+        # bench slept or recorded a session, and the replay's most: 2.06x live in one run).
+        self.page.wait_for_timeout(DRAIN_MS)
         before, frames = self.bytes, self.frames
         self.page.wait_for_timeout(seconds * 1000)
         return (self.bytes - before) / seconds, (self.frames - frames) / seconds
+
+
+class SentByKind:
+    """Bytes the server sends, by kind of message: the message's class and, for an update, the
+    properties it changes (``GuiUpdateMessage:content``). Counted as each message is serialized
+    for a page's websocket (what the message buffer keeps after culling superseded updates):
+    its msgpack size before the window's zstd plus its raw arrays. viser has no hook for this,
+    so ``Message.as_serializable_dict`` is wrapped while the bench runs."""
+
+    def __init__(self) -> None:
+        self.bytes: collections.Counter[str] = collections.Counter()
+        self.count: collections.Counter[str] = collections.Counter()
+        self._lock = threading.Lock()
+        original = Message.as_serializable_dict
+        counter = self
+
+        def counted(message: Message, binary_buffers: list[memoryview] | None = None) -> dict[str, Any]:
+            start = len(binary_buffers) if binary_buffers is not None else 0
+            out = original(message, binary_buffers)
+            size = len(msgspec.msgpack.encode(out))
+            if binary_buffers is not None:
+                size += sum(b.nbytes for b in binary_buffers[start:])
+            kind = type(message).__name__
+            updates = getattr(message, "updates", None)
+            if isinstance(updates, dict):
+                kind += ":" + ",".join(sorted(updates))
+            with counter._lock:
+                counter.bytes[kind] += size
+                counter.count[kind] += 1
+            return out
+
+        Message.as_serializable_dict = counted  # type: ignore[method-assign,assignment]
+
+    def snapshot(self) -> tuple[collections.Counter[str], collections.Counter[str]]:
+        with self._lock:
+            return collections.Counter(self.bytes), collections.Counter(self.count)
+
+    def since(self, before: tuple[collections.Counter[str], collections.Counter[str]], seconds: float) -> str:
+        """Lines of kB/s and messages/s by kind since ``before`` (a :meth:`snapshot`), largest first."""
+        now_bytes, now_count = self.snapshot()
+        rows = sorted(((now_bytes[k] - before[0][k], now_count[k] - before[1][k], k) for k in now_bytes), reverse=True)
+        return "\n".join(f"    {b / seconds / 1000:8.1f} kB/s {n / seconds:6.1f} /s  {k}" for b, n, k in rows if b > 0)
 
 
 def drag_circle(app: DemoApp, stop: threading.Event, radius: float = 0.02, period: float = 2.0) -> None:
@@ -107,7 +162,21 @@ def screenshot(page: Any, name: str) -> Path:
     return out
 
 
+def recorded_log(directory: Path) -> LogReplay:
+    """The log the demo is closing in ``directory`` once it can be read (the loop closes it after
+    its current tick; the writer then flushes its last part)."""
+    end = time.monotonic() + 60.0
+    while True:
+        try:
+            return LogReplay(directory)
+        except (ConfigError, OSError, ValueError):
+            if time.monotonic() > end:
+                raise
+            time.sleep(0.2)
+
+
 def main(seconds: float, shots: bool) -> None:
+    sent = SentByKind()
     with running_demo() as app:
         with open_page(f"http://127.0.0.1:{app.server.get_port()}/") as page:
             page.get_by_text("Deadman [D]").first.wait_for(timeout=60_000)
@@ -119,7 +188,13 @@ def main(seconds: float, shots: bool) -> None:
             page.get_by_text("Hz simulated").first.wait_for(timeout=60_000)
             press_probe(app)
             time.sleep(SETTLE_SECONDS)
+            # The live page is recorded, and the replay of that log measured against it.
+            log_dir = app.toggle_recording()
+            assert log_dir is not None
+            pressed_at = app.rt.snapshot.time
+            mark = sent.snapshot()
             live, live_messages = counter.rate(seconds)
+            live_kinds = sent.since(mark, seconds)
             update_hz = float(page.evaluate(COUNT_STATUS_JS, seconds))
             if shots:
                 print("wrote", screenshot(page, "probe_contact"))
@@ -127,18 +202,28 @@ def main(seconds: float, shots: bool) -> None:
             dragger = threading.Thread(target=drag_circle, args=(app, stop), daemon=True)
             dragger.start()
             time.sleep(1.0)
+            dragged_at = app.rt.snapshot.time
+            mark = sent.snapshot()
             moving, _ = counter.rate(seconds)
+            moving_kinds = sent.since(mark, seconds)
             moving_hz = float(page.evaluate(COUNT_STATUS_JS, seconds))
             stop.set()
             dragger.join()
-            with tempfile.TemporaryDirectory() as tmp:
-                run_session(load_session("probe_rate"), out_dir=Path(tmp), plots=False)
-                app.open_replay(tmp)
-            assert app.player is not None
-            app.player.playing = True
-            time.sleep(SETTLE_SECONDS)
-            replay, _ = counter.rate(seconds)
+            app.toggle_recording()
+            app.show_replay(recorded_log(log_dir))
+            player = app.player
+            assert player is not None
+            replays = []
+            for at in (pressed_at, dragged_at):  # the same stretches of the log as measured live
+                player.seek(at)
+                player.playing = True
+                mark = sent.snapshot()
+                replayed, _ = counter.rate(seconds)
+                replays.append((replayed, sent.since(mark, seconds), at, player.cursor))
+            replay_pressed, replay_dragged = replays[0][0], replays[1][0]
             if shots:
+                player.seek(pressed_at + 1.0)
+                time.sleep(1.0)
                 print("wrote", screenshot(page, "replay"))
                 app.close_replay()
                 app.play_session("peg_ntrfc")
@@ -150,6 +235,7 @@ def main(seconds: float, shots: bool) -> None:
                 app.frame_camera(client, "world")
                 time.sleep(4.0)
                 print("wrote", screenshot(page, "peg_contact"))
+        shutil.rmtree(log_dir.parent)
         print(f"first panel visible  {first_panel:6.2f} s after a reload (goal <= 3 s on a quiet machine)")
         print(f"messages received    {live_messages:6.1f} /s (websocket messages to the page, live)")
         print(f"page update rate     {update_hz:6.1f} Hz (status redraws the page showed over {seconds:g} s)")
@@ -157,9 +243,15 @@ def main(seconds: float, shots: bool) -> None:
         print(f"live page            {live / 1000:8.1f} kB/s (probe pressed: arrows, contacts, plots)")
         print(f"  while dragging     {moving / 1000:8.1f} kB/s")
         print(
-            f"replay at 1x         {replay / 1000:8.1f} kB/s = {replay / live:.2f}x live pressed, "
-            f"{replay / moving:.2f}x live dragging (same run)"
+            f"replay at 1x         {replay_pressed / 1000:8.1f} kB/s = {replay_pressed / live:.2f}x live pressed; "
+            f"dragging {replay_dragged / 1000:.1f} kB/s = {replay_dragged / moving:.2f}x live dragging "
+            "(the same stretches of the live page's log, same run)"
         )
+        print(f"sent by kind (msgpack before zstd + arrays), live pressed:\n{live_kinds}")
+        print(f"  live dragging:\n{moving_kinds}")
+        for name, (_, kinds, at, cursor) in zip(("pressed", "dragging"), replays, strict=True):
+            print(f"  replay of {name} (log t {at:.2f} -> {cursor:.2f} s):\n{kinds}")
+        print(f"load average {os.getloadavg()[0]:.2f} (1 min) at the end")
 
 
 if __name__ == "__main__":

@@ -6,8 +6,11 @@ part (left of the panel) and backs off until every corner of the box projects in
 margin. The camera looks along :data:`VIEW_DIRECTION` (from the front, above), z up.
 
 Presets (:data:`PRESETS`): both spaces, the device, the world (the scene file's ``[view]`` box if
-it has one), the tool. The wheel dollies toward the look-at point, which for a preset lies on the
-framed thing's side of the screen (viser 1.1 offers no zoom toward the cursor).
+it has one), the tool.
+
+Zoom about what is under the cursor, two ways: the page's camera controls dolly toward the cursor
+(:data:`DOLLY_TO_CURSOR_JS`), and a click on a mesh makes the clicked surface point the orbit
+centre (:func:`ray_hit` finds it, :func:`recentre` moves the camera onto it).
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import viser
+from viser._messages import RunJavascriptMessage
 
 from app.spatial import Array
 
@@ -102,3 +107,49 @@ def fit_camera(box: Array, aspect: float, fov: float = FOV, panel_share: float =
     # The look-at point sits right of the centre so that the centre lands mid free part.
     look_at = centre - x_mid * far * t * aspect * right
     return CameraPose(position=look_at - far * forward, look_at=look_at)
+
+
+def recentre(pose: CameraPose, point: Array) -> CameraPose:
+    """``pose`` moved (not turned) so that it looks at ``point`` (viser frame, m) from the same
+    direction and distance: the point clicked becomes the centre the view orbits and zooms about."""
+    return CameraPose(position=point + (pose.position - pose.look_at), look_at=np.asarray(point, dtype=float))
+
+
+def ray_hit(origin: Array, direction: Array, vertices: Array, faces: Array) -> float | None:
+    """Distance along the ray ``origin + t * direction`` (unit ``direction``; m) to the nearest
+    triangle of a mesh (``vertices`` (n, 3) in the ray's frame, ``faces`` (m, 3)) it meets in front
+    of ``origin``, or None. Moller-Trumbore, both faces of each triangle."""
+    a, b, c = (vertices[faces[:, i]] for i in range(3))
+    e1, e2 = b - a, c - a
+    p = np.cross(direction, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    ok = np.abs(det) > 1e-12  # a triangle seen edge-on is not hit
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    s = origin - a
+    u = np.einsum("ij,ij->i", s, p) * inv
+    q = np.cross(s, e1)
+    v = (q @ direction) * inv
+    t = np.einsum("ij,ij->i", e2, q) * inv
+    hit = ok & (u >= 0.0) & (v >= 0.0) & (u + v <= 1.0) & (t > 0.0)
+    return float(t[hit].min()) if np.any(hit) else None
+
+
+#: Run in each page: its camera controls (camera-controls, which viser 1.1.1 drives) dolly toward
+#: the point under the cursor instead of the orbit centre. viser offers no call for this; the page
+#: keeps its controls at ``window.__viserMutable.cameraControl`` (viser's hook for its own browser
+#: tests). Checked every half second: the controls exist only once the canvas is mounted, and a
+#: remount makes new ones.
+DOLLY_TO_CURSOR_JS = """(() => {
+  const apply = () => {
+    const controls = window.__viserMutable && window.__viserMutable.cameraControl;
+    if (controls && !controls.dollyToCursor) controls.dollyToCursor = true;
+  };
+  apply();
+  setInterval(apply, 500);
+})();"""
+
+
+def dolly_to_cursor(client: viser.ClientHandle) -> None:
+    """Make ``client``'s wheel zoom toward the cursor (:data:`DOLLY_TO_CURSOR_JS`), through the
+    message viser itself uses to run script in a page (viser 1.1.1 has no public call for it)."""
+    client._websock_connection.queue_message(RunJavascriptMessage(source=DOLLY_TO_CURSOR_JS))

@@ -22,6 +22,7 @@ import viser
 
 from app.session.loop import ServoLoop
 from app.spatial import Array, invert_pose, make_pose, matrix_to_quat, quat_to_matrix
+from app.web.camera import ray_hit
 from app.web.snapshot import Snapshot
 from app.world.scene import Scene
 
@@ -187,6 +188,9 @@ class SceneView:
         self._handles: list[viser.SceneNodeHandle] = []
         self._last: dict[str, tuple[Array, Array]] = {}
         self._last_points: dict[str, Array] = {}
+        #: The meshes a click can land on: handle, vertices (n, 3) and faces (m, 3) in its own frame,
+        #: and where its parent's frame is in the viser frame (m).
+        self._pickable: list[tuple[viser.MeshHandle, Array, Array, Array]] = []
 
         self._add(scene.add_frame("/device", axes_length=0.08, axes_radius=0.003, position=DEVICE_ORIGIN_V))
         self._add(scene.add_label("/device/label", "device base {0}", position=(0.0, 0.0, -0.03)))
@@ -204,7 +208,7 @@ class SceneView:
             handle = scene.add_mesh_simple(
                 f"/links/geom_{g}", mesh.vertices, mesh.faces, color=_rgb(model.geom_rgba[g]), flat_shading=False
             )
-            self.geoms[g] = self._add(handle)
+            self.geoms[g] = self._mesh(handle, mesh, np.zeros(3))
         self._links_shown = True
 
         self.grip = self._add(scene.add_frame("/grip", axes_length=0.05, axes_radius=0.004))
@@ -222,11 +226,10 @@ class SceneView:
             self.on_hand_moved(viser_to_device(event.target.wxyz, event.target.position))
 
         for i, obj in enumerate(loop.slave.scene.objects):
-            self._add(
-                scene.add_mesh_simple(
-                    f"/world/object_{i}", obj.mesh.vertices, obj.mesh.faces, color=STATIC_COLOR, opacity=0.9
-                )
+            handle = scene.add_mesh_simple(
+                f"/world/object_{i}", obj.mesh.vertices, obj.mesh.faces, color=STATIC_COLOR, opacity=0.9
             )
+            self._mesh(handle, obj.mesh, WORLD_ORIGIN_V)
         # The dynamic objects: meshes in their own frames {B}, placed at {B}'s pose in {w} (their
         # parent /world is {w}) from each snapshot.
         self.bodies: list[viser.MeshHandle] = []
@@ -236,7 +239,7 @@ class SceneView:
             handle = scene.add_mesh_simple(
                 f"/world/body_{b}", mesh.vertices, mesh.faces, color=DYNAMIC_COLOR, wxyz=wxyz, position=position
             )
-            self.bodies.append(self._add(handle))
+            self.bodies.append(self._mesh(handle, mesh, WORLD_ORIGIN_V))
         slave_model = loop.slave.model
         self.slave_geoms: dict[int, viser.MeshHandle] = {}
         for g in range(slave_model.ngeom):
@@ -245,13 +248,14 @@ class SceneView:
                 handle = scene.add_mesh_simple(
                     f"/slave/geom_{g}", mesh.vertices, mesh.faces, color=_rgb(slave_model.geom_rgba[g]), opacity=0.85
                 )
-                self.slave_geoms[g] = self._add(handle)
+                self.slave_geoms[g] = self._mesh(handle, mesh, np.zeros(3))
         tool = loop.slave.scene.tool
         self._T_MRF_T = invert_pose(tool.T_T_MRF)
         tool_mesh = _tool_mesh(tool.centers_T, tool.radii)
         #: Radius (m) of the tool's sphere shell about {MRF}: what the tool camera preset frames.
         self.tool_radius = float(np.max(np.linalg.norm(tool_mesh.vertices - tool.T_T_MRF[0:3, 3], axis=1)))
-        self.tool = self._add(scene.add_mesh_simple("/tool", tool_mesh.vertices, tool_mesh.faces, color=(200, 160, 60)))
+        tool_handle = scene.add_mesh_simple("/tool", tool_mesh.vertices, tool_mesh.faces, color=(200, 160, 60))
+        self.tool = self._mesh(tool_handle, tool_mesh, np.zeros(3))
         self.mrf = self._add(scene.add_frame("/mrf", axes_length=axes, axes_radius=0.04 * axes))
         self._add(scene.add_label("/mrf/label", "{MRF}", position=(0.015, 0.0, 0.0)))
         self.sensor = self._add(scene.add_frame("/sensor", axes_length=0.75 * axes, axes_radius=0.04 * axes))
@@ -317,6 +321,26 @@ class SceneView:
     def _add(self, handle: H) -> H:
         self._handles.append(handle)
         return handle
+
+    def _mesh(self, handle: viser.MeshHandle, mesh: trimesh.Trimesh, parent_v: Array) -> viser.MeshHandle:
+        """Keep a mesh node (whose parent frame is at ``parent_v``) for :meth:`pick`."""
+        self._pickable.append((handle, np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces), parent_v))
+        return self._add(handle)
+
+    def pick(self, origin: Array, direction: Array) -> Array | None:
+        """The nearest point (viser frame, m) where the ray ``origin + t * direction`` (viser
+        frame) meets a shown mesh, at the pose last sent to the browsers; None if it meets none."""
+        direction = direction / np.linalg.norm(direction)
+        nearest: float | None = None
+        for handle, vertices, faces, parent_v in self._pickable:
+            if not handle.visible:
+                continue
+            R = quat_to_matrix(np.asarray(handle.wxyz, dtype=float))
+            # The ray in the mesh's frame (its parent is translated only: /world sits at WORLD_ORIGIN_V).
+            t = ray_hit(R.T @ (origin - parent_v - handle.position), R.T @ direction, vertices, faces)
+            if t is not None and (nearest is None or t < nearest):
+                nearest = t
+        return None if nearest is None else origin + nearest * direction
 
     def remove(self) -> None:
         """Take every node of this view out of the scene."""

@@ -36,7 +36,7 @@ from app.session.spec import Session, check_servo_rate, load_session
 from app.spatial import Array
 from app.teleop.channel import ChannelSettings
 from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token, viser_on_unix_socket
-from app.web.camera import FOV, CameraPose, fit_camera
+from app.web.camera import FOV, CameraPose, dolly_to_cursor, fit_camera, recentre
 from app.web.controls import PLOT_SECONDS, Controls
 from app.web.realtime import RealtimeLoop
 from app.web.replay import LogReplay, ReplayPlayer
@@ -105,8 +105,13 @@ class DemoApp:
         self.session = self._at_rate(session) if session is not None else None
         self._lock = threading.Lock()  # the UI thread redraws; a selection change rebuilds
         self._scene, self._device = scene, device
-        # The guide first: a browser that connects at once shows it while the loop is built
-        # (its buttons act once the loop exists, a fraction of a second later).
+        self.player: ReplayPlayer | None = None
+        self._showing_selection = False
+        #: A line above the status: loading a session, or why one stopped ("" for none).
+        self._notice = ""
+        self._loading = False  # the notice is a loading one, cleared when the play shows up
+        # The guide first: a browser that connects at once shows it while the loop is built (a
+        # click on it in that time waits, with "starting..." shown, until :meth:`SessionPanel.ready`).
         self.panel = SessionPanel(server, self, RUNS_DIR)
         self.rt = RealtimeLoop(self._loop_config(device, scene, self._start_gains(device)))
         server.scene.set_up_direction("+z")
@@ -117,15 +122,11 @@ class DemoApp:
         self._fitted: set[int] = set()  # clients whose camera was fitted to their canvas
         self._frame_initial_camera()
         server.on_client_connect(self._on_connect)
+        server.scene.on_click()(self._on_scene_click)
         self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
         self.rt.set_hand_target(self._home_T_0_G)
         self._recording = False
         self.controls = Controls(server, self, available_scenes(), available_devices(), scene.spec.name, device.name)
-        self.player: ReplayPlayer | None = None
-        self._showing_selection = False
-        #: A line above the status: loading a session, or why one stopped ("" for none).
-        self._notice = ""
-        self._loading = False  # the notice is a loading one, cleared when the play shows up
         self._replay_shown = float("nan")  # the replay cursor the plots show
         self._drawn: Snapshot | None = None  # what the panel shows, for the scene's redraw
         self.experiment: ExperimentJob | None = None
@@ -135,6 +136,7 @@ class DemoApp:
         self._ui = threading.Thread(target=self._ui_loop, name="web-ui", daemon=True)
         self.rt.start()
         self._ui.start()
+        self.panel.ready()
 
     def _loop_config(self, device: DeviceSpec, scene: Scene, gains: ControllerGains) -> LoopConfig:
         """The loop for ``device`` and ``scene``; the session, if any, adds its hand, accommodation and rate."""
@@ -268,8 +270,22 @@ class DemoApp:
         initial.position = pose.position
         initial.look_at = pose.look_at
 
+    def _on_scene_click(self, event: viser.SceneClickEvent) -> None:
+        """A click on a mesh makes the point clicked the centre the browser's camera orbits and
+        zooms about (the camera moves, keeping its direction and distance); elsewhere, nothing."""
+        origin, direction = np.array(event.ray_origin), np.array(event.ray_direction)
+        with self._lock:  # the view is not rebuilt while it is searched
+            hit = self.view.pick(origin, direction)
+        if hit is None:
+            return
+        camera = event.client.camera
+        # viser moves the look-at point with the position (by the same offset): onto ``hit``.
+        camera.position = recentre(CameraPose(camera.position, camera.look_at), hit).position
+
     def _on_connect(self, client: viser.ClientHandle) -> None:
-        """Fit a new browser's camera once it has reported its canvas size."""
+        """Zoom toward the cursor in the new browser, and fit its camera once it has reported its
+        canvas size."""
+        dolly_to_cursor(client)
 
         @client.camera.on_update
         def _(camera: viser.CameraHandle) -> None:
@@ -420,12 +436,16 @@ class DemoApp:
         tens of ms), but a panel-only window at once, so the status does not wait for the 3D view.
         """
         half = 0.5 / UI_RATE
-        next_step = time.perf_counter()
+        next_step = last_panel = time.perf_counter()
         panel = True
         while not self._stop.is_set():
             with self._lock:
                 if panel:
-                    self._draw_panel(2 * half)
+                    # The wall time since the last panel, not the nominal period: frames the loop
+                    # drops under load must not slow a replay below its speed.
+                    now = time.perf_counter()
+                    self._draw_panel(now - last_panel)
+                    last_panel = now
                 elif self._drawn is not None:
                     self.view.update(self._drawn)
             panel = not panel

@@ -8,6 +8,7 @@ demo's state once per UI frame.
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
@@ -26,6 +27,11 @@ FULL_CHART = "Show the chart full size"
 #: Size (CSS px) of the chart's window: the 1600 x 1000 px chart at 0.6, left of a 1400 px wide
 #: page's panel (the window can be moved and resized).
 CHART_WINDOW = (980.0, 740.0)
+#: Seconds a click made before the demo is up waits for it (building the loop takes ~1 s; the
+#: page connects while it is built).
+READY_TIMEOUT = 120.0
+#: Shown under the buttons when a click waits for the demo.
+STARTING = "**starting...**: the servo loop is being built; your click runs as soon as it is up"
 #: Choices of the speed selectors (simulated seconds per wall-clock second).
 SPEEDS = tuple(f"{f:g}" for f in (MIN_SPEED, 0.25, 0.5, 1.0, 2.0, MAX_SPEED))
 
@@ -83,10 +89,12 @@ class SessionPanel:
     def __init__(self, server: viser.ViserServer, actions: SessionActions, runs: Path) -> None:
         gui = server.gui
         a = actions
+        self._ready = threading.Event()
+        on = self._when_ready
         with gui.add_folder("Start here", expand_by_default=True):
             gui.add_markdown(GUIDE)
             self.try_peg = gui.add_button("Try the peg task", hint="Play sessions/peg_ntrfc.toml in real time")
-            self.try_peg.on_click(lambda _: a.play_session("peg_ntrfc"))
+            self.try_peg.on_click(on(lambda: a.play_session("peg_ntrfc")))
             self.try_status = gui.add_markdown("")
 
         with gui.add_folder("Play a session", expand_by_default=False):
@@ -97,9 +105,9 @@ class SessionPanel:
             self.speed = gui.add_dropdown("Speed", SPEEDS, initial_value="1")
             self._speed_seen = 1.0
             self.play_status = gui.add_markdown("")
-        self.play.on_click(lambda _: a.play_session(self.session.value))
-        self.pause.on_update(lambda _: a.pause(self.pause.value))
-        self.speed.on_update(lambda _: a.set_speed(float(self.speed.value)))
+        self.play.on_click(on(lambda: a.play_session(self.session.value)))
+        self.pause.on_update(on(lambda: a.pause(self.pause.value)))
+        self.speed.on_update(on(lambda: a.set_speed(float(self.speed.value))))
 
         with gui.add_folder("Replay a log", expand_by_default=False):
             self.log_path = gui.add_text("Log directory", latest_log(runs), hint="runs/<name> or runs/<name>/log")
@@ -109,11 +117,11 @@ class SessionPanel:
             self.replay_speed = gui.add_dropdown("Replay speed", SPEEDS, initial_value="1")
             self.live = gui.add_button("Back to live")
             self.replay_status = gui.add_markdown("")
-        self.open.on_click(lambda _: a.open_replay(self.log_path.value))
-        self.live.on_click(lambda _: a.close_replay())
-        self.timeline.on_update(lambda _: a.seek(float(self.timeline.value)))
-        self.replay_playing.on_update(lambda _: a.set_replay_playing(self.replay_playing.value))
-        self.replay_speed.on_update(lambda _: a.set_replay_speed(float(self.replay_speed.value)))
+        self.open.on_click(on(lambda: a.open_replay(self.log_path.value)))
+        self.live.on_click(on(a.close_replay))
+        self.timeline.on_update(on(lambda: a.seek(float(self.timeline.value))))
+        self.replay_playing.on_update(on(lambda: a.set_replay_playing(self.replay_playing.value)))
+        self.replay_speed.on_update(on(lambda: a.set_replay_speed(float(self.replay_speed.value))))
 
         with gui.add_folder("Experiment (Table I)", expand_by_default=False):
             gui.add_markdown(
@@ -130,8 +138,27 @@ class SessionPanel:
                 FULL_CHART, visible=False, hint="Table I's chart in a window beside the panel, large enough to read"
             )
             self._chart_image: np.ndarray | None = None
-        self.run_experiment.on_click(lambda _: a.start_experiment(int(self.operators.value)))
+        self.run_experiment.on_click(on(lambda: a.start_experiment(int(self.operators.value))))
         self.full_chart.on_click(lambda event: self._open_chart(event.client))
+
+    def ready(self) -> None:
+        """The demo is up (its loop, view and panel built): clicks act, and those made before run now."""
+        self._ready.set()
+
+    def _when_ready(self, action: Callable[[], None]) -> Callable[[viser.GuiEvent], None]:
+        """A callback running ``action`` once the demo is up: a click made while its loop is still
+        being built (the guide is shown first) waits, with :data:`STARTING` shown, in viser's
+        callback thread instead of reaching a demo that does not exist yet."""
+
+        def callback(_: viser.GuiEvent) -> None:
+            if not self._ready.is_set():
+                self.show_play_status(STARTING)
+                if not self._ready.wait(READY_TIMEOUT):
+                    self.show_play_status("**the demo did not start**: reload the page to try again")
+                    return
+            action()
+
+        return callback
 
     def show_play_status(self, text: str) -> None:
         """What is playing (or loading), under both the guide's button and the player."""

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import viser
 from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT
 
 from app.web.camera import PANEL_SHARE, CameraPose, box_corners, fit_camera, project
@@ -205,4 +206,96 @@ def test_every_scene_is_framed_beside_the_panel(demo: DemoApp, page: object) -> 
             client.camera.position = pose.position
             client.camera.look_at = pose.look_at
             check(world, shown(pose), least)
+    demo.frame_camera(client, "both")
+
+
+def _camera_reports(demo: DemoApp) -> tuple[viser.ClientHandle, list[CameraPose]]:
+    """The page's client and the camera poses it reports from now on (appended as they come)."""
+    client = next(iter(demo.server.get_clients().values()))
+    reports: list[CameraPose] = []
+
+    @client.camera.on_update
+    def _(camera: object) -> None:
+        reports.append(CameraPose(client.camera.position.copy(), client.camera.look_at.copy()))
+
+    return client, reports
+
+
+def _settled(reports: list[CameraPose], quiet: float = 1.0) -> CameraPose:
+    """The browser's camera once it has reported no move for ``quiet`` seconds."""
+    end = time.monotonic() + STEP_TIMEOUT
+    n = -1
+    while True:
+        seen = len(reports)
+        if seen and seen == n:
+            return reports[-1]
+        assert time.monotonic() < end, "the browser's camera did not settle"
+        n = seen
+        time.sleep(quiet)
+
+
+def _on_screen(page: object, client: viser.ClientHandle, point: np.ndarray) -> tuple[float, float]:
+    """Where ``point`` (viser frame) is on the page (CSS px), seen by the browser's camera."""
+    c = client.camera
+    css = page.viewport_size  # type: ignore[attr-defined]
+    pose = CameraPose(c.position.copy(), c.look_at.copy())
+    x, y = project(point[None], pose, c.fov, css["width"], css["height"])[0]
+    return float(x), float(y)
+
+
+#: A point on the probe scene's surface (top face at z = 0 in {w}, 30 x 30 cm), away from the tool.
+SURFACE_POINT_V = np.array([0.08, -0.06, 0.0]) + WORLD_ORIGIN_V
+#: Another, nearer the surface's front left corner: far from the middle of the world preset's view.
+CORNER_POINT_V = np.array([-0.12, -0.12, 0.0]) + WORLD_ORIGIN_V
+
+
+def test_click_on_the_world_sets_the_orbit_centre(demo: DemoApp, page: object) -> None:
+    """A click on the probe surface moves the browser's camera to look at the point clicked, from
+    the same direction and distance; a click on empty space leaves the camera where it was."""
+    client, reports = _camera_reports(demo)
+    demo.frame_camera(client, "world")
+    before = _settled(reports)
+    n = len(reports)
+    page.mouse.click(30, 30)  # type: ignore[attr-defined]  # the world preset leaves the top-left corner empty
+    x, y = _on_screen(page, client, SURFACE_POINT_V)
+    page.mouse.click(x, y)  # type: ignore[attr-defined]
+    end = time.monotonic() + STEP_TIMEOUT
+    while np.linalg.norm(client.camera.look_at - SURFACE_POINT_V) > 0.003:
+        assert time.monotonic() < end, f"the camera looks at {client.camera.look_at}, not {SURFACE_POINT_V}"
+        time.sleep(0.1)
+    after = _settled(reports)
+    # One pixel at this zoom is ~0.4 mm of the surface.
+    assert np.linalg.norm(after.look_at - SURFACE_POINT_V) < 0.003
+    assert np.allclose(after.position - after.look_at, before.position - before.look_at, atol=1e-4)
+    # The empty click (made first) moved nothing: every pose reported is the old one or the new one.
+    for pose in reports[n:]:
+        assert np.allclose(pose.look_at, before.look_at, atol=1e-6) or np.allclose(
+            pose.look_at, after.look_at, atol=1e-4
+        ), pose
+
+
+def test_wheel_zooms_toward_the_cursor(demo: DemoApp, page: object) -> None:
+    """The wheel over a point off the view's centre zooms in about that point: it stays (nearly)
+    under the cursor, where a zoom toward the view's centre would push it outward."""
+    client, reports = _camera_reports(demo)
+    demo.frame_camera(client, "world")
+    before = _settled(reports)
+    x0, y0 = _on_screen(page, client, CORNER_POINT_V)
+    page.mouse.move(x0, y0)  # type: ignore[attr-defined]
+    for _ in range(5):
+        page.mouse.wheel(0, -120)  # type: ignore[attr-defined]
+        page.wait_for_timeout(100)  # type: ignore[attr-defined]
+    after = _settled(reports)
+    d0 = np.linalg.norm(before.position - before.look_at)
+    d1 = np.linalg.norm(after.position - after.look_at)
+    assert d1 < 0.9 * d0, "the wheel did not zoom in"
+    x1, y1 = _on_screen(page, client, CORNER_POINT_V)
+    # The same zoom toward the centre: the point would move out from the middle of the canvas.
+    forward = (before.look_at - before.position) / d0
+    central = CameraPose(before.look_at - d1 * forward, before.look_at)
+    css = page.viewport_size  # type: ignore[attr-defined]
+    xc, yc = project(CORNER_POINT_V[None], central, client.camera.fov, css["width"], css["height"])[0]
+    moved, centre_moved = np.hypot(x1 - x0, y1 - y0), np.hypot(xc - x0, yc - y0)
+    assert centre_moved > 20.0, "the test point is too near the centre to tell"
+    assert moved < 0.25 * centre_moved, (moved, centre_moved)
     demo.frame_camera(client, "both")

@@ -36,33 +36,45 @@ Parameter ranges of the population (:data:`POPULATION`) and their sources:
 
 - Hand stiffness 150-800 N/m and damping 5-25 N s/m: endpoint impedance of the human arm in
   maintained posture, Mussa-Ivaldi, Hogan & Bizzi (1985), J. Neurosci. 5(10):2732-2743, and
-  Tsuji, Morasso, Goto & Ito (1995), Biol. Cybern. 72:475-485.
+  Tsuji, Morasso, Goto & Ito (1995), Biol. Cybern. 72:475-485 (the figures were not verified
+  from stored material).
 - Visual reaction delay 0.15-0.25 s: simple visual reaction times (Welford (1980), *Reaction
   Times*, Academic Press; Card, Moran & Newell (1983), *The Psychology of Human-Computer
-  Interaction*, the perceive-decide-act cycle of ~240 ms with a range of ~100-470 ms).
+  Interaction*, the perceive-decide-act cycle of ~240 ms with a range of ~100-470 ms). Confirmed
+  (secondary): Kosinski, "A literature review on reaction time" (Clemson University), simple
+  reaction time to light ~190 ms for college-age people, after Welford (1980).
 - Haptic reaction delay 0.06-0.15 s: long-latency responses of the hand to a load change,
   Johansson & Westling (1987), Exp. Brain Res. 66:141-154 (grip responses ~60-100 ms), and
-  voluntary reactions to kinesthetic stimuli (~120-150 ms).
+  voluntary reactions to kinesthetic stimuli (~120-150 ms). The lower bound is confirmed by Cole &
+  Abbs (1988), J. Neurophysiol. 60(4):1513-1522, abstract: grip force increases "from 60 to 90 ms
+  after onset of the load force increase"; the upper bound was not verified.
 - Force threshold 1-5 N: contact forces of a few newtons held in force-reflecting peg-in-hole
-  insertions, Hannaford, Wood, McAffee & Zak (1991), IEEE Trans. SMC 21(3):620-633.
-- Tremor 0.1-0.5 mm (standard deviation, low-passed at 8 Hz): physiological hand tremor, Elble &
-  Koller (1990), *Tremor*, Johns Hopkins University Press.
+  insertions, Hannaford, Wood, McAffee & Zak (1991), IEEE Trans. SMC 21(3):620-633 (not
+  verified from stored material).
+- Tremor 5.4-126 um (standard deviation, low-passed at 8 Hz): postural hand tremor of 97 normal
+  subjects, "A normative study of postural tremor of the hand", Arch. Neurol. 39(6):358-362
+  (1982), abstract: 0.0015-0.035 g peak at the dominant frequency, about 7 Hz. As displacement,
+  ``a / (2 pi 7 Hz)^2`` = 7.6-178 um amplitude, over sqrt(2) for the standard deviation (a
+  derivation from the abstract's figures). Was 0.1-0.5 mm after Elble & Koller (1990), *Tremor*,
+  not verified.
 - Lateral misalignment up to 2.5 mm and angular misalignment up to 1 degree: the part-location
   errors a remote centre compliance is built to absorb in robotic peg-in-hole assembly (+-2.5 mm
   lateral, +-1 degree; "Remote center compliance", https://probsee.com/p/remote_center_compliance,
   after Whitney (1982), J. Dyn. Syst. Meas. Control 104:65-77, whose analysis takes the initial
   lateral and angular errors as the two inputs of an insertion). Here they are the operator's
   misjudgement of where the holes are and of upright, drawn uniformly up to those bounds.
-- Motor bandwidth 5-10 Hz (:data:`MOTOR_BANDWIDTH`): the band over which the human hand can
-  issue motion and force commands, Shimoga (1993), "A survey of perceptual feedback issues in
-  dexterous telemanipulation: Part I. Finger force feedback", Proc. IEEE VRAIS, pp. 263-270
-  (the hand's output bandwidth of 5-10 Hz against its sensing bandwidth of 20-30 Hz for force
-  and up to ~320 Hz for touch). The citation is from the lead's brief; the stored material
-  reached here confirms only that Shimoga's survey treats the hand's asymmetric input/output
-  bandwidths, not the figures. Drawn from its own random stream (:func:`sample_population`), so
-  adding it left every other value of every operator as it was.
-- Approach speed 20-50 mm/s: *not* from the literature; a task choice spanning a careful to a
-  brisk insertion. Nothing here is fitted to the paper's Table I.
+- Motor bandwidth 5.63-9.20 Hz (:data:`MOTOR_BANDWIDTH`): the hand's acceleration-impulse
+  bandwidth in goal-directed target acquisition, Draper (1994), "Hand acceleration impulse
+  bandwidth during target acquisition: implications for teleoperator bandwidth requirements",
+  IEEE Trans. SMC 24(6):931-936, abstract: master controllers must pass "higher than 9.20 Hz" to
+  capture hand trajectories, "shoulder" joints "only ... 5.63 Hz". Was 5-10 Hz after Shimoga
+  (1993), "A survey of perceptual feedback issues in dexterous telemanipulation: Part I", Proc.
+  IEEE VRAIS, pp. 263-270, whose figures could not be verified from stored material (only an
+  abstract saying the hand's input/output bandwidths are asymmetric). Drawn from its own random
+  stream (:func:`sample_population`), so it leaves every other value of every operator as it was.
+- Approach speed 20-50 mm/s: *not* from the literature (no stored source gives a teleoperated
+  insertion speed); a task choice spanning a careful to a brisk insertion. Nothing here is fitted
+  to the paper's Table I.
 """
 
 from __future__ import annotations
@@ -102,13 +114,14 @@ POPULATION: dict[str, tuple[float, float]] = {
     "visual_delay": (0.15, 0.25),
     "haptic_delay": (0.06, 0.15),
     "force_threshold": (1.0, 5.0),
-    "tremor": (1e-4, 5e-4),
+    "tremor": (5.4e-6, 1.26e-4),
     "speed": (0.02, 0.05),
     "aim_error": (0.0, 0.0025),
     "tilt_error": (0.0, math.radians(1.0)),
 }
-#: Range (lo, hi) of the operators' motor bandwidth (Hz), drawn uniformly from its own stream.
-MOTOR_BANDWIDTH = (5.0, 10.0)
+#: Range (lo, hi) of the operators' motor bandwidth (Hz), drawn uniformly from its own stream:
+#: Draper (1994)'s hand acceleration bandwidths, 5.63 Hz ("shoulder") to 9.20 Hz (module docstring).
+MOTOR_BANDWIDTH = (5.63, 9.20)
 
 
 @dataclass(frozen=True)

@@ -26,10 +26,14 @@ HOLE_DEPTH = 0.025
 # 45-degree entry chamfer on each hole, CHAMFER (m) wide and deep: Whitney (1982), "Quasi-static
 # assembly of compliantly supported rigid parts", J. Dyn. Syst. Meas. Control 104:65-77, analyses
 # the entry over 45-degree chamfers: a chamfer catches a lateral error up to its width plus the
-# clearance. The width has no authoritative source (the paper gives none; a machining vendor's
-# chamfer guide, yqunique.com, gives 0.5 or 1 mm x 45 deg as the usual CNC default): 1 mm catches
-# 1.1 mm, less than half of the operators' lateral misalignment range (app/session/operators.py);
-# the others land on the top face and search.
+# clearance. The width: the paper gives none. The American National Standard for straight pins
+# (ASME B18.8.2) gives a 1/2 in (12.7 mm) chamfered pin a chamfer length of 0.020-0.040 in
+# (0.51-1.02 mm; secondary: its Table 1 as reprinted in "Shop Reference for Students and
+# Apprentices", 2nd ed., globalspec.com "Pins"); 1 mm is the top of that range, and a machining
+# vendor's chamfer guide (yqunique.com, "standard chamfer sizes") gives 1 mm x 45 deg as a usual
+# CNC default. The standard chamfers the pin; here the hole is chamfered (the pegs' ends are round).
+# 1 mm catches 1.1 mm, less than half of the operators' lateral misalignment range
+# (app/session/operators.py); the others land on the top face and search.
 CHAMFER = 0.001
 #: Radius (m) of a hole's rim on the block's top face, where its chamfer starts.
 RIM_RADIUS = HOLE_RADIUS + CHAMFER

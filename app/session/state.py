@@ -94,6 +94,7 @@ class StateBlock:
     Attributes:
         names: Every value's name, in row order. n_logged: How many of them the log writes.
         starts: Where each block of :func:`state_layout` starts, by name.
+        at: The same starts as an array, in layout order (what the compiled writers take).
         row: The row (filled by :meth:`fill`).
     """
 
@@ -107,7 +108,7 @@ class StateBlock:
             self.starts[name] = at
             at += len(columns)
         self.n_logged = self.starts[FIRST_UNLOGGED]
-        self._starts = np.array(list(self.starts.values()), dtype=np.int64)
+        self.at = np.array(list(self.starts.values()), dtype=np.int64)
         self.row = np.zeros(len(self.names))
         self._no_hand = np.full((4, 4), np.nan)
         self._hand = np.empty((4, 4))
@@ -134,8 +135,8 @@ class StateBlock:
             # reading's pose and hand wrench are properties that compute on access: every tick.
             self._sources = (out, reading, ft)
             self._arrays = (
-                self.row, self._starts, reading.q, out.vectors, out.command.twist, ft.wrench_S, out.torques,
-                out.counts, out.scalars, tick.stage_ns,
+                self.row, self.at, reading.q, out.vectors, out.command.twist, ft.wrench_S, out.torques,
+                out.counts, tick.stage_ns,
             )  # fmt: skip
         hand_on = tick.hand_on
         hand = tick.hand_target if hand_on else self._no_hand
@@ -143,10 +144,7 @@ class StateBlock:
             self._hand[:] = hand
             hand = self._hand
         args = (
-            *self._arrays, reading.T_0_G, reading.wrench_G, tick.time, hand, hand_on, tick.T_w_MRF,
-            tick.contact_wrench_MRF, tick.deadman,
-            tick.reference, tick.reflection, tick.contact.count, int(out.faults), reading.watchdog_trips,
-            tick.slave_status, int(tick.device_link), tick.link_force, out.reflecting,
+            *self._arrays, reading.T_0_G, reading.wrench_G, hand, hand_on, *self.observed(tick),
         )  # fmt: skip
         if self._fill is None:
             # The same kinds of arguments every tick: the compiled row writer for their types, once.
@@ -156,6 +154,20 @@ class StateBlock:
             # A (n, 7) view of MuJoCo's coordinates; only scenes with dynamic objects pay the copy.
             np.copyto(self._objects, tick.object_poses())
         return self.row
+
+    def filled(self, tick: TickRecord) -> bool:
+        """Whether the row already holds ``tick`` (an observer before asked for :meth:`fill`)."""
+        return tick.serial == self._serial
+
+    def observed(self, tick: TickRecord) -> tuple[object, ...]:
+        """The arguments of :func:`fill_observed` after the row and its starts, for ``tick``: the
+        values a session's metrics read."""
+        out = tick.out
+        return (
+            out.scalars, tick.T_w_MRF, tick.contact_wrench_MRF, tick.time, tick.deadman, tick.reference,
+            tick.reflection, tick.contact.count, int(out.faults), tick.reading.watchdog_trips, tick.slave_status,
+            int(tick.device_link), tick.link_force, out.reflecting,
+        )  # fmt: skip
 
 
 @njit(cache=True)
@@ -184,15 +196,15 @@ def _fill_state(
     F_S: Array,
     torques: Array,
     counts: IntArray,
-    scalars: Array,
     stage_ns: IntArray,
     T_0_G: Array,
     wrench_G: Array,
-    t: float,
     hand: Array,
     hand_on: bool,
+    scalars: Array,
     T_w_MRF: Array,
     contact_MRF: Array,
+    t: float,
     deadman: bool,
     reference: bool,
     reflection: bool,
@@ -204,8 +216,12 @@ def _fill_state(
     link_force: float,
     reflecting: bool,
 ) -> None:
-    """One state row (the blocks of :func:`state_layout`, starting at ``starts``) from one tick's arrays."""
-    row[starts[0]] = t
+    """One state row (the blocks of :func:`state_layout`, starting at ``starts``) from one tick's
+    arrays: :func:`fill_observed`'s blocks, then the others."""
+    fill_observed(
+        row, starts, scalars, T_w_MRF, contact_MRF, t, deadman, reference, reflection, contacts, faults,
+        watchdog_trips, slave_status, device_link, link_force, reflecting,
+    )  # fmt: skip
     _put(row, starts[1], q)
     _pose7(T_0_G, row[starts[2] : starts[2] + 7])
     for a in range(3):
@@ -214,21 +230,49 @@ def _fill_state(
     _put(row, starts[5], twist)
     _pose7(T_w_MRF, row[starts[6] : starts[6] + 7])
     _put(row, starts[7], F_S)
-    _put(row, starts[8], contact_MRF)
     _put(row, starts[9], wrench_G)
     _put(row, starts[10], torques)
     _put(row, starts[11], counts)
+    at = starts[15]
+    for v in stage_ns:
+        row[at] = v * 1e-3
+        at += 1
+    # starts[16], the dynamic objects' poses, is filled by StateBlock.fill after this call.
+
+
+@njit(cache=True)
+def fill_observed(
+    row: Array,
+    starts: IntArray,
+    scalars: Array,
+    T_w_MRF: Array,
+    contact_MRF: Array,
+    t: float,
+    deadman: bool,
+    reference: bool,
+    reflection: bool,
+    contacts: int,
+    faults: int,
+    watchdog_trips: int,
+    slave_status: int,
+    device_link: int,
+    link_force: float,
+    reflecting: bool,
+) -> None:
+    """The blocks of the row a session's metrics read (:mod:`app.session.metrics`): the time, the
+    tool's position (not its quaternion) and rotation, the contact wrench, the controller's
+    scalars, the switches and counters, the link force and the reflecting flag. The metrics of a
+    loop without a log write only these (the rest of the row is then stale)."""
+    row[starts[0]] = t
+    for a in range(3):
+        row[starts[6] + a] = T_w_MRF[a, 3]
+    _put(row, starts[8], contact_MRF)
     _put(row, starts[12], scalars)
     at = starts[13]
     row[at], row[at + 1], row[at + 2] = 1.0 if deadman else 0.0, 1.0 if reference else 0.0, 1.0 if reflection else 0.0
     row[at + 3], row[at + 4], row[at + 5], row[at + 6] = contacts, faults, watchdog_trips, slave_status
     row[at + 7] = device_link
     row[starts[14]] = link_force
-    at = starts[15]
-    for v in stage_ns:
-        row[at] = v * 1e-3
-        at += 1
-    # starts[16], the dynamic objects' poses, is filled by StateBlock.fill after this call.
     at = starts[17]
     for a in range(3):
         for b in range(3):

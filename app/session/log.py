@@ -114,7 +114,11 @@ class TickLog:
             pa.array(rows[:, i].astype(np.int32) if is_int else rows[:, i])
             for i, is_int in enumerate(self._int_columns)
         ]
-        pq.write_table(pa.Table.from_arrays(arrays, names=self.columns), tmp)
+        # Neither dictionaries nor per-column statistics: nothing reads them (the log is read
+        # whole), and with them a 100-row part of peg_ntrfc's 175 columns took 4.2 ms of CPU
+        # instead of 2.7 and 143 kB instead of 118 (the writer shares the loop's CPU).
+        table = pa.Table.from_arrays(arrays, names=self.columns)
+        pq.write_table(table, tmp, use_dictionary=False, write_statistics=False)
         os.replace(tmp, tmp.with_name(name))
 
     def _collect(self, wait: bool) -> None:

@@ -220,7 +220,7 @@ class SharedSnapshot:
             arrays = [getattr(snap, name) for name in ARRAY_FIELDS]
         shapes = tuple(None if a is None else a.shape for a in arrays)
         data = pickle.dumps((shapes, *(getattr(snap, name) for name in OTHER_FIELDS)), protocol=pickle.HIGHEST_PROTOCOL)
-        block = np.frombuffer(self.block, dtype=np.float64)
+        block = np.frombuffer(memoryview(self.block), dtype=np.float64)
         self.seq.value += 1  # odd: a write is in progress
         at = 0
         for a in arrays:
@@ -235,7 +235,7 @@ class SharedSnapshot:
     def read(self) -> Snapshot | None:
         """The latest published snapshot, or None if nothing was published yet."""
         view = memoryview(self.buffer).cast("B")
-        block = np.frombuffer(self.block, dtype=np.float64)
+        block = np.frombuffer(memoryview(self.block), dtype=np.float64)
         while True:
             before = self.seq.value
             if before == 0:

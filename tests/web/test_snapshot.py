@@ -100,7 +100,8 @@ def test_the_scene_view_sends_only_what_a_pixel_would_show() -> None:
         server.stop()
 
 
-def _assert_same(read: Snapshot, taken: Snapshot) -> None:
+def _assert_same(read: Snapshot | None, taken: Snapshot) -> None:
+    assert read is not None
     for f in fields(Snapshot):
         a, b = getattr(read, f.name), getattr(taken, f.name)
         if isinstance(b, np.ndarray):
@@ -140,5 +141,6 @@ def test_contacts_beyond_the_buffer_are_trimmed_for_display() -> None:
     shared = SharedSnapshot()
     shared.write(taken)
     read = shared.read()
+    assert read is not None
     assert read.contact_points_w.shape == read.contact_normals_w.shape == (MAX_SHOWN_CONTACTS, 3)
     _assert_same(replace(read, contact_points_w=many, contact_normals_w=many), taken)

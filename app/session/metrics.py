@@ -12,7 +12,7 @@ from numba import njit
 from app.compiled import entry_point
 from app.controller.layout import SCALARS
 from app.controller.types import Fault
-from app.session.state import fill_observed
+from app.session.state import Observed, fill_observed
 from app.session.tick import STAGES, TickRecord
 from app.slave.arm import ArmStatus
 from app.spatial import Array, IntArray, rotation_log
@@ -159,20 +159,7 @@ def _reduce(
 def _observe_and_reduce(
     row: Array,
     starts: IntArray,
-    scalars: Array,
-    T_w_MRF: Array,
-    contact_MRF: Array,
-    t: float,
-    deadman: bool,
-    reference: bool,
-    reflection: bool,
-    contacts: int,
-    faults: int,
-    watchdog_trips: int,
-    slave_status: int,
-    device_link: int,
-    link_force: float,
-    reflecting: bool,
+    observed: Observed,
     acc: Array,
     tail: Array,
     ints: IntArray,
@@ -182,10 +169,7 @@ def _observe_and_reduce(
 ) -> None:
     """:func:`_reduce` of a tick whose row no observer asked for: only the values it reads are
     written into the row first (:func:`~app.session.state.fill_observed`), in the same call."""
-    fill_observed(
-        row, starts, scalars, T_w_MRF, contact_MRF, t, deadman, reference, reflection, contacts, faults,
-        watchdog_trips, slave_status, device_link, link_force, reflecting,
-    )  # fmt: skip
+    fill_observed(row, starts, observed)
     _reduce(acc, tail, row, ints, tick, stage_table, stage_ns)
 
 
@@ -261,7 +245,7 @@ class SessionMetrics:
                 self._reduce = entry_point(_reduce, *args)
             self._reduce(*args)
         else:
-            args = (block.row, block.at, *block.observed(tick), *own)
+            args = (block.row, block.at, block.observed(tick), *own)
             if self._observe is None:
                 self._observe = entry_point(_observe_and_reduce, *args)
             self._observe(*args)

@@ -25,6 +25,9 @@ from app.controller.layout import SCALARS, TORQUE_ROWS, TWIST_AXES, VECTOR_ROWS,
 from app.session.tick import STAGES
 from app.spatial import Array, IntArray, quat_into
 
+#: What :meth:`StateBlock.observed` returns and :func:`fill_observed` takes (see there).
+Observed = tuple[Array, Array, Array, float, bool, bool, bool, int, int, int, int, int, float, bool]
+
 if TYPE_CHECKING:
     from app.session.tick import TickRecord
 
@@ -144,7 +147,7 @@ class StateBlock:
             self._hand[:] = hand
             hand = self._hand
         args = (
-            *self._arrays, reading.T_0_G, reading.wrench_G, hand, hand_on, *self.observed(tick),
+            *self._arrays, reading.T_0_G, reading.wrench_G, hand, hand_on, self.observed(tick),
         )  # fmt: skip
         if self._fill is None:
             # The same kinds of arguments every tick: the compiled row writer for their types, once.
@@ -160,8 +163,8 @@ class StateBlock:
         return tick.serial == self._serial
 
     def observed(self, tick: TickRecord) -> tuple[object, ...]:
-        """The arguments of :func:`fill_observed` after the row and its starts, for ``tick``: the
-        values a session's metrics read."""
+        """The values of ``tick`` a session's metrics read, as :func:`fill_observed` takes them
+        (its ``observed``)."""
         out = tick.out
         return (
             out.scalars, tick.T_w_MRF, tick.contact_wrench_MRF, tick.time, tick.deadman, tick.reference,
@@ -201,27 +204,12 @@ def _fill_state(
     wrench_G: Array,
     hand: Array,
     hand_on: bool,
-    scalars: Array,
-    T_w_MRF: Array,
-    contact_MRF: Array,
-    t: float,
-    deadman: bool,
-    reference: bool,
-    reflection: bool,
-    contacts: int,
-    faults: int,
-    watchdog_trips: int,
-    slave_status: int,
-    device_link: int,
-    link_force: float,
-    reflecting: bool,
+    observed: Observed,
 ) -> None:
     """One state row (the blocks of :func:`state_layout`, starting at ``starts``) from one tick's
     arrays: :func:`fill_observed`'s blocks, then the others."""
-    fill_observed(
-        row, starts, scalars, T_w_MRF, contact_MRF, t, deadman, reference, reflection, contacts, faults,
-        watchdog_trips, slave_status, device_link, link_force, reflecting,
-    )  # fmt: skip
+    fill_observed(row, starts, observed)
+    T_w_MRF = observed[1]
     _put(row, starts[1], q)
     _pose7(T_0_G, row[starts[2] : starts[2] + 7])
     for a in range(3):
@@ -241,28 +229,18 @@ def _fill_state(
 
 
 @njit(cache=True)
-def fill_observed(
-    row: Array,
-    starts: IntArray,
-    scalars: Array,
-    T_w_MRF: Array,
-    contact_MRF: Array,
-    t: float,
-    deadman: bool,
-    reference: bool,
-    reflection: bool,
-    contacts: int,
-    faults: int,
-    watchdog_trips: int,
-    slave_status: int,
-    device_link: int,
-    link_force: float,
-    reflecting: bool,
-) -> None:
+def fill_observed(row: Array, starts: IntArray, observed: Observed) -> None:
     """The blocks of the row a session's metrics read (:mod:`app.session.metrics`): the time, the
     tool's position (not its quaternion) and rotation, the contact wrench, the controller's
     scalars, the switches and counters, the link force and the reflecting flag. The metrics of a
-    loop without a log write only these (the rest of the row is then stale)."""
+    loop without a log write only these (the rest of the row is then stale).
+
+    ``observed`` is :meth:`StateBlock.observed`: ``(scalars, T_w_MRF, contact_MRF, t, deadman,
+    reference, reflection, contacts, faults, watchdog_trips, slave_status, device_link,
+    link_force, reflecting)``. One tuple: the callers pass it on without naming its parts.
+    """
+    scalars, T_w_MRF, contact_MRF, t, deadman, reference, reflection = observed[0:7]
+    contacts, faults, watchdog_trips, slave_status, device_link, link_force, reflecting = observed[7:14]
     row[starts[0]] = t
     for a in range(3):
         row[starts[6] + a] = T_w_MRF[a, 3]

@@ -237,15 +237,25 @@ class SessionMetrics:
         reads, in the same call (:func:`_observe_and_reduce`): the whole row costs ~2 us more."""
         block = tick.block
         assert block is not None, "the loop sets the record's state block"
-        own = (self._acc, self._tail, self._ints, self._ticks, self._stage_ns, tick.stage_ns)
-        if block.filled(tick):
-            args: tuple[object, ...] = (self._acc, self._tail, block.row, *own[2:])
+        if tick.serial == block.serial:  # an observer before filled the row
+            args: tuple[object, ...] = (
+                self._acc,
+                self._tail,
+                block.row,
+                self._ints,
+                self._ticks,
+                self._stage_ns,
+                tick.stage_ns,
+            )
             if self._reduce is None:
                 # The same kinds of arguments every tick: the compiled specialisation, once.
                 self._reduce = entry_point(_reduce, *args)
             self._reduce(*args)
         else:
-            args = (block.row, block.at, block.observed(tick), *own)
+            args = (
+                block.row, block.at, block.observed(tick), self._acc, self._tail, self._ints, self._ticks,
+                self._stage_ns, tick.stage_ns,
+            )  # fmt: skip
             if self._observe is None:
                 self._observe = entry_point(_observe_and_reduce, *args)
             self._observe(*args)

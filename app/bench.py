@@ -97,17 +97,21 @@ def bench_tick(quick: bool = False) -> str:
             t = s["timing"][name]
             lines.append(f"    {name:<11} median {t['median_us']:8.1f} us   p99 {t['p99_us']:8.1f} us")
         lines.append(f"    real-time factor at 1 kHz (1 ms / median tick): {s['real_time_factor']:.1f}")
-    lines.append("the tick as run (frhc run: scripted operator, Parquet log, metrics), per loop iteration:")
+    lines.append("the tick as run (scripted operator, metrics; frhc run also logs to Parquet), per loop iteration:")
     for name in ("probe_rate", "peg_ntrfc"):
-        session = load_session(name).with_changes(duration=1.5 if quick else 5.0)
-        lap = _Laps(session.data.n_ticks)
-        with tempfile.TemporaryDirectory() as tmp:
-            s = run_session(session, out_dir=Path(tmp), plots=False, observers=(lap,)).summary
-        bare = s["timing"]["tick"]["median_us"]
-        med, p99 = lap.stats()
-        lines.append(
-            f"  {name}: median {med:6.1f} us   p99 {p99:6.1f} us   ({med / bare:.2f}x its bare tick, median {bare:.1f} us)"
-        )
+        for logged in (True, False):
+            session = load_session(name).with_changes(duration=1.5 if quick else 5.0)
+            lap = _Laps(session.data.n_ticks)
+            with tempfile.TemporaryDirectory() as tmp:
+                out_dir = Path(tmp) if logged else None
+                s = run_session(session, out_dir=out_dir, plots=False, observers=(lap,)).summary
+            bare = s["timing"]["tick"]["median_us"]
+            med, p99 = lap.stats()
+            how = "with log (frhc run)    " if logged else "no log (sweep, study)  "
+            lines.append(
+                f"  {name + ':':<12}{how}median {med:6.1f} us   p99 {p99:6.1f} us   "
+                f"({med / bare:.2f}x its bare tick, median {bare:.1f} us)"
+            )
     lines.extend(_web_loop_lines(quick))
     return "\n".join(lines)
 

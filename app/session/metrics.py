@@ -12,6 +12,7 @@ from numba import njit
 from app.compiled import entry_point
 from app.controller.layout import SCALARS
 from app.controller.types import Fault
+from app.session.state import Observed, fill_observed
 from app.session.tick import STAGES, TickRecord
 from app.slave.arm import ArmStatus
 from app.spatial import Array, IntArray, rotation_log
@@ -154,6 +155,24 @@ def _reduce(
         acc[_DONE_AT] = acc[_TIME]
 
 
+@njit(cache=True)
+def _observe_and_reduce(
+    row: Array,
+    starts: IntArray,
+    observed: Observed,
+    acc: Array,
+    tail: Array,
+    ints: IntArray,
+    tick: int,
+    stage_table: IntArray,
+    stage_ns: IntArray,
+) -> None:
+    """:func:`_reduce` of a tick whose row no observer asked for: only the values it reads are
+    written into the row first (:func:`~app.session.state.fill_observed`), in the same call."""
+    fill_observed(row, starts, observed)
+    _reduce(acc, tail, row, ints, tick, stage_table, stage_ns)
+
+
 def _bit_counts(flags: type[Fault] | type[ArmStatus], counts: IntArray) -> dict[str, int]:
     """Ticks per flag of ``flags`` (single-bit flags) from per-bit tick counts, the flags seen only."""
     return {
@@ -210,14 +229,36 @@ class SessionMetrics:
         )
         ints[_AT_LINK], ints[_AT_REFLECTING] = starts["link_force"], starts["reflecting"]
         self._reduce: Callable[..., None] | None = None
+        self._observe: Callable[..., None] | None = None
 
     def on_tick(self, tick: TickRecord) -> None:
-        """Reduce the tick's state row (one compiled pass: :func:`_reduce`)."""
-        args = (self._acc, self._tail, tick.state(), self._ints, self._ticks, self._stage_ns, tick.stage_ns)
-        if self._reduce is None:
-            # The same kinds of arguments every tick: the compiled specialisation, once.
-            self._reduce = entry_point(_reduce, *args)
-        self._reduce(*args)
+        """Reduce the tick's state row (one compiled pass: :func:`_reduce`). When no observer
+        before asked for the row (a session without a log), write only the values the reduction
+        reads, in the same call (:func:`_observe_and_reduce`): the whole row costs ~2 us more."""
+        block = tick.block
+        assert block is not None, "the loop sets the record's state block"
+        if tick.serial == block.serial:  # an observer before filled the row
+            args: tuple[object, ...] = (
+                self._acc,
+                self._tail,
+                block.row,
+                self._ints,
+                self._ticks,
+                self._stage_ns,
+                tick.stage_ns,
+            )
+            if self._reduce is None:
+                # The same kinds of arguments every tick: the compiled specialisation, once.
+                self._reduce = entry_point(_reduce, *args)
+            self._reduce(*args)
+        else:
+            args = (
+                block.row, block.at, block.observed(tick), self._acc, self._tail, self._ints, self._ticks,
+                self._stage_ns, tick.stage_ns,
+            )  # fmt: skip
+            if self._observe is None:
+                self._observe = entry_point(_observe_and_reduce, *args)
+            self._observe(*args)
         self._ticks += 1
 
     @property

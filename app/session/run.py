@@ -93,7 +93,7 @@ def run_session(
         flush_interval: Simulated seconds of ticks per log part: the most a crash can lose (s).
         operator: Makes the operator from the new loop (default: the session's script). An
             operator whose ``finished`` attribute turns true ends the session before its duration.
-        observers: Further tick observers, added after the metrics and the log.
+        observers: Further tick observers, added after the log and the metrics.
         device_url: Drive the device served at this ``ws://`` address (:mod:`app.device.haply`)
             instead of simulating it here; its device file is the one the server names.
         sample_wait: How long (s) to wait for that device's sample before the watchdog zeroes
@@ -153,11 +153,13 @@ def _run(
     loop = ServoLoop(LoopConfig.from_session(session, device=device, device_url=device_url, sample_wait=sample_wait))
     d = session.data
     n_ticks = d.n_ticks
-    metrics = loop.observe(SessionMetrics(loop.record, session.scene.spec.task, n_ticks, loop.dt))
     log = None
     if out_dir is not None:
+        # Before the metrics: the log fills the whole state row, which the metrics then reduce;
+        # without a log the metrics write only the values they read (SessionMetrics.on_tick).
         meta = loop_meta(loop.config, session.path)
         log = loop.observe(TickLog(out_dir / "log", loop.controller.out.n, loop.dt, flush_interval, meta, loop.objects))
+    metrics = loop.observe(SessionMetrics(loop.record, session.scene.spec.task, n_ticks, loop.dt))
     for observer in observers:
         loop.observe(observer)
     pacer = Pacer(loop.dt) if realtime else None

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import os
+import sys
+import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from app.session import pacer as pacer_module
-from app.session.pacer import SPIN_NS, Pacer
+from app.session.log import TickLog
+from app.session.pacer import BACKGROUND_NICE, SPIN_NS, Pacer
 
 
 @pytest.mark.parametrize("rate", [1000.0, 4000.0])
@@ -38,3 +43,22 @@ def test_a_wait_spins_at_most_its_share_of_the_period(rate: float, monkeypatch: 
     assert len(spins) >= 20
     budget = min(SPIN_NS, 0.5 * period_ns)  # half of an idle period is slept at least
     assert np.median(spins) <= budget + 20_000
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a thread's niceness is Linux's")
+def test_the_logs_writer_runs_at_the_lowest_niceness(tmp_path: Path) -> None:
+    """The writer shares an unpaced loop's CPU: at nice 0 its part writes stalled the loop for
+    milliseconds. After a part is written, the thread that wrote it is at BACKGROUND_NICE under
+    the ordinary policy (read from /proc), and the loop's thread kept its own niceness."""
+    own = os.getpriority(os.PRIO_PROCESS, 0)
+    log = TickLog(tmp_path / "log", 3)
+    writers: list[int] = []
+    try:
+        log._writer.submit(lambda: writers.append(threading.get_native_id())).result()
+        stat = Path(f"/proc/self/task/{writers[0]}/stat").read_text().rsplit(")", 1)[1].split()
+        # Fields 19 (nice) and 41 (policy) of proc(5), counted after the command name.
+        assert int(stat[16]) == BACKGROUND_NICE
+        assert int(stat[38]) == os.SCHED_OTHER
+    finally:
+        log.close()
+    assert os.getpriority(os.PRIO_PROCESS, 0) == own

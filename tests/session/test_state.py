@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
+
 import numpy as np
 
 from app.controller.types import Fault
 from app.session.loop import LoopConfig, ServoLoop
-from app.session.metrics import _bit_counts
+from app.session.metrics import SessionMetrics, _bit_counts
+from app.session.run import run_session
 from app.session.script import OperatorScript
 from app.session.spec import load_session
 from app.session.state import StateBlock
+from app.session.tick import TickRecord
 from app.slave.arm import ArmStatus
 from app.spatial import matrix_to_quat
 
@@ -89,3 +94,46 @@ def test_bit_counts_name_the_flags_seen() -> None:
     counts[int(Fault.OVERSPEED).bit_length() - 1] = 1
     assert _bit_counts(Fault, counts) == {"BAD_PERIOD": 4, "OVERSPEED": 1}
     assert _bit_counts(ArmStatus, np.zeros(63, dtype=np.int64)) == {}
+
+
+def test_metrics_without_a_log_sum_what_they_sum_with_one() -> None:
+    """Without a log the metrics write only the values they read (fill_observed); the summary is
+    the one computed from the whole row a log fills, to the bit: probe_rate's press (contact in
+    about a quarter of its ticks) and its work included."""
+    session = load_session("probe_rate").with_changes(duration=2.0)
+    with tempfile.TemporaryDirectory() as tmp:
+        logged = run_session(session, out_dir=Path(tmp), plots=False).summary
+    alone = run_session(session, out_dir=None, plots=False).summary
+    assert logged["contact_fraction"] > 0.1
+    assert logged["work_eq13"] > 0.0
+    for s in (logged, alone):
+        del s["timing"], s["real_time_factor"]
+    assert alone == logged
+
+
+def test_an_observer_after_metrics_alone_still_reads_the_whole_row() -> None:
+    """The metrics' partial write does not count as the tick's fill: a later observer asking for
+    the row gets the grip pose and the hand wrench of this tick."""
+    session = load_session("probe_rate")
+    loop = ServoLoop(LoopConfig.from_session(session))
+    loop.observe(SessionMetrics(loop.record, None, 600, loop.dt))
+    block = loop.record.block
+    assert block is not None
+    grip, hand = block.starts["grip"], block.starts["hand_G"]
+    seen: list[bool] = []
+
+    class Reader:
+        def on_tick(self, tick: TickRecord) -> None:
+            row = tick.state()
+            seen.append(
+                np.array_equal(row[grip : grip + 3], tick.reading.T_0_G[0:3, 3])
+                and np.array_equal(row[hand : hand + 6], tick.reading.wrench_G)
+            )
+
+    loop.observe(Reader())
+    op = OperatorScript.for_loop(session.data, loop)
+    for _ in range(600):
+        op.before_tick(loop)
+        loop.tick()
+    assert len(seen) == 600
+    assert all(seen)

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import fields, replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,12 +11,13 @@ import viser
 
 from app.controller.types import SlaveCommand
 from app.session.loop import LoopConfig, ServoLoop
+from app.session.script import OperatorScript
 from app.session.spec import load_session
 from app.slave.arm import ArmStatus
 from app.spatial import quat_to_matrix
 from app.web.headless import free_port
 from app.web.scene_view import SHOWN_RESOLUTION, WORLD_ORIGIN_V, SceneView
-from app.web.snapshot import Snapshot, take_snapshot
+from app.web.snapshot import MAX_SHOWN_CONTACTS, SNAPSHOT_BYTES, SharedSnapshot, Snapshot, take_snapshot
 
 
 def test_an_arm_out_of_reach_is_flagged_in_the_snapshot() -> None:
@@ -96,3 +98,49 @@ def test_the_scene_view_sends_only_what_a_pixel_would_show() -> None:
         assert label.text == "8.3 N"
     finally:
         server.stop()
+
+
+def _assert_same(read: Snapshot | None, taken: Snapshot) -> None:
+    assert read is not None
+    for f in fields(Snapshot):
+        a, b = getattr(read, f.name), getattr(taken, f.name)
+        if isinstance(b, np.ndarray):
+            np.testing.assert_array_equal(a, b, err_msg=f.name)
+            assert a.shape == b.shape, f.name
+        else:
+            assert a == b, f.name
+
+
+def test_a_published_snapshot_reads_back_as_taken() -> None:
+    """Through the shared buffer (arrays in the float block, the rest pickled): every field equal,
+    the hand target both held and let go, the free peg's pose and a contact's points included."""
+    session = load_session("peg_carry")
+    loop = ServoLoop(LoopConfig.from_session(session))
+    script = OperatorScript.for_loop(session.data, loop)
+    shared = SharedSnapshot()
+    assert shared.read() is None
+    for _ in range(session.data.n_ticks):
+        script.before_tick(loop)
+        if loop.tick().contact.count:
+            break
+    taken = take_snapshot(loop.record, np.eye(4), playing=Path("x.toml"), play_left=1.5, speed=2.0)
+    assert taken.contact_points_w.shape[0] > 0
+    assert taken.object_poses.shape == (1, 7)
+    assert taken.T_0_H is not None
+    shared.write(taken)
+    _assert_same(shared.read(), taken)
+    released = replace(taken, T_0_H=None, fault_message="stalled", paused=True)
+    shared.write(released)
+    _assert_same(shared.read(), released)
+
+
+def test_contacts_beyond_the_buffer_are_trimmed_for_display() -> None:
+    loop = ServoLoop(LoopConfig.from_session(load_session("probe_rate")))
+    many = np.ones((SNAPSHOT_BYTES // 8 // 3, 3))
+    taken = replace(take_snapshot(loop.tick(), np.eye(4)), contact_points_w=many, contact_normals_w=many)
+    shared = SharedSnapshot()
+    shared.write(taken)
+    read = shared.read()
+    assert read is not None
+    assert read.contact_points_w.shape == read.contact_normals_w.shape == (MAX_SHOWN_CONTACTS, 3)
+    _assert_same(replace(read, contact_points_w=many, contact_normals_w=many), taken)

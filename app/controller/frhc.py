@@ -39,7 +39,6 @@ from app.controller.record import (
 )
 from app.controller.safety import SafetyLimits
 from app.controller.types import Fault, FTReading, SlaveCommand, SlaveModel, Switches
-from app.device.dissipation import grip_decay_time
 from app.device.spec import DeviceSpec
 from app.spatial import Array, IntArray, wrench_transform
 
@@ -227,7 +226,6 @@ class FRHCController:
         rec["R_W_G"] = R_0_W.T @ kin.R_0_G
         rec["p_W_G"] = R_0_W.T @ (kin.p_0_G - kin.p_0_W)
         self._friction, self._damping, self._b_device = device_dissipation(device)
-        self._decay = grip_decay_time(device)
         # The compiled tick's arguments that stay the same objects for this controller's life.
         self._fixed_args: tuple[object, ...] = (*kin.fk_arrays, rec)
         # Eq 1 before the compiled tick, and what the device's coordinates are called in errors.
@@ -278,7 +276,6 @@ class FRHCController:
         rec["po_friction"] = settings.friction_credit * self._friction if observed else 0.0
         rec["po_damping"] = self._damping if observed else 0.0
         rec["po_count"] = self.device.encoder_step
-        rec["po_leak"] = self._decay if settings.leak else math.inf
         rec["pc_filter"] = settings.velocity_filter
         rec["pc_hold"] = settings.enabled and settings.hold_slave
         rec["pc_b_device"] = self._b_device

@@ -209,7 +209,6 @@ def controller_tick(
         r.po_friction[:],
         r.po_damping[:],
         r.po_count[:],
-        r.po_leak,
     )
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]

@@ -164,7 +164,6 @@ class PassivitySettings(Checked):
     hold_slave: bool = True
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
-    leak: bool = False
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -203,7 +202,6 @@ def observe_energy(
     friction: Array,
     damping: Array,
     count: Array,
-    leak: float,
 ) -> float:
     """PO step: the port's work plus the device's own sure dissipation, capped; returns ``E``.
 
@@ -219,8 +217,6 @@ def observe_energy(
         friction: Coulomb torque (N m or N) credited per unit of encoder travel, (n,).
         damping: Each joint's viscous damping (N m s/rad or N s/m), (n,).
         count: One encoder count of each joint (rad or m; 0 for ideal encoders), (n,).
-        leak: Time constant (s) with which a deficit (``E < 0``) relaxes toward zero (inf = none;
-            see "The leak" in the module docstring).
     """
     if dt <= 0.0:
         energy[0] = min(energy[0], cap)
@@ -230,10 +226,7 @@ def observe_energy(
         dq = qdot[j] * dt
         sure = max(abs(dq) - count[j], 0.0)
         change += -tau_prev[j] * dq + friction[j] * abs(dq) + damping[j] * sure * sure / dt
-    energy[0] += change
-    if energy[0] < 0.0:
-        energy[0] -= energy[0] * min(dt / leak, 1.0)
-    energy[0] = min(energy[0], cap)
+    energy[0] = min(energy[0] + change, cap)
     return energy[0]
 
 

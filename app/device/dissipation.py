@@ -39,53 +39,13 @@ def grip_damping_matrix(device: DeviceSpec) -> Array | None:
     damping = joint_damping(device)
     if not np.all(damping > 0.0):
         return None
-    J = _home_jacobian(device)[1]
-    return np.asarray(np.linalg.pinv(J @ (J.T / damping[:, None])))
-
-
-def _home_jacobian(device: DeviceSpec) -> tuple[mujoco.MjData, Array]:
-    """MuJoCo data of the nominal model at the home pose and the grip site's 6 x n Jacobian there
-    (rows: linear, then angular velocity of the grip point, in the device base {0})."""
     model = device.model
     data = mujoco.MjData(model)
     data.qpos[list(device.qpos_ids)] = device.data.home
-    mujoco.mj_forward(model, data)
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
     site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, device.data.grip_site)
     J = np.zeros((6, model.nv))
     mujoco.mj_jacSite(model, data, J[:3], J[3:], site)
-    return data, J[:, list(device.dof_ids)]
-
-
-def grip_inertia_matrix(device: DeviceSpec) -> Array:
-    """The device's translational inertia at the grip at the home pose, ``(J_v M^-1 J_v^T)^-1`` (kg), (3, 3).
-
-    ``M`` is the joint-space inertia of the device's MJCF plus each joint's ``plant.armature``,
-    ``J_v`` the linear rows of the grip site's Jacobian in {0} (a pseudo-inverse for a device
-    with fewer than three translational degrees of freedom).
-    """
-    data, J = _home_jacobian(device)
-    model = device.model
-    full = np.zeros((model.nv, model.nv))
-    mujoco.mj_fullM(model, data, full)
-    dofs = list(device.dof_ids)
-    M = full[np.ix_(dofs, dofs)] + np.diag(device.data.plant.per_joint("armature", device.n_joints))
-    Jv = J[0:3]
-    return np.asarray(np.linalg.pinv(Jv @ np.linalg.solve(M, Jv.T)))
-
-
-def grip_decay_time(device: DeviceSpec) -> float:
-    """The slowest time constant (s) with which the device's own damping removes the kinetic energy of
-    a free grip motion at the home pose: ``1 / (2 lambda_min(M_g^-1 B_g))``.
-
-    ``M_g`` is :func:`grip_inertia_matrix`, ``B_g`` the translational block of
-    :func:`grip_damping_matrix`: a grip moving freely along a generalised eigenvector ``v`` of
-    ``(B_g, M_g)`` loses kinetic energy at the rate ``2 (v.B_g v / v.M_g v) KE``, so the least
-    eigenvalue gives the slowest decay (Kraft / JPL / Freflex: 0.81 / 3.86 / 1.32 s). Inf when a
-    joint has no damping.
-    """
-    B = grip_damping_matrix(device)
-    if B is None:
-        return float("inf")
-    rates = np.linalg.eigvals(np.linalg.solve(grip_inertia_matrix(device), B[0:3, 0:3])).real
-    slowest = float(rates.min())
-    return 0.5 / slowest if slowest > 0.0 else float("inf")
+    J = J[:, list(device.dof_ids)]
+    return np.asarray(np.linalg.pinv(J @ (J.T / damping[:, None])))

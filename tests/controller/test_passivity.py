@@ -26,7 +26,7 @@ from app.session.stability import RELEASED, grip_damping
 T = 1e-3
 INF = float("inf")
 #: The observer's device credit left out (friction, damping, count of one joint): the motors' port alone.
-NO_DEVICE = (np.zeros(1), np.zeros(1), np.zeros(1), INF)
+NO_DEVICE = (np.zeros(1), np.zeros(1), np.zeros(1))
 
 
 def observed(q: np.ndarray, tau_held: np.ndarray) -> np.ndarray:
@@ -64,15 +64,15 @@ def test_the_observer_credits_the_device_friction_per_count_and_its_damping_beyo
     cap still bounds the bank."""
     friction, damping, count = np.array([0.06]), np.array([0.04]), np.array([1e-3])
     e = np.zeros(1)
-    observe_energy(e, np.zeros(1), np.array([1e-3 / T]), T, INF, friction, damping, count, INF)
+    observe_energy(e, np.zeros(1), np.array([1e-3 / T]), T, INF, friction, damping, count)
     assert e[0] == pytest.approx(0.06e-3, rel=1e-12)
-    observe_energy(e, np.zeros(1), np.array([-3e-3 / T]), T, INF, friction, damping, count, INF)
+    observe_energy(e, np.zeros(1), np.array([-3e-3 / T]), T, INF, friction, damping, count)
     assert e[0] == pytest.approx(0.06e-3 + 0.18e-3 + 0.04 * 4e-6 / T, rel=1e-12)
     before = e[0]
-    observe_energy(e, np.array([2.0]), np.array([1e-3 / T]), T, INF, friction, damping, count, INF)
+    observe_energy(e, np.array([2.0]), np.array([1e-3 / T]), T, INF, friction, damping, count)
     assert e[0] == pytest.approx(before - 2e-3 + 0.06e-3, rel=1e-12)
     e[0] = 0.0
-    observe_energy(e, np.zeros(1), np.array([-3e-3 / T]), T, 1e-4, friction, damping, count, INF)
+    observe_energy(e, np.zeros(1), np.array([-3e-3 / T]), T, 1e-4, friction, damping, count)
     assert e[0] == 1e-4
 
 

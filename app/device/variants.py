@@ -13,7 +13,12 @@ What a variant can change (each left at ``None``/1 keeps the shipped value):
 - ``damping_scale``: factor on every joint's viscous damping (``plant.damping``).
 - ``armature``: reflected rotor inertia added to every joint (kg m^2, ``plant.armature``).
 - ``friction``: ``False`` removes the Coulomb friction (``plant.frictionloss`` = 0).
-- ``mass_scale``: factor on every link's mass and inertia (``plant.mass_scale``).
+- ``mass_scale``: factor on every link's mass and rotational inertia in the device's MJCF: a
+  heavier device its file describes, so the controller's gravity compensation (from the nominal
+  model) carries the added weight; the plant's few-percent mismatch (``plant.mass_scale``) stays
+  as shipped. Scaling ``plant.mass_scale`` instead would make the device's model wrong by the whole
+  factor: the heavy Kraft then sags 23 mm onto the surface under 6 N of uncompensated weight
+  before the hand pushes, and every renderer pushes the slave to its limit (measured: issue 26).
 - ``gear_scale``: factor on every gear ratio (``motors.gear_ratio``): the same motors through
   another reduction, so the joint torque limit scales with it.
 """
@@ -40,7 +45,7 @@ class DeviceVariant(Checked):
         damping_scale: Factor on the joints' viscous damping (-).
         armature: Rotor inertia added to every joint (kg m^2; kg for slides).
         friction: Keep the joints' Coulomb friction (``False`` = none).
-        mass_scale: Factor on every link's mass and inertia (-).
+        mass_scale: Factor on every link's mass and rotational inertia in the MJCF (-).
         gear_scale: Factor on every gear ratio (-).
     """
 
@@ -77,6 +82,22 @@ def _rewrite(text: str, key: str, values: list[float] | list[int]) -> str:
     return new
 
 
+def _scale_inertials(mjcf: str, scale: float) -> str:
+    """``mjcf`` (MJCF text) with every ``<inertial>``'s ``mass`` (kg) and ``diaginertia`` (kg m^2)
+    multiplied by ``scale``; the centres of mass stay."""
+
+    def values(match: re.Match[str]) -> str:
+        return f'{match.group(1)}="{" ".join(repr(float(v) * scale) for v in match.group(2).split())}"'
+
+    def inertial(match: re.Match[str]) -> str:
+        return re.sub(r'\b(mass|diaginertia)="([^"]*)"', values, match.group(0))
+
+    new, count = re.subn(r"<inertial\b[^>]*>", inertial, mjcf)
+    if count == 0:
+        raise ValueError("device MJCF has no <inertial> to scale")
+    return new
+
+
 def write_variant(device: str | Path, variant: DeviceVariant, folder: Path) -> Path:
     """Copy ``device`` (a name or device file) into ``folder`` as ``variant``; returns its ``device.toml``."""
     spec = load_device(device)
@@ -97,8 +118,8 @@ def write_variant(device: str | Path, variant: DeviceVariant, folder: Path) -> P
     if not variant.friction:
         text = _rewrite(text, "frictionloss", [0.0] * n)
     if variant.mass_scale != 1.0:
-        mass = plant.per_joint("mass_scale", n) * variant.mass_scale
-        text = _rewrite(text, "mass_scale", [float(v) for v in mass])
+        mjcf = target / spec.data.mjcf
+        mjcf.write_text(_scale_inertials(mjcf.read_text(), variant.mass_scale))
     if variant.gear_scale != 1.0:
         text = _rewrite(text, "gear_ratio", [g * variant.gear_scale for g in motors.gear_ratio])
     path.write_text(text)

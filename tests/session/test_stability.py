@@ -5,13 +5,14 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from app.controller.passivity import PassivitySettings
 from app.device.hand import HandParams
 from app.device.variants import DeviceVariant, write_variant
 from app.session.run import run_session
-from app.session.spec import load_session
+from app.session.spec import Waypoint, load_session
 from app.session.stability import (
     PUSH_DEPTHS,
     design_stiffness,
@@ -19,9 +20,11 @@ from app.session.stability import (
     grip_damping,
     passivity_bound,
     press,
+    press_session,
     probe_scene_with_stiffness,
     push_depths,
 )
+from app.session.tick import TickRecord
 from app.world.scene import available_scenes, load_scene
 
 ENC20 = DeviceVariant("enc20", encoder_bits=20)
@@ -231,3 +234,32 @@ def test_on_a_coarse_encoder_the_hold_keeps_the_hand_from_pushing_the_slave_thro
     held = press(1e5, "pose", device=device, gains=gains, passivity=PassivitySettings(enabled=True))
     assert held.stable, held
     assert held.mean_force < 0.5 * 40.0
+
+
+class _GripHeight:
+    """Tick observer: the grip's true height (m, z of {0}) every tick."""
+
+    def __init__(self) -> None:
+        self.z: list[float] = []
+
+    def on_tick(self, tick: TickRecord) -> None:
+        self.z.append(float(tick.reading.T_0_G[2, 3]))
+
+
+def test_a_heavy_link_variant_is_a_heavier_device_its_controller_compensates(tmp_path: Path) -> None:
+    """Issue 26's heavy-link rows failed for every renderer because the variant made the Kraft's
+    model wrong, not heavier: its links twice the MJCF's mass left ~6 N of weight uncompensated,
+    and the grip sank 23 mm onto the surface before the hand pushed. As a heavier device its file
+    describes, the hand holding the grip still for a second keeps it within a millimetre of where
+    it started, and a soft hand's press at a quarter of the with-hand bound holds its wall."""
+    heavy = str(write_variant("kraft", DeviceVariant("heavy2", mass_scale=2.0), tmp_path))
+    height = _GripHeight()
+    scene = probe_scene_with_stiffness(1e5, 3.0, tmp_path)
+    still = press_session(scene, "pose", seconds=1.0, device=heavy, waypoints=(Waypoint(0.3),))
+    run_session(still, out_dir=None, plots=False, observers=(height,))
+    assert np.ptp(height.z) < 1e-3
+    soft = HandParams(stiffness_trans=100.0, damping_trans=1.0)
+    k_t = 0.25 * passivity_bound(heavy, hand=soft) / design_stiffness(1.0, device=heavy)
+    held = press(1e5, "pose", device=heavy, gains={"k_t": [k_t] * 3 + [1.0] * 3}, hand=soft)
+    assert held.stable
+    assert not held.pushed_through

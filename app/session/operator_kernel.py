@@ -18,13 +18,19 @@ from app.controller.kernel import _zyx_to_matrix
 from app.slave.tool_kernel import _apply, _mul
 from app.spatial import Array, IntArray, rotation_exp, rotation_log
 
+# The strategy's constants. Their class (docs/experiment.md, "Every parameter of the physical
+# model"): OVERSHOOT and CLEAR define the task (class b, reason given there); the others model the
+# operator's behaviour (class a) and have no source: no stored study gives these figures.
+
 #: Distance (m) below which the intended tool speed falls in proportion to the distance left.
 SLOW_DISTANCE = 0.01
-#: How far (m) past the task's goal depth the operator pushes: to the bottom of the holes.
+#: How far (m) past the task's goal depth the operator pushes: to the bottom of the holes (the
+#: holes are 25 mm deep, the goal 20 mm: the task is to bottom the pegs out).
 OVERSHOOT = 0.01
 #: Time (s) without seen progress, past the goal depth, after which the pegs are seen to have bottomed out.
 BOTTOM_S = 0.3
-#: Height (m) above the goal at which the withdrawn tool is seen clear and the operator is done.
+#: Height (m) above the goal at which the withdrawn tool is seen clear and the operator is done
+#: (the peg tips 5 mm above the block: the task's end).
 CLEAR = 0.025
 #: Time (s) the operator holds the pegs at depth once they see them there.
 HOLD_S = 0.3
@@ -35,7 +41,9 @@ STALL_S = 1.0
 #: force no faster than they move by choice (a modelling bound, not from a source). Unbounded, a
 #: 1.35 N threshold meeting 15 N sent the hand target 0.38 m out and tripped the velocity brake.
 YIELD_MAX = 1.0
-#: Tool speed (m/s) over which the learned rate inverse crosses the deadband.
+#: Tool speed (m/s) over which the learned rate inverse crosses the deadband: how finely the
+#: operator commands slow motion (not a numerical width: it decides whether a small lateral intent
+#: leaves the deadband).
 V_DB = 0.002
 #: Tool angular speed (rad/s) over which the learned rate inverse crosses the rotational deadband.
 W_DB = 0.02

@@ -36,8 +36,10 @@ Parameter ranges of the population (:data:`POPULATION`) and their sources:
 
 - Hand stiffness 150-800 N/m and damping 5-25 N s/m: endpoint impedance of the human arm in
   maintained posture, Mussa-Ivaldi, Hogan & Bizzi (1985), J. Neurosci. 5(10):2732-2743, and
-  Tsuji, Morasso, Goto & Ito (1995), Biol. Cybern. 72:475-485 (the figures were not verified
-  from stored material).
+  Tsuji, Morasso, Goto & Ito (1995), Biol. Cybern. 72:475-485 (the range was not verified from
+  stored material). One measured point was: van Beek, Bergmann Tiest, Mugge & Kappers (2015), Sci.
+  Rep. 5:18004, Fig. 3 caption, one trial of one participant holding a haptic device's handle:
+  K = 135 N/m, B = 6.45 N s/m, M = 0.554 kg (the same magnitude; one trial gives no range).
 - Visual reaction delay 0.15-0.25 s: simple visual reaction times (Welford (1980), *Reaction
   Times*, Academic Press; Card, Moran & Newell (1983), *The Psychology of Human-Computer
   Interaction*, the perceive-decide-act cycle of ~240 ms with a range of ~100-470 ms). Confirmed
@@ -47,10 +49,16 @@ Parameter ranges of the population (:data:`POPULATION`) and their sources:
   Johansson & Westling (1987), Exp. Brain Res. 66:141-154 (grip responses ~60-100 ms), and
   voluntary reactions to kinesthetic stimuli (~120-150 ms). The lower bound is confirmed by Cole &
   Abbs (1988), J. Neurophysiol. 60(4):1513-1522, abstract: grip force increases "from 60 to 90 ms
-  after onset of the load force increase"; the upper bound was not verified.
+  after onset of the load force increase". The upper bound is derived (secondary): Chernikoff &
+  Taylor (1952), "Reaction time to kinesthetic stimulation resulting from sudden arm
+  displacement", abstract: the kinesthetic reaction time lies "within the range" of kinesthetic,
+  auditory and tactual key-release reactions; auditory "muscular" simple reactions take 123-137 ms
+  (Lange, tabulated by Titchener (1895), "Simple reactions", Mind).
 - Force threshold 1-5 N: contact forces of a few newtons held in force-reflecting peg-in-hole
   insertions, Hannaford, Wood, McAffee & Zak (1991), IEEE Trans. SMC 21(3):620-633 (not
-  verified from stored material).
+  verified from stored material). Not to be confused with the force discrimination threshold,
+  a just-noticeable difference of about 7 % over 2.5-10 N (Pang, Tan & Durlach (1991), abstract):
+  this threshold is the force a person tolerates before giving way, a behaviour.
 - Tremor 5.4-126 um (standard deviation, low-passed at 8 Hz): postural hand tremor of 97 normal
   subjects, "A normative study of postural tremor of the hand", Arch. Neurol. 39(6):358-362
   (1982), abstract: 0.0015-0.035 g peak at the dominant frequency, about 7 Hz. As displacement,
@@ -73,8 +81,9 @@ Parameter ranges of the population (:data:`POPULATION`) and their sources:
   abstract saying the hand's input/output bandwidths are asymmetric). Drawn from its own random
   stream (:func:`sample_population`), so it leaves every other value of every operator as it was.
 - Approach speed 20-50 mm/s: *not* from the literature (no stored source gives a teleoperated
-  insertion speed); a task choice spanning a careful to a brisk insertion. Nothing here is fitted
-  to the paper's Table I.
+  insertion speed): the operator's behaviour without a source, spanning a careful to a brisk
+  insertion. Nothing here is fitted to the paper's Table I. Every value's class (physical model,
+  design choice, numerical) and status: ``docs/experiment.md``.
 """
 
 from __future__ import annotations

@@ -10,7 +10,8 @@ it has one), the tool.
 
 Zoom about what is under the cursor, two ways: the page's camera controls dolly toward the cursor
 (:data:`DOLLY_TO_CURSOR_JS`), and a click on a mesh makes the clicked surface point the orbit
-centre (:func:`ray_hit` finds it, :func:`recentre` moves the camera onto it).
+centre (:meth:`app.web.scene_view.SceneView.pick` finds it with trimesh's ray test, :func:`recentre`
+moves the camera onto it).
 """
 
 from __future__ import annotations
@@ -113,25 +114,6 @@ def recentre(pose: CameraPose, point: Array) -> CameraPose:
     """``pose`` moved (not turned) so that it looks at ``point`` (viser frame, m) from the same
     direction and distance: the point clicked becomes the centre the view orbits and zooms about."""
     return CameraPose(position=point + (pose.position - pose.look_at), look_at=np.asarray(point, dtype=float))
-
-
-def ray_hit(origin: Array, direction: Array, vertices: Array, faces: Array) -> float | None:
-    """Distance along the ray ``origin + t * direction`` (unit ``direction``; m) to the nearest
-    triangle of a mesh (``vertices`` (n, 3) in the ray's frame, ``faces`` (m, 3)) it meets in front
-    of ``origin``, or None. Moller-Trumbore, both faces of each triangle."""
-    a, b, c = (vertices[faces[:, i]] for i in range(3))
-    e1, e2 = b - a, c - a
-    p = np.cross(direction, e2)
-    det = np.einsum("ij,ij->i", e1, p)
-    ok = np.abs(det) > 1e-12  # a triangle seen edge-on is not hit
-    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-    s = origin - a
-    u = np.einsum("ij,ij->i", s, p) * inv
-    q = np.cross(s, e1)
-    v = (q @ direction) * inv
-    t = np.einsum("ij,ij->i", e2, q) * inv
-    hit = ok & (u >= 0.0) & (v >= 0.0) & (u + v <= 1.0) & (t > 0.0)
-    return float(t[hit].min()) if np.any(hit) else None
 
 
 #: Run in each page: its camera controls (camera-controls, which viser 1.1.1 drives) dolly toward

@@ -22,7 +22,6 @@ import viser
 
 from app.session.loop import ServoLoop
 from app.spatial import Array, invert_pose, make_pose, matrix_to_quat, quat_to_matrix
-from app.web.camera import ray_hit
 from app.web.snapshot import Snapshot
 from app.world.scene import Scene
 
@@ -190,7 +189,7 @@ class SceneView:
         self._last_points: dict[str, Array] = {}
         #: The meshes a click can land on: handle, vertices (n, 3) and faces (m, 3) in its own frame,
         #: and where its parent's frame is in the viser frame (m).
-        self._pickable: list[tuple[viser.MeshHandle, Array, Array, Array]] = []
+        self._pickable: list[tuple[viser.MeshHandle, trimesh.Trimesh, Array]] = []
 
         self._add(scene.add_frame("/device", axes_length=0.08, axes_radius=0.003, position=DEVICE_ORIGIN_V))
         self._add(scene.add_label("/device/label", "device base {0}", position=(0.0, 0.0, -0.03)))
@@ -324,7 +323,7 @@ class SceneView:
 
     def _mesh(self, handle: viser.MeshHandle, mesh: trimesh.Trimesh, parent_v: Array) -> viser.MeshHandle:
         """Keep a mesh node (whose parent frame is at ``parent_v``) for :meth:`pick`."""
-        self._pickable.append((handle, np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces), parent_v))
+        self._pickable.append((handle, mesh, parent_v))
         return self._add(handle)
 
     def pick(self, origin: Array, direction: Array) -> Array | None:
@@ -332,14 +331,17 @@ class SceneView:
         frame) meets a shown mesh, at the pose last sent to the browsers; None if it meets none."""
         direction = direction / np.linalg.norm(direction)
         nearest: float | None = None
-        for handle, vertices, faces, parent_v in self._pickable:
+        for handle, mesh, parent_v in self._pickable:
             if not handle.visible:
                 continue
             R = quat_to_matrix(np.asarray(handle.wxyz, dtype=float))
             # The ray in the mesh's frame (its parent is translated only: /world sits at WORLD_ORIGIN_V).
-            t = ray_hit(R.T @ (origin - parent_v - handle.position), R.T @ direction, vertices, faces)
-            if t is not None and (nearest is None or t < nearest):
-                nearest = t
+            o_m = R.T @ (origin - parent_v - handle.position)
+            hits, _, _ = mesh.ray.intersects_location([o_m], [R.T @ direction], multiple_hits=False)
+            if len(hits):
+                t = float((hits[0] - o_m) @ (R.T @ direction))
+                if t > 0.0 and (nearest is None or t < nearest):
+                    nearest = t
         return None if nearest is None else origin + nearest * direction
 
     def remove(self) -> None:

@@ -90,7 +90,7 @@ def run_session(
             priority (:func:`~app.session.pacer.raise_priority`, for the ticks only); the
             summary then has the pacing figures under ``pacing`` and the scheduling obtained
             under ``scheduling``.
-        flush_interval: Simulated seconds of ticks per log part: the most a crash can lose (s).
+        flush_interval: Simulated seconds of ticks per write to the log: the most a crash can lose (s).
         operator: Makes the operator from the new loop (default: the session's script). An
             operator whose ``finished`` attribute turns true ends the session before its duration.
         observers: Further tick observers, added after the log and the metrics.

@@ -129,7 +129,7 @@ class TickLog:
         """Writer thread: append ``rows`` to the tail; write the part once it has its ticks."""
         if self._tail is None:
             self._tail = os.open(self.directory / _tail_name(self._parts), os.O_WRONLY | os.O_CREAT | os.O_APPEND)
-        data = memoryview(rows).cast("B")
+        data = rows.data.cast("B")
         while data:  # a regular file takes the whole write unless the disk fills (then it raises)
             data = data[os.write(self._tail, data) :]
         self._kept.append(rows)

@@ -116,7 +116,7 @@ class StateBlock:
         self.row = np.zeros(len(self.names))
         self._no_hand = np.full((4, 4), np.nan)
         self._hand = np.empty((4, 4))
-        self._hand_checked = self._no_hand
+        self._hand_checked: Array | None = self._no_hand
         self._fill: Callable[..., None] | None = None
         self.serial = -1
         self._sources: tuple[object, ...] = (None, None, None)

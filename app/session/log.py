@@ -52,9 +52,9 @@ def log_columns(n_joints: int, objects: tuple[str, ...] = ()) -> list[str]:
 META_FILE = "_meta.json"
 #: Simulated seconds of ticks per Parquet part (the tail holds the part being gathered).
 PART_SECONDS = 2.0
-#: Parts handed to the writer thread and not yet on disk before ``flush`` waits (bounds memory if
-#: the disk stalls; the loop never waits while the writer keeps up).
-MAX_PENDING_PARTS = 64
+#: Flushes handed to the writer thread and not yet written before ``flush`` waits (bounds memory
+#: if the disk stalls; the loop never waits while the writer keeps up).
+MAX_PENDING_FLUSHES = 64
 
 
 class TickLog:
@@ -66,7 +66,7 @@ class TickLog:
     fills the next buffer, so recording does not stall a paced loop.
 
     Args:
-        directory: Created if missing; existing part files are removed first.
+        directory: Created if missing; existing parts and tails are removed first.
         n_joints: Joints of the device (sets the columns).
         period: Servo period (s).
         flush_interval: Simulated seconds of ticks per write to the tail: the most a crash can lose.
@@ -121,7 +121,7 @@ class TickLog:
         """Hand the buffered rows to the writer thread (appended to the tail at once)."""
         if self._rows == 0:
             return
-        self._collect(wait=len(self._pending) >= MAX_PENDING_PARTS)
+        self._collect(wait=len(self._pending) >= MAX_PENDING_FLUSHES)
         self._pending.append(self._writer.submit(self._append, self._buf[: self._rows].copy()))
         self._rows = 0
 
@@ -171,10 +171,15 @@ class TickLog:
         """Write what is buffered as the last part and wait until every part is on disk."""
         self.flush()
         self._pending.append(self._writer.submit(self._write_part))
-        for future in self._pending:
-            future.result()
-        self._pending.clear()
-        self._writer.shutdown()
+        try:
+            for future in self._pending:
+                future.result()
+        finally:
+            self._pending.clear()
+            self._writer.shutdown()
+            if self._tail is not None:  # a write failed (the disk is full): the tail stays as it is
+                os.close(self._tail)
+                self._tail = None
 
 
 def _tail_name(part: int) -> str:

@@ -341,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--flush-interval",
         type=_positive_seconds,
         default=0.1,
-        help="simulated seconds of ticks per log part: the most a crash can lose (default 0.1)",
+        help="simulated seconds of ticks per write to the log (its tail): the most a crash can lose (default 0.1)",
     )
     p.add_argument(
         "--device",

@@ -23,6 +23,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from app.cli import main
+from app.session.log import PART_SECONDS
 from app.session.run import run_session
 from app.session.spec import load_session
 
@@ -139,9 +140,9 @@ def test_full_and_read_only_file_systems_are_one_line(
 
 @pytest.fixture(scope="module")
 def log_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A real three-part log of a 0.3 s probe session."""
+    """A real three-part log of a probe session (two parts of PART_SECONDS and a last one)."""
     out = tmp_path_factory.mktemp("run")
-    session = load_session("probe_rate").with_changes(duration=0.3)
+    session = load_session("probe_rate").with_changes(duration=2 * PART_SECONDS + 0.2)
     run_session(session, out_dir=out, plots=False)
     assert len(list((out / "log").glob("part-*.parquet"))) == 3
     return out / "log"

@@ -116,6 +116,7 @@ class StateBlock:
         self.row = np.zeros(len(self.names))
         self._no_hand = np.full((4, 4), np.nan)
         self._hand = np.empty((4, 4))
+        self._hand_checked: Array | None = self._no_hand
         self._fill: Callable[..., None] | None = None
         self.serial = -1
         self._sources: tuple[object, ...] = (None, None, None)
@@ -144,9 +145,13 @@ class StateBlock:
             )  # fmt: skip
         hand_on = tick.hand_on
         hand = tick.hand_target if hand_on else self._no_hand
-        if not is_f8(hand, (4, 4)):
-            self._hand[:] = hand
-            hand = self._hand
+        if hand is not self._hand_checked:
+            # The loop passes its own (4, 4) array every tick: checked once, not every tick.
+            if is_f8(hand, (4, 4)):
+                self._hand_checked = hand
+            else:
+                self._hand[:] = hand
+                hand = self._hand
         args = (
             *self._arrays, reading.T_0_G, reading.wrench_G, hand, hand_on, *self.observed(tick),
         )  # fmt: skip

@@ -395,13 +395,13 @@ def test_realtime_run_against_a_served_device_raises_its_priority_for_the_ticks_
     from app.session.pacer import SCHEDULING
 
     writer_policies: list[int] = []
-    write = TickLog._write
+    append = TickLog._append
 
-    def recording_write(self: TickLog, *args: object) -> None:
+    def recording_append(self: TickLog, *args: object) -> None:
         writer_policies.append(os.sched_getscheduler(0))
-        write(self, *args)  # type: ignore[arg-type]
+        append(self, *args)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(TickLog, "_write", recording_write)
+    monkeypatch.setattr(TickLog, "_append", recording_append)
     before = os.sched_getscheduler(0), os.getpriority(os.PRIO_PROCESS, 0)
     out = tmp_path / "out"
     argv = ["run", str(session_file(tmp_path, 0.5)), "--out", str(out), "--no-plots", "--realtime"]
@@ -409,7 +409,7 @@ def test_realtime_run_against_a_served_device_raises_its_priority_for_the_ticks_
     summary = json.loads((out / "summary.json").read_text())
     assert summary["scheduling"] in SCHEDULING[1:]  # SCHED_FIFO where permitted, else a lower niceness
     assert f"at {summary['scheduling']}" in capsys.readouterr().out
-    assert set(writer_policies) == {os.SCHED_OTHER}  # parts were written, all at ordinary scheduling
+    assert set(writer_policies) == {os.SCHED_OTHER}  # rows were written, all at ordinary scheduling
     assert (os.sched_getscheduler(0), os.getpriority(os.PRIO_PROCESS, 0)) == before
 
 

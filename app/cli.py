@@ -70,7 +70,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     for p in result.plots:
         print(f"plot:     {p}")
     print(
-        f"work (Eq 13): {s['work_eq13']:.4f}   peak force: {s['peak_contact_force_N']:.2f} N   faults: {s['faults'] or 'none'}"
+        f"work (Eq 13): {s['work_eq13']:.3g} J   peak force: {s['peak_contact_force_N']:.2f} N   faults: {s['faults'] or 'none'}"
     )
     tick = s["timing"]["tick"]
     print(

@@ -46,7 +46,19 @@ class ControllerGains(Checked):
         assist_fraction: Fraction (0, 1] of motor capacity the assist torques tau_RD may use
             (Eq 11); tau_RD is scaled uniformly to fit.
         remove_payload: Subtract the end-effector/payload weight from the F/T reading.
-        remove_inertia: Also subtract the payload's inertial load (needs the slave's accelerations).
+        remove_inertia: Also subtract the payload's inertial load, so only the contact wrench is
+            reflected (:func:`~app.controller.payload.add_inertial_load`). Needs the linear and
+            angular acceleration of {S} and the tool's angular velocity in the reading
+            (:class:`~app.controller.types.FTReading`): both simulated slaves report the
+            accelerations their integrator applied; a real slave must supply its arm's joint
+            accelerations mapped through the Jacobian (``J qdd + Jdot qd``) or a filtered
+            estimate (encoder positions differentiated twice and low-passed, or an
+            accelerometer at the sensor less gravity), whose lag puts the inertial load back
+            late. Off by default, by measurement (issue 26, 81 pose-mode presses at 0.25-4x
+            the bound): the sensor's reading is the force the tool's mass transmits, which
+            filters the impact on a stiff surface; reflecting the contact force alone passes
+            the impact on (peak reflected force 238 N instead of 124 N on a released Freflex
+            at 2x), and plain rendering held 12 walls instead of 26 (PO/PC 34 instead of 21).
         gravity_compensation: Add tau_G (Sec 3.3). On by default and independent of the deadman.
         euler_taper_deg: ``(start, stop)`` |beta| in degrees over which the rotational rate command
             is tapered to zero near the Z-Y-X singularity cos(beta) = 0.

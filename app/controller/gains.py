@@ -54,11 +54,11 @@ class ControllerGains(Checked):
             accelerations mapped through the Jacobian (``J qdd + Jdot qd``) or a filtered
             estimate (encoder positions differentiated twice and low-passed, or an
             accelerometer at the sensor less gravity), whose lag puts the inertial load back
-            late. Off by default, by measurement (issue 26, 81 pose-mode presses at 0.25-4x
-            the bound): the sensor's reading is the force the tool's mass transmits, which
-            filters the impact on a stiff surface; reflecting the contact force alone passes
-            the impact on (peak reflected force 238 N instead of 124 N on a released Freflex
-            at 2x), and plain rendering held 12 walls instead of 26 (PO/PC 34 instead of 21).
+            late. Off by default, by measurement (issue 26; ``docs/conventions.md``, "The
+            reflected wrench is the sensor's reading"): the reading is the force the tool's
+            mass transmits, which filters the impact on a stiff surface; reflecting the contact
+            force alone passes the impact on, and plain rendering held 26 instead of 39 of the
+            84 shipped-device test walls (PO/PC 71 instead of 62, felt softer).
         gravity_compensation: Add tau_G (Sec 3.3). On by default and independent of the deadman.
         euler_taper_deg: ``(start, stop)`` |beta| in degrees over which the rotational rate command
             is tapered to zero near the Z-Y-X singularity cos(beta) = 0.

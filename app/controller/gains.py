@@ -58,7 +58,8 @@ class ControllerGains(Checked):
             reflected wrench is the sensor's reading"): the reading is the force the tool's
             mass transmits, which filters the impact on a stiff surface; reflecting the contact
             force alone passes the impact on, and plain rendering held 26 instead of 39 of the
-            84 shipped-device test walls (PO/PC 71 instead of 62, felt softer).
+            84 shipped-device test walls, 58 instead of 121 of 216 held-out ones (PO/PC 71 and
+            193 instead of 62 and 158, but felt softer).
         gravity_compensation: Add tau_G (Sec 3.3). On by default and independent of the deadman.
         euler_taper_deg: ``(start, stop)`` |beta| in degrees over which the rotational rate command
             is tapered to zero near the Z-Y-X singularity cos(beta) = 0.

@@ -216,9 +216,11 @@ def bench_stability(quick: bool = False, window: float = SETTLE_WINDOW) -> str:
     the hand, :func:`~app.session.stability.grip_damping`). Felt stiffness is the secant between
     the press's two plateaus of rendered force and grip position
     (:class:`~app.session.stability.FeltStiffness`). *Stable* is settled with the motors and the
-    slave within their limits (:attr:`~app.session.stability.PressResult.stable`): SATURATED is a
-    wall held at the motors' limit, PUSHED IN one the hand pushed the slave through to its force
-    limit. Each device runs as shipped with each hand of :data:`~app.session.stability.HANDS`
+    slave within their limits (:attr:`~app.session.stability.PressResult.stable`); otherwise the
+    row says why (:attr:`~app.session.stability.PressResult.verdict`): OSCILLATES, SATURATED (the
+    motors at their limit through the judged window: the device lacks the capacity for the push,
+    gravity compensation is scaled down with the wall, not a stability failure) or PUSHED IN (the
+    hand pushed the slave through to its force limit with the motors within capacity). Each device runs as shipped with each hand of :data:`~app.session.stability.HANDS`
     and with the hand let go, and as each variant of :data:`~app.device.variants.VARIANTS` (20-bit
     encoders separate the quantisation limit from the passivity bound). ``window``: how long (s)
     the hand holds each wall while its force is judged (the issue's bar: 8 s).
@@ -302,9 +304,13 @@ def _wall_rows(
     return lines
 
 
+#: How the bench prints each :attr:`~app.session.stability.PressResult.verdict`.
+_VERDICT_WORDS = {"stable": "stable", "oscillating": "OSCILLATES", "saturated": "SATURATED", "pushed": "PUSHED IN"}
+
+
 def _judged(r: PressResult) -> str:
     """A press's verdict, ripple and felt stiffness, in fixed width."""
-    state = "stable" if r.stable else "OSCILLATES" if not r.settled else "SATURATED" if r.saturated else "PUSHED IN"
+    state = _VERDICT_WORDS[r.verdict]
     return f"{state:>10} (ripple {r.ripple:6.2f} N, felt {r.felt_stiffness:7,.0f} N/m)"
 
 

@@ -46,7 +46,20 @@ class ControllerGains(Checked):
         assist_fraction: Fraction (0, 1] of motor capacity the assist torques tau_RD may use
             (Eq 11); tau_RD is scaled uniformly to fit.
         remove_payload: Subtract the end-effector/payload weight from the F/T reading.
-        remove_inertia: Also subtract the payload's inertial load (needs the slave's accelerations).
+        remove_inertia: Also subtract the payload's inertial load, so only the contact wrench is
+            reflected (:func:`~app.controller.payload.add_inertial_load`). Needs the linear and
+            angular acceleration of {S} and the tool's angular velocity in the reading
+            (:class:`~app.controller.types.FTReading`): both simulated slaves report the
+            accelerations their integrator applied; a real slave must supply its arm's joint
+            accelerations mapped through the Jacobian (``J qdd + Jdot qd``) or a filtered
+            estimate (encoder positions differentiated twice and low-passed, or an
+            accelerometer at the sensor less gravity), whose lag puts the inertial load back
+            late. Off by default, by measurement (issue 26; ``docs/conventions.md``, "The
+            reflected wrench is the sensor's reading"): the reading is the force the tool's
+            mass transmits, which filters the impact on a stiff surface; reflecting the contact
+            force alone passes the impact on, and plain rendering held 26 instead of 39 of the
+            84 shipped-device test walls, 58 instead of 121 of 216 held-out ones (PO/PC 71 and
+            193 instead of 62 and 158, but felt softer).
         gravity_compensation: Add tau_G (Sec 3.3). On by default and independent of the deadman.
         euler_taper_deg: ``(start, stop)`` |beta| in degrees over which the rotational rate command
             is tapered to zero near the Z-Y-X singularity cos(beta) = 0.

@@ -42,7 +42,8 @@ class FTReading:
             + payload weight - payload inertial load), as a real sensor measures it.
         R_w_S: Orientation of {S} in the slave world {w}, shape (3, 3); gives gravity in {S}.
         acc_w: Linear acceleration (m/s^2) of the {S} origin and angular acceleration (rad/s^2)
-            of the tool, in {w}, shape (6,). Only used when inertial removal is on.
+            of the tool, in {w}, shape (6,). Only used when inertial removal is on
+            (:attr:`~app.controller.gains.ControllerGains.remove_inertia`: what a real slave supplies).
         omega_w: Angular velocity (rad/s) of the tool in {w}, shape (3,).
         valid: False when the world could not produce a trustworthy reading (failed or
             non-finite contact query); the controller then reflects nothing and flags a fault.

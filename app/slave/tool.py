@@ -71,6 +71,8 @@ _ZERO6.flags.writeable = False
 _ZERO15 = np.zeros(15)
 # The dynamic objects' poses of a scene with none (left writeable for the same reason).
 _NO_OBJECTS = np.zeros((0, 7))
+# No contact rows (a result without contacts shares a read-only empty array).
+_NO_ROWS = np.zeros((0, 9))
 SHAPE_6, SHAPE_44 = (6,), (4, 4)
 
 
@@ -282,13 +284,27 @@ class VirtualSlave(SlaveBase):
         self.status = 0  # the ideal tool always follows (its limits are the PD's saturation)
         self.link_force = 0.0  # it has no links for the world to touch
         self.reset()
+        # Stiffness, damping and friction per contact object id (static objects, then dynamic).
+        self._materials = np.array(
+            [(o.stiffness, o.damping, o.friction) for o in (*scene.objects, *(b.object for b in scene.bodies))],
+            dtype=float,
+        ).reshape(-1, 3)
         # The substep's arguments that are the slave's own arrays, the same objects every call.
         own = (self._params, self._frames, self._T, self._V, self._T_ref, self._V_ref_w)
         self._own = (*own, self._qpos, self._qvel, self._qacc, self._xfrc)
         # ``step`` checks the command's arrays, so the compiled substep is called without numba's typing.
         example_command = (RATE, np.zeros(6), np.eye(4), _ZERO15, period)
         self._substep = entry_point(
-            tool_substep, self._mj, *example_command, *self._own, self._contact.w, True, self._ft_buffer
+            tool_substep,
+            self._mj,
+            *example_command,
+            *self._own,
+            self._contact.w,
+            True,
+            _NO_ROWS,
+            self._materials,
+            self._h,
+            self._ft_buffer,
         )
 
     # --- state -----------------------------------------------------------------------------
@@ -376,6 +392,9 @@ class VirtualSlave(SlaveBase):
                 *self._own,
                 contact.w,
                 contact.valid,
+                contact.contacts if contact.contacts.flags.writeable else _NO_ROWS,
+                self._materials,
+                h,
                 self._ft_buffer,
             )
             if self._moving is not None:

@@ -21,6 +21,7 @@ from numba import njit
 
 from app.mjcall import call_model_data
 from app.spatial import Array, IntArray, cross3, quat_to_matrix, rotation_exp, rotation_log
+from app.world.contact.force import V_SLIP
 
 # Slots of the PD gain vector handed to :func:`drive_wrench` (see ``SlaveGains``).
 KP_LIN, KD_LIN, KP_ROT, KD_ROT, FORCE_LIMIT, TORQUE_LIMIT = range(6)
@@ -77,10 +78,10 @@ def _apply_t(R: Array, v: Array) -> Array:
 
 
 @njit(cache=True)
-def _saturate(v: Array, limit: float) -> Array:
-    """``v`` scaled down to norm ``limit`` if longer (direction kept)."""
+def _saturate(v: Array, limit: float) -> tuple[Array, bool]:
+    """``v`` scaled down to norm ``limit`` if longer (direction kept), and whether it was."""
     n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    return v * (limit / n) if n > limit else v
+    return (v * (limit / n), True) if n > limit else (v, False)
 
 
 @njit(cache=True)
@@ -147,6 +148,165 @@ def rate_reference(
 
 
 @njit(cache=True)
+def _add_point(r: Array, n: Array, a: float, b: float, out: Array) -> None:
+    """Add to ``out`` (6, 6) the matrix ``J^T (a n n^T + b I) J`` of a point at ``r`` (m, from the
+    centre of mass, {w}): J maps the body's ``[v; w]`` to the point's velocity ``v + w x r``."""
+    g = np.empty(6)
+    g[0:3] = n
+    g[3:6] = cross3(r, n)  # J^T n
+    for i in range(6):
+        for j in range(6):
+            out[i, j] += a * g[i] * g[j]
+    if b == 0.0:
+        return
+    # J^T J = [[I, -[r]x], [[r]x, |r|^2 I - r r^T]]
+    rr = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+    for i in range(3):
+        out[i, i] += b
+        out[3 + i, 3 + i] += b * rr
+        for j in range(3):
+            out[3 + i, 3 + j] -= b * r[i] * r[j]
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        # [r]x has -r_k at (i, j) and +r_k at (j, i) for the cyclic (i, j, k)
+        out[3 + i, j] -= b * r[k]
+        out[3 + j, i] += b * r[k]
+        out[i, 3 + j] += b * r[k]
+        out[j, 3 + i] -= b * r[k]
+
+
+@njit(cache=True)
+def _solve_spd(A: Array, y: Array) -> Array:
+    """``A^-1 y`` for a symmetric positive definite (6, 6) ``A`` (Cholesky; no BLAS call)."""
+    L = np.zeros((6, 6))
+    for i in range(6):
+        for j in range(i + 1):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = math.sqrt(s) if i == j else s / L[j, j]
+    z = np.empty(6)
+    for i in range(6):
+        s = y[i]
+        for k in range(i):
+            s -= L[i, k] * z[k]
+        z[i] = s / L[i, i]
+    x = np.empty(6)
+    for i in range(5, -1, -1):
+        s = z[i]
+        for k in range(i + 1, 6):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
+    return x
+
+
+@njit(cache=True)
+def implicit_wrench(
+    h: float,
+    contacts: Array,
+    materials: Array,
+    pd: Array,
+    force_saturated: bool,
+    torque_saturated: bool,
+    T_w_MRF: Array,
+    mass: float,
+    inertia_C: Array,
+    gravity_w: Array,
+    qpos: Array,
+    qvel: Array,
+    xfrc: Array,
+) -> None:
+    """Turn the explicit wrench ``xfrc`` into the one that makes MuJoCo's (semi-implicit) Euler
+    substep of ``h`` (s) a linearly implicit one in the stiffnesses and dampings on the tool.
+
+    Explicitly, a spring k on a mass m is stable only for ``sqrt(k / m) h < 2`` and a damper c
+    only for ``c h / m < 2``: ten peg spheres of 100 N/mm on a wall, a light tool, or the
+    viscous band of the regularised friction (``mu f_n / V_SLIP``, ~10^4 N s/m at 20 N) break
+    these. Linearising the forces about the substep's start, ``F(x + h v', v') ~ F - K h v' -
+    C (v' - v)`` with ``v' = v + h a``, the acceleration solves ``(M + h C + h^2 K) a = F - h K
+    v``, and MuJoCo is handed ``xfrc - h K v - (h C + h^2 K) a`` (its ``M a`` then is that plus
+    gravity less the gyroscopic term, as below). Backward Euler for the linear spring-damper:
+    stable at any stiffness; a slow contact (``omega h`` << 1) moves as before to O(h).
+
+    K and C gather, in the body's coordinates ``[v of the centre of mass; w]`` ({w}): each
+    pushing contact's normal stiffness ``k n n^T`` and damping ``b n n^T`` and its friction's
+    secant damping ``mu f_n / max(|u_t|, V_SLIP)`` across the normal, at the contact point
+    (a dynamic object is taken as held still over the substep); the PD's gains at {MRF} and on
+    the rotation, each unless saturated (a saturated drive is a constant force).
+
+    Args:
+        h: The substep (s).
+        contacts: This substep's contact rows ``[p (3), n (3), depth, sphere, object]``
+            (:class:`~app.world.contact.ContactResult`), (k, 9).
+        materials: ``[stiffness, damping, friction]`` per object id (N/m, N s/m, -), (n, 3).
+        pd: The PD's ``[kp_lin, kd_lin, kp_rot, kd_rot, ...]`` (:func:`drive_wrench`).
+        force_saturated, torque_saturated: Whether the PD's force and torque were saturated.
+        T_w_MRF: The tool's {MRF} pose (4, 4).
+        mass, inertia_C: The tool's mass (kg) and inertia about the centre of mass in {C} axes (kg m^2).
+        gravity_w: Gravity in {w} (m/s^2), (3,).
+        qpos, qvel: MuJoCo's free joint state (module docstring), (7,), (6,).
+        xfrc: In: the explicit ``[force; torque about the centre of mass]`` (N, N m, {w}); out: the
+            wrench to apply, (6,).
+    """
+    R = quat_to_matrix(qpos[3:7])
+    c = qpos[0:3]
+    u = np.empty(6)
+    u[0:3] = qvel[0:3]
+    u[3:6] = _apply(R, qvel[3:6])
+    K = np.zeros((6, 6))
+    C = np.zeros((6, 6))
+    r = np.empty(3)
+    for i in range(contacts.shape[0]):
+        row = contacts[i]
+        k, b, mu = materials[int(row[8])]
+        n = row[3:6]
+        for a in range(3):
+            r[a] = row[a] - c[a]
+        up = u[0:3] + cross3(u[3:6], r)
+        un = up[0] * n[0] + up[1] * n[1] + up[2] * n[2]
+        fn = k * row[6] - b * un
+        if fn <= 0.0:
+            continue  # separating: no force, nothing to linearise
+        _add_point(r, n, k, 0.0, K)
+        if mu > 0.0:
+            ut = up - un * n
+            ct = mu * fn / max(math.sqrt(ut[0] * ut[0] + ut[1] * ut[1] + ut[2] * ut[2]), V_SLIP)
+            _add_point(r, n, b - ct, ct, C)
+        else:
+            _add_point(r, n, b, 0.0, C)
+    if not force_saturated:
+        r_m = T_w_MRF[0:3, 3] - c
+        _add_point(r_m, r_m, 0.0, pd[KP_LIN], K)
+        _add_point(r_m, r_m, 0.0, pd[KD_LIN], C)
+    if not torque_saturated:
+        for a in range(3, 6):
+            K[a, a] += pd[KP_ROT]
+            C[a, a] += pd[KD_ROT]
+    I_w = _mul_t(_mul(R, inertia_C), R)
+    w = u[3:6]
+    gyro = cross3(w, _apply(I_w, w))
+    A = np.empty((6, 6))
+    rhs = np.empty(6)
+    for i in range(6):
+        hKu = 0.0
+        for j in range(6):
+            D = h * C[i, j] + h * h * K[i, j]
+            A[i, j] = D
+            hKu += h * K[i, j] * u[j]
+        rhs[i] = xfrc[i] - hKu
+        xfrc[i] -= hKu
+    for i in range(3):
+        A[i, i] += mass
+        rhs[i] += mass * gravity_w[i]
+        rhs[3 + i] -= gyro[i]
+        for j in range(3):
+            A[3 + i, 3 + j] += I_w[i, j]
+    acc = _solve_spd(A, rhs)
+    for i in range(6):
+        for j in range(6):
+            xfrc[i] -= (h * C[i, j] + h * h * K[i, j]) * acc[j]
+
+
+@njit(cache=True)
 def drive_wrench(
     T_w_MRF: Array,
     V_w_MRF: Array,
@@ -158,9 +318,10 @@ def drive_wrench(
     contact_MRF: Array,
     weight_w: Array,
     xfrc: Array,
-) -> None:
+) -> tuple[bool, bool]:
     """The wrench on the body for one substep: saturated PD at {MRF}, contact, and the robot's
-    gravity feedforward for its known tool and payload, into ``xfrc``.
+    gravity feedforward for its known tool and payload, into ``xfrc``; returns whether the PD's
+    force and its torque were saturated.
 
     Args:
         T_w_MRF, V_w_MRF: Tool pose (4, 4) and twist (6,) in {w}.
@@ -177,16 +338,17 @@ def drive_wrench(
     R_w_MRF = T_w_MRF[0:3, 0:3]
     p_w_MRF = T_w_MRF[0:3, 3]
     e_R = rotation_log(_mul_t(T_ref[0:3, 0:3], R_w_MRF))
-    f_pd = _saturate(
+    f_pd, f_sat = _saturate(
         pd[KP_LIN] * (T_ref[0:3, 3] - p_w_MRF) + pd[KD_LIN] * (V_ref_w[0:3] - V_w_MRF[0:3]), pd[FORCE_LIMIT]
     )
-    t_pd = _saturate(pd[KP_ROT] * e_R + pd[KD_ROT] * (V_ref_w[3:6] - V_w_MRF[3:6]), pd[TORQUE_LIMIT])
+    t_pd, t_sat = _saturate(pd[KP_ROT] * e_R + pd[KD_ROT] * (V_ref_w[3:6] - V_w_MRF[3:6]), pd[TORQUE_LIMIT])
     f_total = f_pd + contact_force_w
     # Both forces act at the {MRF} origin (the contact moment is already about it); MuJoCo wants
     # the moment about the centre of mass.
     torque = t_pd + _apply(R_w_MRF, contact_MRF[3:6]) + cross3(p_w_MRF - qpos[0:3], f_total)
     xfrc[0:3] = f_total - weight_w
     xfrc[3:6] = torque
+    return f_sat, t_sat
 
 
 @njit(cache=True)
@@ -261,9 +423,13 @@ def tool_substep(
     xfrc: Array,
     contact: Array,
     valid: bool,
+    rows: Array,
+    materials: Array,
+    h: float,
     reading: Array,
 ) -> None:
-    """One substep of the ideal tool in one call: reference, PD drive, ``mj_step``, F/T sensor, new state.
+    """One substep of the ideal tool in one call: reference, PD drive, linearly implicit
+    correction (:func:`implicit_wrench`), ``mj_step``, F/T sensor, new state.
 
     Args:
         mj: ``[mj_step address, mjModel*, mjData*]`` (:mod:`app.mjcall`), (3,).
@@ -285,6 +451,8 @@ def tool_substep(
         qpos, qvel, qacc, xfrc: MuJoCo's free joint state (7,), (6,), (6,) and the body's
             ``xfrc_applied`` row (6,).
         contact: This substep's contact result ``w`` at ``T_w_MRF`` (15,); ``valid`` its flag.
+        rows, materials, h: Its contact rows (k, 9), the objects' materials (n, 3) and the
+            substep (s), for :func:`implicit_wrench`.
         reading: Output, the F/T reading ``[wrench_S (6); R_w_S (9, row-major); acc_w (6);
             omega_w (3)]`` at the substep's start with the accelerations it applied, (24,).
     """
@@ -296,7 +464,7 @@ def tool_substep(
     elif reference == RATE:
         F_acc = params[K_ACC : K_ACC + 6] * prev_contact[6:12]
         rate_reference(twist, F_acc, T_w_MRF, dt, params[MAX_LEAD_LIN], params[MAX_LEAD_ROT], T_ref, V_ref_w)
-    drive_wrench(
+    f_sat, t_sat = drive_wrench(
         T_w_MRF,
         V_w_MRF,
         T_ref,
@@ -308,8 +476,23 @@ def tool_substep(
         params[WEIGHT_W : WEIGHT_W + 3],
         xfrc,
     )
-    call_model_data(mj[0], mj[1], mj[2])
     inertia_C = params[INERTIA_C : INERTIA_C + 9].reshape((3, 3))
+    implicit_wrench(
+        h,
+        rows,
+        materials,
+        params[0:6],
+        f_sat,
+        t_sat,
+        T_w_MRF,
+        params[MASS],
+        inertia_C,
+        params[GRAVITY_W : GRAVITY_W + 3],
+        qpos,
+        qvel,
+        xfrc,
+    )
+    call_model_data(mj[0], mj[1], mj[2])
     sensor_reading(
         T_w_MRF,
         V_w_MRF,

@@ -13,6 +13,7 @@ from app.controller.types import FTReading, SlaveCommand, SlaveModel
 from app.errors import InputError
 from app.slave.tool import VirtualSlave
 from app.world import load_scene
+from app.world.contact.force import V_SLIP
 from app.world.scene import Scene
 
 
@@ -147,7 +148,15 @@ def test_pressing_into_the_stiffest_surface_settles(name: str) -> None:
     fz = np.array([r.wrench_S[2] for r in readings])
     tail = fz[-1000:]
     assert slave.contact.count > 0
-    assert np.ptp(tail) < 1e-3 * abs(tail.mean())
+    # Steady, or drifting smoothly: the pegs landed short of the target sideways and creep toward
+    # it in the friction's viscous band (below 1 mm/s, ``mu f_n / V_SLIP`` ~19 kN s/m against the
+    # servo's 3000 N/m, a time constant of seconds), as the model has no sticking. The explicit
+    # step held them still in a sampled chatter instead (48 mm/s and 0.84 rad/s at every tick).
+    trend = np.polyval(np.polyfit(np.arange(len(tail)), tail, 2), np.arange(len(tail)))
+    assert np.ptp(tail - trend) < 1e-4 * abs(tail.mean())
+    v = slave.V_w_MRF
+    assert np.linalg.norm(v[0:3]) < V_SLIP
+    assert np.linalg.norm(v[3:6]) < V_SLIP / 0.03  # the pegs' 30 mm lever
 
 
 @pytest.mark.parametrize("name", ["probe", "peg_in_hole"])

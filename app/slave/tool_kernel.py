@@ -200,50 +200,80 @@ def _solve_spd(A: Array, y: Array) -> Array:
 
 
 @njit(cache=True)
+def _correction(h: float, K: Array, C: Array, u: Array, acc: Array) -> Array:
+    """``h K u + (h C + h^2 K) acc`` (6,): how much less a stiffness K and damping C push over a
+    substep of ``h`` (s) than at its start, the body's velocity ``u`` and acceleration ``acc``."""
+    out = np.empty(6)
+    for i in range(6):
+        s = 0.0
+        for j in range(6):
+            s += h * K[i, j] * (u[j] + h * acc[j]) + h * C[i, j] * acc[j]
+        out[i] = s
+    return out
+
+
+@njit(cache=True)
+def _shift(w: Array, dF: Array, R: Array, p: Array, c: Array) -> None:
+    """Add to the wrench ``w`` (6,), at the point ``p`` in the axes ``R`` (both {w}), the change
+    ``dF`` = ``[force; torque about c]`` ({w})."""
+    df = dF[0:3]
+    dm = dF[3:6] - cross3(p - c, df)
+    w[0:3] += _apply_t(R, df)
+    w[3:6] += _apply_t(R, dm)
+
+
+@njit(cache=True)
 def implicit_wrench(
     h: float,
-    contacts: Array,
+    rows: Array,
     materials: Array,
     pd: Array,
     force_saturated: bool,
     torque_saturated: bool,
     T_w_MRF: Array,
+    T_C_S: Array,
     mass: float,
     inertia_C: Array,
     gravity_w: Array,
     qpos: Array,
     qvel: Array,
+    contact: Array,
     xfrc: Array,
 ) -> None:
-    """Turn the explicit wrench ``xfrc`` into the one that makes MuJoCo's (semi-implicit) Euler
-    substep of ``h`` (s) a linearly implicit one in the stiffnesses and dampings on the tool.
+    """Make MuJoCo's (semi-implicit) Euler substep of ``h`` (s) linearly implicit in the
+    stiffnesses and dampings on the tool: correct the explicit wrench ``xfrc`` and the contact's.
 
     Explicitly, a spring k on a mass m is stable only for ``sqrt(k / m) h < 2`` and a damper c
-    only for ``c h / m < 2``: ten peg spheres of 100 N/mm on a wall, a light tool, or the
-    viscous band of the regularised friction (``mu f_n / V_SLIP``, ~10^4 N s/m at 20 N) break
-    these. Linearising the forces about the substep's start, ``F(x + h v', v') ~ F - K h v' -
+    only for ``c h / m < 2``: a dozen peg spheres of 100 N/mm on a wall, a light tool, or the
+    viscous band of the regularised friction (``mu f_n / V_SLIP``, ~2 10^4 N s/m at 40 N) break
+    them. Linearising the forces about the substep's start, ``F(x + h v', v') ~ F - K h v' -
     C (v' - v)`` with ``v' = v + h a``, the acceleration solves ``(M + h C + h^2 K) a = F - h K
-    v``, and MuJoCo is handed ``xfrc - h K v - (h C + h^2 K) a`` (its ``M a`` then is that plus
-    gravity less the gyroscopic term, as below). Backward Euler for the linear spring-damper:
-    stable at any stiffness; a slow contact (``omega h`` << 1) moves as before to O(h).
+    v`` (M the mass matrix, F including gravity less the gyroscopic term), and the body is
+    pushed by ``F - h K v' - h C a``: backward Euler for the linear spring and damper, stable at
+    any stiffness; a slow contact (``omega h`` << 1) moves as before, to O(omega h).
 
     K and C gather, in the body's coordinates ``[v of the centre of mass; w]`` ({w}): each
     pushing contact's normal stiffness ``k n n^T`` and damping ``b n n^T`` and its friction's
-    secant damping ``mu f_n / max(|u_t|, V_SLIP)`` across the normal, at the contact point
-    (a dynamic object is taken as held still over the substep); the PD's gains at {MRF} and on
-    the rotation, each unless saturated (a saturated drive is a constant force).
+    secant damping ``mu f_n / max(|u_t|, V_SLIP)`` across the normal, at the contact point (a
+    dynamic object taken as still over the substep); and the PD's gains at {MRF} and on the
+    rotation, each unless saturated (then it is a constant force). The contact's share of the
+    correction is taken off ``contact`` too: the wrench reported, and read by the F/T sensor, is
+    the one the step applied, so the reading stays the robot's force on the tool (the sensor's
+    ``contact + weight - m a``), as with the explicit step.
 
     Args:
         h: The substep (s).
-        contacts: This substep's contact rows ``[p (3), n (3), depth, sphere, object]``
+        rows: This substep's contact rows ``[p (3), n (3), depth, sphere, object]``
             (:class:`~app.world.contact.ContactResult`), (k, 9).
         materials: ``[stiffness, damping, friction]`` per object id (N/m, N s/m, -), (n, 3).
         pd: The PD's ``[kp_lin, kd_lin, kp_rot, kd_rot, ...]`` (:func:`drive_wrench`).
         force_saturated, torque_saturated: Whether the PD's force and torque were saturated.
-        T_w_MRF: The tool's {MRF} pose (4, 4).
+        T_w_MRF: The tool's {MRF} pose (4, 4). ``T_C_S``: {S} in the body frame {C}, (4, 4).
         mass, inertia_C: The tool's mass (kg) and inertia about the centre of mass in {C} axes (kg m^2).
         gravity_w: Gravity in {w} (m/s^2), (3,).
         qpos, qvel: MuJoCo's free joint state (module docstring), (7,), (6,).
+        contact: The contact result's ``w`` (``wrench_S``, ``wrench_MRF``, ``force_w``), (15,),
+            corrected in place.
         xfrc: In: the explicit ``[force; torque about the centre of mass]`` (N, N m, {w}); out: the
             wrench to apply, (6,).
     """
@@ -252,11 +282,11 @@ def implicit_wrench(
     u = np.empty(6)
     u[0:3] = qvel[0:3]
     u[3:6] = _apply(R, qvel[3:6])
-    K = np.zeros((6, 6))
-    C = np.zeros((6, 6))
+    # [contact K, contact C, PD K, PD C]
+    KC = np.zeros((4, 6, 6))
     r = np.empty(3)
-    for i in range(contacts.shape[0]):
-        row = contacts[i]
+    for i in range(rows.shape[0]):
+        row = rows[i]
         k, b, mu = materials[int(row[8])]
         n = row[3:6]
         for a in range(3):
@@ -266,21 +296,20 @@ def implicit_wrench(
         fn = k * row[6] - b * un
         if fn <= 0.0:
             continue  # separating: no force, nothing to linearise
-        _add_point(r, n, k, 0.0, K)
+        _add_point(r, n, k, 0.0, KC[0])
+        ct = 0.0
         if mu > 0.0:
             ut = up - un * n
             ct = mu * fn / max(math.sqrt(ut[0] * ut[0] + ut[1] * ut[1] + ut[2] * ut[2]), V_SLIP)
-            _add_point(r, n, b - ct, ct, C)
-        else:
-            _add_point(r, n, b, 0.0, C)
+        _add_point(r, n, b - ct, ct, KC[1])
     if not force_saturated:
         r_m = T_w_MRF[0:3, 3] - c
-        _add_point(r_m, r_m, 0.0, pd[KP_LIN], K)
-        _add_point(r_m, r_m, 0.0, pd[KD_LIN], C)
+        _add_point(r_m, r_m, 0.0, pd[KP_LIN], KC[2])
+        _add_point(r_m, r_m, 0.0, pd[KD_LIN], KC[3])
     if not torque_saturated:
         for a in range(3, 6):
-            K[a, a] += pd[KP_ROT]
-            C[a, a] += pd[KD_ROT]
+            KC[2, a, a] += pd[KP_ROT]
+            KC[3, a, a] += pd[KD_ROT]
     I_w = _mul_t(_mul(R, inertia_C), R)
     w = u[3:6]
     gyro = cross3(w, _apply(I_w, w))
@@ -289,11 +318,10 @@ def implicit_wrench(
     for i in range(6):
         hKu = 0.0
         for j in range(6):
-            D = h * C[i, j] + h * h * K[i, j]
-            A[i, j] = D
-            hKu += h * K[i, j] * u[j]
+            K = KC[0, i, j] + KC[2, i, j]
+            A[i, j] = h * (KC[1, i, j] + KC[3, i, j]) + h * h * K
+            hKu += h * K * u[j]
         rhs[i] = xfrc[i] - hKu
-        xfrc[i] -= hKu
     for i in range(3):
         A[i, i] += mass
         rhs[i] += mass * gravity_w[i]
@@ -301,9 +329,14 @@ def implicit_wrench(
         for j in range(3):
             A[3 + i, 3 + j] += I_w[i, j]
     acc = _solve_spd(A, rhs)
-    for i in range(6):
-        for j in range(6):
-            xfrc[i] -= (h * C[i, j] + h * h * K[i, j]) * acc[j]
+    d_contact = -_correction(h, KC[0], KC[1], u, acc)
+    xfrc += d_contact - _correction(h, KC[2], KC[3], u, acc)
+    if rows.shape[0] == 0:
+        return
+    R_w_MRF = T_w_MRF[0:3, 0:3]
+    _shift(contact[6:12], d_contact, R_w_MRF, T_w_MRF[0:3, 3], c)
+    _shift(contact[0:6], d_contact, _mul(R, T_C_S[0:3, 0:3]), c + _apply(R, T_C_S[0:3, 3]), c)
+    contact[12:15] += d_contact[0:3]
 
 
 @njit(cache=True)
@@ -450,7 +483,8 @@ def tool_substep(
         T_ref, V_ref_w: The reference pose (4, 4) and twist (6,), updated as ``reference`` says.
         qpos, qvel, qacc, xfrc: MuJoCo's free joint state (7,), (6,), (6,) and the body's
             ``xfrc_applied`` row (6,).
-        contact: This substep's contact result ``w`` at ``T_w_MRF`` (15,); ``valid`` its flag.
+        contact: This substep's contact result ``w`` at ``T_w_MRF`` (15,), turned into the wrench
+            the step applied (:func:`implicit_wrench`); ``valid`` its flag.
         rows, materials, h: Its contact rows (k, 9), the objects' materials (n, 3) and the
             substep (s), for :func:`implicit_wrench`.
         reading: Output, the F/T reading ``[wrench_S (6); R_w_S (9, row-major); acc_w (6);
@@ -485,11 +519,13 @@ def tool_substep(
         f_sat,
         t_sat,
         T_w_MRF,
+        frames[1],
         params[MASS],
         inertia_C,
         params[GRAVITY_W : GRAVITY_W + 3],
         qpos,
         qvel,
+        contact,
         xfrc,
     )
     call_model_data(mj[0], mj[1], mj[2])

@@ -269,6 +269,7 @@ class VirtualSlave(SlaveBase):
                 gravity_w,
                 (tool.mass,),
                 np.asarray(tool.inertia_T, dtype=float).ravel(),
+                np.linalg.inv(tool.inertia_T).ravel(),
             )
         )
         assert len(self._params) == N_PARAMS

@@ -26,9 +26,14 @@ from app.world.contact.force import V_SLIP
 # Slots of the PD gain vector handed to :func:`drive_wrench` (see ``SlaveGains``).
 KP_LIN, KD_LIN, KP_ROT, KD_ROT, FORCE_LIMIT, TORQUE_LIMIT = range(6)
 # Slots of the rest of :func:`tool_substep`'s constant parameter vector, after the PD gains.
-K_ACC, MAX_LEAD_LIN, MAX_LEAD_ROT, WEIGHT_W, GRAVITY_W, MASS, INERTIA_C, N_PARAMS = 6, 12, 13, 14, 17, 20, 21, 30
+K_ACC, MAX_LEAD_LIN, MAX_LEAD_ROT, WEIGHT_W, GRAVITY_W, MASS, INERTIA_C, INERTIA_INV_C, N_PARAMS = (
+    6, 12, 13, 14, 17, 20, 21, 30, 39
+)
 # What :func:`tool_substep` does to the reference before driving toward it.
 HOLD, RATE, POSE, KEEP = range(4)
+# The largest (omega h)^2 the implicit share of a substep lets a spring on the tool have
+# (:func:`implicit_wrench`): omega h = 1, half the explicit step's bound of 2. A numerical choice.
+SIGMA_MAX = 1.0
 # Slots of the packed F/T reading (the fields of :class:`~app.controller.types.FTReading`).
 R_WRENCH, R_ROT, R_ACC, R_OMEGA, N_READING = 0, 6, 15, 21, 24
 
@@ -200,14 +205,49 @@ def _solve_spd(A: Array, y: Array) -> Array:
 
 
 @njit(cache=True)
-def _correction(h: float, K: Array, C: Array, u: Array, acc: Array) -> Array:
-    """``h K u + (h C + h^2 K) acc`` (6,): how much less a stiffness K and damping C push over a
-    substep of ``h`` (s) than at its start, the body's velocity ``u`` and acceleration ``acc``."""
+def _largest_mode(X: Array, mass: float, I_w: Array, I_inv_w: Array) -> float:
+    """The largest eigenvalue of ``M^-1 X`` (1/s^2 for a stiffness, 1/s for a damping), M the
+    tool's mass matrix ``diag(m, I_w)`` and X symmetric positive semi-definite (6, 6): power
+    iteration, then the Rayleigh quotient ``x^T X x / x^T M x`` (from below, within a few per
+    cent after twelve steps; the callers' margins absorb that)."""
+    x = np.array((1.0, 0.9, 0.8, 0.7, 0.6, 0.5))
+    y = np.empty(6)
+    for _ in range(12):
+        for i in range(6):
+            s = 0.0
+            for j in range(6):
+                s += X[i, j] * x[j]
+            y[i] = s
+        top = 0.0
+        for i in range(3):
+            x[i] = y[i] / mass
+            x[3 + i] = I_inv_w[i, 0] * y[3] + I_inv_w[i, 1] * y[4] + I_inv_w[i, 2] * y[5]
+        for i in range(6):
+            top = max(top, abs(x[i]))
+        if top == 0.0:
+            return 0.0
+        x /= top
+    num = den = 0.0
+    for i in range(6):
+        for j in range(6):
+            num += x[i] * X[i, j] * x[j]
+    for i in range(3):
+        den += mass * x[i] * x[i]
+        for j in range(3):
+            den += x[3 + i] * I_w[i, j] * x[3 + j]
+    return num / den
+
+
+@njit(cache=True)
+def _correction(hk: float, hc: float, K: Array, C: Array, u: Array, h: float, acc: Array) -> Array:
+    """``hk K (u + h acc) + hc C acc`` (6,): how much less a stiffness K and a damping C push over
+    the substep ``h`` (s), implicit by ``hk = theta_k h`` and ``hc = theta_c h``, than at its
+    start, the body's velocity ``u`` and acceleration ``acc``."""
     out = np.empty(6)
     for i in range(6):
         s = 0.0
         for j in range(6):
-            s += h * K[i, j] * (u[j] + h * acc[j]) + h * C[i, j] * acc[j]
+            s += hk * K[i, j] * (u[j] + h * acc[j]) + hc * C[i, j] * acc[j]
         out[i] = s
     return out
 
@@ -234,23 +274,31 @@ def implicit_wrench(
     T_C_S: Array,
     mass: float,
     inertia_C: Array,
+    inertia_inv_C: Array,
     gravity_w: Array,
     qpos: Array,
     qvel: Array,
     contact: Array,
     xfrc: Array,
 ) -> None:
-    """Make MuJoCo's (semi-implicit) Euler substep of ``h`` (s) linearly implicit in the
-    stiffnesses and dampings on the tool: correct the explicit wrench ``xfrc`` and the contact's.
+    """Make MuJoCo's (semi-implicit) Euler substep of ``h`` (s) implicit in the stiffnesses and
+    dampings on the tool as far as its stability needs: correct the explicit wrench ``xfrc`` and
+    the contact's.
 
-    Explicitly, a spring k on a mass m is stable only for ``sqrt(k / m) h < 2`` and a damper c
-    only for ``c h / m < 2``: a dozen peg spheres of 100 N/mm on a wall, a light tool, or the
-    viscous band of the regularised friction (``mu f_n / V_SLIP``, ~2 10^4 N s/m at 40 N) break
-    them. Linearising the forces about the substep's start, ``F(x + h v', v') ~ F - K h v' -
-    C (v' - v)`` with ``v' = v + h a``, the acceleration solves ``(M + h C + h^2 K) a = F - h K
-    v`` (M the mass matrix, F including gravity less the gyroscopic term), and the body is
-    pushed by ``F - h K v' - h C a``: backward Euler for the linear spring and damper, stable at
-    any stiffness; a slow contact (``omega h`` << 1) moves as before, to O(omega h).
+    Explicitly, a spring k on a mass m is stable only for ``sigma = (omega h)^2 = k h^2 / m < 4``
+    and a damper c only for ``beta = c h / m < 2`` (monotone below 1): a dozen peg spheres of
+    100 N/mm on a wall, a light tool, or the viscous band of the regularised friction (``mu f_n /
+    V_SLIP``, ~2 10^4 N s/m at 40 N) break them. Linearising the forces about the substep's
+    start, the body is pushed by ``F - theta_k K h v' - theta_c C h a`` (``v' = v + h a``), so
+    ``(M + theta_c h C + theta_k h^2 K) a = F - theta_k h K v`` (M the mass matrix, F with
+    gravity less the gyroscopic term). With semi-implicit Euler's position update a spring's
+    ``sigma`` becomes ``sigma / (1 + theta_k sigma)``; ``theta_k = max(0, 1 / SIGMA_MAX - 1 /
+    sigma)`` holds it at :data:`SIGMA_MAX` at any stiffness, and ``theta_c = max(0, 1 - 1 /
+    beta)`` makes a damper's decay monotone; sigma and beta are those of the largest modes of
+    ``h^2 M^-1 K`` and ``h M^-1 C`` (then ``sigma + 2 beta <= 3``, inside the explicit
+    spring-damper's ``sigma + 2 beta < 4``). Where the explicit step is
+    comfortably stable both are 0 and the step is exactly the explicit one (no numerical damping
+    of a soft contact, which the haptic loop would feel); at theta 1 it is backward Euler.
 
     K and C gather, in the body's coordinates ``[v of the centre of mass; w]`` ({w}): each
     pushing contact's normal stiffness ``k n n^T`` and damping ``b n n^T`` and its friction's
@@ -269,7 +317,8 @@ def implicit_wrench(
         pd: The PD's ``[kp_lin, kd_lin, kp_rot, kd_rot, ...]`` (:func:`drive_wrench`).
         force_saturated, torque_saturated: Whether the PD's force and torque were saturated.
         T_w_MRF: The tool's {MRF} pose (4, 4). ``T_C_S``: {S} in the body frame {C}, (4, 4).
-        mass, inertia_C: The tool's mass (kg) and inertia about the centre of mass in {C} axes (kg m^2).
+        mass, inertia_C: The tool's mass (kg) and inertia about the centre of mass in {C} axes
+            (kg m^2), (3, 3); ``inertia_inv_C`` its inverse.
         gravity_w: Gravity in {w} (m/s^2), (3,).
         qpos, qvel: MuJoCo's free joint state (module docstring), (7,), (6,).
         contact: The contact result's ``w`` (``wrench_S``, ``wrench_MRF``, ``force_w``), (15,),
@@ -311,6 +360,13 @@ def implicit_wrench(
             KC[2, a, a] += pd[KP_ROT]
             KC[3, a, a] += pd[KD_ROT]
     I_w = _mul_t(_mul(R, inertia_C), R)
+    I_inv = _mul_t(_mul(R, inertia_inv_C), R)
+    sigma = h * h * _largest_mode(KC[0] + KC[2], mass, I_w, I_inv)
+    beta = h * _largest_mode(KC[1] + KC[3], mass, I_w, I_inv)
+    hk = h * (1.0 / SIGMA_MAX - 1.0 / sigma) if sigma > SIGMA_MAX else 0.0
+    hc = h * (1.0 - 1.0 / beta) if beta > 1.0 else 0.0
+    if hk == 0.0 and hc == 0.0:
+        return  # the explicit step is stable with margin: keep it as it is
     w = u[3:6]
     gyro = cross3(w, _apply(I_w, w))
     A = np.empty((6, 6))
@@ -319,8 +375,8 @@ def implicit_wrench(
         hKu = 0.0
         for j in range(6):
             K = KC[0, i, j] + KC[2, i, j]
-            A[i, j] = h * (KC[1, i, j] + KC[3, i, j]) + h * h * K
-            hKu += h * K * u[j]
+            A[i, j] = hc * (KC[1, i, j] + KC[3, i, j]) + hk * h * K
+            hKu += hk * K * u[j]
         rhs[i] = xfrc[i] - hKu
     for i in range(3):
         A[i, i] += mass
@@ -329,8 +385,8 @@ def implicit_wrench(
         for j in range(3):
             A[3 + i, 3 + j] += I_w[i, j]
     acc = _solve_spd(A, rhs)
-    d_contact = -_correction(h, KC[0], KC[1], u, acc)
-    xfrc += d_contact - _correction(h, KC[2], KC[3], u, acc)
+    d_contact = -_correction(hk, hc, KC[0], KC[1], u, h, acc)
+    xfrc += d_contact - _correction(hk, hc, KC[2], KC[3], u, h, acc)
     if rows.shape[0] == 0:
         return
     R_w_MRF = T_w_MRF[0:3, 0:3]
@@ -476,7 +532,7 @@ def tool_substep(
         dt: The servo period (s) the rate reference integrates over (the substep is MuJoCo's
             timestep).
         params: ``[pd (6, see drive_wrench); K_acc (6); max_lead_lin; max_lead_rot; m g in {w}
-            (3); g in {w} (3); mass; inertia_C (9)]``, (30,).
+            (3); g in {w} (3); mass; inertia_C (9); its inverse (9)]``, (39,).
         frames: ``[T_C_MRF, T_C_S]``, (2, 4, 4).
         T_w_MRF, V_w_MRF: The tool's {MRF} pose (4, 4) and twist (6,) at the substep's start (in),
             then at its end (out).
@@ -522,6 +578,7 @@ def tool_substep(
         frames[1],
         params[MASS],
         inertia_C,
+        params[INERTIA_INV_C:N_PARAMS].reshape((3, 3)),
         params[GRAVITY_W : GRAVITY_W + 3],
         qpos,
         qvel,

@@ -205,6 +205,17 @@ def _solve_spd(A: Array, y: Array) -> Array:
 
 
 @njit(cache=True)
+def _trace(X: Array, mass: float, I_inv_w: Array) -> float:
+    """``tr(M^-1 X)`` for the tool's mass matrix ``M = diag(m, I_w)`` (``I_inv_w`` its angular
+    block's inverse) and a (6, 6) ``X``."""
+    t = (X[0, 0] + X[1, 1] + X[2, 2]) / mass
+    for i in range(3):
+        for j in range(3):
+            t += I_inv_w[i, j] * X[3 + j, 3 + i]
+    return t
+
+
+@njit(cache=True)
 def _largest_mode(X: Array, mass: float, I_w: Array, I_inv_w: Array) -> float:
     """The largest eigenvalue of ``M^-1 X`` (1/s^2 for a stiffness, 1/s for a damping), M the
     tool's mass matrix ``diag(m, I_w)`` and X symmetric positive semi-definite (6, 6): power
@@ -361,8 +372,15 @@ def implicit_wrench(
             KC[3, a, a] += pd[KD_ROT]
     I_w = _mul_t(_mul(R, inertia_C), R)
     I_inv = _mul_t(_mul(R, inertia_inv_C), R)
-    sigma = h * h * _largest_mode(KC[0] + KC[2], mass, I_w, I_inv)
-    beta = h * _largest_mode(KC[1] + KC[3], mass, I_w, I_inv)
+    K, C = KC[0] + KC[2], KC[1] + KC[3]
+    # The trace of M^-1 X bounds its largest mode from above: the power iteration only when the
+    # bound is past the threshold.
+    sigma = h * h * _trace(K, mass, I_inv)
+    if sigma > SIGMA_MAX:
+        sigma = h * h * _largest_mode(K, mass, I_w, I_inv)
+    beta = h * _trace(C, mass, I_inv)
+    if beta > 1.0:
+        beta = h * _largest_mode(C, mass, I_w, I_inv)
     hk = h * (1.0 / SIGMA_MAX - 1.0 / sigma) if sigma > SIGMA_MAX else 0.0
     hc = h * (1.0 - 1.0 / beta) if beta > 1.0 else 0.0
     if hk == 0.0 and hc == 0.0:
@@ -374,9 +392,8 @@ def implicit_wrench(
     for i in range(6):
         hKu = 0.0
         for j in range(6):
-            K = KC[0, i, j] + KC[2, i, j]
-            A[i, j] = hc * (KC[1, i, j] + KC[3, i, j]) + hk * h * K
-            hKu += hk * K * u[j]
+            A[i, j] = hc * C[i, j] + hk * h * K[i, j]
+            hKu += hk * K[i, j] * u[j]
         rhs[i] = xfrc[i] - hKu
     for i in range(3):
         A[i, i] += mass

@@ -12,7 +12,10 @@ One servo tick (:meth:`VirtualSlave.step`):
    rather than winding up while the tool is blocked.
 2. For each MuJoCo substep: contact wrench from :class:`~app.world.contact.ContactModel`, the PD
    wrench at {MRF} saturated at the robot's limits (direction kept), both applied to the body,
-   then ``mj_step``.
+   made implicit in the contact's and the PD's stiffness and damping as far as the step's
+   stability needs (:func:`~app.slave.tool_kernel.implicit_wrench`: a stiff surface, a light tool
+   or the friction's viscous band would ring or diverge explicitly), then ``mj_step``. The
+   contact wrench reported is the one the step applied.
 3. The virtual F/T sensor at {S} reports what a real one would: the wrench on everything
    outboard of it, ``contact + payload weight - payload inertial load``, with the accelerations
    the integrator applied in the step.

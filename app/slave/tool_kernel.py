@@ -27,7 +27,15 @@ from app.world.contact.force import V_SLIP
 KP_LIN, KD_LIN, KP_ROT, KD_ROT, FORCE_LIMIT, TORQUE_LIMIT = range(6)
 # Slots of the rest of :func:`tool_substep`'s constant parameter vector, after the PD gains.
 K_ACC, MAX_LEAD_LIN, MAX_LEAD_ROT, WEIGHT_W, GRAVITY_W, MASS, INERTIA_C, INERTIA_INV_C, N_PARAMS = (
-    6, 12, 13, 14, 17, 20, 21, 30, 39
+    6,
+    12,
+    13,
+    14,
+    17,
+    20,
+    21,
+    30,
+    39,
 )
 # What :func:`tool_substep` does to the reference before driving toward it.
 HOLD, RATE, POSE, KEEP = range(4)

@@ -253,7 +253,9 @@ def light_stiff(name: str, mass_scale: float, stiffness: float | None = None) ->
 
 
 @pytest.mark.parametrize(("mass_scale", "stiffness"), [(0.6, 1e6), (0.3, 1e6), (0.1, 1e5), (0.1, 1e6)])
-def test_a_light_tool_pressed_on_a_stiff_surface_settles_at_the_static_force(mass_scale: float, stiffness: float) -> None:
+def test_a_light_tool_pressed_on_a_stiff_surface_settles_at_the_static_force(
+    mass_scale: float, stiffness: float
+) -> None:
     """The probe's tip sphere (r 5 mm) held by the PD toward 2 mm below the surface (z = 0): the
     servo spring and the surface in series push ``kp k / (kp + k) (r + 2 mm)`` (the weight is fed
     forward), the F/T sensor reads that less the weight. Explicitly integrated (before the

@@ -20,6 +20,7 @@ import numpy as np
 from numba import njit
 
 from app.mjcall import call_model_data
+from app.slave.arm_ik import cholesky_solve
 from app.spatial import Array, IntArray, cross3, quat_to_matrix, rotation_exp, rotation_log
 from app.world.contact.force import V_SLIP
 
@@ -197,19 +198,7 @@ def _solve_spd(A: Array, y: Array) -> Array:
             for k in range(j):
                 s -= L[i, k] * L[j, k]
             L[i, j] = math.sqrt(s) if i == j else s / L[j, j]
-    z = np.empty(6)
-    for i in range(6):
-        s = y[i]
-        for k in range(i):
-            s -= L[i, k] * z[k]
-        z[i] = s / L[i, i]
-    x = np.empty(6)
-    for i in range(5, -1, -1):
-        s = z[i]
-        for k in range(i + 1, 6):
-            s -= L[k, i] * x[k]
-        x[i] = s / L[i, i]
-    return x
+    return cholesky_solve(L, y)
 
 
 @njit(cache=True)

@@ -56,6 +56,7 @@ from app.slave.tool_kernel import (
     R_WRENCH,
     RATE,
     mrf_state,
+    pd_modes,
     rate_reference,
     sensor_reading,
     tool_substep,
@@ -263,16 +264,20 @@ class VirtualSlave(SlaveBase):
         self._frames = np.stack((T_C_T @ tool.T_T_MRF, T_C_T @ tool.T_T_S))
         self._T_C_MRF = self._frames[0]
         gravity_w = np.asarray(scene.gravity_w, dtype=float)
+        inertia = np.asarray(tool.inertia_T, dtype=float)
+        inertia_inv = np.linalg.inv(inertia)
+        pd = np.array((g.kp_lin, g.kd_lin, g.kp_rot, g.kd_rot, g.force_limit, g.torque_limit))
         self._params = np.concatenate(
             (
-                (g.kp_lin, g.kd_lin, g.kp_rot, g.kd_rot, g.force_limit, g.torque_limit),
+                pd,
                 self._k_acc,
                 (self._max_lead_lin, self._max_lead_rot),
                 tool.mass * gravity_w,
                 gravity_w,
                 (tool.mass,),
-                np.asarray(tool.inertia_T, dtype=float).ravel(),
-                np.linalg.inv(tool.inertia_T).ravel(),
+                inertia.ravel(),
+                inertia_inv.ravel(),
+                pd_modes(pd, self._T_C_MRF[0:3, 3].copy(), tool.mass, inertia, inertia_inv),
             )
         )
         assert len(self._params) == N_PARAMS

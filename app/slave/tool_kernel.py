@@ -27,17 +27,8 @@ from app.world.contact.force import V_SLIP
 # Slots of the PD gain vector handed to :func:`drive_wrench` (see ``SlaveGains``).
 KP_LIN, KD_LIN, KP_ROT, KD_ROT, FORCE_LIMIT, TORQUE_LIMIT = range(6)
 # Slots of the rest of :func:`tool_substep`'s constant parameter vector, after the PD gains.
-K_ACC, MAX_LEAD_LIN, MAX_LEAD_ROT, WEIGHT_W, GRAVITY_W, MASS, INERTIA_C, INERTIA_INV_C, N_PARAMS = (
-    6,
-    12,
-    13,
-    14,
-    17,
-    20,
-    21,
-    30,
-    39,
-)
+K_ACC, MAX_LEAD_LIN, MAX_LEAD_ROT, WEIGHT_W, GRAVITY_W, MASS, INERTIA_C = 6, 12, 13, 14, 17, 20, 21
+INERTIA_INV_C, PD_MODES, N_PARAMS = 30, 39, 41
 # What :func:`tool_substep` does to the reference before driving toward it.
 HOLD, RATE, POSE, KEEP = range(4)
 # The largest (omega h)^2 the implicit share of a substep lets a spring on the tool have
@@ -271,6 +262,21 @@ def _shift(w: Array, dF: Array, R: Array, p: Array, c: Array) -> None:
 
 
 @njit(cache=True)
+def pd_modes(pd: Array, r_C: Array, mass: float, inertia_C: Array, inertia_inv_C: Array) -> tuple[float, float]:
+    """The largest modes of the PD alone on the tool, of ``M^-1 K`` (1/s^2) and ``M^-1 C`` (1/s)
+    (:func:`implicit_wrench`), its {MRF} at ``r_C`` from the centre of mass (m, {C}): independent
+    of the pose, so computed once."""
+    K = np.zeros((6, 6))
+    C = np.zeros((6, 6))
+    _add_point(r_C, r_C, 0.0, pd[KP_LIN], K)
+    _add_point(r_C, r_C, 0.0, pd[KD_LIN], C)
+    for a in range(3, 6):
+        K[a, a] += pd[KP_ROT]
+        C[a, a] += pd[KD_ROT]
+    return _largest_mode(K, mass, inertia_C, inertia_inv_C), _largest_mode(C, mass, inertia_C, inertia_inv_C)
+
+
+@njit(cache=True)
 def implicit_wrench(
     h: float,
     rows: Array,
@@ -288,6 +294,7 @@ def implicit_wrench(
     qvel: Array,
     contact: Array,
     xfrc: Array,
+    pd_alone: Array,
 ) -> None:
     """Make MuJoCo's (semi-implicit) Euler substep of ``h`` (s) implicit in the stiffnesses and
     dampings on the tool as far as its stability needs: correct the explicit wrench ``xfrc`` and
@@ -333,7 +340,10 @@ def implicit_wrench(
             corrected in place.
         xfrc: In: the explicit ``[force; torque about the centre of mass]`` (N, N m, {w}); out: the
             wrench to apply, (6,).
+        pd_alone: :func:`pd_modes`, (2,): without contacts the step is explicit if they allow.
     """
+    if rows.shape[0] == 0 and h * h * pd_alone[0] <= SIGMA_MAX and h * pd_alone[1] <= 1.0:
+        return
     R = quat_to_matrix(qpos[3:7])
     c = qpos[0:3]
     u = np.empty(6)
@@ -359,6 +369,11 @@ def implicit_wrench(
             ut = up - un * n
             ct = mu * fn / max(math.sqrt(ut[0] * ut[0] + ut[1] * ut[1] + ut[2] * ut[2]), V_SLIP)
         _add_point(r, n, b - ct, ct, KC[1])
+    # Weyl: the largest mode of PD + contacts is at most the PD's plus the contacts' trace.
+    I_inv = _mul_t(_mul(R, inertia_inv_C), R)
+    sigma_contacts, beta_contacts = h * h * _trace(KC[0], mass, I_inv), h * _trace(KC[1], mass, I_inv)
+    if h * h * pd_alone[0] + sigma_contacts <= SIGMA_MAX and h * pd_alone[1] + beta_contacts <= 1.0:
+        return
     if not force_saturated:
         r_m = T_w_MRF[0:3, 3] - c
         _add_point(r_m, r_m, 0.0, pd[KP_LIN], KC[2])
@@ -368,16 +383,9 @@ def implicit_wrench(
             KC[2, a, a] += pd[KP_ROT]
             KC[3, a, a] += pd[KD_ROT]
     I_w = _mul_t(_mul(R, inertia_C), R)
-    I_inv = _mul_t(_mul(R, inertia_inv_C), R)
     K, C = KC[0] + KC[2], KC[1] + KC[3]
-    # The trace of M^-1 X bounds its largest mode from above: the power iteration only when the
-    # bound is past the threshold.
-    sigma = h * h * _trace(K, mass, I_inv)
-    if sigma > SIGMA_MAX:
-        sigma = h * h * _largest_mode(K, mass, I_w, I_inv)
-    beta = h * _trace(C, mass, I_inv)
-    if beta > 1.0:
-        beta = h * _largest_mode(C, mass, I_w, I_inv)
+    sigma = h * h * _largest_mode(K, mass, I_w, I_inv)
+    beta = h * _largest_mode(C, mass, I_w, I_inv)
     hk = h * (1.0 / SIGMA_MAX - 1.0 / sigma) if sigma > SIGMA_MAX else 0.0
     hc = h * (1.0 - 1.0 / beta) if beta > 1.0 else 0.0
     if hk == 0.0 and hc == 0.0:
@@ -546,7 +554,7 @@ def tool_substep(
         dt: The servo period (s) the rate reference integrates over (the substep is MuJoCo's
             timestep).
         params: ``[pd (6, see drive_wrench); K_acc (6); max_lead_lin; max_lead_rot; m g in {w}
-            (3); g in {w} (3); mass; inertia_C (9); its inverse (9)]``, (39,).
+            (3); g in {w} (3); mass; inertia_C (9); its inverse (9); :func:`pd_modes` (2)]``, (41,).
         frames: ``[T_C_MRF, T_C_S]``, (2, 4, 4).
         T_w_MRF, V_w_MRF: The tool's {MRF} pose (4, 4) and twist (6,) at the substep's start (in),
             then at its end (out).
@@ -592,12 +600,13 @@ def tool_substep(
         frames[1],
         params[MASS],
         inertia_C,
-        params[INERTIA_INV_C:N_PARAMS].reshape((3, 3)),
+        params[INERTIA_INV_C : INERTIA_INV_C + 9].reshape((3, 3)),
         params[GRAVITY_W : GRAVITY_W + 3],
         qpos,
         qvel,
         contact,
         xfrc,
+        params[PD_MODES:N_PARAMS],
     )
     call_model_data(mj[0], mj[1], mj[2])
     sensor_reading(

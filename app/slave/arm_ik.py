@@ -101,7 +101,7 @@ def _gram_cholesky(J: Array, free: BoolArray, lam2: float) -> Array:
 
 
 @njit(cache=True)
-def _cholesky_solve(L: Array, b: Array) -> Array:
+def cholesky_solve(L: Array, b: Array) -> Array:
     """``x`` with ``L L^T x = b`` (6,)."""
     y = np.empty(6)
     for i in range(6):
@@ -132,7 +132,7 @@ def smallest_singular_value(J: Array, v: Array) -> float:
     for _ in range(4):
         n = math.sqrt(np.sum(x * x))
         x = x / n if n > 0.0 else np.ones(6) / math.sqrt(6.0)
-        y = _cholesky_solve(L, x)
+        y = cholesky_solve(L, x)
         rq = np.sum(x * y)  # x^T A^-1 x -> 1 / lambda_min
         x = y
     v[:] = x / math.sqrt(np.sum(x * x))
@@ -153,7 +153,7 @@ def _dls(J: Array, free: BoolArray, V: Array, z: Array, lam2: float) -> Array:
             zf[k] = 0.0
     r = V - matvec(J, zf)
     L = _gram_cholesky(J, free, lam2 + 1e-9)
-    qd = matTvec(J, _cholesky_solve(L, r))
+    qd = matTvec(J, cholesky_solve(L, r))
     for k in range(n):
         qd[k] = qd[k] + zf[k] if free[k] else 0.0
     return qd

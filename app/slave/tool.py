@@ -12,7 +12,10 @@ One servo tick (:meth:`VirtualSlave.step`):
    rather than winding up while the tool is blocked.
 2. For each MuJoCo substep: contact wrench from :class:`~app.world.contact.ContactModel`, the PD
    wrench at {MRF} saturated at the robot's limits (direction kept), both applied to the body,
-   then ``mj_step``.
+   made implicit in the contact's and the PD's stiffness and damping as far as the step's
+   stability needs (:func:`~app.slave.tool_kernel.implicit_wrench`: a stiff surface, a light tool
+   or the friction's viscous band would ring or diverge explicitly), then ``mj_step``. The
+   contact wrench reported is the one the step applied.
 3. The virtual F/T sensor at {S} reports what a real one would: the wrench on everything
    outboard of it, ``contact + payload weight - payload inertial load``, with the accelerations
    the integrator applied in the step.
@@ -53,6 +56,7 @@ from app.slave.tool_kernel import (
     R_WRENCH,
     RATE,
     mrf_state,
+    pd_modes,
     rate_reference,
     sensor_reading,
     tool_substep,
@@ -71,6 +75,8 @@ _ZERO6.flags.writeable = False
 _ZERO15 = np.zeros(15)
 # The dynamic objects' poses of a scene with none (left writeable for the same reason).
 _NO_OBJECTS = np.zeros((0, 7))
+# No contact rows (a result without contacts shares a read-only empty array).
+_NO_ROWS = np.zeros((0, 9))
 SHAPE_6, SHAPE_44 = (6,), (4, 4)
 
 
@@ -258,15 +264,20 @@ class VirtualSlave(SlaveBase):
         self._frames = np.stack((T_C_T @ tool.T_T_MRF, T_C_T @ tool.T_T_S))
         self._T_C_MRF = self._frames[0]
         gravity_w = np.asarray(scene.gravity_w, dtype=float)
+        inertia = np.asarray(tool.inertia_T, dtype=float)
+        inertia_inv = np.linalg.inv(inertia)
+        pd = np.array((g.kp_lin, g.kd_lin, g.kp_rot, g.kd_rot, g.force_limit, g.torque_limit))
         self._params = np.concatenate(
             (
-                (g.kp_lin, g.kd_lin, g.kp_rot, g.kd_rot, g.force_limit, g.torque_limit),
+                pd,
                 self._k_acc,
                 (self._max_lead_lin, self._max_lead_rot),
                 tool.mass * gravity_w,
                 gravity_w,
                 (tool.mass,),
-                np.asarray(tool.inertia_T, dtype=float).ravel(),
+                inertia.ravel(),
+                inertia_inv.ravel(),
+                pd_modes(pd, self._T_C_MRF[0:3, 3].copy(), tool.mass, inertia, inertia_inv),
             )
         )
         assert len(self._params) == N_PARAMS
@@ -282,13 +293,27 @@ class VirtualSlave(SlaveBase):
         self.status = 0  # the ideal tool always follows (its limits are the PD's saturation)
         self.link_force = 0.0  # it has no links for the world to touch
         self.reset()
+        # Stiffness, damping and friction per contact object id (static objects, then dynamic).
+        self._materials = np.array(
+            [(o.stiffness, o.damping, o.friction) for o in (*scene.objects, *(b.object for b in scene.bodies))],
+            dtype=float,
+        ).reshape(-1, 3)
         # The substep's arguments that are the slave's own arrays, the same objects every call.
         own = (self._params, self._frames, self._T, self._V, self._T_ref, self._V_ref_w)
         self._own = (*own, self._qpos, self._qvel, self._qacc, self._xfrc)
         # ``step`` checks the command's arrays, so the compiled substep is called without numba's typing.
         example_command = (RATE, np.zeros(6), np.eye(4), _ZERO15, period)
         self._substep = entry_point(
-            tool_substep, self._mj, *example_command, *self._own, self._contact.w, True, self._ft_buffer
+            tool_substep,
+            self._mj,
+            *example_command,
+            *self._own,
+            self._contact.w,
+            True,
+            _NO_ROWS,
+            self._materials,
+            self._h,
+            self._ft_buffer,
         )
 
     # --- state -----------------------------------------------------------------------------
@@ -376,6 +401,9 @@ class VirtualSlave(SlaveBase):
                 *self._own,
                 contact.w,
                 contact.valid,
+                contact.contacts if contact.contacts.flags.writeable else _NO_ROWS,
+                self._materials,
+                h,
                 self._ft_buffer,
             )
             if self._moving is not None:

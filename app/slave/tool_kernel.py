@@ -20,14 +20,20 @@ import numpy as np
 from numba import njit
 
 from app.mjcall import call_model_data
+from app.slave.arm_ik import cholesky_solve
 from app.spatial import Array, IntArray, cross3, quat_to_matrix, rotation_exp, rotation_log
+from app.world.contact.force import V_SLIP
 
 # Slots of the PD gain vector handed to :func:`drive_wrench` (see ``SlaveGains``).
 KP_LIN, KD_LIN, KP_ROT, KD_ROT, FORCE_LIMIT, TORQUE_LIMIT = range(6)
 # Slots of the rest of :func:`tool_substep`'s constant parameter vector, after the PD gains.
-K_ACC, MAX_LEAD_LIN, MAX_LEAD_ROT, WEIGHT_W, GRAVITY_W, MASS, INERTIA_C, N_PARAMS = 6, 12, 13, 14, 17, 20, 21, 30
+K_ACC, MAX_LEAD_LIN, MAX_LEAD_ROT, WEIGHT_W, GRAVITY_W, MASS, INERTIA_C = 6, 12, 13, 14, 17, 20, 21
+INERTIA_INV_C, PD_MODES, N_PARAMS = 30, 39, 41
 # What :func:`tool_substep` does to the reference before driving toward it.
 HOLD, RATE, POSE, KEEP = range(4)
+# The largest (omega h)^2 the implicit share of a substep lets a spring on the tool have
+# (:func:`implicit_wrench`): omega h = 1, half the explicit step's bound of 2. A numerical choice.
+SIGMA_MAX = 1.0
 # Slots of the packed F/T reading (the fields of :class:`~app.controller.types.FTReading`).
 R_WRENCH, R_ROT, R_ACC, R_OMEGA, N_READING = 0, 6, 15, 21, 24
 
@@ -77,10 +83,10 @@ def _apply_t(R: Array, v: Array) -> Array:
 
 
 @njit(cache=True)
-def _saturate(v: Array, limit: float) -> Array:
-    """``v`` scaled down to norm ``limit`` if longer (direction kept)."""
+def _saturate(v: Array, limit: float) -> tuple[Array, bool]:
+    """``v`` scaled down to norm ``limit`` if longer (direction kept), and whether it was."""
     n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    return v * (limit / n) if n > limit else v
+    return (v * (limit / n), True) if n > limit else (v, False)
 
 
 @njit(cache=True)
@@ -147,6 +153,271 @@ def rate_reference(
 
 
 @njit(cache=True)
+def _add_point(r: Array, n: Array, a: float, b: float, out: Array) -> None:
+    """Add to ``out`` (6, 6) the matrix ``J^T (a n n^T + b I) J`` of a point at ``r`` (m, from the
+    centre of mass, {w}): J maps the body's ``[v; w]`` to the point's velocity ``v + w x r``."""
+    g = np.empty(6)
+    g[0:3] = n
+    g[3:6] = cross3(r, n)  # J^T n
+    for i in range(6):
+        for j in range(6):
+            out[i, j] += a * g[i] * g[j]
+    if b == 0.0:
+        return
+    # J^T J = [[I, -[r]x], [[r]x, |r|^2 I - r r^T]]
+    rr = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+    for i in range(3):
+        out[i, i] += b
+        out[3 + i, 3 + i] += b * rr
+        for j in range(3):
+            out[3 + i, 3 + j] -= b * r[i] * r[j]
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        # [r]x has -r_k at (i, j) and +r_k at (j, i) for the cyclic (i, j, k)
+        out[3 + i, j] -= b * r[k]
+        out[3 + j, i] += b * r[k]
+        out[i, 3 + j] += b * r[k]
+        out[j, 3 + i] -= b * r[k]
+
+
+@njit(cache=True)
+def _solve_spd(A: Array, y: Array) -> Array:
+    """``A^-1 y`` for a symmetric positive definite (6, 6) ``A`` (Cholesky; no BLAS call)."""
+    L = np.zeros((6, 6))
+    for i in range(6):
+        for j in range(i + 1):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = math.sqrt(s) if i == j else s / L[j, j]
+    return cholesky_solve(L, y)
+
+
+@njit(cache=True)
+def _trace(X: Array, mass: float, I_inv_w: Array) -> float:
+    """``tr(M^-1 X)`` for the tool's mass matrix ``M = diag(m, I_w)`` (``I_inv_w`` its angular
+    block's inverse) and a (6, 6) ``X``."""
+    t = (X[0, 0] + X[1, 1] + X[2, 2]) / mass
+    for i in range(3):
+        for j in range(3):
+            t += I_inv_w[i, j] * X[3 + j, 3 + i]
+    return t
+
+
+@njit(cache=True)
+def _largest_mode(X: Array, mass: float, I_w: Array, I_inv_w: Array) -> float:
+    """The largest eigenvalue of ``M^-1 X`` (1/s^2 for a stiffness, 1/s for a damping), M the
+    tool's mass matrix ``diag(m, I_w)`` and X symmetric positive semi-definite (6, 6): power
+    iteration, then the Rayleigh quotient ``x^T X x / x^T M x`` (from below, within a few per
+    cent after twelve steps; the callers' margins absorb that)."""
+    x = np.array((1.0, 0.9, 0.8, 0.7, 0.6, 0.5))
+    y = np.empty(6)
+    for _ in range(12):
+        for i in range(6):
+            s = 0.0
+            for j in range(6):
+                s += X[i, j] * x[j]
+            y[i] = s
+        top = 0.0
+        for i in range(3):
+            x[i] = y[i] / mass
+            x[3 + i] = I_inv_w[i, 0] * y[3] + I_inv_w[i, 1] * y[4] + I_inv_w[i, 2] * y[5]
+        for i in range(6):
+            top = max(top, abs(x[i]))
+        if top == 0.0:
+            return 0.0
+        x /= top
+    num = den = 0.0
+    for i in range(6):
+        for j in range(6):
+            num += x[i] * X[i, j] * x[j]
+    for i in range(3):
+        den += mass * x[i] * x[i]
+        for j in range(3):
+            den += x[3 + i] * I_w[i, j] * x[3 + j]
+    return num / den
+
+
+@njit(cache=True)
+def _correction(hk: float, hc: float, K: Array, C: Array, u: Array, h: float, acc: Array) -> Array:
+    """``hk K (u + h acc) + hc C acc`` (6,): how much less a stiffness K and a damping C push over
+    the substep ``h`` (s), implicit by ``hk = theta_k h`` and ``hc = theta_c h``, than at its
+    start, the body's velocity ``u`` and acceleration ``acc``."""
+    out = np.empty(6)
+    for i in range(6):
+        s = 0.0
+        for j in range(6):
+            s += hk * K[i, j] * (u[j] + h * acc[j]) + hc * C[i, j] * acc[j]
+        out[i] = s
+    return out
+
+
+@njit(cache=True)
+def _shift(w: Array, dF: Array, R: Array, p: Array, c: Array) -> None:
+    """Add to the wrench ``w`` (6,), at the point ``p`` in the axes ``R`` (both {w}), the change
+    ``dF`` = ``[force; torque about c]`` ({w})."""
+    df = dF[0:3]
+    dm = dF[3:6] - cross3(p - c, df)
+    w[0:3] += _apply_t(R, df)
+    w[3:6] += _apply_t(R, dm)
+
+
+@njit(cache=True)
+def pd_modes(pd: Array, r_C: Array, mass: float, inertia_C: Array, inertia_inv_C: Array) -> tuple[float, float]:
+    """The largest modes of the PD alone on the tool, of ``M^-1 K`` (1/s^2) and ``M^-1 C`` (1/s)
+    (:func:`implicit_wrench`), its {MRF} at ``r_C`` from the centre of mass (m, {C}): independent
+    of the pose, so computed once."""
+    K = np.zeros((6, 6))
+    C = np.zeros((6, 6))
+    _add_point(r_C, r_C, 0.0, pd[KP_LIN], K)
+    _add_point(r_C, r_C, 0.0, pd[KD_LIN], C)
+    for a in range(3, 6):
+        K[a, a] += pd[KP_ROT]
+        C[a, a] += pd[KD_ROT]
+    return _largest_mode(K, mass, inertia_C, inertia_inv_C), _largest_mode(C, mass, inertia_C, inertia_inv_C)
+
+
+@njit(cache=True)
+def implicit_wrench(
+    h: float,
+    rows: Array,
+    materials: Array,
+    pd: Array,
+    force_saturated: bool,
+    torque_saturated: bool,
+    T_w_MRF: Array,
+    T_C_S: Array,
+    mass: float,
+    inertia_C: Array,
+    inertia_inv_C: Array,
+    gravity_w: Array,
+    qpos: Array,
+    qvel: Array,
+    contact: Array,
+    xfrc: Array,
+    pd_alone: Array,
+) -> None:
+    """Make MuJoCo's (semi-implicit) Euler substep of ``h`` (s) implicit in the stiffnesses and
+    dampings on the tool as far as its stability needs: correct the explicit wrench ``xfrc`` and
+    the contact's.
+
+    Explicitly, a spring k on a mass m is stable only for ``sigma = (omega h)^2 = k h^2 / m < 4``
+    and a damper c only for ``beta = c h / m < 2`` (monotone below 1): a dozen peg spheres of
+    100 N/mm on a wall, a light tool, or the viscous band of the regularised friction (``mu f_n /
+    V_SLIP``, ~2 10^4 N s/m at 40 N) break them. Linearising the forces about the substep's
+    start, the body is pushed by ``F - theta_k K h v' - theta_c C h a`` (``v' = v + h a``), so
+    ``(M + theta_c h C + theta_k h^2 K) a = F - theta_k h K v`` (M the mass matrix, F with
+    gravity less the gyroscopic term). With semi-implicit Euler's position update a spring's
+    ``sigma`` becomes ``sigma / (1 + theta_k sigma)``; ``theta_k = max(0, 1 / SIGMA_MAX - 1 /
+    sigma)`` holds it at :data:`SIGMA_MAX` at any stiffness, and ``theta_c = max(0, 1 - 1 /
+    beta)`` makes a damper's decay monotone; sigma and beta are those of the largest modes of
+    ``h^2 M^-1 K`` and ``h M^-1 C`` (then ``sigma + 2 beta <= 3``, inside the explicit
+    spring-damper's ``sigma + 2 beta < 4``). Where the explicit step is
+    comfortably stable both are 0 and the step is exactly the explicit one (no numerical damping
+    of a soft contact, which the haptic loop would feel); at theta 1 it is backward Euler.
+
+    K and C gather, in the body's coordinates ``[v of the centre of mass; w]`` ({w}): each
+    pushing contact's normal stiffness ``k n n^T`` and damping ``b n n^T`` and its friction's
+    secant damping ``mu f_n / max(|u_t|, V_SLIP)`` across the normal, at the contact point (a
+    dynamic object taken as still over the substep); and the PD's gains at {MRF} and on the
+    rotation, each unless saturated (then it is a constant force). The contact's share of the
+    correction is taken off ``contact`` too: the wrench reported, and read by the F/T sensor, is
+    the one the step applied, so the reading stays the robot's force on the tool (the sensor's
+    ``contact + weight - m a``), as with the explicit step.
+
+    Args:
+        h: The substep (s).
+        rows: This substep's contact rows ``[p (3), n (3), depth, sphere, object]``
+            (:class:`~app.world.contact.ContactResult`), (k, 9).
+        materials: ``[stiffness, damping, friction]`` per object id (N/m, N s/m, -), (n, 3).
+        pd: The PD's ``[kp_lin, kd_lin, kp_rot, kd_rot, ...]`` (:func:`drive_wrench`).
+        force_saturated, torque_saturated: Whether the PD's force and torque were saturated.
+        T_w_MRF: The tool's {MRF} pose (4, 4). ``T_C_S``: {S} in the body frame {C}, (4, 4).
+        mass, inertia_C: The tool's mass (kg) and inertia about the centre of mass in {C} axes
+            (kg m^2), (3, 3); ``inertia_inv_C`` its inverse.
+        gravity_w: Gravity in {w} (m/s^2), (3,).
+        qpos, qvel: MuJoCo's free joint state (module docstring), (7,), (6,).
+        contact: The contact result's ``w`` (``wrench_S``, ``wrench_MRF``, ``force_w``), (15,),
+            corrected in place.
+        xfrc: In: the explicit ``[force; torque about the centre of mass]`` (N, N m, {w}); out: the
+            wrench to apply, (6,).
+        pd_alone: :func:`pd_modes`, (2,): without contacts the step is explicit if they allow.
+    """
+    if rows.shape[0] == 0 and h * h * pd_alone[0] <= SIGMA_MAX and h * pd_alone[1] <= 1.0:
+        return
+    R = quat_to_matrix(qpos[3:7])
+    c = qpos[0:3]
+    u = np.empty(6)
+    u[0:3] = qvel[0:3]
+    u[3:6] = _apply(R, qvel[3:6])
+    # [contact K, contact C, PD K, PD C]
+    KC = np.zeros((4, 6, 6))
+    r = np.empty(3)
+    for i in range(rows.shape[0]):
+        row = rows[i]
+        k, b, mu = materials[int(row[8])]
+        n = row[3:6]
+        for a in range(3):
+            r[a] = row[a] - c[a]
+        up = u[0:3] + cross3(u[3:6], r)
+        un = up[0] * n[0] + up[1] * n[1] + up[2] * n[2]
+        fn = k * row[6] - b * un
+        if fn <= 0.0:
+            continue  # separating: no force, nothing to linearise
+        _add_point(r, n, k, 0.0, KC[0])
+        ct = 0.0
+        if mu > 0.0:
+            ut = up - un * n
+            ct = mu * fn / max(math.sqrt(ut[0] * ut[0] + ut[1] * ut[1] + ut[2] * ut[2]), V_SLIP)
+        _add_point(r, n, b - ct, ct, KC[1])
+    # Weyl: the largest mode of PD + contacts is at most the PD's plus the contacts' trace.
+    I_inv = _mul_t(_mul(R, inertia_inv_C), R)
+    sigma_contacts, beta_contacts = h * h * _trace(KC[0], mass, I_inv), h * _trace(KC[1], mass, I_inv)
+    if h * h * pd_alone[0] + sigma_contacts <= SIGMA_MAX and h * pd_alone[1] + beta_contacts <= 1.0:
+        return
+    if not force_saturated:
+        r_m = T_w_MRF[0:3, 3] - c
+        _add_point(r_m, r_m, 0.0, pd[KP_LIN], KC[2])
+        _add_point(r_m, r_m, 0.0, pd[KD_LIN], KC[3])
+    if not torque_saturated:
+        for a in range(3, 6):
+            KC[2, a, a] += pd[KP_ROT]
+            KC[3, a, a] += pd[KD_ROT]
+    I_w = _mul_t(_mul(R, inertia_C), R)
+    K, C = KC[0] + KC[2], KC[1] + KC[3]
+    sigma = h * h * _largest_mode(K, mass, I_w, I_inv)
+    beta = h * _largest_mode(C, mass, I_w, I_inv)
+    hk = h * (1.0 / SIGMA_MAX - 1.0 / sigma) if sigma > SIGMA_MAX else 0.0
+    hc = h * (1.0 - 1.0 / beta) if beta > 1.0 else 0.0
+    if hk == 0.0 and hc == 0.0:
+        return  # the explicit step is stable with margin: keep it as it is
+    w = u[3:6]
+    gyro = cross3(w, _apply(I_w, w))
+    A = np.empty((6, 6))
+    rhs = np.empty(6)
+    for i in range(6):
+        hKu = 0.0
+        for j in range(6):
+            A[i, j] = hc * C[i, j] + hk * h * K[i, j]
+            hKu += hk * K[i, j] * u[j]
+        rhs[i] = xfrc[i] - hKu
+    for i in range(3):
+        A[i, i] += mass
+        rhs[i] += mass * gravity_w[i]
+        rhs[3 + i] -= gyro[i]
+        for j in range(3):
+            A[3 + i, 3 + j] += I_w[i, j]
+    acc = _solve_spd(A, rhs)
+    d_contact = -_correction(hk, hc, KC[0], KC[1], u, h, acc)
+    xfrc += d_contact - _correction(hk, hc, KC[2], KC[3], u, h, acc)
+    if rows.shape[0] == 0:
+        return
+    R_w_MRF = T_w_MRF[0:3, 0:3]
+    _shift(contact[6:12], d_contact, R_w_MRF, T_w_MRF[0:3, 3], c)
+    _shift(contact[0:6], d_contact, _mul(R, T_C_S[0:3, 0:3]), c + _apply(R, T_C_S[0:3, 3]), c)
+    contact[12:15] += d_contact[0:3]
+
+
+@njit(cache=True)
 def drive_wrench(
     T_w_MRF: Array,
     V_w_MRF: Array,
@@ -158,9 +429,10 @@ def drive_wrench(
     contact_MRF: Array,
     weight_w: Array,
     xfrc: Array,
-) -> None:
+) -> tuple[bool, bool]:
     """The wrench on the body for one substep: saturated PD at {MRF}, contact, and the robot's
-    gravity feedforward for its known tool and payload, into ``xfrc``.
+    gravity feedforward for its known tool and payload, into ``xfrc``; returns whether the PD's
+    force and its torque were saturated.
 
     Args:
         T_w_MRF, V_w_MRF: Tool pose (4, 4) and twist (6,) in {w}.
@@ -177,16 +449,17 @@ def drive_wrench(
     R_w_MRF = T_w_MRF[0:3, 0:3]
     p_w_MRF = T_w_MRF[0:3, 3]
     e_R = rotation_log(_mul_t(T_ref[0:3, 0:3], R_w_MRF))
-    f_pd = _saturate(
+    f_pd, f_sat = _saturate(
         pd[KP_LIN] * (T_ref[0:3, 3] - p_w_MRF) + pd[KD_LIN] * (V_ref_w[0:3] - V_w_MRF[0:3]), pd[FORCE_LIMIT]
     )
-    t_pd = _saturate(pd[KP_ROT] * e_R + pd[KD_ROT] * (V_ref_w[3:6] - V_w_MRF[3:6]), pd[TORQUE_LIMIT])
+    t_pd, t_sat = _saturate(pd[KP_ROT] * e_R + pd[KD_ROT] * (V_ref_w[3:6] - V_w_MRF[3:6]), pd[TORQUE_LIMIT])
     f_total = f_pd + contact_force_w
     # Both forces act at the {MRF} origin (the contact moment is already about it); MuJoCo wants
     # the moment about the centre of mass.
     torque = t_pd + _apply(R_w_MRF, contact_MRF[3:6]) + cross3(p_w_MRF - qpos[0:3], f_total)
     xfrc[0:3] = f_total - weight_w
     xfrc[3:6] = torque
+    return f_sat, t_sat
 
 
 @njit(cache=True)
@@ -261,9 +534,13 @@ def tool_substep(
     xfrc: Array,
     contact: Array,
     valid: bool,
+    rows: Array,
+    materials: Array,
+    h: float,
     reading: Array,
 ) -> None:
-    """One substep of the ideal tool in one call: reference, PD drive, ``mj_step``, F/T sensor, new state.
+    """One substep of the ideal tool in one call: reference, PD drive, linearly implicit
+    correction (:func:`implicit_wrench`), ``mj_step``, F/T sensor, new state.
 
     Args:
         mj: ``[mj_step address, mjModel*, mjData*]`` (:mod:`app.mjcall`), (3,).
@@ -277,14 +554,17 @@ def tool_substep(
         dt: The servo period (s) the rate reference integrates over (the substep is MuJoCo's
             timestep).
         params: ``[pd (6, see drive_wrench); K_acc (6); max_lead_lin; max_lead_rot; m g in {w}
-            (3); g in {w} (3); mass; inertia_C (9)]``, (30,).
+            (3); g in {w} (3); mass; inertia_C (9); its inverse (9); :func:`pd_modes` (2)]``, (41,).
         frames: ``[T_C_MRF, T_C_S]``, (2, 4, 4).
         T_w_MRF, V_w_MRF: The tool's {MRF} pose (4, 4) and twist (6,) at the substep's start (in),
             then at its end (out).
         T_ref, V_ref_w: The reference pose (4, 4) and twist (6,), updated as ``reference`` says.
         qpos, qvel, qacc, xfrc: MuJoCo's free joint state (7,), (6,), (6,) and the body's
             ``xfrc_applied`` row (6,).
-        contact: This substep's contact result ``w`` at ``T_w_MRF`` (15,); ``valid`` its flag.
+        contact: This substep's contact result ``w`` at ``T_w_MRF`` (15,), turned into the wrench
+            the step applied (:func:`implicit_wrench`); ``valid`` its flag.
+        rows, materials, h: Its contact rows (k, 9), the objects' materials (n, 3) and the
+            substep (s), for :func:`implicit_wrench`.
         reading: Output, the F/T reading ``[wrench_S (6); R_w_S (9, row-major); acc_w (6);
             omega_w (3)]`` at the substep's start with the accelerations it applied, (24,).
     """
@@ -296,7 +576,7 @@ def tool_substep(
     elif reference == RATE:
         F_acc = params[K_ACC : K_ACC + 6] * prev_contact[6:12]
         rate_reference(twist, F_acc, T_w_MRF, dt, params[MAX_LEAD_LIN], params[MAX_LEAD_ROT], T_ref, V_ref_w)
-    drive_wrench(
+    f_sat, t_sat = drive_wrench(
         T_w_MRF,
         V_w_MRF,
         T_ref,
@@ -308,8 +588,27 @@ def tool_substep(
         params[WEIGHT_W : WEIGHT_W + 3],
         xfrc,
     )
-    call_model_data(mj[0], mj[1], mj[2])
     inertia_C = params[INERTIA_C : INERTIA_C + 9].reshape((3, 3))
+    implicit_wrench(
+        h,
+        rows,
+        materials,
+        params[0:6],
+        f_sat,
+        t_sat,
+        T_w_MRF,
+        frames[1],
+        params[MASS],
+        inertia_C,
+        params[INERTIA_INV_C : INERTIA_INV_C + 9].reshape((3, 3)),
+        params[GRAVITY_W : GRAVITY_W + 3],
+        qpos,
+        qvel,
+        contact,
+        xfrc,
+        params[PD_MODES:N_PARAMS],
+    )
+    call_model_data(mj[0], mj[1], mj[2])
     sensor_reading(
         T_w_MRF,
         V_w_MRF,

@@ -45,8 +45,12 @@ def test_rate_mode_force_is_set_by_the_accommodation_not_the_stiffness() -> None
     """NTRFC: in steady contact F = v_cmd / K_acc whatever the surface stiffness (within 4 %: the
     grip comes to rest anywhere in its joints' Coulomb friction band, ~0.2 mm of Delta X here, and
     v_cmd follows Delta X; a pose-mode wall ten times stiffer would push ten times harder). The
-    stiff wall is the stiffest shipped one (the peg block's cited 100 N/mm); at ten times that,
-    1e6 N/m, this press does not settle (25 N of ripple; not examined further)."""
+    stiff wall is the stiffest shipped one (the peg block's cited 100 N/mm). At ten times that,
+    1e6 N/m, the press rings in a limit cycle (17-23 N) with the contact's 225 Hz mode resolved
+    (2 to 10 slave substeps): the accommodation term reaches the slave's velocity reference a
+    tick late, through its PD damping, against that lightly damped mode, a loop of the model
+    rather than of its integration. One implicit substep settles it only by damping the
+    unresolved mode numerically, so it is not asserted here."""
     soft, stiff = press(STIFFEST_SHIPPED / 10, "rate"), press(STIFFEST_SHIPPED, "rate")
     assert stiff.settled
     assert stiff.mean_force == pytest.approx(soft.mean_force, rel=0.04)

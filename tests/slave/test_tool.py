@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 
@@ -12,6 +13,7 @@ from app.controller.types import FTReading, SlaveCommand, SlaveModel
 from app.errors import InputError
 from app.slave.tool import VirtualSlave
 from app.world import load_scene
+from app.world.contact.force import V_SLIP
 from app.world.scene import Scene
 
 
@@ -146,7 +148,15 @@ def test_pressing_into_the_stiffest_surface_settles(name: str) -> None:
     fz = np.array([r.wrench_S[2] for r in readings])
     tail = fz[-1000:]
     assert slave.contact.count > 0
-    assert np.ptp(tail) < 1e-3 * abs(tail.mean())
+    # Steady, or drifting smoothly: the pegs landed short of the target sideways and creep toward
+    # it in the friction's viscous band (below 1 mm/s, ``mu f_n / V_SLIP`` ~19 kN s/m against the
+    # servo's 3000 N/m, a time constant of seconds), as the model has no sticking. The explicit
+    # step held them still in a sampled chatter instead (48 mm/s and 0.84 rad/s at every tick).
+    trend = np.polyval(np.polyfit(np.arange(len(tail)), tail, 2), np.arange(len(tail)))
+    assert np.ptp(tail - trend) < 1e-4 * abs(tail.mean())
+    v = slave.V_w_MRF
+    assert np.linalg.norm(v[0:3]) < V_SLIP
+    assert np.linalg.norm(v[3:6]) < V_SLIP / 0.03  # the pegs' 30 mm lever
 
 
 @pytest.mark.parametrize("name", ["probe", "peg_in_hole"])
@@ -231,3 +241,54 @@ def test_a_hard_push_through_a_thin_plate_never_pops_through() -> None:
     run(slave, SlaveCommand(active=True, mode="pose", T_w_MRF=up), 3000)
     assert slave.T_w_MRF[2, 3] == pytest.approx(0.02, abs=1e-4)
     assert slave.contact.count == 0
+
+
+def light_stiff(name: str, mass_scale: float, stiffness: float | None = None) -> Scene:
+    """``name``'s scene with the tool's mass and inertia scaled by ``mass_scale`` and, if given,
+    every object's contact stiffness (N/m per sphere)."""
+    s = scene(name)
+    tool = dataclasses.replace(s.tool, mass=s.tool.mass * mass_scale, inertia_T=s.tool.inertia_T * mass_scale)
+    objects = s.objects if stiffness is None else tuple(dataclasses.replace(o, stiffness=stiffness) for o in s.objects)
+    return dataclasses.replace(s, tool=tool, objects=objects)
+
+
+@pytest.mark.parametrize(("mass_scale", "stiffness"), [(0.6, 1e6), (0.3, 1e6), (0.1, 1e5), (0.1, 1e6)])
+def test_a_light_tool_pressed_on_a_stiff_surface_settles_at_the_static_force(
+    mass_scale: float, stiffness: float
+) -> None:
+    """The probe's tip sphere (r 5 mm) held by the PD toward 2 mm below the surface (z = 0): the
+    servo spring and the surface in series push ``kp k / (kp + k) (r + 2 mm)`` (the weight is fed
+    forward), the F/T sensor reads that less the weight. Explicitly integrated (before the
+    implicit substep) the 0.15 kg (x0.3) tool on 1e6 N/m and the 0.05 kg (x0.1) tool on 1e5 N/m
+    rang at the sampling rate (366 N and 50 N of ripple): ``sqrt(k / m) h`` past 2."""
+    s = light_stiff("probe", mass_scale, stiffness)
+    slave = VirtualSlave(s, accommodation=False)
+    target = slave.T_w_MRF
+    target[2, 3] = -0.002
+    readings = run(slave, SlaveCommand(active=True, mode="pose", T_w_MRF=target), 2000)
+    kp, mass = s.spec.slave.kp_lin, s.tool.mass
+    push = kp * stiffness / (kp + stiffness) * (0.005 + 0.002)
+    fz = np.array([float(slave.contact.force_w[2])] + [r.wrench_S[2] for r in readings[-500:]])
+    assert fz[0] == pytest.approx(push, rel=1e-6)
+    assert fz[1:] == pytest.approx(push - mass * 9.81, rel=1e-6)
+
+
+@pytest.mark.parametrize("mass_scale", [1.0, 0.5, 1 / 12])
+def test_a_light_peg_tool_pushed_blind_into_the_holes_holds_the_force_limit(mass_scale: float) -> None:
+    """The peg tool (0.6, 0.3 and 0.05 kg) driven blind straight down into its holes (100 N/mm
+    per sphere): the pegs reach the holes' bottoms and the contact force settles at the PD's
+    40 N limit. Explicitly integrated, the 0.3 kg tool diverged in the experiment's blind runs
+    (6140 N); here the force never exceeds the limit by more than the landing's impact."""
+    s = light_stiff("peg_in_hole", mass_scale)
+    slave = VirtualSlave(s, accommodation=False)
+    fz = []
+    for _ in range(3000):
+        assert slave.step(rate((0.0, 0.0, -0.05, 0.0, 0.0, 0.0))).valid
+        fz.append(float(slave.contact.force_w[2]))
+    limit = s.spec.slave.force_limit
+    assert max(fz) < 2.0 * limit
+    assert fz[-500:] == pytest.approx([limit] * 500, rel=1e-3)
+    # {MRF} is the tips' lowest point: on the holes' bottoms (25 mm deep), pressed in by the limit
+    # over both tips' stiffness.
+    k = s.objects[0].stiffness
+    assert slave.T_w_MRF[2, 3] == pytest.approx(-0.025 - limit / (2.0 * k), abs=1e-6)

@@ -99,6 +99,21 @@ cycle out of the wall gives back more than it took in, so ``E`` drains until the
 count is within what friction absorbs, and the grip stays in one count. The price is
 transparency: a stiff wall is felt softer while ``E`` is low (``frhc bench stability`` reports
 the felt stiffness with and without it).
+
+Why not the energy bounding algorithm (Kim & Ryu 2004, IEEE ICRA) in place of the bank: it
+bounds the energy the zero-order hold generates in each period, ``-(tau(k) - tau(k-1)) . dq / 2``
+(J), by what the device's own damping dissipates in it, ``sum_j d_j dq_j^2 / T`` (``d_j`` from
+:func:`device_dissipation`), so nothing is stored that an impact could empty. Tried per sample
+(its consumable-energy carry-over left out, as that is a bank again) on the stability matrix
+(0.6 s windows, pose mode; plain / PO/PC / EBA stable of 84 presses on the shipped devices:
+39 / 62 / 20, of the 81 hardest: 26 / 21 / 9). Derived from the device alone, it renders a wall
+that moves at no more than the device-only bound (felt stiffness, median on the shipped devices:
+677 / 288 / 1,400 N/m on kraft / jpl / freflex against the device-only 803 / 343 / 3,755), and a
+force it holds back while the grip moves is a held force source that gives out energy of its own
+(the frictionless Kraft variant, let go on the wall, was thrown 0.3 m up). Applied only to the
+task torque and only by scaling it down (``|tau| <= |tau_r|``, as the PC does) it was still below
+plain: 35 / 84 and 19 / 81, worse than plain at 6 and 9 points (notes and patches: issue 26,
+helper eba26).
 """
 
 from __future__ import annotations

@@ -86,6 +86,13 @@ def _gram_cholesky(J: Array, free: BoolArray, lam2: float) -> Array:
                     acc += J[i, k] * J[j, k]
             A[i, j] = acc
         A[i, i] += lam2
+    return cholesky(A)
+
+
+@njit(cache=True)
+def cholesky(A: Array) -> Array:
+    """Lower Cholesky factor L (6, 6) of a symmetric positive definite ``A`` (6, 6) (its lower
+    triangle is read; pivots floored at 1e-300 so a singular A gives a finite, huge solve)."""
     L = np.zeros((6, 6))
     for j in range(6):
         d = A[j, j]

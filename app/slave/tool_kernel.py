@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 
 from app.mjcall import call_model_data
-from app.slave.arm_ik import cholesky_solve
+from app.slave.arm_ik import cholesky, cholesky_solve
 from app.spatial import Array, IntArray, cross3, quat_to_matrix, rotation_exp, rotation_log
 from app.world.contact.force import V_SLIP
 
@@ -182,14 +182,7 @@ def _add_point(r: Array, n: Array, a: float, b: float, out: Array) -> None:
 @njit(cache=True)
 def _solve_spd(A: Array, y: Array) -> Array:
     """``A^-1 y`` for a symmetric positive definite (6, 6) ``A`` (Cholesky; no BLAS call)."""
-    L = np.zeros((6, 6))
-    for i in range(6):
-        for j in range(i + 1):
-            s = A[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = math.sqrt(s) if i == j else s / L[j, j]
-    return cholesky_solve(L, y)
+    return cholesky_solve(cholesky(A), y)
 
 
 @njit(cache=True)

@@ -171,7 +171,16 @@ def test_every_scene_is_framed_beside_the_panel(demo: DemoApp, page: object) -> 
         """The browser's next camera report (at ``pose``, if given)."""
         n, end = len(reports), time.monotonic() + STEP_TIMEOUT
         while True:
-            done = [r for r in reports[n:] if pose is None or np.allclose(r[0].position, pose.position, atol=1e-4)]
+            # Both fields: the server sets position then look_at, and a report may come between.
+            done = [
+                r
+                for r in reports[n:]
+                if pose is None
+                or (
+                    np.allclose(r[0].position, pose.position, atol=1e-4)
+                    and np.allclose(r[0].look_at, pose.look_at, atol=1e-4)
+                )
+            ]
             if done:
                 return done[-1]
             if pose is None and client.client_id in demo._fitted and client.camera.image_height:

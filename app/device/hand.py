@@ -49,7 +49,7 @@ def _rotate_wrench(T: Array, w: Array, out: Array) -> None:
 
 
 @njit(cache=True)
-def _pull(
+def pull_target(
     T_0_H: Array, T: Array, mocap_pos: Array, mocap_quat: Array, kinematics: int, transmission: int, m: int, d: int
 ) -> bool:
     """Copy a finite ``T_0_H`` (4, 4) to ``T`` and to the hand's mocap pose, then run MuJoCo's
@@ -130,13 +130,15 @@ class OperatorHand:
         self._force_H = data.actuator_force[first : first + 6]
         self._wrench_G = np.zeros(6)
         self._T = np.eye(4)
+        # Read every tick by the state row: the compiled specialisation, without numba's typing.
+        self._rotate = entry_point(_rotate_wrench, self._T, self._force_H, self._wrench_G)
         self._mocap_pos = data.mocap_pos[self._mocap]
         self._mocap_quat = data.mocap_quat[self._mocap]
         self._opt = model.opt
         kinematics, transmission = address("mj_kinematics"), address("mj_transmission")
         self._pull_args = (self._T, self._mocap_pos, self._mocap_quat, kinematics, transmission, *pointers(model, data))
         # Called every tick with the same kinds of arguments: the compiled specialisation, once.
-        self._pull = entry_point(_pull, self._T, *self._pull_args)
+        self._pull = entry_point(pull_target, self._T, *self._pull_args)
         #: Hand target pose T_0_H (4, 4), or None when the operator has let go.
         self.T_0_H: Array | None = None
         self.set_target(None)
@@ -166,6 +168,12 @@ class OperatorHand:
             opt.disableactuator &= ~(1 << HAND_GROUP)
         self.T_0_H = self._T
 
+    def pull_args(self) -> tuple[object, ...] | None:
+        """What :func:`pull_target` takes after the target, for a caller that moves the held hand
+        from its own compiled code every tick (:meth:`~app.session.loop.ServoLoop.hand_pull`); None
+        while the hand is off the grip (only :meth:`set_target` takes hold)."""
+        return None if self.T_0_H is None else self._pull_args
+
     def wrench_G(self) -> Array:
         """The hand's wrench on the grip in the last physics step.
 
@@ -176,5 +184,5 @@ class OperatorHand:
         if self.T_0_H is None:
             self._wrench_G.fill(0.0)
         else:
-            _rotate_wrench(self._T, self._force_H, self._wrench_G)
+            self._rotate(self._T, self._force_H, self._wrench_G)
         return self._wrench_G

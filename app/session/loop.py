@@ -279,6 +279,17 @@ class ServoLoop:
             self._hand[:] = T_0_H
         self.plant.set_hand_target(T_0_H)
 
+    def hand_pull(self) -> tuple[Array, tuple[object, ...]] | None:
+        """For an operator that moves the held hand from its own compiled code every tick: the
+        loop's hand target (4, 4; what the record reports) and the simulated hand's
+        :func:`~app.device.hand.pull_target` arguments after the target. Writing the target into
+        the first and passing it to ``pull_target`` with the second is :meth:`set_hand_target` of
+        a finite pose, without its checks; valid while the hand holds the grip (None otherwise:
+        take hold with :meth:`set_hand_target`).
+        """
+        args = self.plant.hand.pull_args()
+        return None if args is None or not self.record.hand_on else (self._hand, args)
+
     def set_grip(self, on: bool) -> GripEvent:
         """Close the slave tool's grip on the dynamic object it touches now, or open it (``on``
         False), between ticks: :meth:`~app.world.dynamics.MovingWorld.grip`. A scene without

@@ -4,20 +4,24 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numba import njit
+from numba import njit, typeof, types
+from numba.experimental import structref
 
-from app.compiled import entry_point
+from app.compiled import F8, I8, entry_point
 from app.controller.layout import SCALARS
 from app.controller.types import Fault
-from app.session.state import Observed, fill_observed
+from app.session.state import RowSources, fill_row
 from app.session.tick import STAGES, TickRecord
 from app.slave.arm import ArmStatus
 from app.spatial import Array, IntArray, rotation_log
 from app.world.scene import TaskSpec
 from app.world.scene_file import within_goal
+
+if TYPE_CHECKING:
+    from app.session.log import TickLog
 
 #: Seconds at the end of a session over which the contact force's settling is judged (s).
 SETTLE_WINDOW = 0.6
@@ -155,22 +159,78 @@ def _reduce(
         acc[_DONE_AT] = acc[_TIME]
 
 
+@structref.register
+class _MetricSinksType(types.StructRef):
+    def preprocess_fields(self, fields: tuple) -> tuple:
+        return tuple((name, types.unliteral(typ)) for name, typ in fields)
+
+
+class MetricSinks(structref.StructRefProxy):
+    """What :class:`SessionMetrics` write every tick, as one compiled argument (opaque in Python)."""
+
+
+structref.define_boxing(_MetricSinksType, MetricSinks)
+
+_F1, _F2, _I1, _I2 = (typeof(np.zeros((0,) * n, dtype=d)) for n, d in ((1, F8), (2, F8), (1, I8), (2, I8)))
+_METRIC_SINKS = _MetricSinksType([("acc", _F1), ("tail", _F1), ("ints", _I1), ("stage_table", _I2), ("log", _F2)])
+
+
 @njit(cache=True)
-def _observe_and_reduce(
-    row: Array,
-    starts: IntArray,
-    observed: Observed,
-    acc: Array,
-    tail: Array,
-    ints: IntArray,
+def _sinks(acc: Array, tail: Array, ints: IntArray, stage_table: IntArray, log: Array) -> MetricSinks:
+    """The metrics' arrays (see :func:`_reduce`) and the log's row buffer (rows, columns) as one
+    :class:`MetricSinks`; no copy."""
+    sinks: Any = structref.new(_METRIC_SINKS)  # type: ignore[call-arg]  # an intrinsic, typed by numba
+    sinks.acc = acc
+    sinks.tail = tail
+    sinks.ints = ints
+    sinks.stage_table = stage_table
+    sinks.log = log
+    return sinks
+
+
+@njit(cache=True)
+def _reduce_row(src: RowSources, sinks: MetricSinks, tick: int, log_row: int) -> None:
+    """:func:`_reduce` of the row ``src`` holds (filled), after copying its logged values into
+    row ``log_row`` of the log's buffer (none when negative)."""
+    a: Any = src
+    b: Any = sinks
+    row, log = a.row, b.log
+    if log_row >= 0:
+        for c in range(log.shape[1]):
+            log[log_row, c] = row[c]
+    _reduce(b.acc, b.tail, row, b.ints, tick, b.stage_table, a.stage_ns)
+
+
+@njit(cache=True)
+def _fill_and_reduce(
+    src: RowSources,
+    F_S: Array,
+    T_w_MRF: Array,
+    contact_w: Array,
+    t: float,
+    hand_on: bool,
+    deadman: bool,
+    reference: bool,
+    reflection: bool,
+    contacts: int,
+    faults: int,
+    watchdog_trips: int,
+    slave_status: int,
+    device_link: int,
+    link_force: float,
+    reflecting: bool,
+    full: bool,
+    sinks: MetricSinks,
     tick: int,
-    stage_table: IntArray,
-    stage_ns: IntArray,
+    log_row: int,
 ) -> None:
-    """:func:`_reduce` of a tick whose row no observer asked for: only the values it reads are
-    written into the row first (:func:`~app.session.state.fill_observed`), in the same call."""
-    fill_observed(row, starts, observed)
-    _reduce(acc, tail, row, ints, tick, stage_table, stage_ns)
+    """The tick's row (:func:`~app.session.state.fill_row`, its arguments first: whole when
+    ``full``, else only what :func:`_reduce` reads), then :func:`_reduce_row`: one call a tick."""
+    fill_row(
+        src, F_S, T_w_MRF, contact_w, t, hand_on, deadman, reference, reflection, contacts, faults,
+        watchdog_trips, slave_status, device_link, link_force, reflecting, full,
+    )  # fmt: skip
+    _reduce_row(src, sinks, tick, log_row)
 
 
 def _bit_counts(flags: type[Fault] | type[ArmStatus], counts: IntArray) -> dict[str, int]:
@@ -189,6 +249,9 @@ class SessionMetrics:
         start: The loop's record at the start (its reset state): where the work integral starts.
         task: The scene's task, if it has one (its completion is reported).
         n_ticks: Ticks expected (sizes the timing table). dt: Servo period (s).
+        log: A log whose rows these metrics write, in the same compiled call as their own sums
+            (a session's log and metrics: one call a tick instead of three); the log is then not
+            observed itself (its :meth:`~app.session.log.TickLog.close` is still the caller's).
 
     The work metric is the paper's Eq 13, ``W = sum_i |integral F_MRF,i d xi_i|``: the contact
     wrench at {MRF} in {MRF} axes times the {MRF} displacement in its own axes (translation,
@@ -202,7 +265,9 @@ class SessionMetrics:
     :class:`app.session.stability.FeltStiffness`.)
     """
 
-    def __init__(self, start: TickRecord, task: TaskSpec | None, n_ticks: int, dt: float) -> None:
+    def __init__(
+        self, start: TickRecord, task: TaskSpec | None, n_ticks: int, dt: float, log: TickLog | None = None
+    ) -> None:
         self._dt = dt
         self._acc = acc = np.zeros(_N_ACC)
         acc[_DONE_AT] = math.nan
@@ -228,38 +293,36 @@ class SessionMetrics:
             starts["switches"],
         )
         ints[_AT_LINK], ints[_AT_REFLECTING] = starts["link_force"], starts["reflecting"]
+        self._log = log
+        self._sinks = _sinks(acc, self._tail, ints, self._stage_ns, np.zeros((0, 0)) if log is None else log.buffer)
         self._reduce: Callable[..., None] | None = None
-        self._observe: Callable[..., None] | None = None
+        self._fill: Callable[..., None] | None = None
 
     def on_tick(self, tick: TickRecord) -> None:
-        """Reduce the tick's state row (one compiled pass: :func:`_reduce`). When no observer
-        before asked for the row (a session without a log), write only the values the reduction
-        reads, in the same call (:func:`_observe_and_reduce`): the whole row costs ~2 us more."""
+        """Reduce the tick's state row, in one compiled call (:func:`_fill_and_reduce`): with a
+        log, the whole row is filled and its logged part written to the log's buffer; without,
+        only the values the reduction reads are (the whole row costs ~2 us more). A row an
+        observer before already filled is reduced as it is (:func:`_reduce_row`)."""
         block = tick.block
         assert block is not None, "the loop sets the record's state block"
+        log = self._log
+        log_row = -1 if log is None else log.rows
         if tick.serial == block.serial:  # an observer before filled the row
-            args: tuple[object, ...] = (
-                self._acc,
-                self._tail,
-                block.row,
-                self._ints,
-                self._ticks,
-                self._stage_ns,
-                tick.stage_ns,
-            )
             if self._reduce is None:
                 # The same kinds of arguments every tick: the compiled specialisation, once.
-                self._reduce = entry_point(_reduce, *args)
-            self._reduce(*args)
+                self._reduce = entry_point(_reduce_row, block.sources, self._sinks, 0, 0)
+            self._reduce(block.sources, self._sinks, self._ticks, log_row)
         else:
-            args = (
-                block.row, block.at, block.observed(tick), self._acc, self._tail, self._ints, self._ticks,
-                self._stage_ns, tick.stage_ns,
-            )  # fmt: skip
-            if self._observe is None:
-                self._observe = entry_point(_observe_and_reduce, *args)
-            self._observe(*args)
+            full = log is not None
+            args = block.tick_args(tick, full)
+            if self._fill is None:
+                self._fill = entry_point(_fill_and_reduce, *args, full, self._sinks, 0, 0)
+            self._fill(*args, full, self._sinks, self._ticks, log_row)
+            if full:
+                block.serial = tick.serial
         self._ticks += 1
+        if log is not None:
+            log.row_written()
 
     @property
     def task_done_at(self) -> float | None:

@@ -7,8 +7,8 @@ targets (smoothly interpolated) and switch events. A reacting operator is any ob
 
 from __future__ import annotations
 
-import bisect
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -16,6 +16,7 @@ from numba import njit
 
 from app.compiled import entry_point
 from app.controller.types import Switches
+from app.device.hand import pull_target
 from app.session.spec import SessionFile, SwitchEvent
 from app.spatial import Array, make_pose, rotation_exp, rotation_log, zyx_to_matrix
 
@@ -68,18 +69,18 @@ class OperatorScript:
         self._T = np.eye(4)
         # The waypoint poses stacked, with the last repeated: the blend from it to itself holds it.
         self._stack = np.stack([*self._poses, self._poses[-1]])
-        # Called every tick with the same kinds of arguments: the compiled specialisation, once.
-        self._blend = entry_point(_blend, self._stack, 0, 0.0, self._tremor, 0, self._T)
+        self._path = (np.array(self._times), self._stack, self._tremor)
+        # Called every tick with the same kinds of arguments: the compiled specialisations, once.
+        self._pose = entry_point(_scripted_pose, *self._path, 0.0, 0, self._T)
+        # The loop whose held hand before_tick moves in one compiled call (_pose_and_pull), and that
+        # call; set on the first tick the hand holds (ServoLoop.hand_pull).
+        self._pulled: object = None
+        self._pose_and_pull: Callable[..., bool] | None = None
+        self._pull_args: tuple[object, ...] = ()
 
     def hand_target(self, t: float, tick: int) -> Array:
         """Hand-target pose ``T_0_H`` (4, 4) at time ``t`` (s); ``tick`` indexes the tremor."""
-        times = self._times
-        i = bisect.bisect_right(times, t)
-        if i == 0 or i == len(times):
-            k, s = (0, 0.0) if i == 0 else (len(times) - 1, 0.0)
-        else:
-            k, s = i - 1, (t - times[i - 1]) / (times[i] - times[i - 1])
-        self._blend(self._stack, k, s * s * (3.0 - 2.0 * s), self._tremor, tick, self._T)
+        self._pose(*self._path, t, tick, self._T)
         return self._T
 
     @staticmethod
@@ -88,10 +89,27 @@ class OperatorScript:
         return OperatorScript(data, loop.reading.T_0_G.copy(), loop.switches)
 
     def before_tick(self, loop: ServoLoop) -> None:
-        """Apply the events due by ``loop.time`` and move the hand (:class:`Operator`)."""
+        """Apply the events due by ``loop.time`` and move the hand (:class:`Operator`).
+
+        While the hand holds the grip of a simulated device, the pose is blended and the hand
+        pulled in one compiled call (:meth:`~app.session.loop.ServoLoop.hand_pull`): ~2 us a tick
+        less than :meth:`hand_target` and ``set_hand_target``, the same values.
+        """
         t, tick = loop.time, loop.ticks
         self.apply_events(loop)
-        loop.set_hand_target(self.hand_target(t, tick) if self.hand_on else None)
+        if not self.hand_on:
+            loop.set_hand_target(None)
+        elif loop is self._pulled and loop.record.hand_on:
+            assert self._pose_and_pull is not None
+            if not self._pose_and_pull(*self._path, t, tick, self._T, *self._pull_args):
+                raise ValueError("T_0_H must be a finite 4x4 pose")
+        else:
+            loop.set_hand_target(self.hand_target(t, tick))
+            pull = loop.hand_pull()
+            if pull is not None:
+                self._pulled, (hand, args) = loop, pull
+                self._pull_args = (hand, *args)
+                self._pose_and_pull = entry_point(_pose_and_pull, *self._path, t, tick, self._T, *self._pull_args)
 
     def apply_events(self, loop: ServoLoop) -> None:
         """Apply the events due by ``loop.time``: the switches, and the last grip event due to
@@ -122,6 +140,49 @@ class OperatorScript:
             self._grip = e.grip
         if e.reference:
             sw.reference = True
+
+
+@njit(cache=True)
+def _scripted_pose(times: Array, poses: Array, tremor: Array, t: float, tick: int, T: Array) -> None:
+    """``T`` (4, 4) = the hand target at time ``t`` (s): before the first waypoint time (``times``)
+    the first pose, after the last the last, in between the smoothstep blend (:func:`_blend`) of
+    the two around ``t``; plus the tremor of ``tick``."""
+    n = times.shape[0]
+    i = 0  # the first waypoint after t (bisect_right; a session has a few waypoints)
+    while i < n and times[i] <= t:
+        i += 1
+    k, s = 0, 0.0
+    if i == n:
+        k = n - 1
+    elif i > 0:
+        k, s = i - 1, (t - times[i - 1]) / (times[i] - times[i - 1])
+    _blend(poses, k, s * s * (3.0 - 2.0 * s), tremor, tick, T)
+
+
+@njit(cache=True)
+def _pose_and_pull(
+    times: Array,
+    poses: Array,
+    tremor: Array,
+    t: float,
+    tick: int,
+    T: Array,
+    hand: Array,
+    T_hand: Array,
+    mocap_pos: Array,
+    mocap_quat: Array,
+    kinematics: int,
+    transmission: int,
+    m: int,
+    d: int,
+) -> bool:
+    """:func:`_scripted_pose` into ``T``, copied to the loop's ``hand`` (4, 4) and pulled
+    (:func:`~app.device.hand.pull_target`, its arguments after ``T_hand``); False if not finite."""
+    _scripted_pose(times, poses, tremor, t, tick, T)
+    for a in range(4):
+        for b in range(4):
+            hand[a, b] = T[a, b]
+    return pull_target(T, T_hand, mocap_pos, mocap_quat, kinematics, transmission, m, d)
 
 
 @njit(cache=True)

@@ -70,6 +70,11 @@ def pull_target(
     return True
 
 
+#: What :func:`pull_target` takes after the target: the hand's target and mocap position and
+#: quaternion, MuJoCo's kinematics and transmission functions, model and data (addresses).
+PullArgs = tuple[Array, Array, Array, int, int, int, int]
+
+
 @dataclass(frozen=True)
 class HandParams(Checked):
     """Impedance of the operator's hand/arm as felt at the grip (ranges: ``sessions/README.md``).
@@ -168,7 +173,7 @@ class OperatorHand:
             opt.disableactuator &= ~(1 << HAND_GROUP)
         self.T_0_H = self._T
 
-    def pull_args(self) -> tuple[object, ...] | None:
+    def pull_args(self) -> PullArgs | None:
         """What :func:`pull_target` takes after the target, for a caller that moves the held hand
         from its own compiled code every tick (:meth:`~app.session.loop.ServoLoop.hand_pull`); None
         while the hand is off the grip (only :meth:`set_target` takes hold)."""

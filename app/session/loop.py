@@ -30,7 +30,7 @@ from app.controller.passivity import PassivitySettings
 from app.controller.safety import SafetyLimits
 from app.controller.types import Switches
 from app.device.boundary import Device
-from app.device.hand import HandParams
+from app.device.hand import HandParams, PullArgs
 from app.device.plant import WATCHDOG, DevicePlant
 from app.device.spec import DeviceSpec, load_device
 from app.errors import ConfigError
@@ -279,7 +279,7 @@ class ServoLoop:
             self._hand[:] = T_0_H
         self.plant.set_hand_target(T_0_H)
 
-    def hand_pull(self) -> tuple[Array, tuple[object, ...]] | None:
+    def hand_pull(self) -> tuple[Array, PullArgs] | None:
         """For an operator that moves the held hand from its own compiled code every tick: the
         loop's hand target (4, 4; what the record reports) and the simulated hand's
         :func:`~app.device.hand.pull_target` arguments after the target. Writing the target into

@@ -7,13 +7,13 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numba import njit, typeof, types
+from numba import njit
 from numba.experimental import structref
 
-from app.compiled import F8, I8, entry_point
+from app.compiled import F8, I8, Arrays, ArraysType, array_type, entry_point
 from app.controller.layout import SCALARS
 from app.controller.types import Fault
-from app.session.state import RowSources, fill_row
+from app.session.state import fill_row
 from app.session.tick import STAGES, TickRecord
 from app.slave.arm import ArmStatus
 from app.spatial import Array, IntArray, rotation_log
@@ -159,26 +159,15 @@ def _reduce(
         acc[_DONE_AT] = acc[_TIME]
 
 
-@structref.register
-class _MetricSinksType(types.StructRef):
-    def preprocess_fields(self, fields: tuple) -> tuple:
-        return tuple((name, types.unliteral(typ)) for name, typ in fields)
-
-
-class MetricSinks(structref.StructRefProxy):
-    """What :class:`SessionMetrics` write every tick, as one compiled argument (opaque in Python)."""
-
-
-structref.define_boxing(_MetricSinksType, MetricSinks)
-
-_F1, _F2, _I1, _I2 = (typeof(np.zeros((0,) * n, dtype=d)) for n, d in ((1, F8), (2, F8), (1, I8), (2, I8)))
-_METRIC_SINKS = _MetricSinksType([("acc", _F1), ("tail", _F1), ("ints", _I1), ("stage_table", _I2), ("log", _F2)])
+# The metrics' arrays (see _reduce) and the log's row buffer (rows, columns).
+_F1, _F2, _I1, _I2 = array_type(1, F8), array_type(2, F8), array_type(1, I8), array_type(2, I8)
+_METRIC_SINKS = ArraysType([("acc", _F1), ("tail", _F1), ("ints", _I1), ("stage_table", _I2), ("log", _F2)])
 
 
 @njit(cache=True)
-def _sinks(acc: Array, tail: Array, ints: IntArray, stage_table: IntArray, log: Array) -> MetricSinks:
+def _sinks(acc: Array, tail: Array, ints: IntArray, stage_table: IntArray, log: Array) -> Arrays:
     """The metrics' arrays (see :func:`_reduce`) and the log's row buffer (rows, columns) as one
-    :class:`MetricSinks`; no copy."""
+    :class:`Arrays`; no copy."""
     sinks: Any = structref.new(_METRIC_SINKS)  # type: ignore[call-arg]  # an intrinsic, typed by numba
     sinks.acc = acc
     sinks.tail = tail
@@ -189,7 +178,7 @@ def _sinks(acc: Array, tail: Array, ints: IntArray, stage_table: IntArray, log: 
 
 
 @njit(cache=True)
-def _reduce_row(src: RowSources, sinks: MetricSinks, tick: int, log_row: int) -> None:
+def _reduce_row(src: Arrays, sinks: Arrays, tick: int, log_row: int) -> None:
     """:func:`_reduce` of the row ``src`` holds (filled), after copying its logged values into
     row ``log_row`` of the log's buffer (none when negative)."""
     a: Any = src
@@ -203,7 +192,7 @@ def _reduce_row(src: RowSources, sinks: MetricSinks, tick: int, log_row: int) ->
 
 @njit(cache=True)
 def _fill_and_reduce(
-    src: RowSources,
+    src: Arrays,
     F_S: Array,
     T_w_MRF: Array,
     contact_w: Array,
@@ -220,7 +209,7 @@ def _fill_and_reduce(
     link_force: float,
     reflecting: bool,
     full: bool,
-    sinks: MetricSinks,
+    sinks: Arrays,
     tick: int,
     log_row: int,
 ) -> None:

@@ -18,10 +18,10 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numba import njit, typeof, types
+from numba import njit
 from numba.experimental import structref
 
-from app.compiled import F8, I8, entry_point
+from app.compiled import F8, I8, Arrays, ArraysType, array_type, entry_point
 from app.controller.layout import SCALARS, TORQUE_ROWS, TWIST_AXES, VECTOR_ROWS, WRENCH_AXES
 from app.session.tick import STAGES
 from app.spatial import Array, IntArray, quat_into
@@ -116,7 +116,7 @@ class StateBlock:
         self.serial = -1
         # The bundle of the rooms' buffers (_bundle) and what it was made from; rebuilt when a
         # room's output object or a reading's buffer is another than last tick's.
-        self.sources: RowSources | None = None
+        self.sources: Arrays | None = None
         self._made_from: tuple[object, ...] = ()
         self._T_0_G: Array | None = None
         self._wrench_G: Array | None = None
@@ -185,25 +185,11 @@ class StateBlock:
         self._T_0_G, self._wrench_G = T_0_G, wrench_G
 
 
-@structref.register
-class _RowSourcesType(types.StructRef):
-    def preprocess_fields(self, fields: tuple) -> tuple:
-        return tuple((name, types.unliteral(typ)) for name, typ in fields)
-
-
-class RowSources(structref.StructRefProxy):
-    """The buffers a state row is filled from, as one compiled argument (:meth:`StateBlock.tick_args`;
-    opaque in Python). Entering a compiled call costs ~0.09 us per array argument on the machine
-    this project is measured on, a bundle one: the row's fourteen arrays cost ~1.2 us a tick."""
-
-
-structref.define_boxing(_RowSourcesType, RowSources)
-
-_F1, _F2, _I1 = (typeof(np.zeros((0,) * n, dtype=d)) for n, d in ((1, F8), (2, F8), (1, I8)))
+_F1, _F2, _I1 = array_type(1, F8), array_type(2, F8), array_type(1, I8)
 # Field names and types (the arrays of StateBlock._bundle, and the row's own).
 _ROW_FIELDS = {"row": _F1, "at": _I1, "no_hand": _F2, "q": _F1, "vectors": _F2, "twist": _F1, "torques": _F2}
 _ROW_FIELDS |= {"counts": _I1, "stage_ns": _I1, "scalars": _F1, "T_0_G": _F2, "wrench_G": _F1, "hand": _F2}
-_ROW_SOURCES = _RowSourcesType([*_ROW_FIELDS.items(), ("objects", _F2)])
+_ROW_SOURCES = ArraysType([*_ROW_FIELDS.items(), ("objects", _F2)])
 
 
 @njit(cache=True)
@@ -222,8 +208,8 @@ def _bundle(
     wrench_G: Array,
     hand: Array,
     objects: Array,
-) -> RowSources:
-    """The arrays (of exactly the types of ``_ROW_SOURCES``) as one :class:`RowSources`; no copy."""
+) -> Arrays:
+    """The arrays (of exactly the types of ``_ROW_SOURCES``) as one :class:`Arrays`; no copy."""
     src: Any = structref.new(_ROW_SOURCES)  # type: ignore[call-arg]  # an intrinsic, typed by numba
     src.row = row
     src.at = at
@@ -260,7 +246,7 @@ def _put(row: Array, at: int, values: Array | IntArray) -> int:
 
 @njit(cache=True)
 def fill_row(
-    src: RowSources,
+    src: Arrays,
     F_S: Array,
     T_w_MRF: Array,
     contact_w: Array,

@@ -87,6 +87,9 @@ class DemoApp:
         device_url: ``device`` is outside this process, at this address (``ws://host:port``,
             ``fd:N``, ``openhaptics:NAME``); ``device`` is its file (limits, gains). Choosing
             another device in the page simulates that one; choosing ``device`` again reconnects.
+        spin: Share of each servo period the loop process spins instead of sleeping
+            (:class:`~app.session.pacer.Pacer`); None: the pacer's default, which leaves the CPU
+            idle between ticks.
     """
 
     def __init__(
@@ -97,9 +100,11 @@ class DemoApp:
         session: Session | None,
         servo_rate: float | None = None,
         device_url: str | None = None,
+        spin: float | None = None,
     ) -> None:
         self.server = server
         self.servo_rate = servo_rate
+        self._spin = spin
         self._device_url = device_url
         self._url_device = device.path
         self.session = self._at_rate(session) if session is not None else None
@@ -113,7 +118,7 @@ class DemoApp:
         # The guide first: a browser that connects at once shows it while the loop is built (a
         # click on it in that time waits, with "starting..." shown, until :meth:`SessionPanel.ready`).
         self.panel = SessionPanel(server, self, RUNS_DIR)
-        self.rt = RealtimeLoop(self._loop_config(device, scene, self._start_gains(device)))
+        self.rt = RealtimeLoop(self._loop_config(device, scene, self._start_gains(device)), spin=spin)
         server.scene.set_up_direction("+z")
         light_without_shadows(server)
         self.view = SceneView(server, self.rt.loop, self.rt.set_hand_target)
@@ -221,7 +226,7 @@ class DemoApp:
             self._recording = False
             self.controls.record.label = "Record"
             self._scene, self._device = config.scene, config.device
-            self.rt = RealtimeLoop(config)
+            self.rt = RealtimeLoop(config, spin=self._spin)
             if self.player is None:
                 self._show_view(self.rt.loop, self.rt.set_hand_target)
             self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
@@ -516,6 +521,7 @@ def start_demo(
     insecure: bool = False,
     replay: str | None = None,
     servo_rate: float | None = None,
+    spin: float | None = None,
 ) -> DemoApp:
     """Check the inputs, start a viser server and the demo on it; returns at once (non-blocking).
 
@@ -550,7 +556,7 @@ def start_demo(
             server = viser.ViserServer(label="FRHC haptic demo", verbose=False)
     else:
         server = viser.ViserServer(host=host, port=port, label="FRHC haptic demo", verbose=False)
-    app = DemoApp(server, scene_obj, device_obj, loaded_session, servo_rate, device_url)
+    app = DemoApp(server, scene_obj, device_obj, loaded_session, servo_rate, device_url, spin)
     if loaded_replay is not None:
         app.show_replay(loaded_replay)
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
@@ -577,6 +583,7 @@ def serve(
     insecure: bool = False,
     replay: str | None = None,
     servo_rate: float | None = None,
+    spin: float | None = None,
 ) -> None:
     """Serve the browser demo until interrupted (or for ``open_seconds`` seconds), printing its URL.
 
@@ -593,11 +600,13 @@ def serve(
         replay: A log directory to start on, in replay (the live loop runs beside it).
         servo_rate: The loop's rate (Hz) for everything the demo runs, sessions played included
             (default: the session's, else 1 kHz).
+        spin: Share of each period the loop process spins (:class:`DemoApp`); None: no more than
+            the pacer's default.
 
     Raises:
         ConfigError: for an unknown or malformed scene, device or session, before the server starts.
     """
-    app = start_demo(scene, device, host, port, session, insecure, replay, servo_rate)
+    app = start_demo(scene, device, host, port, session, insecure, replay, servo_rate, spin)
     print(f"FRHC haptic demo: {app.url}  (Ctrl+C to stop)", flush=True)
     try:
         if open_seconds is None:

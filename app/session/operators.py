@@ -27,7 +27,10 @@ The strategy, per tick, in the base frame {0} (its axes are the slave world's, `
 4. The hand target is the start grip pose displaced by the rate-mode inverse the operator has
    learned, ``d = v / K_V + DB tanh(v / V_DB)`` per axis (the deadband is crossed smoothly; for
    the rotation ``W_DB`` in place of ``V_DB``, and ``d`` as the grip's Z-Y-X angles from its start,
-   which Eq 5 maps to ``w`` for small angles), passed through the hand's motor bandwidth
+   which Eq 5 maps to ``w`` for small angles), set further out by the return-to-centre force
+   the trained operator has learned to expect at ``d`` over their hand's stiffness, while it acts
+   (:func:`~app.session.operator_kernel.learned_rtc_offset`: Shadmehr & Mussa-Ivaldi 1994),
+   passed through the hand's motor bandwidth
    (:class:`MotorLowPass`: a person's voluntary output cannot step, so a change of intent, e.g.
    insert to hold, or a yield, moves the hand within a few tens of milliseconds, not in one tick),
    plus a seeded physiological tremor.
@@ -101,6 +104,7 @@ import numpy as np
 
 from app.compiled import entry_point, is_f8
 from app.config import Checked, Range
+from app.controller.layout import RTC_LAWS
 from app.session import operator_kernel as kernel
 from app.session.operator_kernel import (  # noqa: F401 (the strategy's constants, documented there)
     BOTTOM_S,
@@ -279,8 +283,15 @@ class ReactingOperator:
         self._hand = self._T_start.copy()
         tool = loop.record.T_w_MRF[0:3, 3].copy()
         prm = np.zeros(kernel.N_PRM)
-        prm[kernel.K_V : kernel.K_V + 6] = session.gains.k_v
-        prm[kernel.DB : kernel.DB + 6] = session.gains.deadband
+        gains, hand = session.gains, session.data.hand
+        prm[kernel.K_V : kernel.K_V + 6] = gains.k_v
+        prm[kernel.DB : kernel.DB + 6] = gains.deadband
+        prm[kernel.RTC_A : kernel.RTC_A + 6] = gains.rtc_a
+        prm[kernel.WALL_START : kernel.WALL_START + 6] = gains.wall_start
+        prm[kernel.K_WALL : kernel.K_WALL + 6] = gains.k_wall
+        prm[kernel.K_R : kernel.K_R + 6] = gains.k_r
+        prm[kernel.HAND_K : kernel.HAND_K + 6] = (hand.stiffness_trans,) * 3 + (hand.stiffness_rot,) * 3
+        prm[kernel.RTC_KIND] = RTC_LAWS.index(gains.rtc)
         prm[kernel.GOAL : kernel.GOAL + 3] = task.goal.matrix()[0:3, 3]
         prm[kernel.HOME : kernel.HOME + 3] = tool
         prm[kernel.TOLERANCE], prm[kernel.SPEED] = task.position_tolerance, params.speed
@@ -304,6 +315,7 @@ class ReactingOperator:
         # Where the record's arrays are copied when they are not C-contiguous float64 (a kernel
         # compiled for those would misread them).
         self._copies = (np.empty((4, 4)), np.empty((4, 4)), np.empty(6))
+        self._prm = prm
         self._react = entry_point(kernel.react, *self._own, *self._copies, 0.0, 0, self._hand)
 
     @property
@@ -319,6 +331,8 @@ class ReactingOperator:
     def before_tick(self, loop: ServoLoop) -> None:
         """Perceive (delayed), decide the intended tool velocity, set the hand target."""
         self._switches.apply_events(loop)
+        sw = self._switches.switches
+        self._prm[kernel.RTC_ON] = 1.0 if sw.deadman and sw.reflection else 0.0
         rec = loop.record
         T_w_MRF, T_0_G, G_F_T = rec.T_w_MRF, rec.reading.T_0_G, rec.out.G_F_T
         copies = self._copies

@@ -80,10 +80,12 @@ class HandParams(Checked):
     """Impedance of the operator's hand/arm as felt at the grip (ranges: ``sessions/README.md``).
 
     Attributes:
-        stiffness_trans: Translational stiffness K_t (N/m); a relaxed-to-firm human arm is ~200-800.
-        damping_trans: Translational damping D_t (N s/m); ~5-20 for a human arm.
-        stiffness_rot: Rotational stiffness K_r (N m/rad); the wrist is ~1-5.
-        damping_rot: Rotational damping D_r (N m s/rad).
+        stiffness_trans: Translational stiffness K_t (N/m); a human arm holding a haptic device is
+            63-533 (Fu & Cavusoglu 2012, the arm element: ``docs/experiment.md``).
+        damping_trans: Translational damping D_t (N s/m); 3.7-27.6 for the same arms.
+        stiffness_rot: Rotational stiffness K_r (N m/rad); the passive wrist is 1.28-1.74 (Formica
+            et al. 2012), a grip held with co-contraction stiffer.
+        damping_rot: Rotational damping D_r (N m s/rad); no source found.
     """
 
     stiffness_trans: Annotated[float, Range(0.0, 1e4, "N/m")] = 400.0

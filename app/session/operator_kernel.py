@@ -17,7 +17,9 @@ from numba import njit
 from numba.experimental import structref
 
 from app.compiled import F8, I8, Arrays, ArraysType, array_type
+from app.controller.assist import constant_force_rtc, hooke_rtc
 from app.controller.kernel import _zyx_to_matrix
+from app.controller.record import RTC_CONSTANT, RTC_HOOKE
 from app.device.hand import pull_target
 from app.slave.tool_kernel import _apply, _mul
 from app.spatial import Array, IntArray, rotation_exp, rotation_log
@@ -55,8 +57,10 @@ W_DB = 0.02
 #: Phases of an operator, in order; the kernel keeps the index into this.
 PHASES = ("insert", "hold", "withdraw", "done")
 INSERT, HOLD, WITHDRAW, DONE = range(4)
-# Slots of the constant parameter vector (``prm``).
-K_V, DB, GOAL, HOME, TOLERANCE, SPEED, THRESHOLD, N_PRM = 0, 6, 12, 15, 18, 19, 20, 21
+# Slots of the parameter vector (``prm``): the gains' rows (6 each), the task, the operator, the
+# hand's stiffness per axis (6), and whether the return-to-centre acts now (set every tick).
+K_V, DB, RTC_A, WALL_START, K_WALL, K_R, HAND_K = 0, 6, 12, 18, 24, 30, 36
+GOAL, HOME, TOLERANCE, SPEED, THRESHOLD, RTC_KIND, RTC_ON, N_PRM = 42, 45, 48, 49, 50, 51, 52, 53
 # Slots of the operator's changing scalars (``state``).
 SINCE, BEST_DEPTH, STALL_T, N_STATE = 0, 1, 2, 3
 
@@ -90,6 +94,33 @@ def _toward(e: Array, speed: float) -> Array:
     n = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
     gain = speed / SLOW_DISTANCE
     return e * gain if n * gain <= speed else e * (speed / n)
+
+
+@njit(cache=True)
+def learned_rtc_offset(prm: Array, i: int, u: float) -> float:
+    """How much further (m or rad) the trained operator sets their hand on axis ``i`` so that the grip
+    still reaches ``u`` against the device's return-to-centre: the force ``F_R(u)`` (Eq 8, or
+    Hooke's ``-K_R u``) over the hand's own stiffness on that axis.
+
+    Humans learn a model of a force field they work in and compensate its forces in advance
+    (Shadmehr & Mussa-Ivaldi 1994, "Adaptive representation of dynamics during learning of a motor
+    task", J. Neurosci. 14(5):3208-3224); the paper's operators were "trained" (Sec 4.3). Without
+    it a hand softer than ``a DB / 1`` (the CFRTC force over the deadband, 1 N / 10 mm = 100 N/m on
+    the Kraft) cannot push the grip out of the deadband at all. Zero when the return-to-centre is
+    off (blind: "return-to-center ... not enabled without this third switch", Sec 4.1) or the hand
+    has no stiffness on the axis.
+    """
+    k = prm[HAND_K + i]
+    if prm[RTC_ON] == 0.0 or k <= 0.0:
+        return 0.0
+    kind = int(prm[RTC_KIND])
+    if kind == RTC_CONSTANT:
+        f = constant_force_rtc(u, prm[RTC_A + i], prm[DB + i], prm[WALL_START + i], prm[K_WALL + i])
+    elif kind == RTC_HOOKE:
+        f = hooke_rtc(u, prm[K_R + i])
+    else:
+        return 0.0
+    return -f / k
 
 
 @njit(cache=True)
@@ -173,11 +204,14 @@ def react(
     if phase[0] == INSERT:
         w = rotation_log(_mul(_mul(seen_R.T, rotation_exp(tilt)), R_home)) * (speed / SLOW_DISTANCE)
 
-    # The learned rate-mode inverse, through the hand's motor bandwidth, plus tremor.
+    # The learned rate-mode inverse, with the return-to-centre's force compensated as learned,
+    # through the hand's motor bandwidth, plus tremor.
     u = np.empty(6)
     for a in range(3):
         u[a] = v[a] / prm[K_V + a] + prm[DB + a] * math.tanh(v[a] / V_DB)
         u[3 + a] = w[a] / prm[K_V + 3 + a] + prm[DB + 3 + a] * math.tanh(w[a] / W_DB)
+    for i in range(6):
+        u[i] += learned_rtc_offset(prm, i, u[i])
     low_pass(motor, phi, u)
     k = min(tick, tremor.shape[0] - 1)
     for a in range(3):

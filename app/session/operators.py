@@ -27,19 +27,27 @@ The strategy, per tick, in the base frame {0} (its axes are the slave world's, `
 4. The hand target is the start grip pose displaced by the rate-mode inverse the operator has
    learned, ``d = v / K_V + DB tanh(v / V_DB)`` per axis (the deadband is crossed smoothly; for
    the rotation ``W_DB`` in place of ``V_DB``, and ``d`` as the grip's Z-Y-X angles from its start,
-   which Eq 5 maps to ``w`` for small angles), passed through the hand's motor bandwidth
+   which Eq 5 maps to ``w`` for small angles), set further out by the return-to-centre force
+   the trained operator has learned to expect at ``d`` over their hand's stiffness, while it acts
+   (:func:`~app.session.operator_kernel.learned_rtc_offset`: Shadmehr & Mussa-Ivaldi 1994),
+   passed through the hand's motor bandwidth
    (:class:`MotorLowPass`: a person's voluntary output cannot step, so a change of intent, e.g.
    insert to hold, or a yield, moves the hand within a few tens of milliseconds, not in one tick),
    plus a seeded physiological tremor.
 
 Parameter ranges of the population (:data:`POPULATION`) and their sources:
 
-- Hand stiffness 150-800 N/m and damping 5-25 N s/m: endpoint impedance of the human arm in
-  maintained posture, Mussa-Ivaldi, Hogan & Bizzi (1985), J. Neurosci. 5(10):2732-2743, and
-  Tsuji, Morasso, Goto & Ito (1995), Biol. Cybern. 72:475-485 (the range was not verified from
-  stored material). One measured point was: van Beek, Bergmann Tiest, Mugge & Kappers (2015), Sci.
-  Rep. 5:18004, Fig. 3 caption, one trial of one participant holding a haptic device's handle:
-  K = 135 N/m, B = 6.45 N s/m, M = 0.554 kg (the same magnitude; one trial gives no range).
+- Hand stiffness 63-533 N/m and damping 3.7-27.6 N s/m (were 150-800 N/m and 5-25 N s/m after
+  Mussa-Ivaldi, Hogan & Bizzi (1985) and Tsuji et al. (1995), never verified): the arm element
+  (k2, b2) of the lumped arm-and-hand model that Fu & Cavusoglu (2012), "Human-arm-and-hand-
+  dynamic model with variability analyses for a stylus-based haptic interface", IEEE Trans. SMC-B
+  42(6):1633-1644, identified on 15 subjects holding a Phantom Premium 1.5a at 1-3 N grip force in
+  three axes (nominal k2 170 N/m, b2 11 N s/m). Secondary: the paper's first page was reached
+  (stored page, dokumen.tips), the figures only through a public repository's literature ledger
+  that quotes them. The model's grasp element (k1 228-1043 N/m in series, a stylus pinch) is
+  left out: the Kraft's grip is held in the fist. One measured trial lies inside the range: van
+  Beek, Bergmann Tiest, Mugge & Kappers (2015), Sci. Rep. 5:18004, Fig. 3 caption, K = 135 N/m,
+  B = 6.45 N s/m, M = 0.554 kg.
 - Visual reaction delay 0.15-0.25 s: simple visual reaction times (Welford (1980), *Reaction
   Times*, Academic Press; Card, Moran & Newell (1983), *The Psychology of Human-Computer
   Interaction*, the perceive-decide-act cycle of ~240 ms with a range of ~100-470 ms). Confirmed
@@ -97,6 +105,7 @@ import numpy as np
 
 from app.compiled import entry_point, is_f8
 from app.config import Checked, Range
+from app.controller.layout import RTC_LAWS
 from app.session import operator_kernel as kernel
 from app.session.operator_kernel import (  # noqa: F401 (the strategy's constants, documented there)
     BOTTOM_S,
@@ -119,8 +128,8 @@ if TYPE_CHECKING:
 
 #: Ranges (lo, hi) the population is drawn from, uniformly (sources in the module docstring).
 POPULATION: dict[str, tuple[float, float]] = {
-    "stiffness_trans": (150.0, 800.0),
-    "damping_trans": (5.0, 25.0),
+    "stiffness_trans": (63.0, 533.0),
+    "damping_trans": (3.7, 27.6),
     "visual_delay": (0.15, 0.25),
     "haptic_delay": (0.06, 0.15),
     "force_threshold": (1.0, 5.0),
@@ -275,8 +284,15 @@ class ReactingOperator:
         self._hand = self._T_start.copy()
         tool = loop.record.T_w_MRF[0:3, 3].copy()
         prm = np.zeros(kernel.N_PRM)
-        prm[kernel.K_V : kernel.K_V + 6] = session.gains.k_v
-        prm[kernel.DB : kernel.DB + 6] = session.gains.deadband
+        gains, hand = session.gains, session.data.hand
+        prm[kernel.K_V : kernel.K_V + 6] = gains.k_v
+        prm[kernel.DB : kernel.DB + 6] = gains.deadband
+        prm[kernel.RTC_A : kernel.RTC_A + 6] = gains.rtc_a
+        prm[kernel.WALL_START : kernel.WALL_START + 6] = gains.wall_start
+        prm[kernel.K_WALL : kernel.K_WALL + 6] = gains.k_wall
+        prm[kernel.K_R : kernel.K_R + 6] = gains.k_r
+        prm[kernel.HAND_K : kernel.HAND_K + 6] = (hand.stiffness_trans,) * 3 + (hand.stiffness_rot,) * 3
+        prm[kernel.RTC_KIND] = RTC_LAWS.index(gains.rtc)
         prm[kernel.GOAL : kernel.GOAL + 3] = task.goal.matrix()[0:3, 3]
         prm[kernel.HOME : kernel.HOME + 3] = tool
         prm[kernel.TOLERANCE], prm[kernel.SPEED] = task.position_tolerance, params.speed
@@ -300,6 +316,7 @@ class ReactingOperator:
         # Where the record's arrays are copied when they are not C-contiguous float64 (a kernel
         # compiled for those would misread them).
         self._copies = (np.empty((4, 4)), np.empty((4, 4)), np.empty(6))
+        self._prm = prm
         self._react = entry_point(kernel.react, *self._own, *self._copies, 0.0, 0, self._hand)
         # The loop whose held hand before_tick moves in one compiled call with the strategy
         # (kernel.react_and_pull), that call and its last arguments; set on the first tick the
@@ -321,6 +338,8 @@ class ReactingOperator:
     def before_tick(self, loop: ServoLoop) -> None:
         """Perceive (delayed), decide the intended tool velocity, set the hand target."""
         self._switches.apply_events(loop)
+        sw = self._switches.switches
+        self._prm[kernel.RTC_ON] = 1.0 if sw.deadman and sw.reflection else 0.0
         rec = loop.record
         T_w_MRF, T_0_G, G_F_T = rec.T_w_MRF, rec.reading.T_0_G, rec.out.G_F_T
         copies = self._copies

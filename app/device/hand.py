@@ -70,6 +70,26 @@ def pull_target(
     return True
 
 
+@njit(cache=True)
+def copy_and_pull(
+    T_0_H: Array,
+    copy: Array,
+    T: Array,
+    mocap_pos: Array,
+    mocap_quat: Array,
+    kinematics: int,
+    transmission: int,
+    m: int,
+    d: int,
+) -> bool:
+    """``T_0_H`` (4, 4) copied into ``copy`` (a loop's record of the target), then
+    :func:`pull_target`: what a caller holding :meth:`OperatorHand.pull_args` does each tick."""
+    for a in range(4):
+        for b in range(4):
+            copy[a, b] = T_0_H[a, b]
+    return pull_target(T_0_H, T, mocap_pos, mocap_quat, kinematics, transmission, m, d)
+
+
 #: What :func:`pull_target` takes after the target: the hand's target and mocap position and
 #: quaternion, MuJoCo's kinematics and transmission functions, model and data (addresses).
 PullArgs = tuple[Array, Array, Array, int, int, int, int]

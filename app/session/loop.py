@@ -282,10 +282,10 @@ class ServoLoop:
     def hand_pull(self) -> tuple[Array, PullArgs] | None:
         """For an operator that moves the held hand from its own compiled code every tick: the
         loop's hand target (4, 4; what the record reports) and the simulated hand's
-        :func:`~app.device.hand.pull_target` arguments after the target. Writing the target into
-        the first and passing it to ``pull_target`` with the second is :meth:`set_hand_target` of
-        a finite pose, without its checks; valid while the hand holds the grip (None otherwise:
-        take hold with :meth:`set_hand_target`).
+        :meth:`~app.device.hand.OperatorHand.pull_args`. A finite target passed with them to
+        :func:`~app.device.hand.copy_and_pull` (the first as its ``copy``) is :meth:`set_hand_target`
+        without its checks; valid while the hand holds the grip (None otherwise: take hold with
+        :meth:`set_hand_target`).
         """
         args = self.plant.hand.pull_args()
         return None if args is None or not self.record.hand_on else (self._hand, args)

@@ -13,7 +13,6 @@ from numba.experimental import structref
 from app.compiled import F8, I8, Arrays, ArraysType, array_type, entry_point
 from app.controller.layout import SCALARS
 from app.controller.types import Fault
-from app.session.state import fill_row
 from app.session.tick import STAGES, TickRecord
 from app.slave.arm import ArmStatus
 from app.spatial import Array, IntArray, rotation_log
@@ -190,38 +189,6 @@ def _reduce_row(src: Arrays, sinks: Arrays, tick: int, log_row: int) -> None:
     _reduce(b.acc, b.tail, row, b.ints, tick, b.stage_table, a.stage_ns)
 
 
-@njit(cache=True)
-def _fill_and_reduce(
-    src: Arrays,
-    F_S: Array,
-    T_w_MRF: Array,
-    contact_w: Array,
-    t: float,
-    hand_on: bool,
-    deadman: bool,
-    reference: bool,
-    reflection: bool,
-    contacts: int,
-    faults: int,
-    watchdog_trips: int,
-    slave_status: int,
-    device_link: int,
-    link_force: float,
-    reflecting: bool,
-    full: bool,
-    sinks: Arrays,
-    tick: int,
-    log_row: int,
-) -> None:
-    """The tick's row (:func:`~app.session.state.fill_row`, its arguments first: whole when
-    ``full``, else only what :func:`_reduce` reads), then :func:`_reduce_row`: one call a tick."""
-    fill_row(
-        src, F_S, T_w_MRF, contact_w, t, hand_on, deadman, reference, reflection, contacts, faults,
-        watchdog_trips, slave_status, device_link, link_force, reflecting, full,
-    )  # fmt: skip
-    _reduce_row(src, sinks, tick, log_row)
-
-
 def _bit_counts(flags: type[Fault] | type[ArmStatus], counts: IntArray) -> dict[str, int]:
     """Ticks per flag of ``flags`` (single-bit flags) from per-bit tick counts, the flags seen only."""
     return {
@@ -239,8 +206,9 @@ class SessionMetrics:
         task: The scene's task, if it has one (its completion is reported).
         n_ticks: Ticks expected (sizes the timing table). dt: Servo period (s).
         log: A log whose rows these metrics write, in the same compiled call as their own sums
-            (a session's log and metrics: one call a tick instead of three); the log is then not
-            observed itself (its :meth:`~app.session.log.TickLog.close` is still the caller's).
+            (a session's log and metrics: the row's fill and this call, where a log observing by
+            itself adds a copy and its Python); the log is then not observed itself (its
+            :meth:`~app.session.log.TickLog.close` is still the caller's).
 
     The work metric is the paper's Eq 13, ``W = sum_i |integral F_MRF,i d xi_i|``: the contact
     wrench at {MRF} in {MRF} axes times the {MRF} displacement in its own axes (translation,
@@ -285,30 +253,21 @@ class SessionMetrics:
         self._log = log
         self._sinks = _sinks(acc, self._tail, ints, self._stage_ns, np.zeros((0, 0)) if log is None else log.buffer)
         self._reduce: Callable[..., None] | None = None
-        self._fill: Callable[..., None] | None = None
 
     def on_tick(self, tick: TickRecord) -> None:
-        """Reduce the tick's state row, in one compiled call (:func:`_fill_and_reduce`): with a
-        log, the whole row is filled and its logged part written to the log's buffer; without,
-        only the values the reduction reads are (the whole row costs ~2 us more). A row an
-        observer before already filled is reduced as it is (:func:`_reduce_row`)."""
+        """Reduce the tick's state row (:func:`_reduce_row`): with a log, the whole row filled
+        (unless an observer before filled it) and its logged part written to the log's buffer in
+        the same compiled call; without, only the values the reduction reads are filled (the
+        whole row costs ~2 us more)."""
         block = tick.block
         assert block is not None, "the loop sets the record's state block"
         log = self._log
-        log_row = -1 if log is None else log.rows
-        if tick.serial == block.serial:  # an observer before filled the row
-            if self._reduce is None:
-                # The same kinds of arguments every tick: the compiled specialisation, once.
-                self._reduce = entry_point(_reduce_row, block.sources, self._sinks, 0, 0)
-            self._reduce(block.sources, self._sinks, self._ticks, log_row)
-        else:
-            full = log is not None
-            args = block.tick_args(tick, full)
-            if self._fill is None:
-                self._fill = entry_point(_fill_and_reduce, *args, full, self._sinks, 0, 0)
-            self._fill(*args, full, self._sinks, self._ticks, log_row)
-            if full:
-                block.serial = tick.serial
+        if tick.serial != block.serial:  # no observer before filled the row
+            block.fill(tick, full=log is not None)
+        if self._reduce is None:
+            # The same kinds of arguments every tick: the compiled specialisation, once.
+            self._reduce = entry_point(_reduce_row, block.sources, self._sinks, 0, 0)
+        self._reduce(block.sources, self._sinks, self._ticks, -1 if log is None else log.rows)
         self._ticks += 1
         if log is not None:
             log.row_written()

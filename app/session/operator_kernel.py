@@ -20,7 +20,7 @@ from app.compiled import F8, I8, Arrays, ArraysType, array_type
 from app.controller.assist import constant_force_rtc, hooke_rtc
 from app.controller.kernel import _zyx_to_matrix
 from app.controller.record import RTC_CONSTANT, RTC_HOOKE
-from app.device.hand import pull_target
+from app.device.hand import copy_and_pull
 from app.slave.tool_kernel import _apply, _mul
 from app.spatial import Array, IntArray, rotation_exp, rotation_log
 
@@ -296,15 +296,12 @@ def react_and_pull(
     d: int,
 ) -> bool:
     """:func:`react` on the bundle's arrays, its hand target copied to the loop's and pulled
-    (:func:`~app.device.hand.pull_target` with these functions and model): the operator's tick in
+    (:func:`~app.device.hand.copy_and_pull` with these functions and model): the operator's tick in
     one call. False, with the hand not pulled, if the target is not finite."""
     a: Any = arrays
-    hand, loop_hand = a.hand, a.loop_hand
+    hand = a.hand
     react(
         a.seen_ring, a.seen_i, a.seen_R_ring, a.seen_R_i, a.felt_ring, a.felt_i, a.phase, a.state, a.aim,
         a.tilt, a.prm, a.T_start, a.R_home, a.tremor, a.motor, a.phi, T_w_MRF, T_0_G, G_F_T, t, tick, hand,
     )  # fmt: skip
-    for i in range(4):
-        for j in range(4):
-            loop_hand[i, j] = hand[i, j]
-    return pull_target(hand, a.T_hand, a.mocap_pos, a.mocap_quat, kinematics, transmission, m, d)
+    return copy_and_pull(hand, a.loop_hand, a.T_hand, a.mocap_pos, a.mocap_quat, kinematics, transmission, m, d)

@@ -17,7 +17,7 @@ from numba.experimental import structref
 
 from app.compiled import F8, Arrays, ArraysType, array_type, entry_point
 from app.controller.types import Switches
-from app.device.hand import pull_target
+from app.device.hand import copy_and_pull
 from app.session.spec import SessionFile, SwitchEvent
 from app.slave.tool_kernel import _mul
 from app.spatial import Array, make_pose, rotation_exp, rotation_log, zyx_to_matrix
@@ -196,15 +196,12 @@ def _script_arrays(
 @njit(cache=True)
 def _pose_and_pull(t: float, tick: int, arrays: Arrays, kinematics: int, transmission: int, m: int, d: int) -> bool:
     """:func:`_scripted_pose` at ``t``, ``tick`` into the bundle's ``T``, copied to the loop's
-    ``hand`` (4, 4) and pulled (:func:`~app.device.hand.pull_target`, the bundle's ``T_hand``,
+    ``hand`` (4, 4) and pulled (:func:`~app.device.hand.copy_and_pull`, the bundle's ``T_hand``,
     ``mocap_pos``, ``mocap_quat`` and these functions and model); False if not finite."""
     a: Any = arrays
-    T, hand = a.T, a.hand
+    T = a.T
     _scripted_pose(a.times, a.poses, a.tremor, t, tick, T)
-    for i in range(4):
-        for j in range(4):
-            hand[i, j] = T[i, j]
-    return pull_target(T, a.T_hand, a.mocap_pos, a.mocap_quat, kinematics, transmission, m, d)
+    return copy_and_pull(T, a.hand, a.T_hand, a.mocap_pos, a.mocap_quat, kinematics, transmission, m, d)
 
 
 @njit(cache=True)

@@ -4,7 +4,10 @@ The log, the metrics (and any observer that wants the tick's values as numbers) 
 :meth:`~app.session.tick.TickRecord.state` fills it from the rooms' buffers with one compiled
 call (:func:`fill_row`) the first time an observer asks for it in a tick, and hands the same
 row to every later one. The log copies the row's first :attr:`StateBlock.n_logged` values (its
-Parquet columns, in order); the metrics reduce the row in their own compiled pass.
+Parquet columns, in order); a session's metrics have it filled, then write the log's row and
+reduce it in one compiled call of their own (:class:`~app.session.metrics.SessionMetrics`). The rooms'
+buffers reach the compiled code as one :class:`~app.compiled.Arrays` bundle
+(:meth:`StateBlock.tick_args`).
 
 The row is made of named blocks (:func:`state_layout`): the log's columns first, then values only
 the observers use (the tool's rotation, the reflecting flag). To add a column, add a block to
@@ -127,16 +130,20 @@ class StateBlock:
         start = self.starts[name]
         return self.row[start : start + self._sizes[name]]
 
-    def fill(self, tick: TickRecord) -> Array:
-        """The row of ``tick``: filled on the first call of each tick, the same row after that."""
+    def fill(self, tick: TickRecord, full: bool = True) -> Array:
+        """The row of ``tick``: filled on the first call of each tick, the same row after that.
+
+        ``full`` False writes only the values a session's metrics read (:func:`fill_row`) and
+        does not count as the tick's fill: a later call fills the whole row."""
         if tick.serial == self.serial:
             return self.row
-        args = self.tick_args(tick, True)
+        args = self.tick_args(tick, full)
         if self._fill is None:
             # The same kinds of arguments every tick: the compiled row writer for their types, once.
-            self._fill = entry_point(fill_row, *args, True)
-        self._fill(*args, True)
-        self.serial = tick.serial
+            self._fill = entry_point(fill_row, *args, full)
+        self._fill(*args, full)
+        if full:
+            self.serial = tick.serial
         return self.row
 
     def tick_args(self, tick: TickRecord, full: bool) -> tuple[object, ...]:

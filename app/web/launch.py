@@ -12,9 +12,13 @@ panel's light modules; :mod:`app.web.server` (the demo itself) is imported in :f
 from __future__ import annotations
 
 import math
+import signal
 import sys
 import tempfile
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -29,6 +33,31 @@ if TYPE_CHECKING:
 
 #: Longest sleep (s) of the serving main thread between looks at a signal (see :func:`serve`).
 SIGNAL_POLL = 0.2
+
+
+@contextmanager
+def signals_held() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM until the block ends, then deliver them to the handlers in place
+    before (in the main thread only: elsewhere Python cannot set handlers, and does not run them).
+
+    The demo is imported and built with the page already served, so a Ctrl+C or ``kill`` can come
+    in the middle of third-party imports, some of which catch ``BaseException`` (trimesh's guards
+    for optional dependencies): the ``KeyboardInterrupt`` raised there was swallowed and the demo
+    served on after the signal (seen in ``bench/web_launch.py``, which stops it with SIGTERM as
+    soon as the guide shows).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    previous = {s: signal.signal(s, lambda signum, _: held.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        for signum in dict.fromkeys(held):
+            signal.raise_signal(signum)
 
 
 def _demo(
@@ -102,9 +131,13 @@ def start_demo(
             server = viser.ViserServer(label="FRHC haptic demo", verbose=False)
     else:
         server = viser.ViserServer(host=host, port=port, label="FRHC haptic demo", verbose=False)
+    app: DemoApp | None = None
     try:
-        app = _demo(server, SessionPanel(server, RUNS_DIR), scene, device, session, replay, servo_rate)
+        with signals_held():
+            app = _demo(server, SessionPanel(server, RUNS_DIR), scene, device, session, replay, servo_rate)
     except BaseException:
+        if app is not None:  # a signal held while it was built
+            app.close()
         server.stop()
         raise
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import signal
 import time
 
 import pytest
@@ -71,3 +73,19 @@ def test_a_servo_rate_outside_the_sessions_range_is_refused_leaving_nothing_serv
         server.start_demo("probe", "kraft", port=port, servo_rate=50.0)
     assert info.value.field == "servo_rate"
     assert nothing_listens(port)
+
+
+def test_a_signal_during_the_demos_build_is_delivered_after_it() -> None:
+    """A SIGTERM inside :func:`signals_held` (the demo's imports, where third-party code catches
+    ``BaseException``) reaches the handler in place only when the block ends, once."""
+    seen: list[int] = []
+    previous = signal.signal(signal.SIGTERM, lambda signum, _: seen.append(signum))
+    try:
+        with server.signals_held():
+            os.kill(os.getpid(), signal.SIGTERM)
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.05)  # the handler would have run by now
+            assert seen == []
+        assert seen == [signal.SIGTERM]
+    finally:
+        signal.signal(signal.SIGTERM, previous)

@@ -445,7 +445,8 @@ class DemoApp:
                     self._draw_panel(now - last_panel)
                     last_panel = now
                 elif self._drawn is not None:
-                    self.view.update(self._drawn)
+                    with self.server.atomic():  # one websocket window: the page applies it in one frame
+                        self.view.update(self._drawn)
             panel = not panel
             next_step += half
             self._stop.wait(max(0.0, next_step - time.perf_counter()))

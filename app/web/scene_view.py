@@ -41,7 +41,8 @@ MIN_SHOWN = 0.02
 #: nothing, and a still picture costs the browser no 3D render (viser drains the panel's updates
 #: at once only while no scene update waits for a frame).
 SHOWN_RESOLUTION = 5e-4
-#: The least turn sent (quaternion components; 1e-3 is 0.11 degrees).
+#: The least turn sent (rad, 0.057 degrees): the end of a rod as long as its space's size then
+#: moves by one pixel when the space fills 1000 px (twice :data:`SHOWN_RESOLUTION`).
 SHOWN_TURN = 1e-3
 #: The least change of a force label (N) that rewrites it.
 SHOWN_FORCE = 0.1
@@ -115,6 +116,12 @@ def space_size(points: Array) -> float:
 def pose_to_wxyz_position(T: Array) -> tuple[Array, Array]:
     """A 4x4 pose as viser's ``(wxyz, position)``."""
     return matrix_to_quat(T[0:3, 0:3]), T[0:3, 3].copy()
+
+
+def turn_between(q1: Array, q2: Array) -> float:
+    """The angle (rad) of the rotation between unit quaternions ``q1`` and ``q2`` (q and -q are one
+    rotation)."""
+    return 2.0 * float(np.arccos(min(1.0, abs(float(q1 @ q2)))))
 
 
 def wxyz_position_to_pose(wxyz: Array, position: Array) -> Array:
@@ -389,7 +396,7 @@ class SceneView:
         orientation)."""
         wxyz, position = pose_to_wxyz_position(T_v)
         sent = self._sent_wxyz.get(key)
-        if sent is None or abs(abs(float(sent @ wxyz)) - 1.0) >= SHOWN_TURN:  # q and -q are one turn
+        if sent is None or turn_between(sent, wxyz) >= SHOWN_TURN:
             self._sent_wxyz[key] = wxyz
             handle.wxyz = wxyz
         sent = self._sent_position.get(key)

@@ -11,6 +11,7 @@ panel's light modules; :mod:`app.web.server` (the demo itself) is imported in :f
 
 from __future__ import annotations
 
+import io
 import math
 import signal
 import sys
@@ -18,7 +19,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, redirect_stdout
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -125,12 +126,15 @@ def start_demo(
     """
     gated = not is_loopback(host) and not insecure
     inner: Path | None = None
-    if gated:
-        inner = Path(tempfile.mkdtemp(prefix="frhc-viser-")) / "viser.sock"  # the folder is 0700
-        with viser_on_unix_socket(inner):
-            server = viser.ViserServer(label="FRHC haptic demo", verbose=False)
-    else:
-        server = viser.ViserServer(host=host, port=port, label="FRHC haptic demo", verbose=False)
+    # viser prints its own address box (without the token; :func:`serve` prints the address to
+    # open) and "Server stopped": not on stdout, where a refused input must leave nothing.
+    with redirect_stdout(io.StringIO()):
+        if gated:
+            inner = Path(tempfile.mkdtemp(prefix="frhc-viser-")) / "viser.sock"  # the folder is 0700
+            with viser_on_unix_socket(inner):
+                server = viser.ViserServer(label="FRHC haptic demo", verbose=False)
+        else:
+            server = viser.ViserServer(host=host, port=port, label="FRHC haptic demo", verbose=False)
     app: DemoApp | None = None
     try:
         with signals_held():
@@ -138,7 +142,8 @@ def start_demo(
     except BaseException:
         if app is not None:  # a signal held while it was built
             app.close()
-        server.stop()
+        with redirect_stdout(io.StringIO()):
+            server.stop()
         raise
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
     if inner is not None:

@@ -12,7 +12,6 @@ panel's light modules; :mod:`app.web.server` (the demo itself) is imported in :f
 from __future__ import annotations
 
 import io
-import math
 import signal
 import sys
 import tempfile
@@ -31,9 +30,6 @@ from app.web.session_panel import SessionPanel
 
 if TYPE_CHECKING:
     from app.web.server import DemoApp
-
-#: Longest sleep (s) of the serving main thread between looks at a signal (see :func:`serve`).
-SIGNAL_POLL = 0.2
 
 
 @contextmanager
@@ -191,14 +187,12 @@ def serve(
     """
     app = start_demo(scene, device, host, port, session, insecure, replay, servo_rate)
     print(f"FRHC haptic demo: {app.url}  (Ctrl+C to stop)", flush=True)
-    end = math.inf if open_seconds is None else time.monotonic() + open_seconds
     try:
-        # In short sleeps: Linux may deliver a SIGTERM (or Ctrl+C) to any thread of the process
-        # (viser's, the UI's), and Python runs its handler only when the main thread next runs
-        # Python code: during a long sleep, ``kill`` left the demo running (seen in
-        # bench/web_launch.py).
-        while (left := end - time.monotonic()) > 0.0:
-            time.sleep(min(left, SIGNAL_POLL))
+        if open_seconds is None:
+            while True:
+                time.sleep(3600.0)
+        else:
+            time.sleep(open_seconds)
     except KeyboardInterrupt:
         pass
     finally:

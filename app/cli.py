@@ -222,7 +222,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_web(args: argparse.Namespace) -> int:
-    from app.web.server import serve
+    from app.web.launch import serve
 
     serve(
         args.scene,

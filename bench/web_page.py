@@ -12,10 +12,14 @@ Starts the demo on a free port and opens it in headless chromium (1400x900), the
 4. records the live page's loop during 2 and 3, replays the same stretches of that log at 1x and
    counts the same bytes (same run, side by side); for each, what the server sent by kind of
    message (:class:`SentByKind`);
-5. with ``--screenshots``, writes the README's screenshots to ``assets/web/`` (palette PNGs).
+5. with ``--screenshots``, writes the README's screenshots to ``assets/web/`` (palette PNGs);
+6. with ``--trace``, records chromium's own trace while it counts the update rate while dragging
+   and prints where the page's time went (:func:`trace_split`): its main thread waiting for the
+   WebGL frame to be read back (the GPU process rendering it in software), running JavaScript
+   (the messages applied, React, three.js), and the GPU process's share in WebGL.
 
 Run from the repository root:
-    .venv/bin/python bench/web_page.py [seconds] [--screenshots]
+    .venv/bin/python bench/web_page.py [seconds] [--screenshots] [--trace]
 Goals: first panel <= 3 s on a quiet machine, update rate >= 30 Hz (the UI's rate), replay bytes/s
 within 2x of the live page's.
 """
@@ -23,6 +27,7 @@ within 2x of the live page's.
 from __future__ import annotations
 
 import collections
+import json
 import math
 import os
 import shutil
@@ -134,6 +139,37 @@ class SentByKind:
         return "\n".join(f"    {b / seconds / 1000:8.1f} kB/s {n / seconds:6.1f} /s  {k}" for b, n, k in rows if b > 0)
 
 
+#: Chromium trace categories for :func:`trace_split`.
+TRACE_CATEGORIES = ["devtools.timeline", "disabled-by-default-devtools.timeline", "gpu", "toplevel"]
+#: What :func:`trace_split` reports: (thread name, event name, what it is).
+TRACE_PARTS = (
+    ("CrRendererMain", "ThreadControllerImpl::RunTask", "page main thread busy"),
+    ("CrRendererMain", "GLES2::ReadPixels", "  waiting for the WebGL frame's read-back"),
+    ("CrRendererMain", "FunctionCall", "  running JavaScript"),
+    ("CrGpuMain", "WebGL", "GPU process executing WebGL (software)"),
+)
+
+
+def trace_split(raw: bytes) -> str:
+    """Lines of the share of the time a chromium trace (JSON ``raw``) spans that each of
+    :data:`TRACE_PARTS` took: the durations of its complete events, an event inside another of
+    the same name on the same thread (a nested run loop) counted once."""
+    events = json.loads(raw)["traceEvents"]
+    threads = {
+        (e["pid"], e["tid"]): e["args"]["name"] for e in events if e.get("ph") == "M" and e.get("name") == "thread_name"
+    }
+    complete = sorted((e for e in events if e.get("ph") == "X" and "dur" in e), key=lambda e: e["ts"])
+    span = max(e["ts"] + e["dur"] for e in complete) - complete[0]["ts"]
+    total: collections.Counter[tuple[str, str]] = collections.Counter()
+    ends: dict[tuple[int, int, str], float] = {}
+    for e in complete:
+        key = (e["pid"], e["tid"], e["name"])
+        if e["ts"] >= ends.get(key, -math.inf):
+            total[(threads.get((e["pid"], e["tid"]), ""), e["name"])] += e["dur"]
+            ends[key] = e["ts"] + e["dur"]
+    return "\n".join(f"    {total[(thread, name)] / span:6.1%}  {what}" for thread, name, what in TRACE_PARTS)
+
+
 def drag_circle(app: DemoApp, stop: threading.Event, radius: float = 0.02, period: float = 2.0) -> None:
     """Move the hand target round a horizontal circle about where it is, at the UI rate, until ``stop``."""
     assert app.rt.snapshot.T_0_H is not None
@@ -175,7 +211,7 @@ def recorded_log(directory: Path) -> LogReplay:
             time.sleep(0.2)
 
 
-def main(seconds: float, shots: bool) -> None:
+def main(seconds: float, shots: bool, trace: bool) -> None:
     sent = SentByKind()
     with running_demo() as app:
         with open_page(f"http://127.0.0.1:{app.server.get_port()}/") as page:
@@ -206,7 +242,11 @@ def main(seconds: float, shots: bool) -> None:
             mark = sent.snapshot()
             moving, _ = counter.rate(seconds)
             moving_kinds = sent.since(mark, seconds)
+            browser = page.context.browser
+            if trace:
+                browser.start_tracing(page=page, categories=TRACE_CATEGORIES)
             moving_hz = float(page.evaluate(COUNT_STATUS_JS, seconds))
+            split = trace_split(browser.stop_tracing()) if trace else ""
             stop.set()
             dragger.join()
             app.toggle_recording()
@@ -240,6 +280,8 @@ def main(seconds: float, shots: bool) -> None:
         print(f"messages received    {live_messages:6.1f} /s (websocket messages to the page, live)")
         print(f"page update rate     {update_hz:6.1f} Hz (status redraws the page showed over {seconds:g} s)")
         print(f"  while dragging     {moving_hz:6.1f} Hz (the hand circling: the 3D view moves every frame)")
+        if trace:
+            print(f"  where the page's time went while dragging (chromium's trace):\n{split}")
         print(f"live page            {live / 1000:8.1f} kB/s (probe pressed: arrows, contacts, plots)")
         print(f"  while dragging     {moving / 1000:8.1f} kB/s")
         print(
@@ -256,4 +298,4 @@ def main(seconds: float, shots: bool) -> None:
 
 if __name__ == "__main__":
     args = [a for a in sys.argv[1:] if not a.startswith("--")]
-    main(float(args[0]) if args else 10.0, "--screenshots" in sys.argv)
+    main(float(args[0]) if args else 10.0, "--screenshots" in sys.argv, "--trace" in sys.argv)

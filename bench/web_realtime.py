@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from app.session.run import run_session
 from app.session.spec import load_session
 from app.web.headless import CHROMIUM, free_port, open_page, press_probe
-from app.web.server import start_demo
+from app.web.launch import start_demo
 
 #: Seconds to let the tool reach the surface before measuring.
 SETTLE_SECONDS = 3.0

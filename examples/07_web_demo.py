@@ -14,7 +14,7 @@ import os
 import sys
 import time
 
-from app.web.server import start_demo
+from app.web.launch import start_demo
 
 
 def main(seconds: float | None) -> None:

@@ -31,6 +31,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from app.errors import ConfigError
+from app.session.files import META_FILE  # the log's description beside its parts (:class:`TickLog`)
 from app.session.pacer import background_priority
 from app.session.state import INT_COLUMNS, StateBlock
 from app.session.tick import TickRecord
@@ -48,8 +49,6 @@ def log_columns(n_joints: int, objects: tuple[str, ...] = ()) -> list[str]:
     return block.names[: block.n_logged]
 
 
-#: The log's description beside its parts (see :class:`TickLog`).
-META_FILE = "_meta.json"
 #: Simulated seconds of ticks per Parquet part (the tail holds the part being gathered).
 PART_SECONDS = 2.0
 #: Flushes handed to the writer thread and not yet written before ``flush`` waits (bounds memory

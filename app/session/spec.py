@@ -20,11 +20,10 @@ from app.controller.passivity import PassivitySettings
 from app.device.hand import HandParams
 from app.device.spec import DeviceSpec, load_device
 from app.errors import ConfigError, InvalidField
+from app.session.files import SESSIONS_DIR
 from app.teleop.channel import ChannelSettings
 from app.world.scene import Scene, load_scene, with_slave
 from app.world.scene_file import check_slave_kind
-
-SESSIONS_DIR = Path(__file__).resolve().parents[2] / "sessions"
 
 #: Most servo ticks (``duration * servo_rate``) of one session: an hour at 1 kHz. The run keeps
 #: per-tick stage timings in memory (32 bytes a tick) and logs every tick to Parquet.

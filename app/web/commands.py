@@ -10,13 +10,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from app.controller.gains import ControllerGains
-from app.controller.passivity import PassivitySettings
 from app.errors import FrhcError, InvalidField
-from app.session.spec import SessionFile
-from app.spatial import Array
-from app.teleop.channel import ChannelSettings
+
+if TYPE_CHECKING:  # field types only: the first panel imports the speed range without the loop
+    from app.controller.gains import ControllerGains
+    from app.controller.passivity import PassivitySettings
+    from app.session.spec import SessionFile
+    from app.spatial import Array
+    from app.teleop.channel import ChannelSettings
 
 #: Range of :class:`SetSpeed` (simulated seconds per wall-clock second).
 MIN_SPEED, MAX_SPEED = 0.1, 4.0

@@ -59,7 +59,7 @@ def running_demo(scene: str = "probe", device: str = "kraft") -> Iterator[DemoAp
     Raises:
         RuntimeError: the loop process did not publish within a minute.
     """
-    from app.web.server import start_demo  # the server imports this module's helpers' users
+    from app.web.launch import start_demo  # here: the page helpers above need no viser
 
     app = start_demo(scene, device, port=free_port())
     try:

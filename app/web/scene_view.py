@@ -41,7 +41,8 @@ MIN_SHOWN = 0.02
 #: nothing, and a still picture costs the browser no 3D render (viser drains the panel's updates
 #: at once only while no scene update waits for a frame).
 SHOWN_RESOLUTION = 5e-4
-#: The least turn sent (quaternion components; 1e-3 is 0.11 degrees).
+#: The least turn sent (rad, 0.057 degrees): the end of a rod as long as its space's size then
+#: moves by one pixel when the space fills 1000 px (twice :data:`SHOWN_RESOLUTION`).
 SHOWN_TURN = 1e-3
 #: The least change of a force label (N) that rewrites it.
 SHOWN_FORCE = 0.1
@@ -117,9 +118,20 @@ def pose_to_wxyz_position(T: Array) -> tuple[Array, Array]:
     return matrix_to_quat(T[0:3, 0:3]), T[0:3, 3].copy()
 
 
+def turn_between(q1: Array, q2: Array) -> float:
+    """The angle (rad) of the rotation between unit quaternions ``q1`` and ``q2`` (q and -q are one
+    rotation)."""
+    return 2.0 * float(np.arccos(min(1.0, abs(float(q1 @ q2)))))
+
+
+def wxyz_position_to_pose(wxyz: Array, position: Array) -> Array:
+    """viser's ``(wxyz, position)`` as a 4x4 pose."""
+    return make_pose(quat_to_matrix(np.asarray(wxyz, dtype=float)), np.asarray(position, dtype=float))
+
+
 def viser_to_device(wxyz: Array, position: Array) -> Array:
     """A pose given in the viser frame, as ``T_0_X`` in the device base {0} (4, 4)."""
-    return T_0_V @ make_pose(quat_to_matrix(np.asarray(wxyz, dtype=float)), np.asarray(position, dtype=float))
+    return T_0_V @ wxyz_position_to_pose(wxyz, position)
 
 
 #: Sections of a drawn capsule (round, along each end cap): trimesh's default 32 x 32 made a
@@ -163,6 +175,21 @@ def _tool_mesh(centers_T: Array, radii: Array) -> trimesh.Trimesh:
     return cast(trimesh.Trimesh, trimesh.util.concatenate(parts))
 
 
+def _pose(handle: viser.SceneNodeHandle) -> Array:
+    """``handle``'s pose in its parent's frame as last sent (4, 4)."""
+    return wxyz_position_to_pose(handle.wxyz, handle.position)
+
+
+def _at_origin() -> Array:
+    """The pose of a node whose parent is the viser frame itself."""
+    return np.eye(4)
+
+
+def _at_world() -> Array:
+    """The pose of a node whose parent is /world, {w} in the viser frame."""
+    return T_V_W
+
+
 def _rgb(rgba: Array) -> tuple[int, int, int]:
     return (int(255 * rgba[0]), int(255 * rgba[1]), int(255 * rgba[2]))
 
@@ -185,11 +212,14 @@ class SceneView:
         self.on_hand_moved = on_hand_moved
         scene = server.scene
         self._handles: list[viser.SceneNodeHandle] = []
-        self._last: dict[str, tuple[Array, Array]] = {}
+        #: Each placed node's orientation (wxyz) and position as last sent, apart: a node that only
+        #: moves (a label, the grip in rate mode) sends no orientation.
+        self._sent_wxyz: dict[str, Array] = {}
+        self._sent_position: dict[str, Array] = {}
         self._last_points: dict[str, Array] = {}
         #: The meshes a click can land on: handle, vertices (n, 3) and faces (m, 3) in its own frame,
-        #: and where its parent's frame is in the viser frame (m).
-        self._pickable: list[tuple[viser.MeshHandle, trimesh.Trimesh, Array]] = []
+        #: and its parent frame's pose in the viser frame (4, 4; a function, as /mrf moves).
+        self._pickable: list[tuple[viser.MeshHandle, trimesh.Trimesh, Callable[[], Array]]] = []
 
         self._add(scene.add_frame("/device", axes_length=0.08, axes_radius=0.003, position=DEVICE_ORIGIN_V))
         self._add(scene.add_label("/device/label", "device base {0}", position=(0.0, 0.0, -0.03)))
@@ -207,7 +237,7 @@ class SceneView:
             handle = scene.add_mesh_simple(
                 f"/links/geom_{g}", mesh.vertices, mesh.faces, color=_rgb(model.geom_rgba[g]), flat_shading=False
             )
-            self.geoms[g] = self._mesh(handle, mesh, np.zeros(3))
+            self.geoms[g] = self._mesh(handle, mesh, _at_origin)
         self._links_shown = True
 
         self.grip = self._add(scene.add_frame("/grip", axes_length=0.05, axes_radius=0.004))
@@ -228,7 +258,7 @@ class SceneView:
             handle = scene.add_mesh_simple(
                 f"/world/object_{i}", obj.mesh.vertices, obj.mesh.faces, color=STATIC_COLOR, opacity=0.9
             )
-            self._mesh(handle, obj.mesh, WORLD_ORIGIN_V)
+            self._mesh(handle, obj.mesh, _at_world)
         # The dynamic objects: meshes in their own frames {B}, placed at {B}'s pose in {w} (their
         # parent /world is {w}) from each snapshot.
         self.bodies: list[viser.MeshHandle] = []
@@ -238,7 +268,7 @@ class SceneView:
             handle = scene.add_mesh_simple(
                 f"/world/body_{b}", mesh.vertices, mesh.faces, color=DYNAMIC_COLOR, wxyz=wxyz, position=position
             )
-            self.bodies.append(self._mesh(handle, mesh, WORLD_ORIGIN_V))
+            self.bodies.append(self._mesh(handle, mesh, _at_world))
         slave_model = loop.slave.model
         self.slave_geoms: dict[int, viser.MeshHandle] = {}
         for g in range(slave_model.ngeom):
@@ -247,18 +277,22 @@ class SceneView:
                 handle = scene.add_mesh_simple(
                     f"/slave/geom_{g}", mesh.vertices, mesh.faces, color=_rgb(slave_model.geom_rgba[g]), opacity=0.85
                 )
-                self.slave_geoms[g] = self._mesh(handle, mesh, np.zeros(3))
+                self.slave_geoms[g] = self._mesh(handle, mesh, _at_origin)
+        # The tool and the F/T sensor are rigid on {MRF}: children of /mrf, so a moving tool costs
+        # one pose update, not three.
         tool = loop.slave.scene.tool
-        self._T_MRF_T = invert_pose(tool.T_T_MRF)
+        self.mrf = self._add(scene.add_frame("/mrf", axes_length=axes, axes_radius=0.04 * axes))
+        self._add(scene.add_label("/mrf/label", "{MRF}", position=(0.015, 0.0, 0.0)))
         tool_mesh = _tool_mesh(tool.centers_T, tool.radii)
         #: Radius (m) of the tool's sphere shell about {MRF}: what the tool camera preset frames.
         self.tool_radius = float(np.max(np.linalg.norm(tool_mesh.vertices - tool.T_T_MRF[0:3, 3], axis=1)))
-        tool_handle = scene.add_mesh_simple("/tool", tool_mesh.vertices, tool_mesh.faces, color=(200, 160, 60))
-        self.tool = self._mesh(tool_handle, tool_mesh, np.zeros(3))
-        self.mrf = self._add(scene.add_frame("/mrf", axes_length=axes, axes_radius=0.04 * axes))
-        self._add(scene.add_label("/mrf/label", "{MRF}", position=(0.015, 0.0, 0.0)))
-        self.sensor = self._add(scene.add_frame("/sensor", axes_length=0.75 * axes, axes_radius=0.04 * axes))
-        self._add(scene.add_label("/sensor/label", "{S}", position=(0.015, 0.0, 0.0)))
+        wxyz, position = pose_to_wxyz_position(invert_pose(tool.T_T_MRF))
+        tool_handle = scene.add_mesh_simple(
+            "/mrf/tool", tool_mesh.vertices, tool_mesh.faces, color=(200, 160, 60), wxyz=wxyz, position=position
+        )
+        self.tool = self._mesh(tool_handle, tool_mesh, lambda: _pose(self.mrf))
+        self.sensor = self._add(scene.add_frame("/mrf/sensor", axes_length=0.75 * axes, axes_radius=0.04 * axes))
+        self._add(scene.add_label("/mrf/sensor/label", "{S}", position=(0.015, 0.0, 0.0)))
         self.device_box_v = device_box(loop) + DEVICE_ORIGIN_V
         self.world_box_v = world_box(loop.slave.scene) + WORLD_ORIGIN_V
         # Arrow units: the device's and the world's own scale (a peg block is 10x smaller than a terrain).
@@ -321,9 +355,9 @@ class SceneView:
         self._handles.append(handle)
         return handle
 
-    def _mesh(self, handle: viser.MeshHandle, mesh: trimesh.Trimesh, parent_v: Array) -> viser.MeshHandle:
-        """Keep a mesh node (whose parent frame is at ``parent_v``) for :meth:`pick`."""
-        self._pickable.append((handle, mesh, parent_v))
+    def _mesh(self, handle: viser.MeshHandle, mesh: trimesh.Trimesh, parent: Callable[[], Array]) -> viser.MeshHandle:
+        """Keep a mesh node (whose parent frame's pose in the viser frame ``parent`` gives) for :meth:`pick`."""
+        self._pickable.append((handle, mesh, parent))
         return self._add(handle)
 
     def pick(self, origin: Array, direction: Array) -> Array | None:
@@ -331,15 +365,16 @@ class SceneView:
         frame) meets a shown mesh, at the pose last sent to the browsers; None if it meets none."""
         direction = direction / np.linalg.norm(direction)
         nearest: float | None = None
-        for handle, mesh, parent_v in self._pickable:
+        for handle, mesh, parent in self._pickable:
             if not handle.visible:
                 continue
-            R = quat_to_matrix(np.asarray(handle.wxyz, dtype=float))
-            # The ray in the mesh's frame (its parent is translated only: /world sits at WORLD_ORIGIN_V).
-            o_m = R.T @ (origin - parent_v - handle.position)
-            hits, _, _ = mesh.ray.intersects_location([o_m], [R.T @ direction], multiple_hits=False)
+            T_v_m = parent() @ _pose(handle)
+            R = T_v_m[0:3, 0:3]
+            # The ray in the mesh's frame.
+            o_m, d_m = R.T @ (origin - T_v_m[0:3, 3]), R.T @ direction
+            hits, _, _ = mesh.ray.intersects_location([o_m], [d_m], multiple_hits=False)
             if len(hits):
-                t = float((hits[0] - o_m) @ (R.T @ direction))
+                t = float((hits[0] - o_m) @ d_m)
                 if t > 0.0 and (nearest is None or t < nearest):
                     nearest = t
         return None if nearest is None else origin + nearest * direction
@@ -355,18 +390,19 @@ class SceneView:
         self.hand_target.wxyz, self.hand_target.position = pose_to_wxyz_position(T_V_0 @ T_0_H)
 
     def _place(self, key: str, handle: viser.SceneNodeHandle, T_v: Array, space: Space) -> None:
-        """Move ``handle`` to pose ``T_v`` (viser frame), sending nothing when it has moved less than
-        the ``space``'s resolution (and turned less than :data:`SHOWN_TURN`) since last sent."""
+        """Move ``handle`` to pose ``T_v`` (in its parent's frame): its orientation is sent when it
+        has turned by :data:`SHOWN_TURN` since last sent, its position when it has moved by the
+        ``space``'s resolution, each on its own (a node that moves without turning sends no
+        orientation)."""
         wxyz, position = pose_to_wxyz_position(T_v)
-        last = self._last.get(key)
-        if (
-            last is not None
-            and np.abs(np.abs(last[0] @ wxyz) - 1.0) < SHOWN_TURN  # q and -q are one turn
-            and np.max(np.abs(last[1] - position)) < self.resolution[space]
-        ):
-            return
-        self._last[key] = (wxyz, position)
-        handle.wxyz, handle.position = wxyz, position
+        sent = self._sent_wxyz.get(key)
+        if sent is None or turn_between(sent, wxyz) >= SHOWN_TURN:
+            self._sent_wxyz[key] = wxyz
+            handle.wxyz = wxyz
+        sent = self._sent_position.get(key)
+        if sent is None or np.max(np.abs(sent - position)) >= self.resolution[space]:
+            self._sent_position[key] = position
+            handle.position = position
 
     def _points(
         self, key: str, handle: viser.PointCloudHandle | viser.ArrowsHandle, points: Array, space: Space
@@ -411,9 +447,8 @@ class SceneView:
         self._place("grip", self.grip, T_v_G, "device")
         self._place("reference", self.reference, T_V_0 @ snap.T_0_G0, "device")
         T_v_MRF = T_V_W @ snap.T_w_MRF
-        self._place("tool", self.tool, T_v_MRF @ self._T_MRF_T, "world")
-        self._place("mrf", self.mrf, T_v_MRF, "world")
-        self._place("sensor", self.sensor, T_V_W @ snap.T_w_S, "world")
+        self._place("mrf", self.mrf, T_v_MRF, "world")  # with the tool and {S} on it
+        self._place("sensor", self.sensor, invert_pose(snap.T_w_MRF) @ snap.T_w_S, "world")  # fixed: sent once
         for b, (handle, pose) in enumerate(zip(self.bodies, snap.object_poses, strict=True)):
             self._place(f"body_{b}", handle, make_pose(quat_to_matrix(pose[3:7]), pose[0:3]), "world")
 

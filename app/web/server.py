@@ -1,4 +1,4 @@
-"""The browser haptic demo: :func:`serve` (behind ``frhc web``) and the :class:`DemoApp` it runs.
+"""The browser haptic demo: the :class:`DemoApp` that :func:`~app.web.launch.serve` (behind ``frhc web``) runs.
 
 Three kinds of thread run the demo:
 
@@ -14,8 +14,6 @@ Three kinds of thread run the demo:
 from __future__ import annotations
 
 import dataclasses
-import sys
-import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -27,15 +25,14 @@ import viser
 
 from app.controller.gains import ControllerGains
 from app.controller.passivity import PassivitySettings
-from app.device.haply import served_device
 from app.device.spec import DeviceSpec, available_devices, load_device
-from app.device.vendors import is_device_url
 from app.errors import ConfigError, InvalidField
+from app.session.files import RUNS_DIR
 from app.session.loop import LoopConfig, ServoLoop
-from app.session.spec import Session, check_servo_rate, load_session
+from app.session.spec import Session, load_session
 from app.spatial import Array
 from app.teleop.channel import ChannelSettings
-from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token, viser_on_unix_socket
+from app.web.access import TokenGate
 from app.web.camera import FOV, CameraPose, dolly_to_cursor, fit_camera, recentre
 from app.web.controls import PLOT_SECONDS, Controls
 from app.web.realtime import RealtimeLoop
@@ -43,7 +40,7 @@ from app.web.replay import LogReplay, ReplayPlayer
 from app.web.scene_view import WORLD_ORIGIN_V, SceneView
 from app.web.session_panel import ExperimentJob, SessionPanel
 from app.web.snapshot import Snapshot
-from app.world.scene import ROOT_DIR, Scene, available_scenes, load_scene
+from app.world.scene import Scene, available_scenes, load_scene
 
 #: Scene and panel redraws per second. 40, not 30: a page redrawn at 30 Hz shows at most 30
 #: changes a second and, with any late frame, fewer (28.8 Hz measured with the probe pressed).
@@ -54,8 +51,6 @@ DEFAULT_ASPECT = 1400 / 900
 #: colour (RGB) and intensity, chosen so the picture matches viser's default lighting by eye.
 FILL_GROUND = (90, 90, 100)
 FILL_INTENSITY = 1.5
-#: Where the record button writes ``web-<timestamp>/log``.
-RUNS_DIR = ROOT_DIR / "runs"
 
 
 def light_without_shadows(server: viser.ViserServer) -> None:
@@ -87,6 +82,8 @@ class DemoApp:
         device_url: ``device`` is outside this process, at this address (``ws://host:port``,
             ``fd:N``, ``openhaptics:NAME``); ``device`` is its file (limits, gains). Choosing
             another device in the page simulates that one; choosing ``device`` again reconnects.
+        panel: The guide and task panel, if already shown (:func:`~app.web.launch.start_demo`
+            builds it before importing this module); else built first here.
         spin: Share of each servo period the loop process spins instead of sleeping
             (:class:`~app.session.pacer.Pacer`); None: the pacer's default, which leaves the CPU
             idle between ticks.
@@ -100,6 +97,7 @@ class DemoApp:
         session: Session | None,
         servo_rate: float | None = None,
         device_url: str | None = None,
+        panel: SessionPanel | None = None,
         spin: float | None = None,
     ) -> None:
         self.server = server
@@ -117,7 +115,7 @@ class DemoApp:
         self._loading = False  # the notice is a loading one, cleared when the play shows up
         # The guide first: a browser that connects at once shows it while the loop is built (a
         # click on it in that time waits, with "starting..." shown, until :meth:`SessionPanel.ready`).
-        self.panel = SessionPanel(server, self, RUNS_DIR)
+        self.panel = panel if panel is not None else SessionPanel(server, RUNS_DIR)
         self.rt = RealtimeLoop(self._loop_config(device, scene, self._start_gains(device)), spin=spin)
         server.scene.set_up_direction("+z")
         light_without_shadows(server)
@@ -141,7 +139,7 @@ class DemoApp:
         self._ui = threading.Thread(target=self._ui_loop, name="web-ui", daemon=True)
         self.rt.start()
         self._ui.start()
-        self.panel.ready()
+        self.panel.ready(self)
 
     def _loop_config(self, device: DeviceSpec, scene: Scene, gains: ControllerGains) -> LoopConfig:
         """The loop for ``device`` and ``scene``; the session, if any, adds its hand, accommodation and rate."""
@@ -452,7 +450,8 @@ class DemoApp:
                     self._draw_panel(now - last_panel)
                     last_panel = now
                 elif self._drawn is not None:
-                    self.view.update(self._drawn)
+                    with self.server.atomic():  # one websocket window: the page applies it in one frame
+                        self.view.update(self._drawn)
             panel = not panel
             next_step += half
             self._stop.wait(max(0.0, next_step - time.perf_counter()))
@@ -510,112 +509,3 @@ class DemoApp:
         self.rt.stop()
         if self.gate is not None:
             self.gate.close()
-
-
-def start_demo(
-    scene: str,
-    device: str,
-    host: str = "127.0.0.1",
-    port: int = 8080,
-    session: str | None = None,
-    insecure: bool = False,
-    replay: str | None = None,
-    servo_rate: float | None = None,
-    spin: float | None = None,
-) -> DemoApp:
-    """Check the inputs, start a viser server and the demo on it; returns at once (non-blocking).
-
-    On a non-loopback ``host`` the demo is served through a :class:`~app.web.access.TokenGate`
-    (viser itself then listens on a private unix socket, no TCP port) unless ``insecure``;
-    :attr:`DemoApp.url` is the address to open, with the token.
-
-    ``device`` may be a device outside this process (``ws://host:port``, ``fd:N``,
-    ``openhaptics:NAME``): a ``frhc device serve`` names its own device file; for another, the
-    session's device file if it is Cartesian, else the vendor's shipped one (``inverse3``,
-    ``omega3``, ``touch3``), gives its limits (:func:`~app.device.haply.served_device`).
-
-    Raises:
-        ConfigError: for an unknown or malformed scene, device or session, before any server starts.
-        InvalidField: ``servo_rate`` outside the sessions' range.
-        DeviceUnreachable: nothing answers at a ``ws://`` ``device``.
-    """
-    if servo_rate is not None:
-        check_servo_rate(servo_rate)
-    loaded_session = load_session(session) if session is not None else None
-    scene_obj = load_scene(scene)
-    device_url = device if is_device_url(device) else None
-    if device_url is not None:
-        device_obj = served_device(device_url, loaded_session.device if loaded_session is not None else None)
-    else:
-        device_obj = load_device(device)
-    loaded_replay = LogReplay(Path(replay)) if replay is not None else None
-    gated = not is_loopback(host) and not insecure
-    if gated:
-        inner = Path(tempfile.mkdtemp(prefix="frhc-viser-")) / "viser.sock"  # the folder is 0700
-        with viser_on_unix_socket(inner):
-            server = viser.ViserServer(label="FRHC haptic demo", verbose=False)
-    else:
-        server = viser.ViserServer(host=host, port=port, label="FRHC haptic demo", verbose=False)
-    app = DemoApp(server, scene_obj, device_obj, loaded_session, servo_rate, device_url, spin)
-    if loaded_replay is not None:
-        app.show_replay(loaded_replay)
-    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
-    if gated:
-        app.gate = TokenGate(host, port, inner, new_token())
-        app.url = f"http://{shown}:{app.gate.port}/?{TOKEN_NAME}={app.gate.token}"
-    else:
-        if not is_loopback(host):
-            print(
-                f"warning: serving on {host} without a token (--insecure): anyone who can reach it can drive the demo",
-                file=sys.stderr,
-            )
-        app.url = f"http://{shown}:{server.get_port()}/"
-    return app
-
-
-def serve(
-    scene: str,
-    device: str,
-    host: str = "127.0.0.1",
-    port: int = 8080,
-    session: str | None = None,
-    open_seconds: float | None = None,
-    insecure: bool = False,
-    replay: str | None = None,
-    servo_rate: float | None = None,
-    spin: float | None = None,
-) -> None:
-    """Serve the browser demo until interrupted (or for ``open_seconds`` seconds), printing its URL.
-
-    Args:
-        scene: Scene name in ``scenes/`` or path to a scene ``.toml``.
-        device: Device name in ``devices/``, path to a ``device.toml``, or a device outside this
-            process (``ws://host:port``, ``fd:N``, ``openhaptics:NAME``; see :func:`start_demo`).
-        host: Bind address; anything but loopback needs the printed token (or ``insecure``).
-        port: TCP port (viser moves to the next free one if it is taken; the printed URL is right).
-        session: Optional session whose gains, mode, hand, accommodation and servo rate are used
-            (scene and device still come from the arguments).
-        open_seconds: Return after this long instead of serving forever (for tests).
-        insecure: Serve a non-loopback ``host`` without a token.
-        replay: A log directory to start on, in replay (the live loop runs beside it).
-        servo_rate: The loop's rate (Hz) for everything the demo runs, sessions played included
-            (default: the session's, else 1 kHz).
-        spin: Share of each period the loop process spins (:class:`DemoApp`); None: no more than
-            the pacer's default.
-
-    Raises:
-        ConfigError: for an unknown or malformed scene, device or session, before the server starts.
-    """
-    app = start_demo(scene, device, host, port, session, insecure, replay, servo_rate, spin)
-    print(f"FRHC haptic demo: {app.url}  (Ctrl+C to stop)", flush=True)
-    try:
-        if open_seconds is None:
-            while True:
-                time.sleep(3600.0)
-        else:
-            time.sleep(open_seconds)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        app.close()
-        app.server.stop()

@@ -15,8 +15,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 import viser
 
-from app.session.log import META_FILE
-from app.session.spec import SESSIONS_DIR
+from app.session.files import META_FILE, SESSIONS_DIR
 from app.web.commands import MAX_SPEED, MIN_SPEED
 
 if TYPE_CHECKING:
@@ -82,19 +81,22 @@ class SessionActions(Protocol):
 class SessionPanel:
     """Guide, session player, log replay and experiment folders of the demo's panel.
 
+    Built before the demo exists (the page shows the guide while the loop is built): the demo
+    application, which every input acts on, is given to :meth:`ready`.
+
     Args:
-        server: The viser server. actions: The demo application. runs: Where logs are looked for.
+        server: The viser server. runs: Where logs are looked for.
     """
 
-    def __init__(self, server: viser.ViserServer, actions: SessionActions, runs: Path) -> None:
+    def __init__(self, server: viser.ViserServer, runs: Path) -> None:
         gui = server.gui
-        a = actions
         self._ready = threading.Event()
+        self._actions: SessionActions | None = None
         on = self._when_ready
         with gui.add_folder("Start here", expand_by_default=True):
             gui.add_markdown(GUIDE)
             self.try_peg = gui.add_button("Try the peg task", hint="Play sessions/peg_ntrfc.toml in real time")
-            self.try_peg.on_click(on(lambda: a.play_session("peg_ntrfc")))
+            self.try_peg.on_click(on(lambda a: a.play_session("peg_ntrfc")))
             self.try_status = gui.add_markdown("")
 
         with gui.add_folder("Play a session", expand_by_default=False):
@@ -105,9 +107,9 @@ class SessionPanel:
             self.speed = gui.add_dropdown("Speed", SPEEDS, initial_value="1")
             self._speed_seen = 1.0
             self.play_status = gui.add_markdown("")
-        self.play.on_click(on(lambda: a.play_session(self.session.value)))
-        self.pause.on_update(on(lambda: a.pause(self.pause.value)))
-        self.speed.on_update(on(lambda: a.set_speed(float(self.speed.value))))
+        self.play.on_click(on(lambda a: a.play_session(self.session.value)))
+        self.pause.on_update(on(lambda a: a.pause(self.pause.value)))
+        self.speed.on_update(on(lambda a: a.set_speed(float(self.speed.value))))
 
         with gui.add_folder("Replay a log", expand_by_default=False):
             self.log_path = gui.add_text("Log directory", latest_log(runs), hint="runs/<name> or runs/<name>/log")
@@ -117,11 +119,11 @@ class SessionPanel:
             self.replay_speed = gui.add_dropdown("Replay speed", SPEEDS, initial_value="1")
             self.live = gui.add_button("Back to live")
             self.replay_status = gui.add_markdown("")
-        self.open.on_click(on(lambda: a.open_replay(self.log_path.value)))
-        self.live.on_click(on(a.close_replay))
-        self.timeline.on_update(on(lambda: a.seek(float(self.timeline.value))))
-        self.replay_playing.on_update(on(lambda: a.set_replay_playing(self.replay_playing.value)))
-        self.replay_speed.on_update(on(lambda: a.set_replay_speed(float(self.replay_speed.value))))
+        self.open.on_click(on(lambda a: a.open_replay(self.log_path.value)))
+        self.live.on_click(on(lambda a: a.close_replay()))
+        self.timeline.on_update(on(lambda a: a.seek(float(self.timeline.value))))
+        self.replay_playing.on_update(on(lambda a: a.set_replay_playing(self.replay_playing.value)))
+        self.replay_speed.on_update(on(lambda a: a.set_replay_speed(float(self.replay_speed.value))))
 
         with gui.add_folder("Experiment (Table I)", expand_by_default=False):
             gui.add_markdown(
@@ -138,14 +140,16 @@ class SessionPanel:
                 FULL_CHART, visible=False, hint="Table I's chart in a window beside the panel, large enough to read"
             )
             self._chart_image: np.ndarray | None = None
-        self.run_experiment.on_click(on(lambda: a.start_experiment(int(self.operators.value))))
+        self.run_experiment.on_click(on(lambda a: a.start_experiment(int(self.operators.value))))
         self.full_chart.on_click(lambda event: self._open_chart(event.client))
 
-    def ready(self) -> None:
-        """The demo is up (its loop, view and panel built): clicks act, and those made before run now."""
+    def ready(self, actions: SessionActions) -> None:
+        """The demo ``actions`` is up (its loop, view and panel built): clicks act on it, and those
+        made before run now."""
+        self._actions = actions
         self._ready.set()
 
-    def _when_ready(self, action: Callable[[], None]) -> Callable[[viser.GuiEvent], None]:
+    def _when_ready(self, action: Callable[[SessionActions], None]) -> Callable[[viser.GuiEvent], None]:
         """A callback running ``action`` once the demo is up: a click made while its loop is still
         being built (the guide is shown first) waits, with :data:`STARTING` shown, in viser's
         callback thread instead of reaching a demo that does not exist yet."""
@@ -156,7 +160,8 @@ class SessionPanel:
                 if not self._ready.wait(READY_TIMEOUT):
                     self.show_play_status("**the demo did not start**: reload the page to try again")
                     return
-            action()
+            assert self._actions is not None  # set before the event
+            action(self._actions)
 
         return callback
 

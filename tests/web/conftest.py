@@ -8,7 +8,8 @@ import pytest
 from web_helpers import STEP_TIMEOUT
 
 from app.web.headless import CHROMIUM, free_port, open_page
-from app.web.server import DemoApp, start_demo
+from app.web.launch import start_demo
+from app.web.server import DemoApp
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ import pytest
 
 from app.web.access import TOKEN_NAME, token_in_request
 from app.web.headless import free_port
-from app.web.server import start_demo
+from app.web.launch import start_demo
 
 
 @pytest.mark.parametrize(

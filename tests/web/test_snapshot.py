@@ -14,9 +14,17 @@ from app.session.loop import LoopConfig, ServoLoop
 from app.session.script import OperatorScript
 from app.session.spec import load_session
 from app.slave.arm import ArmStatus
-from app.spatial import quat_to_matrix
+from app.spatial import invert_pose, make_pose, quat_to_matrix
 from app.web.headless import free_port
-from app.web.scene_view import SHOWN_RESOLUTION, WORLD_ORIGIN_V, SceneView
+from app.web.scene_view import (
+    SHOWN_RESOLUTION,
+    SHOWN_TURN,
+    T_V_W,
+    WORLD_ORIGIN_V,
+    SceneView,
+    turn_between,
+    wxyz_position_to_pose,
+)
 from app.web.snapshot import MAX_SHOWN_CONTACTS, SNAPSHOT_BYTES, SharedSnapshot, Snapshot, take_snapshot
 
 
@@ -96,6 +104,57 @@ def test_the_scene_view_sends_only_what_a_pixel_would_show() -> None:
         assert not np.array_equal(arrow.points, points)
         view.update(pushed(8.3))
         assert label.text == "8.3 N"
+    finally:
+        server.stop()
+
+
+def _turned_about_z(T: np.ndarray, angle: float, move: tuple[float, float, float]) -> np.ndarray:
+    """``T`` turned by ``angle`` (rad) about {w}'s z at its origin and moved by ``move`` (m)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return make_pose(np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ T[0:3, 0:3], T[0:3, 3] + move)
+
+
+def test_the_tool_moves_as_one_node_and_a_turn_is_sent_past_its_tolerance() -> None:
+    """The tool and {S} ride on /mrf: moving the tool re-sends /mrf's pose only (the tool's own pose
+    in /mrf stays as sent), it is drawn and picked where the snapshot has it; a move with a turn
+    under :data:`SHOWN_TURN` sends the move and not the turn; a turn past it is sent."""
+    loop = ServoLoop(LoopConfig.from_session(load_session("probe_rate")))
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        view = SceneView(server, loop, on_hand_moved=lambda _T: None)
+        snap = take_snapshot(loop.tick(), loop.controller.slave.T_MRF_S)
+        view.update(snap)
+        tool_pose = wxyz_position_to_pose(view.tool.wxyz, view.tool.position)
+        sensor_pose = wxyz_position_to_pose(view.sensor.wxyz, view.sensor.position)
+        mrf_wxyz = np.array(view.mrf.wxyz)
+
+        def moved(angle: float) -> Snapshot:
+            T_w_MRF = _turned_about_z(snap.T_w_MRF, angle, (0.02, -0.01, 0.03))
+            return replace(snap, T_w_MRF=T_w_MRF, T_w_S=T_w_MRF @ loop.controller.slave.T_MRF_S)
+
+        small = 0.5 * SHOWN_TURN
+        view.update(moved(small))
+        np.testing.assert_array_equal(wxyz_position_to_pose(view.tool.wxyz, view.tool.position), tool_pose)
+        np.testing.assert_array_equal(wxyz_position_to_pose(view.sensor.wxyz, view.sensor.position), sensor_pose)
+        np.testing.assert_array_equal(view.mrf.wxyz, mrf_wxyz)  # the turn under the tolerance: not sent
+        T_w_MRF = moved(small).T_w_MRF
+        np.testing.assert_allclose(view.mrf.position, T_w_MRF[0:3, 3] + WORLD_ORIGIN_V, atol=1e-12)
+        # Drawn: /mrf's pose then the tool's in it; off the snapshot's by the turn not sent (about
+        # {MRF}: a point of the tool within tool_radius of it moves less than SHOWN_TURN * that).
+        T_v_tool = wxyz_position_to_pose(view.mrf.wxyz, view.mrf.position) @ tool_pose
+        expected = T_V_W @ T_w_MRF @ invert_pose(loop.slave.scene.tool.T_T_MRF)
+        local = np.asarray(view.tool.vertices, dtype=float)
+        vertices = local @ T_v_tool[0:3, 0:3].T + T_v_tool[0:3, 3]
+        off = np.linalg.norm(vertices - (local @ expected[0:3, 0:3].T + expected[0:3, 3]), axis=1)
+        assert 0.0 < off.max() <= small * view.tool_radius * (1.0 + 1e-6)
+        # A click straight down through the moved tool lands on it (the ray test follows /mrf).
+        centre = vertices.mean(axis=0)
+        hit = view.pick(centre + np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0]))
+        assert hit is not None
+        assert vertices[:, 2].min() - 1e-4 <= hit[2] <= vertices[:, 2].max() + 1e-4
+
+        view.update(moved(2.0 * SHOWN_TURN))
+        assert turn_between(np.asarray(view.mrf.wxyz), mrf_wxyz) == pytest.approx(2.0 * SHOWN_TURN, rel=1e-6)
     finally:
         server.stop()
 

@@ -42,9 +42,9 @@ def test_page_shows_controls_and_scene(demo: DemoApp, page: object) -> None:
         "/grip",
         "/reference",
         "/hand_target",
-        "/tool",
+        "/mrf/tool",
         "/mrf",
-        "/sensor",
+        "/mrf/sensor",
         "/world/object_0",
         "/links/geom_0",
         "/wrenches/task_MRF/force",
@@ -308,3 +308,58 @@ def test_wheel_zooms_toward_the_cursor(demo: DemoApp, page: object) -> None:
     assert centre_moved > 20.0, "the test point is too near the centre to tell"
     assert moved < 0.25 * centre_moved, (moved, centre_moved)
     demo.frame_camera(client, "both")
+
+
+#: A render from straight above the tool (viser's camera: x right, y down, z forward, so a half
+#: turn about x looks down), its size and field of view.
+ABOVE_HEIGHT, ABOVE_FOV = 0.2, np.radians(40.0)  # m above {MRF}, rad
+ABOVE_H, ABOVE_W = 240, 320  # px
+#: How near the drawn tool must be (m): 3 px of that render (its {S} axes hide a little of it).
+TOOL_DRAWN = 2e-3
+
+
+def _tool_drawn_xy(demo: DemoApp, T_w_MRF: np.ndarray) -> np.ndarray:
+    """Where the page draws the probe's vertical stylus, (x, y) in {w} (m): the centroid of its
+    gold pixels in a render from :data:`ABOVE_HEIGHT` above ``T_w_MRF``, back-projected at {MRF}."""
+    client = next(iter(demo.server.get_clients().values()))
+    above = T_w_MRF[0:3, 3] + np.array([0.0, 0.0, ABOVE_HEIGHT])
+    image = client.get_render(
+        ABOVE_H, ABOVE_W, wxyz=(0.0, 1.0, 0.0, 0.0), position=above + WORLD_ORIGIN_V, fov=ABOVE_FOV
+    )
+    rgb = image[..., 0:3].astype(float)
+    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    gold = (r > 100.0) & (r > 1.5 * b + 40.0) & (g > 1.3 * b + 30.0)  # the tool's (200, 160, 60), lit or shaded
+    assert gold.sum() > 50, "the tool is not in the render"
+    rows, cols = np.nonzero(gold)
+    metres_per_px = ABOVE_HEIGHT * np.tan(0.5 * ABOVE_FOV) / (0.5 * ABOVE_H)
+    # Image right is +x, image down is -y (the half turn about x).
+    du, dv = float(cols.mean()) - 0.5 * ABOVE_W, float(rows.mean()) - 0.5 * ABOVE_H
+    return above[0:2] + metres_per_px * np.array([du, -dv])
+
+
+def test_the_tool_is_drawn_where_it_is_as_it_moves(demo: DemoApp, page: object) -> None:
+    """The tool (drawn on {MRF}, with {S}: one node moved for the three) is where the simulation
+    has it in a render read back from the page, at home and after the hand drove it 1.5 cm along x
+    (rate mode) and let go."""
+    demo.reset()  # switches off, the tool at home, the hand on the grip
+    _wait_until(lambda: not demo.rt.snapshot.deadman, "the reset did not reach the loop")
+    time.sleep(0.5)
+    home = demo.rt.snapshot.T_w_MRF
+    _wait_until(lambda: np.linalg.norm(_tool_drawn_xy(demo, home) - home[0:2, 3]) < TOOL_DRAWN, "the tool at home")
+    demo.controls.deadman.value = True  # type: ignore[misc]  # viser 1.1: the setter exists
+    T_0_H = demo.rt.snapshot.T_0_G.copy()
+    T_0_H[0, 3] += 0.03  # past the deadband: the tool moves along +x
+    demo.move_hand_target(T_0_H)
+    _wait_until(lambda: demo.rt.snapshot.T_w_MRF[0, 3] - home[0, 3] > 0.015, "the tool did not move")
+    demo.controls.deadman.value = False  # type: ignore[misc]
+    _wait_until(lambda: not demo.rt.snapshot.deadman, "the deadman is still on")
+    time.sleep(0.2)
+    moved = demo.rt.snapshot.T_w_MRF
+    _wait_until(lambda: np.linalg.norm(_tool_drawn_xy(demo, moved) - moved[0:2, 3]) < TOOL_DRAWN, "the moved tool")
+
+
+def _wait_until(condition, what: str) -> None:  # type: ignore[no-untyped-def]
+    end = time.monotonic() + STEP_TIMEOUT
+    while not condition():
+        assert time.monotonic() < end, f"not drawn where it is: {what}"
+        time.sleep(0.2)

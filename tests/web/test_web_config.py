@@ -1,25 +1,19 @@
-"""The web entry point refuses bad input before any server starts, and serves for a bounded time."""
+"""The web entry point refuses bad input leaving nothing served, and serves for a bounded time."""
 
 from __future__ import annotations
 
+import os
+import signal
 import time
 
 import pytest
+from web_helpers import nothing_listens
 
 from app.errors import ConfigError, InvalidField
-from app.web import server
+from app.web import launch as server
 from app.web.headless import free_port
 
 
-@pytest.fixture
-def no_server(monkeypatch: pytest.MonkeyPatch) -> None:
-    def refuse(*args: object, **kwargs: object) -> None:
-        raise AssertionError("a server was started")
-
-    monkeypatch.setattr(server.viser, "ViserServer", refuse)
-
-
-@pytest.mark.usefixtures("no_server")
 @pytest.mark.parametrize(
     ("scene", "device", "session", "field"),
     [
@@ -28,13 +22,16 @@ def no_server(monkeypatch: pytest.MonkeyPatch) -> None:
         ("probe", "kraft", "no_such_session", None),
     ],
 )
-def test_unknown_names_raise_config_error_before_serving(
+def test_unknown_names_raise_config_error_leaving_nothing_served(
     scene: str, device: str, session: str | None, field: str | None
 ) -> None:
+    """The server listens (with the guide) while the inputs are checked: a bad one stops it."""
+    port = free_port()
     with pytest.raises(ConfigError) as info:
-        server.serve(scene, device, session=session, open_seconds=0.0)
+        server.serve(scene, device, port=port, session=session, open_seconds=0.0)
     if field is not None:
         assert info.value.field == field
+    assert nothing_listens(port)
 
 
 def test_loopback_detection() -> None:
@@ -86,8 +83,25 @@ def test_the_demos_loop_spins_as_asked_and_keeps_it_when_rebuilt() -> None:
         app.close()
 
 
-@pytest.mark.usefixtures("no_server")
-def test_a_servo_rate_outside_the_sessions_range_is_refused_before_serving() -> None:
+def test_a_servo_rate_outside_the_sessions_range_is_refused_leaving_nothing_served() -> None:
+    port = free_port()
     with pytest.raises(InvalidField) as info:
-        server.start_demo("probe", "kraft", servo_rate=50.0)
+        server.start_demo("probe", "kraft", port=port, servo_rate=50.0)
     assert info.value.field == "servo_rate"
+    assert nothing_listens(port)
+
+
+def test_a_signal_during_the_demos_build_is_delivered_after_it() -> None:
+    """A SIGTERM inside :func:`signals_held` (the demo's imports, where third-party code catches
+    ``BaseException``) reaches the handler in place only when the block ends, once."""
+    seen: list[int] = []
+    previous = signal.signal(signal.SIGTERM, lambda signum, _: seen.append(signum))
+    try:
+        with server.signals_held():
+            os.kill(os.getpid(), signal.SIGTERM)
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.05)  # the handler would have run by now
+            assert seen == []
+        assert seen == [signal.SIGTERM]
+    finally:
+        signal.signal(signal.SIGTERM, previous)

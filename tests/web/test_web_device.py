@@ -12,9 +12,11 @@ import time
 from collections.abc import Callable, Iterator
 
 import pytest
+from web_helpers import nothing_listens
 
 from app.web.headless import free_port
-from app.web.server import DemoApp, start_demo
+from app.web.launch import start_demo
+from app.web.server import DemoApp
 from app.web.snapshot import Snapshot
 
 WAIT_S = 60.0  # bound on each wait below (a loaded machine); the conditions are what is tested
@@ -75,9 +77,11 @@ def test_demo_drives_a_served_device_shows_its_link_and_no_links_it_cannot_pose(
         app.server.stop()
 
 
-def test_an_address_where_nothing_answers_is_refused_before_a_server_starts() -> None:
+def test_an_address_where_nothing_answers_is_refused_leaving_nothing_served() -> None:
     from app.device.haply import DeviceUnreachable
 
     port = free_port()  # free: nothing listens there
+    web_port = free_port()
     with pytest.raises(DeviceUnreachable, match=f"no Inverse Service answers at ws://127.0.0.1:{port}"):
-        start_demo("probe", f"ws://127.0.0.1:{port}", port=free_port())
+        start_demo("probe", f"ws://127.0.0.1:{port}", port=web_port)
+    assert nothing_listens(web_port)  # the demo's server was stopped

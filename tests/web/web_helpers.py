@@ -1,6 +1,8 @@
-"""Constants shared by the browser tests."""
+"""Constants and helpers shared by the web tests."""
 
 from __future__ import annotations
+
+import socket
 
 from app.world.scene import ROOT_DIR
 
@@ -9,3 +11,9 @@ SCREENSHOT_DIR = ROOT_DIR / "runs" / "web-test"
 #: Seconds the page and the loop get for each step: generous, because chromium renders WebGL in
 #: software on 2 cores while the real-time loop holds most of one.
 STEP_TIMEOUT = 60.0
+
+
+def nothing_listens(port: int) -> bool:
+    """Whether a connection to ``port`` on 127.0.0.1 is refused."""
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) != 0

@@ -119,18 +119,24 @@ def bench_tick(quick: bool = False) -> str:
 def _web_loop_lines(quick: bool) -> list[str]:
     """The browser demo's loop as it runs (its own process, paced to the wall clock, publishing
     snapshots, playing a session's script; no browser): compute per tick against the same
-    session's bare tick headless, achieved rate and period jitter, at 1 kHz and at 4 kHz."""
+    session's bare tick headless, achieved rate, period jitter and the loop process's CPU, at
+    1 kHz and at 4 kHz, and at 1 kHz spinning :data:`WEB_SPIN` of each period (``frhc web --spin``)."""
     from app.session.loop import LoopConfig
     from app.session.run import run_session
     from app.session.spec import load_session
     from app.web.realtime import RealtimeLoop
 
     lines = ["the browser demo's loop (own process, paced, snapshots, session playing; no browser):"]
-    cases = [("probe_rate", 1000.0), ("peg_ntrfc", 1000.0), ("probe_rate", 4000.0)]
-    for name, rate in cases[:1] + cases[2:] if quick else cases:
+    cases: list[tuple[str, float, float | None]] = [
+        ("probe_rate", 1000.0, None),
+        ("probe_rate", 1000.0, WEB_SPIN),
+        ("peg_ntrfc", 1000.0, None),
+        ("probe_rate", 4000.0, None),
+    ]
+    for name, rate, spin in [c for c in cases if c[0] == "probe_rate"] if quick else cases:
         session = load_session(name).with_changes(servo_rate=rate)
         bare = run_session(session, out_dir=None, plots=False).summary["timing"]["tick"]["median_us"]
-        rt = RealtimeLoop(LoopConfig.from_session(session))
+        rt = RealtimeLoop(LoopConfig.from_session(session), spin=spin)
         rt.start()
         try:
             if not rt.wait_running():
@@ -138,15 +144,20 @@ def _web_loop_lines(quick: bool) -> list[str]:
                 continue
             rt.play(session)
             time.sleep(WEB_SETTLE_SECONDS)
+            cpu0, wall0 = rt.cpu_seconds(), time.monotonic()
             time.sleep(WEB_MEASURE_SECONDS)
+            cpu1, wall1 = rt.cpu_seconds(), time.monotonic()
             st = rt.stats(last=round(WEB_MEASURE_SECONDS * rate))
             scheduling = rt.scheduling
         finally:
             rt.stop()
+        cpu = "?" if cpu0 is None or cpu1 is None else f"{100 * (cpu1 - cpu0) / (wall1 - wall0):.0f} %"
+        how = f"{rate / 1000:g} kHz" + ("" if spin is None else f", spin {spin:g}")
         lines.append(
-            f"  {name} at {rate / 1000:g} kHz ({scheduling}): compute median {st.tick_p50_us:6.1f} us "
+            f"  {name} at {how} ({scheduling}): compute median {st.tick_p50_us:6.1f} us "
             f"p99 {st.tick_p99_us:7.1f} us ({st.tick_p50_us / bare:.2f}x its bare tick, median {bare:.1f} us); "
-            f"rate {st.rate_hz:8.1f} Hz ({100 * (st.rate_hz / rate - 1):+.2f} %), jitter p99 {st.jitter_p99_us:6.1f} us"
+            f"rate {st.rate_hz:8.1f} Hz ({100 * (st.rate_hz / rate - 1):+.2f} %), jitter p99 {st.jitter_p99_us:6.1f} us; "
+            f"loop process CPU {cpu} of a core"
         )
     return lines
 
@@ -154,6 +165,8 @@ def _web_loop_lines(quick: bool) -> list[str]:
 #: The web loop rows: seconds of the played session let run before, then measured.
 WEB_SETTLE_SECONDS = 1.0
 WEB_MEASURE_SECONDS = 3.0
+#: The share of each period the spinning web loop row spins (``frhc web --spin``).
+WEB_SPIN = 0.8
 
 
 class _Laps:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import signal
 import sys
@@ -232,6 +233,7 @@ def _cmd_web(args: argparse.Namespace) -> int:
         insecure=args.insecure,
         replay=args.replay,
         servo_rate=args.rate,
+        spin=args.spin,
     )
     return 0
 
@@ -315,6 +317,19 @@ def _servo_rate(text: str) -> float:
     except (ValueError, InvalidField) as exc:
         raise argparse.ArgumentTypeError(f"expected a servo rate in Hz: {exc}") from None
     return rate
+
+
+def _spin_share(text: str) -> float:
+    """``--spin``: a share of the servo period, 0 to :data:`~app.session.pacer.MAX_SPIN`."""
+    from app.session.pacer import MAX_SPIN
+
+    try:
+        share = float(text)
+    except ValueError:
+        share = math.nan
+    if not 0.0 <= share <= MAX_SPIN:
+        raise argparse.ArgumentTypeError(f"expected a share of the period from 0 to {MAX_SPIN}, got {text!r}")
+    return share
 
 
 def _damping(text: str) -> float:
@@ -459,6 +474,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=_servo_rate,
         default=None,
         help="servo rate (Hz) of the loop and of every session played (e.g. 1000, 2000, 4000; default: the session's, else 1000)",
+    )
+    p.add_argument(
+        "--spin",
+        type=_spin_share,
+        default=None,
+        metavar="SHARE",
+        help="spin the last SHARE (0-0.8) of each servo period instead of sleeping: the ticks run warmer, "
+        "but the loop process keeps a CPU busy that share of the time (default: sleep, spin at most 0.3 ms)",
     )
     p.set_defaults(func=_cmd_web)
 

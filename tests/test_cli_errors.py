@@ -19,6 +19,8 @@ FRHC = [sys.executable, "-m", "app.cli"]
         (["web", "--replay", "{tmp}/no-log-here"], "not a replayable log"),
         (["web", "--rate", "50"], "--rate: expected a servo rate in Hz: servo_rate: must be"),
         (["run", "probe_rate", "--rate", "fast"], "--rate: expected a servo rate in Hz"),
+        (["web", "--spin", "0.95"], "--spin: expected a share of the period from 0 to 0.8, got '0.95'"),
+        (["web", "--spin", "most"], "--spin: expected a share of the period from 0 to 0.8, got 'most'"),
         (["bench", "stability", "--window", "-1"], "--window: must be between 0.001 and 3600 s, got -1"),
         (["bench", "stability", "--window", "long"], "--window: not a number"),
     ],

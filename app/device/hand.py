@@ -49,7 +49,7 @@ def _rotate_wrench(T: Array, w: Array, out: Array) -> None:
 
 
 @njit(cache=True)
-def _pull(
+def pull_target(
     T_0_H: Array, T: Array, mocap_pos: Array, mocap_quat: Array, kinematics: int, transmission: int, m: int, d: int
 ) -> bool:
     """Copy a finite ``T_0_H`` (4, 4) to ``T`` and to the hand's mocap pose, then run MuJoCo's
@@ -68,6 +68,31 @@ def _pull(
     call_model_data(kinematics, m, d)
     call_model_data(transmission, m, d)
     return True
+
+
+@njit(cache=True)
+def copy_and_pull(
+    T_0_H: Array,
+    copy: Array,
+    T: Array,
+    mocap_pos: Array,
+    mocap_quat: Array,
+    kinematics: int,
+    transmission: int,
+    m: int,
+    d: int,
+) -> bool:
+    """``T_0_H`` (4, 4) copied into ``copy`` (a loop's record of the target), then
+    :func:`pull_target`: what a caller holding :meth:`OperatorHand.pull_args` does each tick."""
+    for a in range(4):
+        for b in range(4):
+            copy[a, b] = T_0_H[a, b]
+    return pull_target(T_0_H, T, mocap_pos, mocap_quat, kinematics, transmission, m, d)
+
+
+#: What :func:`pull_target` takes after the target: the hand's target and mocap position and
+#: quaternion, MuJoCo's kinematics and transmission functions, model and data (addresses).
+PullArgs = tuple[Array, Array, Array, int, int, int, int]
 
 
 @dataclass(frozen=True)
@@ -132,13 +157,15 @@ class OperatorHand:
         self._force_H = data.actuator_force[first : first + 6]
         self._wrench_G = np.zeros(6)
         self._T = np.eye(4)
+        # Read every tick by the state row: the compiled specialisation, without numba's typing.
+        self._rotate = entry_point(_rotate_wrench, self._T, self._force_H, self._wrench_G)
         self._mocap_pos = data.mocap_pos[self._mocap]
         self._mocap_quat = data.mocap_quat[self._mocap]
         self._opt = model.opt
         kinematics, transmission = address("mj_kinematics"), address("mj_transmission")
         self._pull_args = (self._T, self._mocap_pos, self._mocap_quat, kinematics, transmission, *pointers(model, data))
         # Called every tick with the same kinds of arguments: the compiled specialisation, once.
-        self._pull = entry_point(_pull, self._T, *self._pull_args)
+        self._pull = entry_point(pull_target, self._T, *self._pull_args)
         #: Hand target pose T_0_H (4, 4), or None when the operator has let go.
         self.T_0_H: Array | None = None
         self.set_target(None)
@@ -168,6 +195,12 @@ class OperatorHand:
             opt.disableactuator &= ~(1 << HAND_GROUP)
         self.T_0_H = self._T
 
+    def pull_args(self) -> PullArgs | None:
+        """What :func:`pull_target` takes after the target, for a caller that moves the held hand
+        from its own compiled code every tick (:meth:`~app.session.loop.ServoLoop.hand_pull`); None
+        while the hand is off the grip (only :meth:`set_target` takes hold)."""
+        return None if self.T_0_H is None else self._pull_args
+
     def wrench_G(self) -> Array:
         """The hand's wrench on the grip in the last physics step.
 
@@ -178,5 +211,5 @@ class OperatorHand:
         if self.T_0_H is None:
             self._wrench_G.fill(0.0)
         else:
-            _rotate_wrench(self._T, self._force_H, self._wrench_G)
+            self._rotate(self._T, self._force_H, self._wrench_G)
         return self._wrench_G

@@ -33,6 +33,7 @@ from typing import Any, Literal
 import mujoco
 import numpy as np
 import numpy.typing as npt
+from numba import njit
 
 from app.compiled import I8, entry_point
 from app.device.hand import HandParams, OperatorHand, add_hand
@@ -95,6 +96,7 @@ class PlantReading:
     __slots__ = (
         "_T_0_G",
         "_hand",
+        "_pose_into",
         "_xmat_G",
         "_xpos_G",
         "geom_xmat",
@@ -126,18 +128,29 @@ class PlantReading:
         self._xmat_G = d.site_xmat[plant.grip_site_id].reshape(3, 3)
         self._xpos_G = d.site_xpos[plant.grip_site_id]
         self._T_0_G = np.eye(4)
+        # Read every tick (the state row, the operators): one compiled copy, ~0.2 us against ~1 us
+        # for the two numpy slice assignments.
+        self._pose_into = entry_point(_pose_into, self._xmat_G, self._xpos_G, self._T_0_G)
 
     @property
     def T_0_G(self) -> Array:
         """Pose of the grip {G} in the base {0} at ``q_true``, (4, 4); filled on access (reused array)."""
-        self._T_0_G[:3, :3] = self._xmat_G
-        self._T_0_G[:3, 3] = self._xpos_G
+        self._pose_into(self._xmat_G, self._xpos_G, self._T_0_G)
         return self._T_0_G
 
     @property
     def wrench_G(self) -> Array:
         """The hand's wrench on the grip ``[f; m]`` (N, N m) at G in {0}, (6,); zero when released."""
         return self._hand.wrench_G()
+
+
+@njit(cache=True)
+def _pose_into(R: Array, p: Array, T: Array) -> None:
+    """``T[:3, :3] = R`` (3, 3) and ``T[:3, 3] = p`` (3,); the last row of ``T`` is left as it is."""
+    for a in range(3):
+        for b in range(3):
+            T[a, b] = R[a, b]
+        T[a, 3] = p[a]
 
 
 def _contiguous(ids: tuple[int, ...]) -> slice | None:

@@ -92,6 +92,10 @@ class CartesianServoLoop(ServoLoop):
             self._hand[:] = T_0_H
         self.device.set_hand_target(T_0_H)
 
+    def hand_pull(self) -> None:
+        """None: the hand of a Cartesian device is moved through :meth:`set_hand_target` only."""
+        return None
+
     def stall(self, seconds: float) -> None:
         """The loop misses ``seconds`` of periods: the device gets no command meanwhile (its own
         watchdog acts), and the force ramps in again from zero."""

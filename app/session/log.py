@@ -112,6 +112,22 @@ class TickLog:
     def on_tick(self, tick: TickRecord) -> None:
         """Append the state after one tick: the logged part of its state row, in one copy."""
         self._buf[self._rows] = tick.state()[: self._width]
+        self.row_written()
+
+    @property
+    def buffer(self) -> Array:
+        """The rows not yet handed to the writer, (rows, columns): for an observer that writes the
+        next row itself (:class:`~app.session.metrics.SessionMetrics`' ``log``) at :attr:`rows`,
+        then calls :meth:`row_written`."""
+        return self._buf
+
+    @property
+    def rows(self) -> int:
+        """Where the next row goes in :attr:`buffer`."""
+        return self._rows
+
+    def row_written(self) -> None:
+        """The row at :attr:`rows` holds the next tick: count it; hand the buffer to the writer when full."""
         self._rows += 1
         if self._rows == len(self._buf):
             self.flush()

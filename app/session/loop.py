@@ -30,7 +30,7 @@ from app.controller.passivity import PassivitySettings
 from app.controller.safety import SafetyLimits
 from app.controller.types import Switches
 from app.device.boundary import Device
-from app.device.hand import HandParams
+from app.device.hand import HandParams, PullArgs
 from app.device.plant import WATCHDOG, DevicePlant
 from app.device.spec import DeviceSpec, load_device
 from app.errors import ConfigError
@@ -278,6 +278,17 @@ class ServoLoop:
         if T_0_H is not None:
             self._hand[:] = T_0_H
         self.plant.set_hand_target(T_0_H)
+
+    def hand_pull(self) -> tuple[Array, PullArgs] | None:
+        """For an operator that moves the held hand from its own compiled code every tick: the
+        loop's hand target (4, 4; what the record reports) and the simulated hand's
+        :meth:`~app.device.hand.OperatorHand.pull_args`. A finite target passed with them to
+        :func:`~app.device.hand.copy_and_pull` (the first as its ``copy``) is :meth:`set_hand_target`
+        without its checks; valid while the hand holds the grip (None otherwise: take hold with
+        :meth:`set_hand_target`).
+        """
+        args = self.plant.hand.pull_args()
+        return None if args is None or not self.record.hand_on else (self._hand, args)
 
     def set_grip(self, on: bool) -> GripEvent:
         """Close the slave tool's grip on the dynamic object it touches now, or open it (``on``

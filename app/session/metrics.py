@@ -4,20 +4,23 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numba import njit
+from numba.experimental import structref
 
-from app.compiled import entry_point
+from app.compiled import F8, I8, Arrays, ArraysType, array_type, entry_point
 from app.controller.layout import SCALARS
 from app.controller.types import Fault
-from app.session.state import Observed, fill_observed
 from app.session.tick import STAGES, TickRecord
 from app.slave.arm import ArmStatus
 from app.spatial import Array, IntArray, rotation_log
 from app.world.scene import TaskSpec
 from app.world.scene_file import within_goal
+
+if TYPE_CHECKING:
+    from app.session.log import TickLog
 
 #: Seconds at the end of a session over which the contact force's settling is judged (s).
 SETTLE_WINDOW = 0.6
@@ -155,22 +158,35 @@ def _reduce(
         acc[_DONE_AT] = acc[_TIME]
 
 
+# The metrics' arrays (see _reduce) and the log's row buffer (rows, columns).
+_F1, _F2, _I1, _I2 = array_type(1, F8), array_type(2, F8), array_type(1, I8), array_type(2, I8)
+_METRIC_SINKS = ArraysType([("acc", _F1), ("tail", _F1), ("ints", _I1), ("stage_table", _I2), ("log", _F2)])
+
+
 @njit(cache=True)
-def _observe_and_reduce(
-    row: Array,
-    starts: IntArray,
-    observed: Observed,
-    acc: Array,
-    tail: Array,
-    ints: IntArray,
-    tick: int,
-    stage_table: IntArray,
-    stage_ns: IntArray,
-) -> None:
-    """:func:`_reduce` of a tick whose row no observer asked for: only the values it reads are
-    written into the row first (:func:`~app.session.state.fill_observed`), in the same call."""
-    fill_observed(row, starts, observed)
-    _reduce(acc, tail, row, ints, tick, stage_table, stage_ns)
+def _sinks(acc: Array, tail: Array, ints: IntArray, stage_table: IntArray, log: Array) -> Arrays:
+    """The metrics' arrays (see :func:`_reduce`) and the log's row buffer (rows, columns) as one
+    :class:`Arrays`; no copy."""
+    sinks: Any = structref.new(_METRIC_SINKS)  # type: ignore[call-arg]  # an intrinsic, typed by numba
+    sinks.acc = acc
+    sinks.tail = tail
+    sinks.ints = ints
+    sinks.stage_table = stage_table
+    sinks.log = log
+    return sinks
+
+
+@njit(cache=True)
+def _reduce_row(src: Arrays, sinks: Arrays, tick: int, log_row: int) -> None:
+    """:func:`_reduce` of the row ``src`` holds (filled), after copying its logged values into
+    row ``log_row`` of the log's buffer (none when negative)."""
+    a: Any = src
+    b: Any = sinks
+    row, log = a.row, b.log
+    if log_row >= 0:
+        for c in range(log.shape[1]):
+            log[log_row, c] = row[c]
+    _reduce(b.acc, b.tail, row, b.ints, tick, b.stage_table, a.stage_ns)
 
 
 def _bit_counts(flags: type[Fault] | type[ArmStatus], counts: IntArray) -> dict[str, int]:
@@ -189,6 +205,10 @@ class SessionMetrics:
         start: The loop's record at the start (its reset state): where the work integral starts.
         task: The scene's task, if it has one (its completion is reported).
         n_ticks: Ticks expected (sizes the timing table). dt: Servo period (s).
+        log: A log whose rows these metrics write, in the same compiled call as their own sums
+            (a session's log and metrics: the row's fill and this call, where a log observing by
+            itself adds a copy and its Python); the log is then not observed itself (its
+            :meth:`~app.session.log.TickLog.close` is still the caller's).
 
     The work metric is the paper's Eq 13, ``W = sum_i |integral F_MRF,i d xi_i|``: the contact
     wrench at {MRF} in {MRF} axes times the {MRF} displacement in its own axes (translation,
@@ -202,7 +222,9 @@ class SessionMetrics:
     :class:`app.session.stability.FeltStiffness`.)
     """
 
-    def __init__(self, start: TickRecord, task: TaskSpec | None, n_ticks: int, dt: float) -> None:
+    def __init__(
+        self, start: TickRecord, task: TaskSpec | None, n_ticks: int, dt: float, log: TickLog | None = None
+    ) -> None:
         self._dt = dt
         self._acc = acc = np.zeros(_N_ACC)
         acc[_DONE_AT] = math.nan
@@ -228,38 +250,27 @@ class SessionMetrics:
             starts["switches"],
         )
         ints[_AT_LINK], ints[_AT_REFLECTING] = starts["link_force"], starts["reflecting"]
+        self._log = log
+        self._sinks = _sinks(acc, self._tail, ints, self._stage_ns, np.zeros((0, 0)) if log is None else log.buffer)
         self._reduce: Callable[..., None] | None = None
-        self._observe: Callable[..., None] | None = None
 
     def on_tick(self, tick: TickRecord) -> None:
-        """Reduce the tick's state row (one compiled pass: :func:`_reduce`). When no observer
-        before asked for the row (a session without a log), write only the values the reduction
-        reads, in the same call (:func:`_observe_and_reduce`): the whole row costs ~2 us more."""
+        """Reduce the tick's state row (:func:`_reduce_row`): with a log, the whole row filled
+        (unless an observer before filled it) and its logged part written to the log's buffer in
+        the same compiled call; without, only the values the reduction reads are filled (the
+        whole row costs ~2 us more)."""
         block = tick.block
         assert block is not None, "the loop sets the record's state block"
-        if tick.serial == block.serial:  # an observer before filled the row
-            args: tuple[object, ...] = (
-                self._acc,
-                self._tail,
-                block.row,
-                self._ints,
-                self._ticks,
-                self._stage_ns,
-                tick.stage_ns,
-            )
-            if self._reduce is None:
-                # The same kinds of arguments every tick: the compiled specialisation, once.
-                self._reduce = entry_point(_reduce, *args)
-            self._reduce(*args)
-        else:
-            args = (
-                block.row, block.at, block.observed(tick), self._acc, self._tail, self._ints, self._ticks,
-                self._stage_ns, tick.stage_ns,
-            )  # fmt: skip
-            if self._observe is None:
-                self._observe = entry_point(_observe_and_reduce, *args)
-            self._observe(*args)
+        log = self._log
+        if tick.serial != block.serial:  # no observer before filled the row
+            block.fill(tick, full=log is not None)
+        if self._reduce is None:
+            # The same kinds of arguments every tick: the compiled specialisation, once.
+            self._reduce = entry_point(_reduce_row, block.sources, self._sinks, 0, 0)
+        self._reduce(block.sources, self._sinks, self._ticks, -1 if log is None else log.rows)
         self._ticks += 1
+        if log is not None:
+            log.row_written()
 
     @property
     def task_done_at(self) -> float | None:

@@ -10,13 +10,17 @@ read and write the operator's preallocated arrays. The strategy itself is descri
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
+from numba.experimental import structref
 
+from app.compiled import F8, I8, Arrays, ArraysType, array_type
 from app.controller.assist import constant_force_rtc, hooke_rtc
 from app.controller.kernel import _zyx_to_matrix
 from app.controller.record import RTC_CONSTANT, RTC_HOOKE
+from app.device.hand import copy_and_pull
 from app.slave.tool_kernel import _apply, _mul
 from app.spatial import Array, IntArray, rotation_exp, rotation_log
 
@@ -216,3 +220,88 @@ def react(
     for a in range(3):
         for b in range(3):
             hand[a, b] = R[a, b]
+
+
+_F1, _F2, _I1 = array_type(1, F8), array_type(2, F8), array_type(1, I8)
+# react's own arrays, in its order; then the loop's hand target and the simulated hand's target
+# and mocap pose (pull_target's arrays).
+_OWN = {"seen_ring": _F2, "seen_i": _I1, "seen_R_ring": _F2, "seen_R_i": _I1, "felt_ring": _F2, "felt_i": _I1}
+_OWN |= {"phase": _I1, "state": _F1, "aim": _F1, "tilt": _F1, "prm": _F1, "T_start": _F2, "R_home": _F2}
+_OWN |= {"tremor": _F2, "motor": _F2, "phi": _F1, "hand": _F2, "loop_hand": _F2, "T_hand": _F2}
+_OPERATOR_ARRAYS = ArraysType([*_OWN.items(), ("mocap_pos", _F1), ("mocap_quat", _F1)])
+
+
+@njit(cache=True)
+def operator_arrays(
+    seen_ring: Array,
+    seen_i: IntArray,
+    seen_R_ring: Array,
+    seen_R_i: IntArray,
+    felt_ring: Array,
+    felt_i: IntArray,
+    phase: IntArray,
+    state: Array,
+    aim: Array,
+    tilt: Array,
+    prm: Array,
+    T_start: Array,
+    R_home: Array,
+    tremor: Array,
+    motor: Array,
+    phi: Array,
+    hand: Array,
+    loop_hand: Array,
+    T_hand: Array,
+    mocap_pos: Array,
+    mocap_quat: Array,
+) -> Arrays:
+    """:func:`react`'s own arrays and ``hand``, the loop's hand target and the simulated hand's
+    :func:`~app.device.hand.pull_target` arrays as one :class:`~app.compiled.Arrays`; no copy."""
+    a: Any = structref.new(_OPERATOR_ARRAYS)  # type: ignore[call-arg]  # an intrinsic, typed by numba
+    a.seen_ring = seen_ring
+    a.seen_i = seen_i
+    a.seen_R_ring = seen_R_ring
+    a.seen_R_i = seen_R_i
+    a.felt_ring = felt_ring
+    a.felt_i = felt_i
+    a.phase = phase
+    a.state = state
+    a.aim = aim
+    a.tilt = tilt
+    a.prm = prm
+    a.T_start = T_start
+    a.R_home = R_home
+    a.tremor = tremor
+    a.motor = motor
+    a.phi = phi
+    a.hand = hand
+    a.loop_hand = loop_hand
+    a.T_hand = T_hand
+    a.mocap_pos = mocap_pos
+    a.mocap_quat = mocap_quat
+    return a
+
+
+@njit(cache=True)
+def react_and_pull(
+    T_w_MRF: Array,
+    T_0_G: Array,
+    G_F_T: Array,
+    t: float,
+    tick: int,
+    arrays: Arrays,
+    kinematics: int,
+    transmission: int,
+    m: int,
+    d: int,
+) -> bool:
+    """:func:`react` on the bundle's arrays, its hand target copied to the loop's and pulled
+    (:func:`~app.device.hand.copy_and_pull` with these functions and model): the operator's tick in
+    one call. False, with the hand not pulled, if the target is not finite."""
+    a: Any = arrays
+    hand = a.hand
+    react(
+        a.seen_ring, a.seen_i, a.seen_R_ring, a.seen_R_i, a.felt_ring, a.felt_i, a.phase, a.state, a.aim,
+        a.tilt, a.prm, a.T_start, a.R_home, a.tremor, a.motor, a.phi, T_w_MRF, T_0_G, G_F_T, t, tick, hand,
+    )  # fmt: skip
+    return copy_and_pull(hand, a.loop_hand, a.T_hand, a.mocap_pos, a.mocap_quat, kinematics, transmission, m, d)

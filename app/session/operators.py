@@ -97,6 +97,7 @@ Parameter ranges of the population (:data:`POPULATION`) and their sources:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated
 
@@ -317,6 +318,12 @@ class ReactingOperator:
         self._copies = (np.empty((4, 4)), np.empty((4, 4)), np.empty(6))
         self._prm = prm
         self._react = entry_point(kernel.react, *self._own, *self._copies, 0.0, 0, self._hand)
+        # The loop whose held hand before_tick moves in one compiled call with the strategy
+        # (kernel.react_and_pull), that call and its last arguments; set on the first tick the
+        # hand holds (ServoLoop.hand_pull).
+        self._pulled: object = None
+        self._react_and_pull: Callable[..., bool] | None = None
+        self._pull_args: tuple[object, ...] = ()
 
     @property
     def phase(self) -> str:
@@ -345,5 +352,17 @@ class ReactingOperator:
         if not is_f8(G_F_T, (6,)):
             copies[2][:] = G_F_T
             G_F_T = copies[2]
-        self._react(*self._own, T_w_MRF, T_0_G, G_F_T, float(loop.time), int(loop.ticks), self._hand)
+        t, tick = float(loop.time), int(loop.ticks)
+        if loop is self._pulled and rec.hand_on:
+            assert self._react_and_pull is not None
+            if not self._react_and_pull(T_w_MRF, T_0_G, G_F_T, t, tick, *self._pull_args):
+                raise ValueError("T_0_H must be a finite 4x4 pose")
+            return
+        self._react(*self._own, T_w_MRF, T_0_G, G_F_T, t, tick, self._hand)
         loop.set_hand_target(self._hand)
+        pull = loop.hand_pull()
+        if pull is not None:
+            loop_hand, (T_hand, mocap_pos, mocap_quat, *functions) = pull
+            arrays = kernel.operator_arrays(*self._own, self._hand, loop_hand, T_hand, mocap_pos, mocap_quat)
+            self._pulled, self._pull_args = loop, (arrays, *functions)
+            self._react_and_pull = entry_point(kernel.react_and_pull, T_w_MRF, T_0_G, G_F_T, t, tick, *self._pull_args)

@@ -37,6 +37,11 @@ SPIN_NS = 300_000
 #: the time; Linux then throttles it for the last 5 % of every second (``sched_rt_runtime_us``
 #: 950000 of 1000000): measured at 4 kHz, a 54 ms stall once a second and the rate 1.7 % short.
 SPIN_SHARE = 0.5
+#: The largest share of a period a pacer may be told to spin (:class:`Pacer`'s ``spin``): with
+#: the tick's compute on top, a loop at SCHED_FIFO busy past the 95 % above is throttled.
+#: Measured with the demo's loop playing peg_ntrfc at 1 kHz: 0.8 kept 1000.0 Hz in two runs, 0.9
+#: ran at 987.6 Hz in one and had a 875 us jitter p99 in the other.
+MAX_SPIN = 0.8
 #: Behind by more than this many periods, the schedule restarts instead of catching up.
 MAX_LAG_TICKS = 50
 #: Periods kept for the timing statistics (a ring buffer; 65 s at 1 kHz).
@@ -191,9 +196,17 @@ class Pacer:
     Args:
         period: Servo period (s).
         rings: Where the timing goes (default: new rings in this process).
+        spin: Spin, rather than sleep, the last ``spin`` of each period (0 to :data:`MAX_SPIN`),
+            whatever :data:`SPIN_NS` and :data:`SPIN_SHARE` say: the CPU is busy that share of
+            the time, and the tick starts less cold (a tick after a sleep ran 2-5x its unpaced
+            time on the shared 2-core machine: ``docs/conventions.md``). None: sleep all but the
+            last :data:`SPIN_NS`, at most :data:`SPIN_SHARE` of a period.
     """
 
-    def __init__(self, period: float, rings: TimingRings | None = None) -> None:
+    def __init__(self, period: float, rings: TimingRings | None = None, spin: float | None = None) -> None:
+        if spin is not None and not 0.0 <= spin <= MAX_SPIN:
+            raise ValueError(f"spin must be a share of the period in [0, {MAX_SPIN}], got {spin}")
+        self._spin = spin
         self.rings = rings if rings is not None else TimingRings.allocate()
         self._periods = self.rings.periods
         self._tick_ns = self.rings.tick_ns
@@ -204,7 +217,10 @@ class Pacer:
     def set_period(self, period: float) -> None:
         """Pace at another wall-clock period (s) from now on (e.g. a replay speed)."""
         self.period_ns = round(period * 1e9)
-        self._spin_ns = min(SPIN_NS, round(SPIN_SHARE * self.period_ns))
+        spin = self._spin
+        self._spin_ns = (
+            min(SPIN_NS, round(SPIN_SHARE * self.period_ns)) if spin is None else round(spin * self.period_ns)
+        )
         self.restart()
 
     def restart(self, slip: bool = False) -> None:

@@ -155,11 +155,11 @@ def _run(
     n_ticks = d.n_ticks
     log = None
     if out_dir is not None:
-        # Before the metrics: the log fills the whole state row, which the metrics then reduce;
-        # without a log the metrics write only the values they read (SessionMetrics.on_tick).
+        # Written by the metrics, in their compiled pass (the whole state row, then its logged
+        # part); without a log the metrics write only the values they read (SessionMetrics.on_tick).
         meta = loop_meta(loop.config, session.path)
-        log = loop.observe(TickLog(out_dir / "log", loop.controller.out.n, loop.dt, flush_interval, meta, loop.objects))
-    metrics = loop.observe(SessionMetrics(loop.record, session.scene.spec.task, n_ticks, loop.dt))
+        log = TickLog(out_dir / "log", loop.controller.out.n, loop.dt, flush_interval, meta, loop.objects)
+    metrics = loop.observe(SessionMetrics(loop.record, session.scene.spec.task, n_ticks, loop.dt, log))
     for observer in observers:
         loop.observe(observer)
     pacer = Pacer(loop.dt) if realtime else None

@@ -2,31 +2,32 @@
 
 The log, the metrics (and any observer that wants the tick's values as numbers) read one row:
 :meth:`~app.session.tick.TickRecord.state` fills it from the rooms' buffers with one compiled
-call (:func:`_fill_state`) the first time an observer asks for it in a tick, and hands the same
+call (:func:`fill_row`) the first time an observer asks for it in a tick, and hands the same
 row to every later one. The log copies the row's first :attr:`StateBlock.n_logged` values (its
-Parquet columns, in order); the metrics reduce the row in their own compiled pass.
+Parquet columns, in order); a session's metrics have it filled, then write the log's row and
+reduce it in one compiled call of their own (:class:`~app.session.metrics.SessionMetrics`). The rooms'
+buffers reach the compiled code as one :class:`~app.compiled.Arrays` bundle
+(:meth:`StateBlock.tick_args`).
 
 The row is made of named blocks (:func:`state_layout`): the log's columns first, then values only
 the observers use (the tool's rotation, the reflecting flag). To add a column, add a block to
-:func:`state_layout` (before ``R_w_MRF`` if it is logged) and fill it in :func:`_fill_state`, or,
+:func:`state_layout` (before ``R_w_MRF`` if it is logged) and fill it in :func:`fill_row`, or,
 for values outside the rooms' buffers, write :meth:`StateBlock.view` after the fill.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numba import njit
+from numba.experimental import structref
 
-from app.compiled import entry_point, is_f8
+from app.compiled import F8, I8, Arrays, ArraysType, array_type, entry_point
 from app.controller.layout import SCALARS, TORQUE_ROWS, TWIST_AXES, VECTOR_ROWS, WRENCH_AXES
 from app.session.tick import STAGES
 from app.spatial import Array, IntArray, quat_into
-
-#: What :meth:`StateBlock.observed` returns and :func:`fill_observed` takes (see there).
-Observed = tuple[Array, Array, Array, float, bool, bool, bool, int, int, int, int, int, float, bool]
 
 if TYPE_CHECKING:
     from app.session.tick import TickRecord
@@ -115,64 +116,123 @@ class StateBlock:
         self.at = np.array(list(self.starts.values()), dtype=np.int64)
         self.row = np.zeros(len(self.names))
         self._no_hand = np.full((4, 4), np.nan)
-        self._hand = np.empty((4, 4))
-        self._hand_checked: Array | None = self._no_hand
-        self._fill: Callable[..., None] | None = None
         self.serial = -1
-        self._sources: tuple[object, ...] = (None, None, None)
-        self._arrays: tuple[object, ...] = ()
-        self._objects = self.view("objects").reshape(len(objects), len(POSE)) if objects else None
+        # The bundle of the rooms' buffers (_bundle) and what it was made from; rebuilt when a
+        # room's output object or a reading's buffer is another than last tick's.
+        self.sources: Arrays | None = None
+        self._made_from: tuple[object, ...] = ()
+        self._T_0_G: Array | None = None
+        self._wrench_G: Array | None = None
+        self._fill: Callable[..., None] | None = None
 
     def view(self, name: str) -> Array:
         """The block ``name`` of the row (a view)."""
         start = self.starts[name]
         return self.row[start : start + self._sizes[name]]
 
-    def fill(self, tick: TickRecord) -> Array:
-        """The row of ``tick``: filled on the first call of each tick, the same row after that."""
+    def fill(self, tick: TickRecord, full: bool = True) -> Array:
+        """The row of ``tick``: filled on the first call of each tick, the same row after that.
+
+        ``full`` False writes only the values a session's metrics read (:func:`fill_row`) and
+        does not count as the tick's fill: a later call fills the whole row."""
         if tick.serial == self.serial:
             return self.row
-        self.serial = tick.serial
-        out, reading, ft = tick.out, tick.reading, tick.ft
-        if out is not self._sources[0] or reading is not self._sources[1] or ft is not self._sources[2]:
-            # The rooms keep their output objects and those their array attributes (views of the
-            # rooms' buffers, assigned once): fetch these again only when an object changes. The
-            # reading's pose and hand wrench are properties that compute on access: every tick.
-            self._sources = (out, reading, ft)
-            self._arrays = (
-                self.row, self.at, reading.q, out.vectors, out.command.twist, ft.wrench_S, out.torques,
-                out.counts, tick.stage_ns,
-            )  # fmt: skip
-        hand_on = tick.hand_on
-        hand = tick.hand_target if hand_on else self._no_hand
-        if hand is not self._hand_checked:
-            # The loop passes its own (4, 4) array every tick: checked once, not every tick.
-            if is_f8(hand, (4, 4)):
-                self._hand_checked = hand
-            else:
-                self._hand[:] = hand
-                hand = self._hand
-        args = (
-            *self._arrays, reading.T_0_G, reading.wrench_G, hand, hand_on, *self.observed(tick),
-        )  # fmt: skip
+        args = self.tick_args(tick, full)
         if self._fill is None:
             # The same kinds of arguments every tick: the compiled row writer for their types, once.
-            self._fill = entry_point(_fill_state, *args)
-        self._fill(*args)
-        if self._objects is not None:
-            # A (n, 7) view of MuJoCo's coordinates; only scenes with dynamic objects pay the copy.
-            np.copyto(self._objects, tick.object_poses())
+            self._fill = entry_point(fill_row, *args, full)
+        self._fill(*args, full)
+        if full:
+            self.serial = tick.serial
         return self.row
 
-    def observed(self, tick: TickRecord) -> tuple[object, ...]:
-        """The values of ``tick`` a session's metrics read, as :func:`fill_observed` takes them
-        (its ``observed``)."""
-        out = tick.out
+    def tick_args(self, tick: TickRecord, full: bool) -> tuple[object, ...]:
+        """What :func:`fill_row` takes for ``tick``, but its last argument (``full``): the bundle
+        of the rooms' buffers (:attr:`sources`), then this tick's own values. ``full`` False
+        (only the values a session's metrics read) leaves out the reading's pose and hand wrench,
+        which compute on access."""
+        out, reading = tick.out, tick.reading
+        made = self._made_from
+        if full or self._T_0_G is None or self._wrench_G is None:
+            T_0_G, wrench_G = reading.T_0_G, reading.wrench_G
+        else:  # not read: the bundle's, whichever tick last filled them
+            T_0_G, wrench_G = self._T_0_G, self._wrench_G
+        if (
+            not made
+            or out is not made[0]
+            or reading is not made[1]
+            or T_0_G is not self._T_0_G
+            or wrench_G is not self._wrench_G
+        ):
+            self._bundle(tick, T_0_G, wrench_G)
+        contact = tick.contact
         return (
-            out.scalars, tick.T_w_MRF, tick.contact_wrench_MRF, tick.time, tick.deadman, tick.reference,
-            tick.reflection, tick.contact.count, int(out.faults), tick.reading.watchdog_trips, tick.slave_status,
-            int(tick.device_link), tick.link_force, out.reflecting,
+            self.sources, tick.ft.wrench_S, tick.T_w_MRF, contact.w, tick.time, tick.hand_on, tick.deadman,
+            tick.reference, tick.reflection, contact.count, int(out.faults), reading.watchdog_trips,
+            tick.slave_status, int(tick.device_link), tick.link_force, out.reflecting,
         )  # fmt: skip
+
+    def _bundle(self, tick: TickRecord, T_0_G: Array, wrench_G: Array) -> None:
+        """Bundle the buffers the rooms keep (their output objects' array attributes, views of the
+        rooms' buffers assigned once; the reading's pose and hand wrench, refilled in place on
+        access; the loop's hand target; MuJoCo's coordinates of the dynamic objects)."""
+        out, reading = tick.out, tick.reading
+        arrays = {
+            "q": reading.q, "vectors": out.vectors, "twist": out.command.twist, "torques": out.torques,
+            "counts": out.counts, "stage_ns": tick.stage_ns, "scalars": out.scalars, "T_0_G": T_0_G,
+            "wrench_G": wrench_G, "hand": tick._hand, "objects": tick.object_poses(),
+        }  # fmt: skip
+        for name, a in arrays.items():
+            # The bundle's fields are C-contiguous arrays: another layout would be misread.
+            if not (a.__class__ is np.ndarray and a.flags.c_contiguous and a.flags.writeable and a.dtype in (F8, I8)):
+                raise TypeError(f"the state row's source '{name}' is not a writable C-contiguous numeric array")
+        values: list[Any] = list(arrays.values())
+        self.sources = _bundle(self.row, self.at, self._no_hand, *values)
+        self._made_from = (out, reading)
+        self._T_0_G, self._wrench_G = T_0_G, wrench_G
+
+
+_F1, _F2, _I1 = array_type(1, F8), array_type(2, F8), array_type(1, I8)
+# Field names and types (the arrays of StateBlock._bundle, and the row's own).
+_ROW_FIELDS = {"row": _F1, "at": _I1, "no_hand": _F2, "q": _F1, "vectors": _F2, "twist": _F1, "torques": _F2}
+_ROW_FIELDS |= {"counts": _I1, "stage_ns": _I1, "scalars": _F1, "T_0_G": _F2, "wrench_G": _F1, "hand": _F2}
+_ROW_SOURCES = ArraysType([*_ROW_FIELDS.items(), ("objects", _F2)])
+
+
+@njit(cache=True)
+def _bundle(
+    row: Array,
+    at: IntArray,
+    no_hand: Array,
+    q: Array,
+    vectors: Array,
+    twist: Array,
+    torques: Array,
+    counts: IntArray,
+    stage_ns: IntArray,
+    scalars: Array,
+    T_0_G: Array,
+    wrench_G: Array,
+    hand: Array,
+    objects: Array,
+) -> Arrays:
+    """The arrays (of exactly the types of ``_ROW_SOURCES``) as one :class:`Arrays`; no copy."""
+    src: Any = structref.new(_ROW_SOURCES)  # type: ignore[call-arg]  # an intrinsic, typed by numba
+    src.row = row
+    src.at = at
+    src.no_hand = no_hand
+    src.q = q
+    src.vectors = vectors
+    src.twist = twist
+    src.torques = torques
+    src.counts = counts
+    src.stage_ns = stage_ns
+    src.scalars = scalars
+    src.T_0_G = T_0_G
+    src.wrench_G = wrench_G
+    src.hand = hand
+    src.objects = objects
+    return src
 
 
 @njit(cache=True)
@@ -192,24 +252,13 @@ def _put(row: Array, at: int, values: Array | IntArray) -> int:
 
 
 @njit(cache=True)
-def _fill_state(
-    row: Array,
-    starts: IntArray,
-    q: Array,
-    vectors: Array,
-    twist: Array,
+def fill_row(
+    src: Arrays,
     F_S: Array,
-    torques: Array,
-    counts: IntArray,
-    stage_ns: IntArray,
-    T_0_G: Array,
-    wrench_G: Array,
-    hand: Array,
-    hand_on: bool,
-    scalars: Array,
     T_w_MRF: Array,
-    contact_MRF: Array,
+    contact_w: Array,
     t: float,
+    hand_on: bool,
     deadman: bool,
     reference: bool,
     reflection: bool,
@@ -220,58 +269,52 @@ def _fill_state(
     device_link: int,
     link_force: float,
     reflecting: bool,
+    full: bool,
 ) -> None:
-    """One state row (the blocks of :func:`state_layout`, starting at ``starts``) from one tick's
-    arrays: :func:`fill_observed`'s blocks, then the others. The observed values come as separate
-    arguments: a tuple argument costs ~0.3 us more to unbox on every call."""
-    observed = (
-        scalars, T_w_MRF, contact_MRF, t, deadman, reference, reflection, contacts, faults, watchdog_trips,
-        slave_status, device_link, link_force, reflecting,
-    )  # fmt: skip
-    fill_observed(row, starts, observed)
-    _put(row, starts[1], q)
-    _pose7(T_0_G, row[starts[2] : starts[2] + 7])
-    for a in range(3):
-        row[starts[3] + a] = hand[a, 3] if hand_on else np.nan
-    _put(row, starts[4], vectors)
-    _put(row, starts[5], twist)
-    _pose7(T_w_MRF, row[starts[6] : starts[6] + 7])
-    _put(row, starts[7], F_S)
-    _put(row, starts[9], wrench_G)
-    _put(row, starts[10], torques)
-    _put(row, starts[11], counts)
-    at = starts[15]
-    for v in stage_ns:
-        row[at] = v * 1e-3
-        at += 1
-    # starts[16], the dynamic objects' poses, is filled by StateBlock.fill after this call.
+    """One state row (the blocks of :func:`state_layout`) from one tick's buffers (``src``) and
+    values (:meth:`StateBlock.tick_args`). ``contact_w`` is the contact result's ``w`` (15,):
+    the wrench at {MRF} in {MRF} is its ``[6:12]``
+    (:attr:`~app.world.contact.model.ContactResult.wrench_MRF`).
 
-
-@njit(cache=True)
-def fill_observed(row: Array, starts: IntArray, observed: Observed) -> None:
-    """The blocks of the row a session's metrics read (:mod:`app.session.metrics`): the time, the
-    tool's position (not its quaternion) and rotation, the contact wrench, the controller's
-    scalars, the switches and counters, the link force and the reflecting flag. The metrics of a
-    loop without a log write only these (the rest of the row is then stale).
-
-    ``observed`` is :meth:`StateBlock.observed`: ``(scalars, T_w_MRF, contact_MRF, t, deadman,
-    reference, reflection, contacts, faults, watchdog_trips, slave_status, device_link,
-    link_force, reflecting)``. One tuple: the callers pass it on without naming its parts.
+    ``full`` False writes only the blocks a session's metrics read (:mod:`app.session.metrics`):
+    the time, the tool's position (not its quaternion) and rotation, the contact wrench, the
+    controller's scalars, the switches and counters, the link force and the reflecting flag; the
+    rest of the row is then stale (the metrics of a loop without a log).
     """
-    scalars, T_w_MRF, contact_MRF, t, deadman, reference, reflection = observed[0:7]
-    contacts, faults, watchdog_trips, slave_status, device_link, link_force, reflecting = observed[7:14]
+    a: Any = src
+    row, starts = a.row, a.at
     row[starts[0]] = t
-    for a in range(3):
-        row[starts[6] + a] = T_w_MRF[a, 3]
-    _put(row, starts[8], contact_MRF)
-    _put(row, starts[12], scalars)
+    for i in range(3):
+        row[starts[6] + i] = T_w_MRF[i, 3]
+    for i in range(6):
+        row[starts[8] + i] = contact_w[6 + i]
+    _put(row, starts[12], a.scalars)
     at = starts[13]
     row[at], row[at + 1], row[at + 2] = 1.0 if deadman else 0.0, 1.0 if reference else 0.0, 1.0 if reflection else 0.0
     row[at + 3], row[at + 4], row[at + 5], row[at + 6] = contacts, faults, watchdog_trips, slave_status
     row[at + 7] = device_link
     row[starts[14]] = link_force
     at = starts[17]
-    for a in range(3):
-        for b in range(3):
-            row[at + 3 * a + b] = T_w_MRF[a, b]
+    for i in range(3):
+        for j in range(3):
+            row[at + 3 * i + j] = T_w_MRF[i, j]
     row[starts[18]] = 1.0 if reflecting else 0.0
+    if not full:
+        return
+    _put(row, starts[1], a.q)
+    _pose7(a.T_0_G, row[starts[2] : starts[2] + 7])
+    hand = a.hand if hand_on else a.no_hand
+    for i in range(3):
+        row[starts[3] + i] = hand[i, 3]
+    _put(row, starts[4], a.vectors)
+    _put(row, starts[5], a.twist)
+    _pose7(T_w_MRF, row[starts[6] : starts[6] + 7])
+    _put(row, starts[7], F_S)
+    _put(row, starts[9], a.wrench_G)
+    _put(row, starts[10], a.torques)
+    _put(row, starts[11], a.counts)
+    at = starts[15]
+    for v in a.stage_ns:
+        row[at] = v * 1e-3
+        at += 1
+    _put(row, starts[16], a.objects)

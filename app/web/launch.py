@@ -65,6 +65,7 @@ def _demo(
     session: str | None,
     replay: str | None,
     servo_rate: float | None,
+    spin: float | None = None,
 ) -> DemoApp:
     """Check the inputs and build the demo on ``server`` (whose page already shows ``panel``)."""
     # Imported here, with the page already served: see the module's docstring.
@@ -86,7 +87,7 @@ def _demo(
     else:
         device_obj = load_device(device)
     loaded_replay = LogReplay(Path(replay)) if replay is not None else None
-    app = DemoApp(server, scene_obj, device_obj, loaded_session, servo_rate, device_url, panel)
+    app = DemoApp(server, scene_obj, device_obj, loaded_session, servo_rate, device_url, panel, spin)
     if loaded_replay is not None:
         app.show_replay(loaded_replay)
     return app
@@ -101,6 +102,7 @@ def start_demo(
     insecure: bool = False,
     replay: str | None = None,
     servo_rate: float | None = None,
+    spin: float | None = None,
 ) -> DemoApp:
     """Start a viser server with the guide panel, check the inputs and start the demo on it;
     returns once the demo runs (non-blocking).
@@ -113,6 +115,7 @@ def start_demo(
     ``openhaptics:NAME``): a ``frhc device serve`` names its own device file; for another, the
     session's device file if it is Cartesian, else the vendor's shipped one (``inverse3``,
     ``omega3``, ``touch3``), gives its limits (:func:`~app.device.haply.served_device`).
+    ``spin``: the share of each servo period the loop process spins (:class:`DemoApp`).
 
     Raises:
         ConfigError: for an unknown or malformed scene, device or session (the server is stopped
@@ -134,7 +137,7 @@ def start_demo(
     app: DemoApp | None = None
     try:
         with signals_held():
-            app = _demo(server, SessionPanel(server, RUNS_DIR), scene, device, session, replay, servo_rate)
+            app = _demo(server, SessionPanel(server, RUNS_DIR), scene, device, session, replay, servo_rate, spin)
     except BaseException:
         if app is not None:  # a signal held while it was built
             app.close()
@@ -165,6 +168,7 @@ def serve(
     insecure: bool = False,
     replay: str | None = None,
     servo_rate: float | None = None,
+    spin: float | None = None,
 ) -> None:
     """Serve the browser demo until interrupted (or for ``open_seconds`` seconds), printing its URL.
 
@@ -181,11 +185,13 @@ def serve(
         replay: A log directory to start on, in replay (the live loop runs beside it).
         servo_rate: The loop's rate (Hz) for everything the demo runs, sessions played included
             (default: the session's, else 1 kHz).
+        spin: Share of each period the loop process spins (:class:`DemoApp`); None: no more than
+            the pacer's default.
 
     Raises:
         ConfigError: for an unknown or malformed scene, device or session (nothing stays served).
     """
-    app = start_demo(scene, device, host, port, session, insecure, replay, servo_rate)
+    app = start_demo(scene, device, host, port, session, insecure, replay, servo_rate, spin)
     print(f"FRHC haptic demo: {app.url}  (Ctrl+C to stop)", flush=True)
     try:
         if open_seconds is None:

@@ -191,15 +191,21 @@ class LoopHost:
 
 
 def loop_main(
-    config: LoopConfig, conn: Connection, snapshot: SharedSnapshot, timing: SharedTiming, publish_every: int
+    config: LoopConfig,
+    conn: Connection,
+    snapshot: SharedSnapshot,
+    timing: SharedTiming,
+    publish_every: int,
+    spin: float | None = None,
 ) -> None:
-    """The loop process: build the loop, then tick it on the wall clock until told to stop."""
+    """The loop process: build the loop, then tick it on the wall clock until told to stop
+    (``spin``: :class:`~app.session.pacer.Pacer`'s)."""
     loop = ServoLoop(config)
     loop.tick()  # the first tick loads the compiled kernels (~0.3 s): keep it off the clock
     loop.reset()
     host = LoopHost(loop, snapshot, publish_every)
     timing.scheduling.value = raise_priority()
-    pacer = Pacer(loop.dt, timing.rings())
+    pacer = Pacer(loop.dt, timing.rings(), spin)
     watchdog_ns = round(loop.config.watchdog * 1e9)  # the amplifier's, or a Cartesian device's own
     poll_every = max(1, round(COMMAND_POLL_S / loop.dt))
     since_poll = poll_every  # look at once

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import multiprocessing as mp
+import os
 import threading
 import time
 from pathlib import Path
@@ -64,12 +65,14 @@ class RealtimeLoop:
         config: The loop to run; its scene and device must come from files.
         publish_every: Ticks between snapshots; default: :data:`SNAPSHOT_RATE` snapshots a second at
             the loop's servo rate (every 20 ticks at 1 kHz, every 80 at 4 kHz).
+        spin: Share of each period the loop process spins instead of sleeping
+            (:class:`~app.session.pacer.Pacer`); None: the pacer's default (at most 0.3 ms).
 
     Attributes:
         loop: A parent-side copy of the loop, never ticked: static geometry for the view.
     """
 
-    def __init__(self, config: LoopConfig, publish_every: int | None = None) -> None:
+    def __init__(self, config: LoopConfig, publish_every: int | None = None, spin: float | None = None) -> None:
         if config.scene.path is None:
             raise ConfigError("<scene>", "path", "the web demo needs a scene loaded from a file")
         self.config = config
@@ -77,6 +80,7 @@ class RealtimeLoop:
         # process alone (a served device takes one client), so this copy simulates its model.
         self.loop = ServoLoop(dataclasses.replace(config, device_url=None))
         self.publish_every = publish_every or max(1, round(config.servo_rate / SNAPSHOT_RATE))
+        self.spin = spin
         self._gains = config.gains
         self._snapshot = SharedSnapshot()
         self._timing = SharedTiming()
@@ -95,7 +99,7 @@ class RealtimeLoop:
         ctx = mp.get_context("spawn")
         self._process = ctx.Process(
             target=loop_main,
-            args=(self.config, self._child_conn, self._snapshot, self._timing, self.publish_every),
+            args=(self.config, self._child_conn, self._snapshot, self._timing, self.publish_every, self.spin),
             name="servo-loop",
             daemon=True,
         )
@@ -131,6 +135,17 @@ class RealtimeLoop:
     def alive(self) -> bool:
         """Whether the loop process is running."""
         return self._process is not None and self._process.is_alive()
+
+    def cpu_seconds(self) -> float | None:
+        """CPU time (user + system, s) the loop process has used so far; None when it is not
+        running or the system does not say (read from Linux's ``/proc``)."""
+        if not self.alive:
+            return None
+        try:
+            fields = Path(f"/proc/{self._process.pid}/stat").read_text().rsplit(")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            return None
 
     # -- commands (any thread) ------------------------------------------------------------------
 

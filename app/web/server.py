@@ -84,6 +84,9 @@ class DemoApp:
             another device in the page simulates that one; choosing ``device`` again reconnects.
         panel: The guide and task panel, if already shown (:func:`~app.web.launch.start_demo`
             builds it before importing this module); else built first here.
+        spin: Share of each servo period the loop process spins instead of sleeping
+            (:class:`~app.session.pacer.Pacer`); None: the pacer's default, which leaves the CPU
+            idle between ticks.
     """
 
     def __init__(
@@ -95,9 +98,11 @@ class DemoApp:
         servo_rate: float | None = None,
         device_url: str | None = None,
         panel: SessionPanel | None = None,
+        spin: float | None = None,
     ) -> None:
         self.server = server
         self.servo_rate = servo_rate
+        self._spin = spin
         self._device_url = device_url
         self._url_device = device.path
         self.session = self._at_rate(session) if session is not None else None
@@ -111,7 +116,7 @@ class DemoApp:
         # The guide first: a browser that connects at once shows it while the loop is built (a
         # click on it in that time waits, with "starting..." shown, until :meth:`SessionPanel.ready`).
         self.panel = panel if panel is not None else SessionPanel(server, RUNS_DIR)
-        self.rt = RealtimeLoop(self._loop_config(device, scene, self._start_gains(device)))
+        self.rt = RealtimeLoop(self._loop_config(device, scene, self._start_gains(device)), spin=spin)
         server.scene.set_up_direction("+z")
         light_without_shadows(server)
         self.view = SceneView(server, self.rt.loop, self.rt.set_hand_target)
@@ -219,7 +224,7 @@ class DemoApp:
             self._recording = False
             self.controls.record.label = "Record"
             self._scene, self._device = config.scene, config.device
-            self.rt = RealtimeLoop(config)
+            self.rt = RealtimeLoop(config, spin=self._spin)
             if self.player is None:
                 self._show_view(self.rt.loop, self.rt.set_hand_target)
             self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()

@@ -104,6 +104,7 @@ def stub(record_T_0_G: np.ndarray, tool: np.ndarray, force: np.ndarray, t: float
     record = SimpleNamespace(T_w_MRF=T_w_MRF, reading=SimpleNamespace(T_0_G=record_T_0_G), out=out)
     loop = SimpleNamespace(record=record, time=t, ticks=tick, targets=[])
     loop.set_hand_target = lambda T: loop.targets.append(T.copy())
+    loop.hand_pull = lambda: None  # as a Cartesian device's loop: the hand moves through set_hand_target only
     return loop
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from app.session import pacer as pacer_module
 from app.session.log import TickLog
-from app.session.pacer import BACKGROUND_NICE, SPIN_NS, Pacer
+from app.session.pacer import BACKGROUND_NICE, MAX_SPIN, SPIN_NS, Pacer
 
 
 @pytest.mark.parametrize("rate", [1000.0, 4000.0])
@@ -43,6 +43,33 @@ def test_a_wait_spins_at_most_its_share_of_the_period(rate: float, monkeypatch: 
     assert len(spins) >= 20
     budget = min(SPIN_NS, 0.5 * period_ns)  # half of an idle period is slept at least
     assert np.median(spins) <= budget + 20_000
+
+
+def test_a_pacer_told_to_spin_sleeps_only_the_rest_of_the_period(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``spin`` 0.8: an idle 1 ms period is slept for its first 0.2 ms and spun for the rest; by
+    default all but SPIN_NS is slept. (A stand-in clock: each read advances 1 us, a sleep its length.)"""
+    now = [0]
+    slept: list[float] = []
+
+    def clock() -> int:
+        now[0] += 1_000
+        return now[0]
+
+    def sleep(seconds: float) -> None:
+        slept.append(seconds)
+        now[0] += round(seconds * 1e9)
+
+    monkeypatch.setattr(pacer_module.time, "perf_counter_ns", clock)
+    monkeypatch.setattr(pacer_module.time, "sleep", sleep)
+    for spin, asleep in ((0.8, 0.2e-3), (None, 1e-3 - SPIN_NS * 1e-9)):
+        pacer = Pacer(1e-3, spin=spin)
+        pacer.wait()  # the first tick starts at once
+        pacer.done()
+        slept.clear()
+        pacer.wait()
+        assert slept == [pytest.approx(asleep, abs=10e-6)]
+    with pytest.raises(ValueError, match="spin must be a share"):
+        Pacer(1e-3, spin=MAX_SPIN + 0.01)
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a thread's niceness is Linux's")

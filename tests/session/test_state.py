@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 
 from app.controller.types import Fault
+from app.session.log import TickLog, read_log
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.metrics import SessionMetrics, _bit_counts
-from app.session.run import run_session
+from app.session.run import play, run_session
 from app.session.script import OperatorScript
-from app.session.spec import load_session
+from app.session.spec import SessionFile, SwitchEvent, Waypoint, load_session
 from app.session.state import StateBlock
 from app.session.tick import TickRecord
 from app.slave.arm import ArmStatus
@@ -137,3 +138,59 @@ def test_an_observer_after_metrics_alone_still_reads_the_whole_row() -> None:
         loop.tick()
     assert len(seen) == 600
     assert all(seen)
+
+
+def test_the_scripts_compiled_pull_moves_the_hand_as_set_hand_target_does() -> None:
+    """While the hand holds, the script blends its pose and pulls the simulated hand in one
+    compiled call (ServoLoop.hand_pull); a loop driven through ``set_hand_target`` every tick
+    sees the same rows to the bit: rotated waypoints, the hand let go and taken again."""
+    data = SessionFile(
+        scene="probe",
+        device="kraft",
+        duration=0.8,
+        waypoints=(
+            Waypoint(0.0),
+            Waypoint(0.3, position=(0.01, 0.0, -0.02), zyx_deg=(10.0, -5.0, 3.0)),
+            Waypoint(0.6, position=(0.0, 0.01, -0.01), zyx_deg=(-4.0, 6.0, 0.0)),
+        ),
+        events=(
+            SwitchEvent(0.0, deadman=True, reflection=True),
+            SwitchEvent(0.2, hand=False),
+            SwitchEvent(0.35, hand=True),
+        ),
+    )
+    session = load_session("probe_rate")
+    compiled, plain = (ServoLoop(LoopConfig.from_session(session)) for _ in range(2))
+    op_compiled, op_plain = OperatorScript.for_loop(data, compiled), OperatorScript.for_loop(data, plain)
+    block = compiled.record.block
+    assert block is not None
+    stages = block.starts["stages"]
+    hand_off = 0
+    for _ in range(data.n_ticks):
+        op_compiled.before_tick(compiled)
+        op_plain.apply_events(plain)
+        plain.set_hand_target(op_plain.hand_target(plain.time, plain.ticks) if op_plain.hand_on else None)
+        a, b = compiled.tick().state(), plain.tick().state()
+        np.testing.assert_array_equal(a[:stages], b[:stages])
+        hand_off += bool(np.isnan(a[block.starts["hand_target"]]))
+    assert 100 < hand_off < 200  # the hand was let go for 0.15 s, then held again
+    assert compiled.hand_pull() is not None  # held at the end: the compiled path was open to the script
+
+
+def test_metrics_write_the_logs_rows_as_the_log_does() -> None:
+    """A session's metrics write the log's rows in their own compiled pass (run_session): the
+    rows are those a log observing the loop by itself writes, to the bit (its stage timings
+    aside), across several flushes."""
+    session = load_session("probe_rate").with_changes(duration=0.75)
+    with tempfile.TemporaryDirectory() as tmp:
+        run_session(session, out_dir=Path(tmp) / "fused", plots=False, flush_interval=0.1)
+        loop = ServoLoop(LoopConfig.from_session(session))
+        log = loop.observe(TickLog(Path(tmp) / "alone", loop.controller.out.n, loop.dt, 0.1))
+        for _ in play(session, loop):
+            pass
+        log.close()
+        fused, alone = read_log(Path(tmp) / "fused" / "log"), read_log(Path(tmp) / "alone")
+    assert fused.num_rows == alone.num_rows == session.data.n_ticks
+    for name in alone.column_names:
+        if not name.endswith("_us"):
+            np.testing.assert_array_equal(fused.column(name).to_numpy(), alone.column(name).to_numpy(), err_msg=name)

@@ -67,6 +67,22 @@ def test_demo_runs_everything_at_the_asked_servo_rate() -> None:
         app.close()
 
 
+def test_the_demos_loop_spins_as_asked_and_keeps_it_when_rebuilt() -> None:
+    """``frhc web --spin 0.5``: the loop process runs with the pacer told to spin half of each
+    period, and so does the loop rebuilt for a session of another scene."""
+    app = server.start_demo("probe", "kraft", port=free_port(), spin=0.5)
+    try:
+        assert app.rt.spin == 0.5
+        assert app.rt.wait_running()
+        first = app.rt
+        app.play_session("peg_ntrfc")
+        assert app.rt is not first
+        assert app.rt.spin == 0.5
+        assert app.rt.wait_running()
+    finally:
+        app.close()
+
+
 def test_a_servo_rate_outside_the_sessions_range_is_refused_leaving_nothing_served() -> None:
     port = free_port()
     with pytest.raises(InvalidField) as info:

@@ -215,7 +215,8 @@ def test_a_released_tool_resting_at_zero_force_is_not_saturated_by_a_few_saturat
     assert released_saturated(0.0, 0.83)
     k_t = 2.0 * passivity_bound("kraft") / design_stiffness(1.0)
     r = press(1e5, "pose", gains={"k_t": [k_t] * 3 + [1.0] * 3}, released=True)
-    assert r.mean_force < 0.1 and r.ripple < 0.01, r
+    assert r.mean_force < 0.1, r
+    assert r.ripple < 0.01, r
     assert 0.0 < r.saturated_share < 0.02, r.saturated_share
     assert not r.saturated
     assert r.verdict == "stable"

@@ -12,9 +12,9 @@ controller is exactly ``-tau_r . dq``;
     E(n) = min(E(n-1) - sum_j tau_r,j(n-1) dq_hat_j + sum_j D_j(dq_j), energy_cap)      (J)
 
 is the energy the port has absorbed (>= 0 while it is passive). It runs always, so the trace
-shows how active plain rendering is. ``dq`` is the encoder difference; the work is taken over
-``dq_hat``, the motion of the observer's own joint angle within the encoder's count
-(*Quantization*, below).
+shows how active plain rendering is. ``dq`` is the encoder difference; ``dq_hat``, the motion
+of the observed angle, is ``dq`` as shipped, or with ``quantization_share`` the motion of the
+observer's own joint angle within the encoder's count (*Quantization*, below).
 
 *Quantization.* The encoders tell the joint angle only to within a count ``c_j`` (the device
 file's ``encoder_counts_per_rev``: the true angle lies in ``q_j +- c_j / 2``), so the work

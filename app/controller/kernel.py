@@ -196,6 +196,7 @@ def controller_tick(
     period_ok = r.min_period <= dt <= r.max_period  # also False for a NaN period
     if not period_ok:
         faults |= BAD_PERIOD
+    moved = period_ok and r.have_q_prev  # an encoder difference over one usable period
     if velocity_brake(q, dt if period_ok else 0.0, rec):
         faults |= OVERSPEED
     # The observer runs on every tick, faults included: the device moved under last tick's torque.
@@ -203,12 +204,17 @@ def controller_tick(
     out.scalars[PO_ENERGY] = observe_energy(
         po_energy,
         r.po_tau[:],
+        q,
+        r.po_q_hat[:],
+        r.po_v_hat[:],
+        r.po_age[:],
         qdot,
-        dt if period_ok else 0.0,
+        dt if moved else 0.0,
         r.po_cap,
         r.po_friction[:],
         r.po_damping[:],
         r.po_count[:],
+        r.po_share,
     )
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]

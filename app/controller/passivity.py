@@ -6,18 +6,56 @@ balances a conservative field) into the joints while the joints move. Passive me
 gives out more energy than it took in.
 
 **Observer (PO)**, one for the whole port: the torque commanded in the last tick was held over
-the period (zero-order hold) while the joints moved by ``dq`` (encoder differences), so that
-tick's work on the controller is exactly ``-tau_r . dq``;
+the period (zero-order hold) while the joints moved by ``dq``, so that tick's work on the
+controller is exactly ``-tau_r . dq``;
 
-    E(n) = min(E(n-1) - sum_j tau_r,j(n-1) dq_j + sum_j D_j(dq_j), energy_cap)      (J)
+    E(n) = min(E(n-1) - sum_j tau_r,j(n-1) dq_hat_j + sum_j D_j(dq_j), energy_cap)      (J)
 
 is the energy the port has absorbed (>= 0 while it is passive). It runs always, so the trace
-shows how active plain rendering is.
+shows how active plain rendering is. ``dq`` is the encoder difference; ``dq_hat``, the motion
+of the observed angle, is ``dq`` as shipped, or with ``quantization_share`` the motion of the
+observer's own joint angle within the encoder's count (*Quantization*, below).
+
+*Quantization.* The encoders tell the joint angle only to within a count ``c_j`` (the device
+file's ``encoder_counts_per_rev``: the true angle lies in ``q_j +- c_j / 2``), so the work
+taken over encoder differences errs by ``-sum_k tau(k-1) . (e(k) - e(k-1))``, ``e`` the reading's
+error, ``|e_j| <= c_j / 2``. Summed by parts this is a boundary term, at most ``sum_j |tau_j|
+c_j`` (one count's work at the torque now), plus ``sum_k (tau(k) - tau(k-1)) . e(k)``, and that
+sum does not average out: the torque changes *because* a count changed (the task wrench, the
+assists and the F/T's reading of the slave all answer the new reading within a tick), which is
+exactly when the reading has run ahead of the joint by up to half a count. Every count then
+reads as generated energy ``|Delta tau| c / 2`` whatever the joint did (Ryu, Kwon & Hannaford
+2004 note the PO's sensitivity to the velocity estimate; Abbott & Okamura 2005 show how
+position quantization alone makes a sampled wall look active). Measured on a 12-bit Kraft
+(the default hand, a wall at 1x its bound, the joints' true angles from the simulation): the
+encoder work drained 52 mJ in free space before the touch while the true port work was +2 mJ,
+and the PC then cut the wall to 0.2x the felt stiffness plain rendering holds. The observer
+therefore carries its own joint angle ``q_hat``: last tick's, moved on by the count-interval
+velocity (the counts that changed over the time since the count last changed; while none
+changes, at most one count over the time since: the "1/T" estimate for slow encoder motion),
+and kept inside the count the encoder reports (:func:`angle_within_count`). It is as much an
+admissible angle as the reading is (the same ``+- c / 2`` bound, so the worst-case error
+above is unchanged: the energy bookkeeping test checks it), but it spreads a count over the
+time the joint took to cross it instead of charging it all on the tick the count changed. A
+low-passed velocity in its place was measured and rejected: its lag reads an oscillation's
+generated energy as dissipation (the same press under plain rendering: true port work -65 mJ,
+encoder -272 mJ, low-passed +10 mJ, count-interval -44 mJ), and the PC then left every wall to
+oscillate as plain rendering does. The friction credit is taken over the same motion (a dither
+across one count's edge is neither work nor travel); the damping credit keeps the encoder
+difference, whose sure part it needs. ``quantization_share`` places the observed angle between the
+reading (0) and ``q_hat`` (1). It is 0 as shipped, by measurement: the stability matrix (0.6 s
+windows, pose mode, 0.25-4x the with-hand bound; the encoder variants 10-20 bits with every hand
+and released, the shipped devices, the held-out set; figures in docs/conventions.md, issue 26)
+shows a trade, not a gain: with ``q_hat`` the wall vanishes at far fewer points, but PO/PC is
+stable at far fewer too, near plain rendering's count: the observer that reads a coarse
+encoder's counts as generated energy is also what made the PC act on real limit cycles whose
+true energy stays within the bank's reserve. Ideal encoders
+(``c = 0``) leave ``q_hat`` equal to the reading.
 
 *The observed port* is the one the hand holds, not the motors' (``observe_device``): what the
 controller gives out and the device's own hardware dissipates on the way never reaches the hand,
 so ``D_j`` credits what joint ``j`` surely dissipated, from the device file and the encoder
-alone: its Coulomb friction ``f_c,j |dq_j|`` and its viscous damping's least dissipation over
+alone: its Coulomb friction ``f_c,j |dq_hat_j|`` and its viscous damping's least dissipation over
 the counts it surely moved, ``d_j (|dq_j| - count_j)^2 / T`` (Cauchy-Schwarz: moving ``x``
 within ``T`` through damping ``d`` dissipates at least ``d x^2 / T``; the energy bounding
 algorithm of Kim & Ryu 2004 bounds the controller's output by the same ``b x^2 / T``; one count
@@ -166,6 +204,8 @@ class PassivitySettings(Checked):
         observe_device: The observer credits what the device's own hardware surely dissipated
             (friction and damping from its file, see "The observed port" in the module
             docstring): the port it watches is the one the hand holds, not the motors'.
+        quantization_share: Where between the encoder reading (0) and its own angle within the
+            count (1) the observer takes the work (see "Quantization" in the module docstring).
     """
 
     enabled: bool = False
@@ -179,6 +219,7 @@ class PassivitySettings(Checked):
     hold_slave: bool = True
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
+    quantization_share: Annotated[float, Range(0.0, 1.0)] = 0.0
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -211,38 +252,91 @@ def bank_bounds(settings: PassivitySettings, limit: Array, step: Array) -> tuple
 def observe_energy(
     energy: Array,
     tau_prev: Array,
+    q: Array,
+    q_hat: Array,
+    v_hat: Array,
+    age: Array,
     qdot: Array,
     dt: float,
     cap: float,
     friction: Array,
     damping: Array,
     count: Array,
+    share: float,
 ) -> float:
     """PO step: the port's work plus the device's own sure dissipation, capped; returns ``E``.
 
-    ``E += -dt sum_j tau_prev_j qdot_j + sum_j (friction_j |dq_j| + damping_j max(|dq_j| - count_j, 0)^2 / dt)``
-    with ``dq = qdot dt``, then ``E = min(E, cap)`` (see the module docstring, "The observed port").
+    ``E += -sum_j tau_prev_j dq_hat_j + sum_j (friction_j |dq_hat_j| + damping_j
+    max(|dq_j| - count_j, 0)^2 / dt)`` with ``dq = qdot dt`` the encoder difference and
+    ``dq_hat`` the motion of the observer's angle (:func:`angle_within_count`, taken ``share`` of
+    the way from the reading), then ``E = min(E, cap)`` (see the module docstring, "The observed
+    port" and "Quantization").
 
     Args:
         energy: Energy the port has absorbed (J), (1,), updated.
         tau_prev: Rendered joint torque held over the last period (N m or N), (n,).
+        q: The encoder angles now (rad or m), (n,).
+        q_hat, v_hat, age: The observer's angles (rad or m), count-interval velocities (rad/s or
+            m/s) and time since each joint's count last changed (s), (n,) each, updated.
         qdot: Joint velocity over that period, ``dq / dt`` (rad/s or m/s), (n,).
-        dt: The period (s); 0 when there is no usable velocity (nothing is added).
+        dt: The period (s); 0 when there is no usable encoder difference (nothing is added, and
+            the angles start over at ``q``).
         cap: The most energy the observer may bank (J).
-        friction: Coulomb torque (N m or N) credited per unit of encoder travel, (n,).
+        friction: Coulomb torque (N m or N) credited per unit of the observed angle's travel, (n,).
         damping: Each joint's viscous damping (N m s/rad or N s/m), (n,).
         count: One encoder count of each joint (rad or m; 0 for ideal encoders), (n,).
+        share: How far (0..1) the observed angle goes from the reading to ``q_hat``
+            (``quantization_share``).
     """
     if dt <= 0.0:
+        for j in range(q.shape[0]):
+            q_hat[j], v_hat[j], age[j] = q[j], 0.0, 0.0
         energy[0] = min(energy[0], cap)
         return energy[0]
     change = 0.0
     for j in range(tau_prev.shape[0]):
         dq = qdot[j] * dt
         sure = max(abs(dq) - count[j], 0.0)
-        change += -tau_prev[j] * dq + friction[j] * abs(dq) + damping[j] * sure * sure / dt
+        moved_hat = angle_within_count(q[j], dq, dt, count[j], q_hat, v_hat, age, j)
+        moved = dq + share * (moved_hat - dq)
+        change += -tau_prev[j] * moved + friction[j] * abs(moved) + damping[j] * sure * sure / dt
     energy[0] = min(energy[0] + change, cap)
     return energy[0]
+
+
+@njit(cache=True)
+def angle_within_count(
+    reading: float, dq: float, dt: float, count: float, q_hat: Array, v_hat: Array, age: Array, j: int
+) -> float:
+    """Move joint ``j``'s observer angle ``q_hat[j]`` (rad or m) on one tick; returns how far it moved.
+
+    The velocity is the count-interval one (the "1/T" estimate of low-speed encoder velocity):
+    when the count changes, the counts changed over the time since the last change; while it
+    does not, at most one count over the time since (a faster joint would have changed it). The
+    angle moves on by it and is kept within the count the encoder reports, ``reading +-
+    count / 2`` (see "Quantization" in the module docstring). Ideal encoders (``count`` 0) give
+    the reading itself.
+
+    Args:
+        reading: The encoder angle now (rad or m). ``dq``: its change over the tick (rad or m).
+        dt: The period (s). ``count``: one encoder count (rad or m).
+        q_hat, v_hat, age: The observer's state (see :func:`observe_energy`), updated at ``j``.
+    """
+    if count <= 0.0:
+        moved = reading - q_hat[j]
+        q_hat[j] = reading
+        return moved
+    age[j] += dt
+    if abs(dq) >= 0.5 * count:
+        v_hat[j] = dq / age[j]
+        age[j] = 0.0
+    elif abs(v_hat[j]) * age[j] > count:
+        v_hat[j] = math.copysign(count / age[j], v_hat[j])
+    half = 0.5 * count
+    target = min(max(q_hat[j] + v_hat[j] * dt, reading - half), reading + half)
+    moved = target - q_hat[j]
+    q_hat[j] = target
+    return moved
 
 
 @njit(cache=True)

@@ -58,7 +58,8 @@ class PressResult:
         felt_stiffness: Pose mode: the secant stiffness between the press's two plateaus (N/m,
             :class:`FeltStiffness`); NaN in rate mode, where the grip commands a velocity.
         saturated: Pose mode: the motors saturated on some tick of a plateau's window, so the
-            wall was rendered as the motors' limit, a force source, not as a stiffness.
+            wall was rendered as the motors' limit, a force source, not as a stiffness; for a
+            released press, :func:`released_saturated` on the judged window.
         pushed_through: The mean contact force reached 95 % of the slave's force limit: the
             slave pushed as hard as it can, the wall the hand felt did not hold it back.
         summary: The whole session summary.
@@ -99,6 +100,25 @@ class PressResult:
         if not self.settled:
             return "oscillating"
         return "saturated" if self.saturated else "stable"
+
+
+def released_saturated(mean_force: float, share: float) -> bool:
+    """Whether a released press (the hand let go) rendered a force source rather than a resting tool.
+
+    Only the judged window counts, the hand being gone. With the tool pressed on the surface
+    (``mean_force`` (N) at least :data:`~app.session.metrics.SETTLE_MIN_FORCE`), a motor at its
+    limit on any of the window's ticks (``share`` > 0, the share of its ticks the uniform
+    saturation acted on) means the rendering pushed it as a force source, as for a held press.
+    Resting at (near) zero force, off the wall or just touching it, there is no wall force for a
+    saturated motor to have rendered: the motors then count only if they spent at least
+    :data:`SATURATED_SHARE` of the window at their limit (the device being driven, not resting);
+    a few saturated ticks of a settling bounce do not make a resting tool "saturated" (measured,
+    issue 26: 75 of 480 released presses on the stability matrix rest at 0 N with a share of
+    0-0.83, most below 0.02).
+    """
+    if mean_force >= SETTLE_MIN_FORCE:
+        return share > 0.0
+    return share >= SATURATED_SHARE
 
 
 def probe_scene_with_stiffness(stiffness: float, damping: float, folder: Path) -> Path:
@@ -349,6 +369,7 @@ def press(
     stiffness, saturated = (felt.stiffness(), felt.saturated) if felt else (math.nan, False)
     if released and felt is not None:
         stiffness, settled = math.nan, bool(ripple < SETTLE_RIPPLE * felt.plateau_force(0))
+        saturated = released_saturated(mean, judged.saturated_share())
     pushed_through = mean >= 0.95 * force_limit
     return PressResult(mean, ripple, settled, stiffness, saturated, pushed_through, summary, judged.saturated_share())
 

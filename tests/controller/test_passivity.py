@@ -29,11 +29,29 @@ INF = float("inf")
 NO_DEVICE = (np.zeros(1), np.zeros(1), np.zeros(1))
 
 
+def start(q0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The observer's own state at the first reading ``q0``: its angle, velocity and count age."""
+    return q0.astype(float).copy(), np.zeros(q0.shape), np.zeros(q0.shape)
+
+
+def observe(
+    e: np.ndarray,
+    tau_prev: np.ndarray,
+    q: np.ndarray,
+    state: tuple[np.ndarray, np.ndarray, np.ndarray],
+    qdot: np.ndarray,
+    cap: float = INF,
+    device: tuple[np.ndarray, np.ndarray, np.ndarray] = NO_DEVICE,
+) -> float:
+    """One observer step at encoder angles ``q`` (``state`` from :func:`start`, updated)."""
+    return observe_energy(e, tau_prev, q, *state, qdot, T, cap, *device, 1.0)
+
+
 def observed(q: np.ndarray, tau_held: np.ndarray) -> np.ndarray:
     """The observer's energy after each step of the trajectory ``q`` (m,) under the held torques (m-1,)."""
-    e, out = np.zeros(1), []
+    e, out, state = np.zeros(1), [], start(q[0:1])
     for k in range(1, len(q)):
-        out.append(observe_energy(e, tau_held[k - 1 : k], np.array([(q[k] - q[k - 1]) / T]), T, INF, *NO_DEVICE))
+        out.append(observe(e, tau_held[k - 1 : k], q[k : k + 1], state, np.array([(q[k] - q[k - 1]) / T])))
     return np.array(out)
 
 
@@ -62,17 +80,17 @@ def test_the_observer_credits_the_device_friction_per_count_and_its_damping_beyo
     the count, so damping is sure of nothing); three counts in one tick add the damping's least
     dissipation over the two sure counts, d (2 mrad)^2 / T; a torque's work still counts; the
     cap still bounds the bank."""
-    friction, damping, count = np.array([0.06]), np.array([0.04]), np.array([1e-3])
-    e = np.zeros(1)
-    observe_energy(e, np.zeros(1), np.array([1e-3 / T]), T, INF, friction, damping, count)
+    device = np.array([0.06]), np.array([0.04]), np.array([1e-3])
+    e, state = np.zeros(1), start(np.zeros(1))
+    observe(e, np.zeros(1), np.array([1e-3]), state, np.array([1e-3 / T]), device=device)
     assert e[0] == pytest.approx(0.06e-3, rel=1e-12)
-    observe_energy(e, np.zeros(1), np.array([-3e-3 / T]), T, INF, friction, damping, count)
+    observe(e, np.zeros(1), np.array([-2e-3]), state, np.array([-3e-3 / T]), device=device)
     assert e[0] == pytest.approx(0.06e-3 + 0.18e-3 + 0.04 * 4e-6 / T, rel=1e-12)
     before = e[0]
-    observe_energy(e, np.array([2.0]), np.array([1e-3 / T]), T, INF, friction, damping, count)
+    observe(e, np.array([2.0]), np.array([-1e-3]), state, np.array([1e-3 / T]), device=device)
     assert e[0] == pytest.approx(before - 2e-3 + 0.06e-3, rel=1e-12)
     e[0] = 0.0
-    observe_energy(e, np.zeros(1), np.array([-3e-3 / T]), T, 1e-4, friction, damping, count)
+    observe(e, np.zeros(1), np.array([-4e-3]), state, np.array([-3e-3 / T]), cap=1e-4, device=device)
     assert e[0] == 1e-4
 
 
@@ -88,11 +106,12 @@ def test_an_active_sampled_wall_is_detected_and_the_pc_keeps_the_bounce_passive(
         m, x, v, f_max = 0.01, -2e-5, v_in, 0.0
         e, tau_prev, tau_pc, vel = np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(1)
         q_prev, lowest, travel = step * np.round(x / step), 0.0, 0.0
+        state = start(np.array([q_prev]))
         for _ in range(1000):
             q = step * np.round(x / step)
             vel[0] = (q - q_prev) / T
             travel += abs(q - q_prev)
-            observe_energy(e, tau_prev, vel, T, INF, *NO_DEVICE)
+            observe(e, tau_prev, np.array([q]), state, vel)
             # The controller's energy plus what friction surely took on the observed travel.
             lowest = min(lowest, e[0] + (f_c * travel if pc else 0.0))
             tau = np.array([-K * q - B * vel[0]]) if q > 0.0 else np.zeros(1)
@@ -236,3 +255,27 @@ def test_the_device_dissipation_is_read_from_the_device_file() -> None:
     undamped = dataclasses.replace(kraft.data.plant, damping=(0.0,) * 6)
     bare = dataclasses.replace(kraft, data=dataclasses.replace(kraft.data, plant=undamped))
     assert device_dissipation(bare)[2] == 0.0
+
+
+def test_the_observer_sees_a_damper_the_encoder_difference_misses_on_a_slow_joint() -> None:
+    """Quantization allowance (module docstring, "Quantization"): one joint moving steadily at a
+    quarter count per tick (counts of 1 mrad, changing mid-tick) under a damper on the encoder
+    difference, tau = -B (q(k) - q(k-1)) / T (B 0.1 N m s/rad, held over the next tick). The
+    torque acts only on the tick after each count change, while the joint truly moves a quarter
+    count: the port absorbs B c^2 / (4 T) = 25 uJ per count, 1 mJ over 40 counts. The encoder
+    difference is zero on those ticks: it sees none of it. The observer's angle spreads each
+    count over the ticks the joint took to cross it: within a tenth of the truth."""
+    count, B, v = 1e-3, 0.1, 0.25e-3 / T
+    n = 161
+    x = v * T * (np.arange(n + 1) + 0.5)
+    q = count * np.round(x / count)
+    tau = -B * np.diff(q, prepend=q[0])[:-1] / T
+    true = float(np.sum(-tau * v * T))
+    encoder = float(np.sum(-tau * np.diff(q)))
+    device = (np.zeros(1), np.zeros(1), np.array([count]))
+    e, state = np.zeros(1), start(q[0:1])
+    for k in range(1, n + 1):
+        observe(e, tau[k - 1 : k], q[k : k + 1], state, np.array([(q[k] - q[k - 1]) / T]), device=device)
+    assert true == pytest.approx(40 * B * count**2 / (4 * T), rel=1e-9)
+    assert encoder == 0.0
+    assert abs(e[0] - true) < 0.1 * true, (e[0], true)

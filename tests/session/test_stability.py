@@ -25,6 +25,7 @@ from app.session.stability import (
     press_session,
     probe_scene_with_stiffness,
     push_depths,
+    released_saturated,
 )
 from app.session.tick import TickRecord
 from app.world.scene import available_scenes, load_scene
@@ -199,6 +200,26 @@ def test_a_released_press_is_judged_after_the_hand_lets_go(tmp_path: Path) -> No
     bouncing = press(1e5, "pose", device=no_friction, gains=gains, released=True)
     assert bouncing.ripple > 1.0
     assert not bouncing.stable
+
+
+def test_a_released_tool_resting_at_zero_force_is_not_saturated_by_a_few_saturated_ticks() -> None:
+    """The rule, with known answers: pressed (>= 0.1 N) any saturated tick counts; resting at 0 N
+    only motors at their limit for half the window or more (the device driven, not resting).
+    And a press: the shipped Kraft at 2x its with-hand bound, plain, let go: the tool comes to
+    rest off the surface (0 N, no ripple) with the motors saturated on a few ticks of the judged
+    window while it settled (share below 0.02): stable, where the any-tick rule said "saturated"."""
+    assert released_saturated(2.0, 0.005)
+    assert not released_saturated(2.0, 0.0)
+    assert not released_saturated(0.0, 0.005)
+    assert not released_saturated(0.05, 0.49)
+    assert released_saturated(0.0, 0.83)
+    k_t = 2.0 * passivity_bound("kraft") / design_stiffness(1.0)
+    r = press(1e5, "pose", gains={"k_t": [k_t] * 3 + [1.0] * 3}, released=True)
+    assert r.mean_force < 0.1, r
+    assert r.ripple < 0.01, r
+    assert 0.0 < r.saturated_share < 0.02, r.saturated_share
+    assert not r.saturated
+    assert r.verdict == "stable"
 
 
 def test_a_stiff_hand_pushes_to_the_gap_plus_its_force_over_its_stiffness(tmp_path: Path) -> None:

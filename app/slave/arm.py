@@ -53,7 +53,7 @@ from app.mjcall import address, pointers
 from app.slave import arm_ik
 from app.slave import arm_kernel as ak
 from app.slave.arm_model import ArmGeom, ArmParams, arm_record, arm_spec, link_contact_models, place_base
-from app.slave.tool import DEFAULT_PERIOD, SlaveBase, command_error, finite, invalid_contact
+from app.slave.tool import DEFAULT_PERIOD, SlaveBase, command_error, contact_rows, finite, invalid_contact
 from app.spatial import Array
 from app.world.contact import ContactResult
 from app.world.dynamics import MovingWorld, world_contact
@@ -135,6 +135,7 @@ class ArmSlave(SlaveBase):
             d.xipos,
         )
         self._cvel, self._cacc, self._subtree_com = d.cvel, d.cacc, d.subtree_com
+        self._qacc, self._M = d.qacc, d.M
         self._res = np.zeros(6)
         # The F/T reading every step returns (one buffer, overwritten): no allocation per tick.
         b = self._ft_buffer = np.zeros(24)
@@ -142,7 +143,8 @@ class ArmSlave(SlaveBase):
         # The compiled substep's calls skip numba's typing: apart from the contact result's
         # arrays (C-contiguous float64 views of its ``w``), everything passed is the arm's own.
         contact_w = np.zeros(15)
-        self._mj = np.array((address("mj_step1"), address("mj_step2"), *pointers(m, d)))
+        stages = ("mj_fwdActuation", "mj_fwdAcceleration", "mj_fwdConstraint")
+        self._mj = np.array((address("mj_step1"), address("mj_step2"), *pointers(m, d), *map(address, stages)))
         self._begin = entry_point(
             ak.begin_substep,
             self._mj,
@@ -163,16 +165,37 @@ class ArmSlave(SlaveBase):
             self._xmat,
             self._xipos,
         )
+        # What the substep's end needs besides the record (:func:`~app.slave.arm_kernel.end_substep`).
+        self._end_views = (self._qacc, self._M, self._site_xpos, self._site_xmat)
         self._control = entry_point(
             ak.control,
             self._rec,
             True,
             period,
+            self._h,
             *self._mj_views,
-            contact_w[12:15],
-            contact_w[6:12],
+            *self._end_views,
+            contact_w,
+            contact_rows(invalid_contact("")),
+            self._materials,
             True,
             self._mj,
+        )
+        self._end = entry_point(
+            ak.end_substep,
+            self._mj,
+            self._rec,
+            self._h,
+            self._qvel,
+            self._qacc,
+            self._M,
+            self._xfrc,
+            self._xipos,
+            self._site_xpos,
+            self._site_xmat,
+            contact_w,
+            contact_rows(invalid_contact("")),
+            self._materials,
         )
         ft = self._ft
         motion = (self._sdata, self._site_xpos, self._site_xmat, self._cvel, self._cacc, self._subtree_com)
@@ -306,7 +329,7 @@ class ArmSlave(SlaveBase):
         h = dt / self._substeps
         if h != self._h:
             self.model.opt.timestep = self._h = h
-        m, d, rec, T, V = self.model, self.data, self._rec, self._T, self._V
+        rec, T, V = self._rec, self._T, self._V
         status = 0
         contact = self._contact
         for sub in range(self._substeps):
@@ -315,14 +338,41 @@ class ArmSlave(SlaveBase):
                 # Accommodation reads the previous tick's contact, as the ideal tool's does.
                 self._update_reference(command, dt)
             contact = self.contact_model.wrench(T, V)
+            rows = contact_rows(contact)
+            w = contact.w
             bits, near = self._control(
-                rec, sub == 0, dt, *self._mj_views, contact.force_w, contact.wrench_MRF, contact.valid, self._mj
+                rec,
+                sub == 0,
+                dt,
+                h,
+                *self._mj_views,
+                *self._end_views,
+                w,
+                rows,
+                self._materials,
+                contact.valid,
+                self._mj,
             )
             status |= bits
-            if near:  # the kernel stopped before mj_step2: the links' wrenches go in first
+            if near:  # the kernel stopped before its end: the links' wrenches go in first
                 if self._link_contacts():
                     status |= ArmStatus.LINK_CONTACT
-                mujoco.mj_step2(m, d)
+                qacc, M, site_xpos, site_xmat = self._end_views
+                self._end(
+                    self._mj,
+                    rec,
+                    h,
+                    self._qvel,
+                    qacc,
+                    M,
+                    self._xfrc,
+                    self._xipos,
+                    site_xpos,
+                    site_xmat,
+                    w,
+                    rows,
+                    self._materials,
+                )
             elif self.link_contacts:
                 self.link_contacts = []
             if self._moving is not None:

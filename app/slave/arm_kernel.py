@@ -11,6 +11,10 @@ argument; MuJoCo's arrays are passed as they are (views of ``MjData``, fetched o
 The joint servo: ``tau = kp (q_c - q) + kd (qd_c - qd) + bias`` with ``bias`` MuJoCo's gravity
 and Coriolis forces, its speed demand clamped to the joint's velocity limit (:func:`joint_servo`),
 saturated at each motor's torque limit.
+
+The tool's contact is made as implicit as its stability needs (:func:`implicit_tool`), like the
+ideal tool's (:func:`app.slave.tool_kernel.implicit_wrench`), with the arm's operational-space
+mass at the tool in place of the tool's own.
 """
 
 from __future__ import annotations
@@ -19,12 +23,22 @@ import numpy as np
 from numba import njit
 
 from app.mjcall import call_model_data
-from app.slave.arm_ik import TORQUE, VELOCITY, ik_step, matTvec, matvec
+from app.slave.arm_ik import TORQUE, VELOCITY, cholesky, cholesky_solve, ik_step, matTvec, matvec
+from app.slave.tool_kernel import contact_gains, implicit_changes, implicit_shares, shift_wrench
 from app.spatial import Array, IntArray, cross3
 
+#: Slots of the MuJoCo addresses a substep is handed (:mod:`app.mjcall`): ``mj_step1``,
+#: ``mj_step2``, ``mjModel*``, ``mjData*``, then the acceleration stages ``mj_step2`` runs before
+#: it integrates, which :func:`implicit_tool` runs once more for the explicit accelerations.
+STEP1, STEP2, MODEL, DATA, FWD_ACTUATION, FWD_ACCELERATION, FWD_CONSTRAINT = range(7)
+#: No correction for anything but the contact: the joint servos are far inside the explicit
+#: step's bounds (12 Hz at 1 kHz: omega h = 0.08) and MuJoCo's Euler integrates joint damping implicitly.
+_NO_OTHER = np.zeros(2)
 
-def arm_record_dtype(n: int, links: int, spheres: int) -> np.dtype:
-    """The arm's record for ``n`` hinge joints, ``links`` links with contact spheres and ``spheres`` spheres.
+
+def arm_record_dtype(n: int, links: int, spheres: int, n_M: int) -> np.dtype:
+    """The arm's record for ``n`` hinge joints, ``links`` links with contact spheres, ``spheres``
+    spheres and ``n_M`` stored entries of the joint-space inertia.
 
     Fields (angles rad, rates rad/s, torques N m, lengths m; {w} unless stated):
 
@@ -47,6 +61,10 @@ def arm_record_dtype(n: int, links: int, spheres: int) -> np.dtype:
         (6, n), rows ``[v; w]``. T, V: {MRF} pose (4, 4) and twist ``[v; w]`` (6,). T_ref,
         V_ref: the Cartesian reference pose (4, 4) and twist (6,). near: the links whose spheres
         reach ``box``, 1 or 0 (links,) (numba's records hold no bool arrays).
+
+    MuJoCo's joint-space inertia ``mjData.M`` is compressed by rows of its lower triangle:
+    ``M_adr``, ``M_nnz`` (n,) and ``M_col`` (nM,) are the model's ``M_rowadr``, ``M_rownnz`` and
+    ``M_colind``.
     """
     f8, i8 = np.float64, np.int64
     fields: list[tuple[str, type, tuple[int, ...]]] = [
@@ -67,6 +85,9 @@ def arm_record_dtype(n: int, links: int, spheres: int) -> np.dtype:
         ("centers", f8, (spheres, 3)),
         ("radii", f8, (spheres,)),
         ("box", f8, (2, 3)),
+        ("M_adr", i8, (n,)),
+        ("M_nnz", i8, (n,)),
+        ("M_col", i8, (n_M,)),
     ]
     scalars = [(name, i8) for name in ("site_mrf", "site_ft", "tool", "root", "sensor")]
     return np.dtype([*fields, *scalars])
@@ -109,9 +130,9 @@ def begin_substep(
 ) -> None:
     """MuJoCo's ``mj_step1`` (kinematics and forces of the present state), then :func:`mrf_state`.
 
-    ``mj``: ``[mj_step1, mj_step2, mjModel*, mjData*]`` addresses (:mod:`app.mjcall`), (4,).
+    ``mj``: MuJoCo's addresses (slots :data:`STEP1` ...), (7,).
     """
-    call_model_data(mj[0], mj[2], mj[3])
+    call_model_data(mj[STEP1], mj[MODEL], mj[DATA])
     mrf_state(rec, xanchor, xaxis, site_xpos, site_xmat, qvel)
 
 
@@ -120,6 +141,7 @@ def control(
     rec: Array,
     ik: bool,
     dt: float,
+    h: float,
     qpos: Array,
     qvel: Array,
     bias: Array,
@@ -128,8 +150,13 @@ def control(
     xpos: Array,
     xmat: Array,
     xipos: Array,
-    force_w: Array,
-    wrench_MRF: Array,
+    qacc: Array,
+    M: Array,
+    site_xpos: Array,
+    site_xmat: Array,
+    contact: Array,
+    rows: Array,
+    materials: Array,
     contact_valid: bool,
     mj: IntArray,
 ) -> tuple[int, bool]:
@@ -138,13 +165,14 @@ def control(
 
     Args:
         rec: The arm's record; ``jac``, ``T``, ``T_ref``, ``V_ref`` current.
+        h: The substep (s).
         qpos, qvel, bias, ctrl: MuJoCo's joint angles, velocities, bias forces and controls.
         xfrc: MuJoCo's applied body wrenches (nbody, 6), ``[f; torque about the com]``.
         xpos, xmat, xipos: Body origins (nbody, 3), orientations (nbody, 9), centres of mass (nbody, 3).
-        force_w, wrench_MRF, contact_valid: The tool's :class:`~app.world.contact.ContactResult`
-            ``force_w`` (3,), ``wrench_MRF`` (6,) and ``valid``.
+        qacc, M, site_xpos, site_xmat, contact, rows, materials: As for :func:`end_substep`.
+        contact_valid: Whether ``contact`` is valid (an invalid one has no rows).
         mj: As for :func:`begin_substep`: with no link near the world the substep ends here
-            with ``mj_step2``; otherwise the caller adds the links' contact wrenches first.
+            (:func:`end_substep`); otherwise the caller adds the links' contact wrenches first.
 
     Returns:
         Status bits (:mod:`app.slave.arm_ik`) and whether any link is near the world (``rec.near``).
@@ -179,13 +207,138 @@ def control(
     if contact_valid:
         T = r["T"]
         b = r["tool"]
-        body_wrench(force_w, wrench_MRF[3:6], T[0:3, 0:3], T[0:3, 3], xipos[b], xfrc[b])
+        body_wrench(contact[12:15], contact[9:12], T[0:3, 0:3], T[0:3, 3], xipos[b], xfrc[b])
     near = r["near"]
     links_near(xpos, xmat, r["links"], r["owner"], r["centers"], r["radii"], r["box"], near)
     any_near = near.any()
     if not any_near:
-        call_model_data(mj[1], mj[2], mj[3])
+        end_substep(mj, rec, h, qvel, qacc, M, xfrc, xipos, site_xpos, site_xmat, contact, rows, materials)
     return status, any_near
+
+
+@njit(cache=True)
+def end_substep(
+    mj: IntArray,
+    rec: Array,
+    h: float,
+    qvel: Array,
+    qacc: Array,
+    M: Array,
+    xfrc: Array,
+    xipos: Array,
+    site_xpos: Array,
+    site_xmat: Array,
+    contact: Array,
+    rows: Array,
+    materials: Array,
+) -> None:
+    """The tool's contact made implicit as far as needed (:func:`implicit_tool`), then MuJoCo's
+    ``mj_step2`` (``mj`` as for :func:`begin_substep`); every wrench on the arm is in ``xfrc``.
+    Arguments as for :func:`implicit_tool`."""
+    implicit_tool(mj, rec, h, qvel, qacc, M, xfrc, xipos, site_xpos, site_xmat, contact, rows, materials)
+    call_model_data(mj[STEP2], mj[MODEL], mj[DATA])
+
+
+@njit(cache=True)
+def implicit_tool(
+    mj: IntArray,
+    rec: Array,
+    h: float,
+    qvel: Array,
+    qacc: Array,
+    M: Array,
+    xfrc: Array,
+    xipos: Array,
+    site_xpos: Array,
+    site_xmat: Array,
+    contact: Array,
+    rows: Array,
+    materials: Array,
+) -> None:
+    """Make the substep ``h`` (s) implicit in the tool's contact stiffness and damping as far as
+    its stability needs, as :func:`app.slave.tool_kernel.implicit_wrench` does for the ideal tool:
+    add the correction to the tool's row of ``xfrc`` and take it off ``contact``.
+
+    The body is the tool; its mass matrix is the arm's operational-space inertia at the tool's
+    centre of mass c, ``Lambda = (J_c M_q^-1 J_c^T)^-1`` (J_c (6, n) maps the joint rates to the
+    twist ``[v of c; w]``, M_q the joint-space inertia with the motors' armature): what a wrench
+    on the tool meets, through the whole arm (the tool's own 0.6 kg and the arm behind it; a
+    redundant arm's null space takes none of it). Its explicit acceleration ``a0 = J_c qacc``
+    comes from MuJoCo's own acceleration stages with every wrench of the substep in ``xfrc``
+    (servo torques, gravity, joint limits, the links' contacts); ``J_c qacc`` is what the
+    semi-implicit Euler step moves the tool by, the velocity-product term left out as in the
+    linearisation. Nothing but the contact is made implicit (:data:`_NO_OTHER`).
+
+    Args:
+        mj: MuJoCo's addresses (slots :data:`STEP1` ...), (7,).
+        rec: The arm's record; ``jac`` and ``T`` of the substep's start.
+        qvel, qacc: MuJoCo's joint velocities (n,) and accelerations (n,; overwritten with the explicit ones).
+        M: MuJoCo's joint-space inertia, compressed (``mjData.M``, (nM,); record's ``M_adr``...).
+        xfrc: MuJoCo's applied body wrenches (nbody, 6), every one of the substep; corrected.
+        xipos: Body centres of mass (nbody, 3). ``site_xpos``, ``site_xmat``: site poses.
+        contact: The tool's contact result's ``w`` (``wrench_S``, ``wrench_MRF``, ``force_w``),
+            (15,), corrected in place to the wrench the step applied.
+        rows, materials: Its contact rows (k, 9) and the objects' materials (n, 3)
+            (:func:`~app.slave.tool_kernel.contact_gains`).
+    """
+    if rows.shape[0] == 0:
+        return
+    r = rec[0]
+    J, T = r["jac"], r["T"]
+    n = J.shape[1]
+    b = r["tool"]
+    c = xipos[b]
+    d = c - T[0:3, 3]
+    # J_c: the {MRF} Jacobian moved to the centre of mass, v_c = v_p + w x (c - p).
+    J_c = np.empty((6, n))
+    for k in range(n):
+        v = cross3(J[3:6, k], d)
+        for i in range(3):
+            J_c[i, k] = J[i, k] + v[i]
+            J_c[3 + i, k] = J[3 + i, k]
+    u = matvec(J_c, qvel[:n])
+    KC = np.zeros((4, 6, 6))
+    contact_gains(rows, materials, c, u, KC[0], KC[1])
+    # Lambda^-1 = J_c M_q^-1 J_c^T, then Lambda (both (6, 6), symmetric positive definite away
+    # from a singularity; at one, Lambda is huge along it and nothing there needs correcting).
+    Mq = np.zeros((n, n))
+    for i in range(n):
+        for k in range(r["M_nnz"][i]):
+            j = r["M_col"][r["M_adr"][i] + k]
+            Mq[i, j] = Mq[j, i] = M[r["M_adr"][i] + k]
+    L = cholesky(Mq)
+    X = np.empty((n, 6))
+    for a in range(6):
+        X[:, a] = cholesky_solve(L, J_c[a])
+    Lam_inv = np.empty((6, 6))
+    for a in range(6):
+        for e in range(6):
+            s = 0.0
+            for k in range(n):
+                s += J_c[a, k] * X[k, e]
+            Lam_inv[a, e] = s
+    L6 = cholesky(Lam_inv)
+    Lam = np.empty((6, 6))
+    unit = np.zeros(6)
+    for a in range(6):
+        unit[:] = 0.0
+        unit[a] = 1.0
+        Lam[:, a] = cholesky_solve(L6, unit)
+    hk, hc = implicit_shares(h, KC, _NO_OTHER, Lam, Lam_inv)
+    if hk == 0.0 and hc == 0.0:
+        return  # the explicit step is stable with margin: keep it as it is
+    for stage in (FWD_ACTUATION, FWD_ACCELERATION, FWD_CONSTRAINT):
+        call_model_data(mj[stage], mj[MODEL], mj[DATA])
+    F = matvec(Lam, matvec(J_c, qacc[:n]))
+    d_contact, d_other = np.empty(6), np.empty(6)
+    implicit_changes(h, hk, hc, KC, Lam, u, F, d_contact, d_other)
+    for i in range(6):
+        xfrc[b, i] += d_contact[i]
+    shift_wrench(contact[6:12], d_contact, T[0:3, 0:3], T[0:3, 3], c)
+    s_ft = r["site_ft"]
+    shift_wrench(contact[0:6], d_contact, site_xmat[s_ft].reshape((3, 3)), site_xpos[s_ft], c)
+    for i in range(3):
+        contact[12 + i] += d_contact[i]
 
 
 @njit(cache=True)

@@ -7,7 +7,9 @@ turned exception, any bug) becomes a row with ``status = "error"`` and the one-l
 the other points go on. A worker process that dies (a crash, ``os._exit``, the OOM killer) is
 replaced: the points queued behind the one it was running are run again elsewhere, the point it
 was running is tried once more (the death may not be its fault) and, if it kills a worker
-again, becomes a row with ``status = "error"`` and ``error = "worker died ..."``.
+again, becomes a row with ``status = "error"`` and ``error = "worker died ..."``. A worker that
+dies before it runs any point (while it starts or loads the task, as on a loaded machine) charges
+no point with its death; every point lost with a worker counts towards :data:`MAX_LOSSES`.
 
 Ray (https://docs.ray.io) rather than ``multiprocessing`` because the same code then runs on a
 cluster: with ``address`` (or ``RAY_ADDRESS``) it joins an existing Ray cluster, whose nodes must
@@ -260,6 +262,10 @@ class Engine:
         self._started = False
         self._actors: list[Any] = []
         self._lives: list[int] = []
+        # Per worker slot, the reference of its current worker's ``use`` call of this run: an
+        # actor runs its calls in order, so whether that one finished says whether the worker
+        # started (loaded the task) before it died.
+        self._loads: list[Any] = []
 
     @property
     def size(self) -> int:
@@ -317,14 +323,14 @@ class Engine:
         from ray.exceptions import RayActorError, RayTaskError
 
         task_ref = ray.put(task)
-        for actor in self._actors:
-            actor.use.remote(task_ref)
+        self._loads = [actor.use.remote(task_ref) for actor in self._actors]
         n = len(self._actors)
         pending: dict[Any, _Job] = {}
         load = [0] * n
         queue = iter(points)
         again: deque[_Job] = deque()  # points of dead workers, run before new ones
-        culprit: dict[tuple[int, int], int] = {}  # (slot, life) of a dead worker -> seq of the point it ran
+        # (slot, life) of a dead worker -> seq of the point it was running (None: it ran none)
+        culprit: dict[tuple[int, int], int | None] = {}
         seq = itertools.count()
 
         def submit(k: int) -> bool:
@@ -366,26 +372,54 @@ class Engine:
         self,
         job: _Job,
         exc: BaseException,
-        culprit: dict[tuple[int, int], int],
+        culprit: dict[tuple[int, int], int | None],
         pending: dict[Any, _Job],
         task_ref: Any,
     ) -> dict[str, Any] | None:
         """``job``'s worker died: replace the worker; None to run the job again, else its error row."""
         life = (job.k, job.life)
         if life not in culprit:
-            # Actor calls run in order: of the points still held by the dead worker, the first
-            # submitted is the one it was running, the others were queued behind it.
-            held = [j.seq for j in pending.values() if (j.k, j.life) == life]
-            culprit[life] = min([job.seq, *held])
+            culprit[life] = self._running(job, life, pending)
         if self._lives[job.k] == job.life:
             self._actors[job.k] = self._worker_cls.remote()
-            self._actors[job.k].use.remote(task_ref)
+            self._loads[job.k] = self._actors[job.k].use.remote(task_ref)
             self._lives[job.k] += 1
         job.losses += 1
         job.kills += job.seq == culprit[life]
         if job.kills < MAX_KILLS and job.losses < MAX_LOSSES:
             return None
         return {"status": "error", "error": f"worker died running this point: {' '.join(str(exc).split())[:300]}"}
+
+    def _running(self, job: _Job, life: tuple[int, int], pending: dict[Any, _Job]) -> int | None:
+        """The seq of the point the worker of ``life`` (slot, life) was running when it died, of
+        ``job`` (lost with it) and the calls it still holds in ``pending``; None if it ran none.
+
+        Every call on a dead actor settles at once (a result it returned, or its death), so they
+        are waited for here. The actor ran its calls in order: ``use`` (its load, if it was this
+        life's, :attr:`_loads`), then the points by seq. If the load died, no point ran; else the
+        point running was the first one that did not return. Taking the first one still pending
+        instead charged a point whose worker died while it started (on a loaded machine), or one
+        that had returned but whose result was not yet taken.
+        """
+        import ray
+        from ray.exceptions import RayActorError
+
+        held = [ref for ref, j in pending.items() if (j.k, j.life) == life]
+        load = self._loads[job.k] if self._lives[job.k] == job.life else None
+        ray.wait([*held, *([load] if load is not None else [])], num_returns=len(held) + (load is not None))
+
+        def died(ref: Any) -> bool:
+            try:
+                ray.get(ref)
+            except RayActorError:
+                return True
+            except Exception:
+                return False  # the call itself raised: it finished
+            return False
+
+        if load is not None and died(load):
+            return None
+        return min([job.seq, *(pending[ref].seq for ref in held if died(ref))])
 
 
 class _Worker:

@@ -12,9 +12,9 @@ The joint servo: ``tau = kp (q_c - q) + kd (qd_c - qd) + bias`` with ``bias`` Mu
 and Coriolis forces, its speed demand clamped to the joint's velocity limit (:func:`joint_servo`),
 saturated at each motor's torque limit.
 
-The tool's contact is made as implicit as its stability needs (:func:`implicit_tool`), like the
-ideal tool's (:func:`app.slave.tool_kernel.implicit_wrench`), with the arm's operational-space
-mass at the tool in place of the tool's own.
+The contacts (the tool's and the links') are made as implicit as the substep's stability needs
+(:func:`implicit_contacts`), with the ideal tool's parts (:func:`app.slave.tool_kernel.implicit_wrench`)
+in the arm's joint coordinates: the tool then meets the arm's operational-space inertia, not its own mass.
 """
 
 from __future__ import annotations
@@ -24,12 +24,12 @@ from numba import njit
 
 from app.mjcall import call_model_data
 from app.slave.arm_ik import TORQUE, VELOCITY, cholesky, cholesky_solve, ik_step, matTvec, matvec
-from app.slave.tool_kernel import contact_gains, implicit_changes, implicit_shares, shift_wrench
+from app.slave.tool_kernel import contact_gains, correction, implicit_acceleration, implicit_shares, shift_wrench
 from app.spatial import Array, IntArray, cross3
 
 #: Slots of the MuJoCo addresses a substep is handed (:mod:`app.mjcall`): ``mj_step1``,
 #: ``mj_step2``, ``mjModel*``, ``mjData*``, then the acceleration stages ``mj_step2`` runs before
-#: it integrates, which :func:`implicit_tool` runs once more for the explicit accelerations.
+#: it integrates, which :func:`implicit_contacts` runs once more for the explicit accelerations.
 STEP1, STEP2, MODEL, DATA, FWD_ACTUATION, FWD_ACCELERATION, FWD_CONSTRAINT = range(7)
 #: No correction for anything but the contact: the joint servos are far inside the explicit
 #: step's bounds (12 Hz at 1 kHz: omega h = 0.08) and MuJoCo's Euler integrates joint damping implicitly.
@@ -64,7 +64,7 @@ def arm_record_dtype(n: int, links: int, spheres: int, n_M: int) -> np.dtype:
 
     MuJoCo's joint-space inertia ``mjData.M`` is compressed by rows of its lower triangle:
     ``M_adr``, ``M_nnz`` (n,) and ``M_col`` (nM,) are the model's ``M_rowadr``, ``M_rownnz`` and
-    ``M_colind``.
+    ``M_colind``; ``jnt_body`` (n,) each joint's body id.
     """
     f8, i8 = np.float64, np.int64
     fields: list[tuple[str, type, tuple[int, ...]]] = [
@@ -88,6 +88,7 @@ def arm_record_dtype(n: int, links: int, spheres: int, n_M: int) -> np.dtype:
         ("M_adr", i8, (n,)),
         ("M_nnz", i8, (n,)),
         ("M_col", i8, (n_M,)),
+        ("jnt_body", i8, (n,)),
     ]
     scalars = [(name, i8) for name in ("site_mrf", "site_ft", "tool", "root", "sensor")]
     return np.dtype([*fields, *scalars])
@@ -152,6 +153,8 @@ def control(
     xipos: Array,
     qacc: Array,
     M: Array,
+    xanchor: Array,
+    xaxis: Array,
     site_xpos: Array,
     site_xmat: Array,
     contact: Array,
@@ -169,7 +172,8 @@ def control(
         qpos, qvel, bias, ctrl: MuJoCo's joint angles, velocities, bias forces and controls.
         xfrc: MuJoCo's applied body wrenches (nbody, 6), ``[f; torque about the com]``.
         xpos, xmat, xipos: Body origins (nbody, 3), orientations (nbody, 9), centres of mass (nbody, 3).
-        qacc, M, site_xpos, site_xmat, contact, rows, materials: As for :func:`end_substep`.
+        qacc, M, xanchor, xaxis, site_xpos, site_xmat, contact, rows, materials: As for
+            :func:`end_substep` (``rows`` the tool's alone).
         contact_valid: Whether ``contact`` is valid (an invalid one has no rows).
         mj: As for :func:`begin_substep`: with no link near the world the substep ends here
             (:func:`end_substep`); otherwise the caller adds the links' contact wrenches first.
@@ -212,7 +216,27 @@ def control(
     links_near(xpos, xmat, r["links"], r["owner"], r["centers"], r["radii"], r["box"], near)
     any_near = near.any()
     if not any_near:
-        end_substep(mj, rec, h, qvel, qacc, M, xfrc, xipos, site_xpos, site_xmat, contact, rows, materials)
+        tool_only = np.full(1, r["tool"])
+        end_substep(
+            mj,
+            rec,
+            h,
+            qvel,
+            qacc,
+            M,
+            xfrc,
+            xanchor,
+            xaxis,
+            xipos,
+            site_xpos,
+            site_xmat,
+            contact,
+            rows,
+            np.zeros(rows.shape[0], dtype=np.int64),
+            tool_only,
+            materials,
+            np.empty((1, 6)),
+        )
     return status, any_near
 
 
@@ -225,22 +249,62 @@ def end_substep(
     qacc: Array,
     M: Array,
     xfrc: Array,
+    xanchor: Array,
+    xaxis: Array,
     xipos: Array,
     site_xpos: Array,
     site_xmat: Array,
     contact: Array,
     rows: Array,
+    groups: Array,
+    bodies: IntArray,
     materials: Array,
+    d: Array,
 ) -> None:
-    """The tool's contact made implicit as far as needed (:func:`implicit_tool`), then MuJoCo's
+    """The contacts made implicit as far as needed (:func:`implicit_contacts`), then MuJoCo's
     ``mj_step2`` (``mj`` as for :func:`begin_substep`); every wrench on the arm is in ``xfrc``.
-    Arguments as for :func:`implicit_tool`."""
-    implicit_tool(mj, rec, h, qvel, qacc, M, xfrc, xipos, site_xpos, site_xmat, contact, rows, materials)
+    Arguments as for :func:`implicit_contacts`."""
+    implicit_contacts(
+        mj,
+        rec,
+        h,
+        qvel,
+        qacc,
+        M,
+        xfrc,
+        xanchor,
+        xaxis,
+        xipos,
+        site_xpos,
+        site_xmat,
+        contact,
+        rows,
+        groups,
+        bodies,
+        materials,
+        d,
+    )
     call_model_data(mj[STEP2], mj[MODEL], mj[DATA])
 
 
 @njit(cache=True)
-def implicit_tool(
+def body_jacobian(rec: Array, b: int, c: Array, xanchor: Array, xaxis: Array, out: Array) -> None:
+    """Into ``out`` (6, n): the Jacobian of body ``b``'s twist ``[v of the point c (m, {w}); w]``
+    in the joint rates. The joints form one chain (:func:`~app.slave.arm_model.arm_record`) whose
+    bodies MuJoCo numbers from the base out, so joint k moves ``b`` if its body's id is at most ``b``."""
+    J_body = rec[0]["jnt_body"]
+    for k in range(out.shape[1]):
+        if J_body[k] > b:
+            out[:, k] = 0.0
+            continue
+        v = cross3(xaxis[k], c - xanchor[k])
+        for i in range(3):
+            out[i, k] = v[i]
+            out[3 + i, k] = xaxis[k, i]
+
+
+@njit(cache=True)
+def implicit_contacts(
     mj: IntArray,
     rec: Array,
     h: float,
@@ -248,26 +312,35 @@ def implicit_tool(
     qacc: Array,
     M: Array,
     xfrc: Array,
+    xanchor: Array,
+    xaxis: Array,
     xipos: Array,
     site_xpos: Array,
     site_xmat: Array,
     contact: Array,
     rows: Array,
+    groups: Array,
+    bodies: IntArray,
     materials: Array,
+    d: Array,
 ) -> None:
-    """Make the substep ``h`` (s) implicit in the tool's contact stiffness and damping as far as
-    its stability needs, as :func:`app.slave.tool_kernel.implicit_wrench` does for the ideal tool:
-    add the correction to the tool's row of ``xfrc`` and take it off ``contact``.
+    """Make the substep ``h`` (s) implicit in the contact stiffnesses and dampings on the arm (the
+    tool's and the links') as far as its stability needs, as
+    :func:`app.slave.tool_kernel.implicit_wrench` does for the ideal tool, with the same parts:
+    correct ``xfrc`` and the tool's ``contact``.
 
-    The body is the tool; its mass matrix is the arm's operational-space inertia at the tool's
-    centre of mass c, ``Lambda = (J_c M_q^-1 J_c^T)^-1`` (J_c (6, n) maps the joint rates to the
-    twist ``[v of c; w]``, M_q the joint-space inertia with the motors' armature): what a wrench
-    on the tool meets, through the whole arm (the tool's own 0.6 kg and the arm behind it; a
-    redundant arm's null space takes none of it). Its explicit acceleration ``a0 = J_c qacc``
-    comes from MuJoCo's own acceleration stages with every wrench of the substep in ``xfrc``
-    (servo torques, gravity, joint limits, the links' contacts); ``J_c qacc`` is what the
-    semi-implicit Euler step moves the tool by, the velocity-product term left out as in the
-    linearisation. Nothing but the contact is made implicit (:data:`_NO_OTHER`).
+    The arm's coordinates are its joints: each body ``b`` touching the world (``bodies``) adds
+    ``J_b^T K_b J_b`` and ``J_b^T C_b J_b`` (:func:`body_jacobian` at its centre of mass; K_b, C_b
+    of its contact rows, :func:`~app.slave.tool_kernel.contact_gains`), and the mass matrix is
+    MuJoCo's joint-space inertia M_q with the motors' armature. For the tool alone the modes of
+    ``M_q^-1 J^T K J`` are those of ``Lambda^-1 K``, ``Lambda = (J M_q^-1 J^T)^-1`` the arm's
+    operational-space inertia at the tool: what a wrench on the tool meets through the whole arm
+    (a redundant arm's null space takes none of it), not the tool's own 0.6 kg. The explicit
+    accelerations ``qacc`` come from MuJoCo's own acceleration stages with every wrench of the
+    substep in ``xfrc`` (servo torques, gravity, joint limits, the contacts); each body's
+    correction is then ``-(hk K_b (u_b + h a_b) + hc C_b a_b)`` with its twist ``u_b = J_b qvel``
+    and ``a_b = J_b qacc_implicit``, applied at its centre of mass (summed over the bodies, the
+    joint-space correction). Nothing but contact is made implicit (:data:`_NO_OTHER`).
 
     Args:
         mj: MuJoCo's addresses (slots :data:`STEP1` ...), (7,).
@@ -275,70 +348,69 @@ def implicit_tool(
         qvel, qacc: MuJoCo's joint velocities (n,) and accelerations (n,; overwritten with the explicit ones).
         M: MuJoCo's joint-space inertia, compressed (``mjData.M``, (nM,); record's ``M_adr``...).
         xfrc: MuJoCo's applied body wrenches (nbody, 6), every one of the substep; corrected.
-        xipos: Body centres of mass (nbody, 3). ``site_xpos``, ``site_xmat``: site poses.
+        xanchor, xaxis: Joint anchors and axes (njnt, 3). xipos: body centres of mass (nbody, 3).
+        site_xpos, site_xmat: Site positions (nsite, 3) and orientations (nsite, 9).
         contact: The tool's contact result's ``w`` (``wrench_S``, ``wrench_MRF``, ``force_w``),
             (15,), corrected in place to the wrench the step applied.
-        rows, materials: Its contact rows (k, 9) and the objects' materials (n, 3)
-            (:func:`~app.slave.tool_kernel.contact_gains`).
+        rows, groups: Every touching body's contact rows (k, 9) and the index into ``bodies`` of
+            each row's body (k,); ``bodies[0]`` is the tool.
+        materials: The objects' materials (n, 3) (:func:`~app.slave.tool_kernel.contact_gains`).
+        d: Output, each body's correction ``[force; torque about its centre of mass]`` (N, N m,
+            {w}), (len(bodies), 6); zero where the explicit step is kept.
     """
+    d[:, :] = 0.0
     if rows.shape[0] == 0:
         return
     r = rec[0]
-    J, T = r["jac"], r["T"]
-    n = J.shape[1]
-    b = r["tool"]
-    c = xipos[b]
-    d = c - T[0:3, 3]
-    # J_c: the {MRF} Jacobian moved to the centre of mass, v_c = v_p + w x (c - p).
-    J_c = np.empty((6, n))
-    for k in range(n):
-        v = cross3(J[3:6, k], d)
-        for i in range(3):
-            J_c[i, k] = J[i, k] + v[i]
-            J_c[3 + i, k] = J[3 + i, k]
-    u = matvec(J_c, qvel[:n])
-    KC = np.zeros((4, 6, 6))
-    contact_gains(rows, materials, c, u, KC[0], KC[1])
-    # Lambda^-1 = J_c M_q^-1 J_c^T, then Lambda (both (6, 6), symmetric positive definite away
-    # from a singularity; at one, Lambda is huge along it and nothing there needs correcting).
+    n = qvel.shape[0]
+    m = bodies.shape[0]
+    Js = np.empty((m, 6, n))
+    KCb = np.zeros((m, 2, 6, 6))
+    KC = np.zeros((4, n, n))  # joint space: [contact K, contact C, none, none]
+    for g in range(m):
+        c = xipos[bodies[g]]
+        body_jacobian(rec, bodies[g], c, xanchor, xaxis, Js[g])
+        u = matvec(Js[g], qvel)
+        mine = rows[groups == g]
+        contact_gains(mine, materials, c, u, KCb[g, 0], KCb[g, 1])
+        for a in range(2):
+            X = KCb[g, a]
+            J = Js[g]
+            for i in range(n):
+                for j in range(n):
+                    s = 0.0
+                    for p in range(6):
+                        for q in range(6):
+                            s += J[p, i] * X[p, q] * J[q, j]
+                    KC[a, i, j] += s
     Mq = np.zeros((n, n))
     for i in range(n):
         for k in range(r["M_nnz"][i]):
             j = r["M_col"][r["M_adr"][i] + k]
             Mq[i, j] = Mq[j, i] = M[r["M_adr"][i] + k]
     L = cholesky(Mq)
-    X = np.empty((n, 6))
-    for a in range(6):
-        X[:, a] = cholesky_solve(L, J_c[a])
-    Lam_inv = np.empty((6, 6))
-    for a in range(6):
-        for e in range(6):
-            s = 0.0
-            for k in range(n):
-                s += J_c[a, k] * X[k, e]
-            Lam_inv[a, e] = s
-    L6 = cholesky(Lam_inv)
-    Lam = np.empty((6, 6))
-    unit = np.zeros(6)
-    for a in range(6):
+    Mq_inv = np.empty((n, n))
+    unit = np.zeros(n)
+    for a in range(n):
         unit[:] = 0.0
         unit[a] = 1.0
-        Lam[:, a] = cholesky_solve(L6, unit)
-    hk, hc = implicit_shares(h, KC, _NO_OTHER, Lam, Lam_inv)
+        Mq_inv[:, a] = cholesky_solve(L, unit)
+    hk, hc = implicit_shares(h, KC, _NO_OTHER, Mq, Mq_inv)
     if hk == 0.0 and hc == 0.0:
         return  # the explicit step is stable with margin: keep it as it is
     for stage in (FWD_ACTUATION, FWD_ACCELERATION, FWD_CONSTRAINT):
         call_model_data(mj[stage], mj[MODEL], mj[DATA])
-    F = matvec(Lam, matvec(J_c, qacc[:n]))
-    d_contact, d_other = np.empty(6), np.empty(6)
-    implicit_changes(h, hk, hc, KC, Lam, u, F, d_contact, d_other)
-    for i in range(6):
-        xfrc[b, i] += d_contact[i]
-    shift_wrench(contact[6:12], d_contact, T[0:3, 0:3], T[0:3, 3], c)
+    acc = implicit_acceleration(h, hk, hc, KC[0], KC[1], Mq, qvel, matvec(Mq, qacc))
+    for g in range(m):
+        d[g] = -correction(hk, hc, KCb[g, 0], KCb[g, 1], matvec(Js[g], qvel), h, matvec(Js[g], acc))
+        for i in range(6):
+            xfrc[bodies[g], i] += d[g, i]
+    c, T = xipos[bodies[0]], r["T"]
+    shift_wrench(contact[6:12], d[0], T[0:3, 0:3], T[0:3, 3], c)
     s_ft = r["site_ft"]
-    shift_wrench(contact[0:6], d_contact, site_xmat[s_ft].reshape((3, 3)), site_xpos[s_ft], c)
+    shift_wrench(contact[0:6], d[0], site_xmat[s_ft].reshape((3, 3)), site_xpos[s_ft], c)
     for i in range(3):
-        contact[12 + i] += d_contact[i]
+        contact[12 + i] += d[0, i]
 
 
 @njit(cache=True)

@@ -234,4 +234,5 @@ def arm_record(
     r["root"] = m.body_rootid[tool]
     r["sensor"] = m.sensor_adr[0]
     r["M_adr"], r["M_nnz"], r["M_col"] = m.M_rowadr, m.M_rownnz, m.M_colind
+    r["jnt_body"] = m.jnt_bodyid[:n]
     return rec

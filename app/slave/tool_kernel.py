@@ -196,10 +196,10 @@ def body_mass(mass: float, I_w: Array, I_inv_w: Array, M: Array, M_inv: Array) -
 
 @njit(cache=True)
 def _trace(X: Array, M_inv: Array) -> float:
-    """``tr(M^-1 X)`` for (6, 6) ``M_inv`` and ``X``."""
+    """``tr(M^-1 X)`` for (n, n) ``M_inv`` and ``X``."""
     t = 0.0
-    for i in range(6):
-        for j in range(6):
+    for i in range(X.shape[0]):
+        for j in range(X.shape[0]):
             t += M_inv[i, j] * X[j, i]
     return t
 
@@ -207,21 +207,24 @@ def _trace(X: Array, M_inv: Array) -> float:
 @njit(cache=True)
 def _largest_mode(X: Array, M: Array, M_inv: Array) -> float:
     """The largest eigenvalue of ``M^-1 X`` (1/s^2 for a stiffness, 1/s for a damping), M a mass
-    matrix (6, 6) (``M_inv`` its inverse) and X symmetric positive semi-definite (6, 6): power
+    matrix (n, n) (``M_inv`` its inverse) and X symmetric positive semi-definite (n, n): power
     iteration, then the Rayleigh quotient ``x^T X x / x^T M x`` (from below, within a few per
     cent after twelve steps; the callers' margins absorb that)."""
-    x = np.array((1.0, 0.9, 0.8, 0.7, 0.6, 0.5))
-    y = np.empty(6)
+    n = X.shape[0]
+    x = np.empty(n)
+    for i in range(n):
+        x[i] = (10 - i) / 10.0  # 1, 0.9, 0.8, ...: not orthogonal to the modes that matter
+    y = np.empty(n)
     for _ in range(12):
-        for i in range(6):
+        for i in range(n):
             s = 0.0
-            for j in range(6):
+            for j in range(n):
                 s += X[i, j] * x[j]
             y[i] = s
         top = 0.0
-        for i in range(6):
+        for i in range(n):
             s = 0.0
-            for j in range(6):
+            for j in range(n):
                 s += M_inv[i, j] * y[j]
             x[i] = s
             top = max(top, abs(s))
@@ -229,22 +232,24 @@ def _largest_mode(X: Array, M: Array, M_inv: Array) -> float:
             return 0.0
         x /= top
     num = den = 0.0
-    for i in range(6):
-        for j in range(6):
+    for i in range(n):
+        for j in range(n):
             num += x[i] * X[i, j] * x[j]
             den += x[i] * M[i, j] * x[j]
     return num / den
 
 
 @njit(cache=True)
-def _correction(hk: float, hc: float, K: Array, C: Array, u: Array, h: float, acc: Array) -> Array:
-    """``hk K (u + h acc) + hc C acc`` (6,): how much less a stiffness K and a damping C push over
-    the substep ``h`` (s), implicit by ``hk = theta_k h`` and ``hc = theta_c h``, than at its
-    start, the body's velocity ``u`` and acceleration ``acc``."""
-    out = np.empty(6)
-    for i in range(6):
+def correction(hk: float, hc: float, K: Array, C: Array, u: Array, h: float, acc: Array) -> Array:
+    """``hk K (u + h acc) + hc C acc`` (n,): how much less a stiffness K and a damping C (n, n)
+    push over the substep ``h`` (s), implicit by ``hk = theta_k h`` and ``hc = theta_c h``
+    (:func:`implicit_shares`), than at its start, the velocity ``u`` and acceleration ``acc``
+    (n,) in the same coordinates."""
+    n = u.shape[0]
+    out = np.empty(n)
+    for i in range(n):
         s = 0.0
-        for j in range(6):
+        for j in range(n):
             s += hk * K[i, j] * (u[j] + h * acc[j]) + hc * C[i, j] * acc[j]
         out[i] = s
     return out
@@ -313,8 +318,8 @@ def contact_gains(rows: Array, materials: Array, c: Array, u: Array, K: Array, C
 @njit(cache=True)
 def implicit_shares(h: float, KC: Array, other_alone: Array, M: Array, M_inv: Array) -> tuple[float, float]:
     """``(theta_k h, theta_c h)`` (s) of the substep ``h`` (s) that hold the stiffest mode of the
-    stiffnesses and dampings ``KC`` = ``[contact K, contact C, other K, other C]`` (4, 6, 6) on a
-    body of mass matrix ``M`` (6, 6, ``M_inv`` its inverse) at ``(omega h)^2 <=``
+    stiffnesses and dampings ``KC`` = ``[contact K, contact C, other K, other C]`` (4, n, n) on a
+    system of mass matrix ``M`` (n, n, ``M_inv`` its inverse; any generalized coordinates) at ``(omega h)^2 <=``
     :data:`SIGMA_MAX` and make the damping's decay monotone (:func:`implicit_wrench`); ``(0, 0)``
     where the explicit step is comfortably stable. ``other_alone``: the largest modes of
     ``M^-1 K_other`` (1/s^2) and ``M^-1 C_other`` (1/s), (2,), an upper bound is enough."""
@@ -330,26 +335,22 @@ def implicit_shares(h: float, KC: Array, other_alone: Array, M: Array, M_inv: Ar
 
 
 @njit(cache=True)
-def implicit_changes(
-    h: float, hk: float, hc: float, KC: Array, M: Array, u: Array, F: Array, d_contact: Array, d_other: Array
-) -> None:
-    """The changes ``d_contact`` and ``d_other`` (6,) to the contacts' and the others' wrench on a
-    body (coordinates ``[v of its point c; w]``, {w}) that make its substep ``h`` (s) implicit by
-    ``hk``, ``hc`` (:func:`implicit_shares`) in ``KC`` (as there): the body's acceleration solves
-    ``(M + hc C + hk h K) a = F - hk K u``, ``F`` = ``M a0`` (6,) with ``a0`` its explicit
-    acceleration (every force of the substep's start), ``u`` its twist (6,)."""
-    K, C = KC[0] + KC[2], KC[1] + KC[3]
-    A = np.empty((6, 6))
-    rhs = np.empty(6)
-    for i in range(6):
+def implicit_acceleration(h: float, hk: float, hc: float, K: Array, C: Array, M: Array, u: Array, F: Array) -> Array:
+    """The acceleration (n,) that makes the substep ``h`` (s) implicit by ``hk``, ``hc``
+    (:func:`implicit_shares`) in the stiffness ``K`` and damping ``C`` (n, n): it solves
+    ``(M + hc C + hk h K) a = F - hk K u``, ``F`` = ``M a0`` (n,) with ``a0`` the explicit
+    acceleration (every force of the substep's start), ``u`` the velocity (n,). The forces then
+    change by ``-`` :func:`correction`."""
+    n = u.shape[0]
+    A = np.empty((n, n))
+    rhs = np.empty(n)
+    for i in range(n):
         hKu = 0.0
-        for j in range(6):
+        for j in range(n):
             A[i, j] = M[i, j] + hc * C[i, j] + hk * h * K[i, j]
             hKu += hk * K[i, j] * u[j]
         rhs[i] = F[i] - hKu
-    acc = cholesky_solve(cholesky(A), rhs)
-    d_contact[:] = -_correction(hk, hc, KC[0], KC[1], u, h, acc)
-    d_other[:] = -_correction(hk, hc, KC[2], KC[3], u, h, acc)
+    return cholesky_solve(cholesky(A), rhs)
 
 
 @njit(cache=True)
@@ -390,8 +391,8 @@ def implicit_wrench(
     spring-damper's ``sigma + 2 beta < 4``). Where the explicit step is
     comfortably stable both are 0 and the step is exactly the explicit one (no numerical damping
     of a soft contact, which the haptic loop would feel); at theta 1 it is backward Euler.
-    (:func:`implicit_shares` and :func:`implicit_changes`; the arm slave's substep uses them with
-    its operational-space mass at the tool, :func:`app.slave.arm_kernel.implicit_tool`.)
+    (:func:`implicit_shares`, :func:`implicit_acceleration`, :func:`correction`; the arm slave's
+    substep uses them in its joints' coordinates, :func:`app.slave.arm_kernel.implicit_contacts`.)
 
     K and C gather, in the body's coordinates ``[v of the centre of mass; w]`` ({w}): each
     pushing contact's (:func:`contact_gains`) and the PD's gains at {MRF} and on the
@@ -448,9 +449,9 @@ def implicit_wrench(
     for i in range(3):
         F[i] = xfrc[i] + mass * gravity_w[i]
         F[3 + i] = xfrc[3 + i] - gyro[i]
-    d_contact, d_pd = np.empty(6), np.empty(6)
-    implicit_changes(h, hk, hc, KC, M, u, F, d_contact, d_pd)
-    xfrc += d_contact + d_pd
+    acc = implicit_acceleration(h, hk, hc, KC[0] + KC[2], KC[1] + KC[3], M, u, F)
+    d_contact = -correction(hk, hc, KC[0], KC[1], u, h, acc)
+    xfrc += d_contact - correction(hk, hc, KC[2], KC[3], u, h, acc)
     if rows.shape[0] == 0:
         return
     R_w_MRF = T_w_MRF[0:3, 0:3]

@@ -144,8 +144,8 @@ def test_a_worker_that_dies_while_it_starts_charges_no_point(local_ray: None, tm
     worker may while it starts on a loaded machine: both first workers, and the replacement of
     the one the only point was queued on (whatever the order the loads come in, that point's
     worker dies twice). The point ran nowhere, so it is not charged with a kill: its row comes
-    back. (Charging the first point queued on a dead worker, whatever it died of, made it a
-    "worker died running this point" row after its second worker.)"""
+    back. (The engine that charged the first point on a dead worker that did not come back made
+    it a "worker died running this point" row, every time.)"""
     ray = pytest.importorskip("ray")
     ray.cloudpickle.register_pickle_by_value(sweep_helpers)
     try:

@@ -166,7 +166,7 @@ class ArmSlave(SlaveBase):
             self._xmat,
             self._xipos,
         )
-        # What the substep's end needs besides the record (:func:`~app.slave.arm_kernel.end_substep`).
+        # What the substep's end needs besides the record (:func:`~app.slave.arm_kernel.implicit_contacts`).
         self._end_views = (self._qacc, self._M, self._xanchor, self._xaxis, self._site_xpos, self._site_xmat)
         self._control = entry_point(
             ak.control,
@@ -182,8 +182,8 @@ class ArmSlave(SlaveBase):
             True,
             self._mj,
         )
-        self._end = entry_point(
-            ak.end_substep,
+        self._implicit = entry_point(
+            ak.implicit_contacts,
             self._mj,
             self._rec,
             self._h,
@@ -364,7 +364,7 @@ class ArmSlave(SlaveBase):
         return self._reading
 
     def _end_args(self, contact_w: Array, rows: Array, groups: IntArray, bodies: IntArray) -> tuple[Any, ...]:
-        """:func:`~app.slave.arm_kernel.end_substep`'s arguments after ``h`` and ``qvel``, for
+        """:func:`~app.slave.arm_kernel.implicit_contacts`' arguments after ``h`` and ``qvel``, for
         the contact rows ``rows`` of the bodies ``bodies`` (``groups``: each row's index into it)."""
         qacc, M, xanchor, xaxis, site_xpos, site_xmat = self._end_views
         d = np.zeros((len(bodies), 6))
@@ -395,7 +395,8 @@ class ArmSlave(SlaveBase):
         if touching:
             rows = np.concatenate([rows, *(r.contacts for _, r in touching)])
         args = self._end_args(contact_w, rows, groups, bodies)
-        self._end(self._mj, self._rec, h, self._qvel, *args)
+        self._implicit(self._mj, self._rec, h, self._qvel, *args)
+        mujoco.mj_step2(self.model, self.data)
         d = args[-1]
         for g, (_, r) in enumerate(touching, start=1):
             b = bodies[g]

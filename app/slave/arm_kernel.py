@@ -173,10 +173,11 @@ def control(
         xfrc: MuJoCo's applied body wrenches (nbody, 6), ``[f; torque about the com]``.
         xpos, xmat, xipos: Body origins (nbody, 3), orientations (nbody, 9), centres of mass (nbody, 3).
         qacc, M, xanchor, xaxis, site_xpos, site_xmat, contact, rows, materials: As for
-            :func:`end_substep` (``rows`` the tool's alone).
+            :func:`implicit_contacts` (``rows`` the tool's alone).
         contact_valid: Whether ``contact`` is valid (an invalid one has no rows).
         mj: As for :func:`begin_substep`: with no link near the world the substep ends here
-            (:func:`end_substep`); otherwise the caller adds the links' contact wrenches first.
+            (:func:`implicit_contacts`, ``mj_step2``); otherwise the caller adds the links'
+            contact wrenches first.
 
     Returns:
         Status bits (:mod:`app.slave.arm_ik`) and whether any link is near the world (``rec.near``).
@@ -216,8 +217,7 @@ def control(
     links_near(xpos, xmat, r["links"], r["owner"], r["centers"], r["radii"], r["box"], near)
     any_near = near.any()
     if not any_near:
-        tool_only = np.full(1, r["tool"])
-        end_substep(
+        implicit_contacts(
             mj,
             rec,
             h,
@@ -233,58 +233,12 @@ def control(
             contact,
             rows,
             np.zeros(rows.shape[0], dtype=np.int64),
-            tool_only,
+            np.full(1, r["tool"]),
             materials,
             np.empty((1, 6)),
         )
+        call_model_data(mj[STEP2], mj[MODEL], mj[DATA])
     return status, any_near
-
-
-@njit(cache=True)
-def end_substep(
-    mj: IntArray,
-    rec: Array,
-    h: float,
-    qvel: Array,
-    qacc: Array,
-    M: Array,
-    xfrc: Array,
-    xanchor: Array,
-    xaxis: Array,
-    xipos: Array,
-    site_xpos: Array,
-    site_xmat: Array,
-    contact: Array,
-    rows: Array,
-    groups: Array,
-    bodies: IntArray,
-    materials: Array,
-    d: Array,
-) -> None:
-    """The contacts made implicit as far as needed (:func:`implicit_contacts`), then MuJoCo's
-    ``mj_step2`` (``mj`` as for :func:`begin_substep`); every wrench on the arm is in ``xfrc``.
-    Arguments as for :func:`implicit_contacts`."""
-    implicit_contacts(
-        mj,
-        rec,
-        h,
-        qvel,
-        qacc,
-        M,
-        xfrc,
-        xanchor,
-        xaxis,
-        xipos,
-        site_xpos,
-        site_xmat,
-        contact,
-        rows,
-        groups,
-        bodies,
-        materials,
-        d,
-    )
-    call_model_data(mj[STEP2], mj[MODEL], mj[DATA])
 
 
 @njit(cache=True)

@@ -20,8 +20,13 @@ def _numba_cache_dir() -> str:
     """
     here = Path(__file__).resolve().parent
     digest = hashlib.sha1()
-    for src in sorted([here / "spatial.py", *(here / "world").rglob("*.py"), *(here / "controller").glob("*.py")]):
-        digest.update(src.read_bytes())
+    # Every module that mentions numba (compiled, or compiling what it imports): the slave's and
+    # the device's kernels were left out once, and an arm kernel cached against an older version
+    # of the tool's implicit step it calls crashed the process (a segmentation fault).
+    for src in sorted(here.rglob("*.py")):
+        text = src.read_bytes()
+        if b"numba" in text:
+            digest.update(text)
     base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "frhc" / "numba"
     return str(base / digest.hexdigest()[:16])
 

@@ -43,6 +43,7 @@ one record of the arm's state); building the arm is :mod:`app.slave.arm_model`.
 from __future__ import annotations
 
 from enum import IntFlag
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -50,11 +51,11 @@ import numpy as np
 from app.compiled import entry_point
 from app.controller.types import FTReading, SlaveCommand
 from app.mjcall import address, pointers
-from app.slave import arm_ik
+from app.slave import arm_ik, tool_kernel
 from app.slave import arm_kernel as ak
 from app.slave.arm_model import ArmGeom, ArmParams, arm_record, arm_spec, link_contact_models, place_base
-from app.slave.tool import DEFAULT_PERIOD, SlaveBase, command_error, finite, invalid_contact
-from app.spatial import Array
+from app.slave.tool import DEFAULT_PERIOD, SlaveBase, command_error, contact_rows, finite, invalid_contact
+from app.spatial import Array, IntArray
 from app.world.contact import ContactResult
 from app.world.dynamics import MovingWorld, world_contact
 from app.world.scene import Scene
@@ -135,6 +136,7 @@ class ArmSlave(SlaveBase):
             d.xipos,
         )
         self._cvel, self._cacc, self._subtree_com = d.cvel, d.cacc, d.subtree_com
+        self._qacc, self._M = d.qacc, d.M
         self._res = np.zeros(6)
         # The F/T reading every step returns (one buffer, overwritten): no allocation per tick.
         b = self._ft_buffer = np.zeros(24)
@@ -142,7 +144,8 @@ class ArmSlave(SlaveBase):
         # The compiled substep's calls skip numba's typing: apart from the contact result's
         # arrays (C-contiguous float64 views of its ``w``), everything passed is the arm's own.
         contact_w = np.zeros(15)
-        self._mj = np.array((address("mj_step1"), address("mj_step2"), *pointers(m, d)))
+        stages = ("mj_fwdActuation", "mj_fwdAcceleration", "mj_fwdConstraint")
+        self._mj = np.array((address("mj_step1"), address("mj_step2"), *pointers(m, d), *map(address, stages)))
         self._begin = entry_point(
             ak.begin_substep,
             self._mj,
@@ -163,16 +166,31 @@ class ArmSlave(SlaveBase):
             self._xmat,
             self._xipos,
         )
+        # What the substep's end needs besides the record (:func:`~app.slave.arm_kernel.implicit_contacts`).
+        self._end_views = (self._qacc, self._M, self._xanchor, self._xaxis, self._site_xpos, self._site_xmat)
         self._control = entry_point(
             ak.control,
             self._rec,
             True,
             period,
+            self._h,
             *self._mj_views,
-            contact_w[12:15],
-            contact_w[6:12],
+            *self._end_views,
+            contact_w,
+            contact_rows(invalid_contact("")),
+            self._materials,
             True,
             self._mj,
+        )
+        self._implicit = entry_point(
+            ak.implicit_contacts,
+            self._mj,
+            self._rec,
+            self._h,
+            self._qvel,
+            *self._end_args(
+                contact_w, contact_rows(invalid_contact("")), np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64)
+            ),
         )
         ft = self._ft
         motion = (self._sdata, self._site_xpos, self._site_xmat, self._cvel, self._cacc, self._subtree_com)
@@ -306,7 +324,7 @@ class ArmSlave(SlaveBase):
         h = dt / self._substeps
         if h != self._h:
             self.model.opt.timestep = self._h = h
-        m, d, rec, T, V = self.model, self.data, self._rec, self._T, self._V
+        rec, T, V = self._rec, self._T, self._V
         status = 0
         contact = self._contact
         for sub in range(self._substeps):
@@ -315,14 +333,26 @@ class ArmSlave(SlaveBase):
                 # Accommodation reads the previous tick's contact, as the ideal tool's does.
                 self._update_reference(command, dt)
             contact = self.contact_model.wrench(T, V)
+            rows = contact_rows(contact)
+            w = contact.w
             bits, near = self._control(
-                rec, sub == 0, dt, *self._mj_views, contact.force_w, contact.wrench_MRF, contact.valid, self._mj
+                rec,
+                sub == 0,
+                dt,
+                h,
+                *self._mj_views,
+                *self._end_views,
+                w,
+                rows,
+                self._materials,
+                contact.valid,
+                self._mj,
             )
             status |= bits
-            if near:  # the kernel stopped before mj_step2: the links' wrenches go in first
+            if near:  # the kernel stopped before its end: the links' wrenches go in first
                 if self._link_contacts():
                     status |= ArmStatus.LINK_CONTACT
-                mujoco.mj_step2(m, d)
+                self._end_with_links(h, w, rows)
             elif self.link_contacts:
                 self.link_contacts = []
             if self._moving is not None:
@@ -332,6 +362,48 @@ class ArmSlave(SlaveBase):
         self._link_force = sum(float(np.linalg.norm(r.force_w)) for r in self.link_contacts if r.valid)
         self._reading = self._make_reading(contact)
         return self._reading
+
+    def _end_args(self, contact_w: Array, rows: Array, groups: IntArray, bodies: IntArray) -> tuple[Any, ...]:
+        """:func:`~app.slave.arm_kernel.implicit_contacts`' arguments after ``h`` and ``qvel``, for
+        the contact rows ``rows`` of the bodies ``bodies`` (``groups``: each row's index into it)."""
+        qacc, M, xanchor, xaxis, site_xpos, site_xmat = self._end_views
+        d = np.zeros((len(bodies), 6))
+        return (
+            qacc,
+            M,
+            self._xfrc,
+            xanchor,
+            xaxis,
+            self._xipos,
+            site_xpos,
+            site_xmat,
+            contact_w,
+            rows,
+            groups,
+            bodies,
+            self._materials,
+            d,
+        )
+
+    def _end_with_links(self, h: float, contact_w: Array, rows: Array) -> None:
+        """The substep's end when links are near the world: the tool's and the touching links'
+        contacts made implicit together (:func:`~app.slave.arm_kernel.implicit_contacts`), each
+        link's result corrected to the wrench the step applied, then ``mj_step2``."""
+        touching = [(i, r) for i, r in zip(np.flatnonzero(self._near), self.link_contacts, strict=True) if r.count > 0]
+        bodies = np.array([self._rec[0]["tool"], *(self._links[i] for i, _ in touching)], dtype=np.int64)
+        groups = np.repeat(np.arange(len(bodies), dtype=np.int64), [len(rows), *(r.count for _, r in touching)])
+        if touching:
+            rows = np.concatenate([rows, *(r.contacts for _, r in touching)])
+        args = self._end_args(contact_w, rows, groups, bodies)
+        self._implicit(self._mj, self._rec, h, self._qvel, *args)
+        mujoco.mj_step2(self.model, self.data)
+        d = args[-1]
+        for g, (_, r) in enumerate(touching, start=1):
+            b = bodies[g]
+            R, p = self._xmat[b].reshape(3, 3), self._xpos[b]
+            for part in (r.w[0:6], r.w[6:12]):  # {S} and {MRF} are the link's frame
+                tool_kernel.shift_wrench(part, d[g], R, p, self._xipos[b])
+            r.w[12:15] += d[g, 0:3]
 
     def _link_contacts(self) -> bool:
         """Contact wrenches of the links near the world (``near`` in the record), added to

@@ -91,15 +91,16 @@ def _gram_cholesky(J: Array, free: BoolArray, lam2: float) -> Array:
 
 @njit(cache=True)
 def cholesky(A: Array) -> Array:
-    """Lower Cholesky factor L (6, 6) of a symmetric positive definite ``A`` (6, 6) (its lower
+    """Lower Cholesky factor L (n, n) of a symmetric positive definite ``A`` (n, n) (its lower
     triangle is read; pivots floored at 1e-300 so a singular A gives a finite, huge solve)."""
-    L = np.zeros((6, 6))
-    for j in range(6):
+    n = A.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
         d = A[j, j]
         for k in range(j):
             d -= L[j, k] * L[j, k]
         L[j, j] = math.sqrt(max(d, 1e-300))
-        for i in range(j + 1, 6):
+        for i in range(j + 1, n):
             acc = A[i, j]
             for k in range(j):
                 acc -= L[i, k] * L[j, k]
@@ -109,17 +110,18 @@ def cholesky(A: Array) -> Array:
 
 @njit(cache=True)
 def cholesky_solve(L: Array, b: Array) -> Array:
-    """``x`` with ``L L^T x = b`` (6,)."""
-    y = np.empty(6)
-    for i in range(6):
+    """``x`` with ``L L^T x = b`` (n,), L from :func:`cholesky`."""
+    n = L.shape[0]
+    y = np.empty(n)
+    for i in range(n):
         acc = b[i]
         for k in range(i):
             acc -= L[i, k] * y[k]
         y[i] = acc / L[i, i]
-    x = np.empty(6)
-    for i in range(5, -1, -1):
+    x = np.empty(n)
+    for i in range(n - 1, -1, -1):
         acc = y[i]
-        for k in range(i + 1, 6):
+        for k in range(i + 1, n):
             acc -= L[k, i] * x[k]
         x[i] = acc / L[i, i]
     return x

@@ -11,6 +11,10 @@ argument; MuJoCo's arrays are passed as they are (views of ``MjData``, fetched o
 The joint servo: ``tau = kp (q_c - q) + kd (qd_c - qd) + bias`` with ``bias`` MuJoCo's gravity
 and Coriolis forces, its speed demand clamped to the joint's velocity limit (:func:`joint_servo`),
 saturated at each motor's torque limit.
+
+The contacts (the tool's and the links') are made as implicit as the substep's stability needs
+(:func:`implicit_contacts`), with the ideal tool's parts (:func:`app.slave.tool_kernel.implicit_wrench`)
+in the arm's joint coordinates: the tool then meets the arm's operational-space inertia, not its own mass.
 """
 
 from __future__ import annotations
@@ -19,12 +23,22 @@ import numpy as np
 from numba import njit
 
 from app.mjcall import call_model_data
-from app.slave.arm_ik import TORQUE, VELOCITY, ik_step, matTvec, matvec
+from app.slave.arm_ik import TORQUE, VELOCITY, cholesky, cholesky_solve, ik_step, matTvec, matvec
+from app.slave.tool_kernel import contact_gains, correction, implicit_acceleration, implicit_shares, shift_wrench
 from app.spatial import Array, IntArray, cross3
 
+#: Slots of the MuJoCo addresses a substep is handed (:mod:`app.mjcall`): ``mj_step1``,
+#: ``mj_step2``, ``mjModel*``, ``mjData*``, then the acceleration stages ``mj_step2`` runs before
+#: it integrates, which :func:`implicit_contacts` runs once more for the explicit accelerations.
+STEP1, STEP2, MODEL, DATA, FWD_ACTUATION, FWD_ACCELERATION, FWD_CONSTRAINT = range(7)
+#: No correction for anything but the contact: the joint servos are far inside the explicit
+#: step's bounds (12 Hz at 1 kHz: omega h = 0.08) and MuJoCo's Euler integrates joint damping implicitly.
+_NO_OTHER = np.zeros(2)
 
-def arm_record_dtype(n: int, links: int, spheres: int) -> np.dtype:
-    """The arm's record for ``n`` hinge joints, ``links`` links with contact spheres and ``spheres`` spheres.
+
+def arm_record_dtype(n: int, links: int, spheres: int, n_M: int) -> np.dtype:
+    """The arm's record for ``n`` hinge joints, ``links`` links with contact spheres, ``spheres``
+    spheres and ``n_M`` stored entries of the joint-space inertia.
 
     Fields (angles rad, rates rad/s, torques N m, lengths m; {w} unless stated):
 
@@ -47,6 +61,10 @@ def arm_record_dtype(n: int, links: int, spheres: int) -> np.dtype:
         (6, n), rows ``[v; w]``. T, V: {MRF} pose (4, 4) and twist ``[v; w]`` (6,). T_ref,
         V_ref: the Cartesian reference pose (4, 4) and twist (6,). near: the links whose spheres
         reach ``box``, 1 or 0 (links,) (numba's records hold no bool arrays).
+
+    MuJoCo's joint-space inertia ``mjData.M`` is compressed by rows of its lower triangle:
+    ``M_adr``, ``M_nnz`` (n,) and ``M_col`` (nM,) are the model's ``M_rowadr``, ``M_rownnz`` and
+    ``M_colind``; ``jnt_body`` (n,) each joint's body id.
     """
     f8, i8 = np.float64, np.int64
     fields: list[tuple[str, type, tuple[int, ...]]] = [
@@ -67,6 +85,10 @@ def arm_record_dtype(n: int, links: int, spheres: int) -> np.dtype:
         ("centers", f8, (spheres, 3)),
         ("radii", f8, (spheres,)),
         ("box", f8, (2, 3)),
+        ("M_adr", i8, (n,)),
+        ("M_nnz", i8, (n,)),
+        ("M_col", i8, (n_M,)),
+        ("jnt_body", i8, (n,)),
     ]
     scalars = [(name, i8) for name in ("site_mrf", "site_ft", "tool", "root", "sensor")]
     return np.dtype([*fields, *scalars])
@@ -109,9 +131,9 @@ def begin_substep(
 ) -> None:
     """MuJoCo's ``mj_step1`` (kinematics and forces of the present state), then :func:`mrf_state`.
 
-    ``mj``: ``[mj_step1, mj_step2, mjModel*, mjData*]`` addresses (:mod:`app.mjcall`), (4,).
+    ``mj``: MuJoCo's addresses (slots :data:`STEP1` ...), (7,).
     """
-    call_model_data(mj[0], mj[2], mj[3])
+    call_model_data(mj[STEP1], mj[MODEL], mj[DATA])
     mrf_state(rec, xanchor, xaxis, site_xpos, site_xmat, qvel)
 
 
@@ -120,6 +142,7 @@ def control(
     rec: Array,
     ik: bool,
     dt: float,
+    h: float,
     qpos: Array,
     qvel: Array,
     bias: Array,
@@ -128,8 +151,15 @@ def control(
     xpos: Array,
     xmat: Array,
     xipos: Array,
-    force_w: Array,
-    wrench_MRF: Array,
+    qacc: Array,
+    M: Array,
+    xanchor: Array,
+    xaxis: Array,
+    site_xpos: Array,
+    site_xmat: Array,
+    contact: Array,
+    rows: Array,
+    materials: Array,
     contact_valid: bool,
     mj: IntArray,
 ) -> tuple[int, bool]:
@@ -138,13 +168,16 @@ def control(
 
     Args:
         rec: The arm's record; ``jac``, ``T``, ``T_ref``, ``V_ref`` current.
+        h: The substep (s).
         qpos, qvel, bias, ctrl: MuJoCo's joint angles, velocities, bias forces and controls.
         xfrc: MuJoCo's applied body wrenches (nbody, 6), ``[f; torque about the com]``.
         xpos, xmat, xipos: Body origins (nbody, 3), orientations (nbody, 9), centres of mass (nbody, 3).
-        force_w, wrench_MRF, contact_valid: The tool's :class:`~app.world.contact.ContactResult`
-            ``force_w`` (3,), ``wrench_MRF`` (6,) and ``valid``.
+        qacc, M, xanchor, xaxis, site_xpos, site_xmat, contact, rows, materials: As for
+            :func:`implicit_contacts` (``rows`` the tool's alone).
+        contact_valid: Whether ``contact`` is valid (an invalid one has no rows).
         mj: As for :func:`begin_substep`: with no link near the world the substep ends here
-            with ``mj_step2``; otherwise the caller adds the links' contact wrenches first.
+            (:func:`implicit_contacts`, ``mj_step2``); otherwise the caller adds the links'
+            contact wrenches first.
 
     Returns:
         Status bits (:mod:`app.slave.arm_ik`) and whether any link is near the world (``rec.near``).
@@ -179,13 +212,159 @@ def control(
     if contact_valid:
         T = r["T"]
         b = r["tool"]
-        body_wrench(force_w, wrench_MRF[3:6], T[0:3, 0:3], T[0:3, 3], xipos[b], xfrc[b])
+        body_wrench(contact[12:15], contact[9:12], T[0:3, 0:3], T[0:3, 3], xipos[b], xfrc[b])
     near = r["near"]
     links_near(xpos, xmat, r["links"], r["owner"], r["centers"], r["radii"], r["box"], near)
     any_near = near.any()
     if not any_near:
-        call_model_data(mj[1], mj[2], mj[3])
+        implicit_contacts(
+            mj,
+            rec,
+            h,
+            qvel,
+            qacc,
+            M,
+            xfrc,
+            xanchor,
+            xaxis,
+            xipos,
+            site_xpos,
+            site_xmat,
+            contact,
+            rows,
+            np.zeros(rows.shape[0], dtype=np.int64),
+            np.full(1, r["tool"]),
+            materials,
+            np.empty((1, 6)),
+        )
+        call_model_data(mj[STEP2], mj[MODEL], mj[DATA])
     return status, any_near
+
+
+@njit(cache=True)
+def body_jacobian(rec: Array, b: int, c: Array, xanchor: Array, xaxis: Array, out: Array) -> None:
+    """Into ``out`` (6, n): the Jacobian of body ``b``'s twist ``[v of the point c (m, {w}); w]``
+    in the joint rates. The joints form one chain (:func:`~app.slave.arm_model.arm_record`) whose
+    bodies MuJoCo numbers from the base out, so joint k moves ``b`` if its body's id is at most ``b``."""
+    J_body = rec[0]["jnt_body"]
+    for k in range(out.shape[1]):
+        if J_body[k] > b:
+            out[:, k] = 0.0
+            continue
+        v = cross3(xaxis[k], c - xanchor[k])
+        for i in range(3):
+            out[i, k] = v[i]
+            out[3 + i, k] = xaxis[k, i]
+
+
+@njit(cache=True)
+def implicit_contacts(
+    mj: IntArray,
+    rec: Array,
+    h: float,
+    qvel: Array,
+    qacc: Array,
+    M: Array,
+    xfrc: Array,
+    xanchor: Array,
+    xaxis: Array,
+    xipos: Array,
+    site_xpos: Array,
+    site_xmat: Array,
+    contact: Array,
+    rows: Array,
+    groups: Array,
+    bodies: IntArray,
+    materials: Array,
+    d: Array,
+) -> None:
+    """Make the substep ``h`` (s) implicit in the contact stiffnesses and dampings on the arm (the
+    tool's and the links') as far as its stability needs, as
+    :func:`app.slave.tool_kernel.implicit_wrench` does for the ideal tool, with the same parts:
+    correct ``xfrc`` and the tool's ``contact``.
+
+    The arm's coordinates are its joints: each body ``b`` touching the world (``bodies``) adds
+    ``J_b^T K_b J_b`` and ``J_b^T C_b J_b`` (:func:`body_jacobian` at its centre of mass; K_b, C_b
+    of its contact rows, :func:`~app.slave.tool_kernel.contact_gains`), and the mass matrix is
+    MuJoCo's joint-space inertia M_q with the motors' armature. For the tool alone the modes of
+    ``M_q^-1 J^T K J`` are those of ``Lambda^-1 K``, ``Lambda = (J M_q^-1 J^T)^-1`` the arm's
+    operational-space inertia at the tool: what a wrench on the tool meets through the whole arm
+    (a redundant arm's null space takes none of it), not the tool's own 0.6 kg. The explicit
+    accelerations ``qacc`` come from MuJoCo's own acceleration stages with every wrench of the
+    substep in ``xfrc`` (servo torques, gravity, joint limits, the contacts); each body's
+    correction is then ``-(hk K_b (u_b + h a_b) + hc C_b a_b)`` with its twist ``u_b = J_b qvel``
+    and ``a_b = J_b qacc_implicit``, applied at its centre of mass (summed over the bodies, the
+    joint-space correction). Nothing but contact is made implicit (:data:`_NO_OTHER`).
+
+    Args:
+        mj: MuJoCo's addresses (slots :data:`STEP1` ...), (7,).
+        rec: The arm's record; ``jac`` and ``T`` of the substep's start.
+        qvel, qacc: MuJoCo's joint velocities (n,) and accelerations (n,; overwritten with the explicit ones).
+        M: MuJoCo's joint-space inertia, compressed (``mjData.M``, (nM,); record's ``M_adr``...).
+        xfrc: MuJoCo's applied body wrenches (nbody, 6), every one of the substep; corrected.
+        xanchor, xaxis: Joint anchors and axes (njnt, 3). xipos: body centres of mass (nbody, 3).
+        site_xpos, site_xmat: Site positions (nsite, 3) and orientations (nsite, 9).
+        contact: The tool's contact result's ``w`` (``wrench_S``, ``wrench_MRF``, ``force_w``),
+            (15,), corrected in place to the wrench the step applied.
+        rows, groups: Every touching body's contact rows (k, 9) and the index into ``bodies`` of
+            each row's body (k,); ``bodies[0]`` is the tool.
+        materials: The objects' materials (n, 3) (:func:`~app.slave.tool_kernel.contact_gains`).
+        d: Output, each body's correction ``[force; torque about its centre of mass]`` (N, N m,
+            {w}), (len(bodies), 6); zero where the explicit step is kept.
+    """
+    d[:, :] = 0.0
+    if rows.shape[0] == 0:
+        return
+    r = rec[0]
+    n = qvel.shape[0]
+    m = bodies.shape[0]
+    Js = np.empty((m, 6, n))
+    KCb = np.zeros((m, 2, 6, 6))
+    KC = np.zeros((4, n, n))  # joint space: [contact K, contact C, none, none]
+    for g in range(m):
+        c = xipos[bodies[g]]
+        body_jacobian(rec, bodies[g], c, xanchor, xaxis, Js[g])
+        u = matvec(Js[g], qvel)
+        mine = rows[groups == g]
+        contact_gains(mine, materials, c, u, KCb[g, 0], KCb[g, 1])
+        for a in range(2):
+            X = KCb[g, a]
+            J = Js[g]
+            for i in range(n):
+                for j in range(n):
+                    s = 0.0
+                    for p in range(6):
+                        for q in range(6):
+                            s += J[p, i] * X[p, q] * J[q, j]
+                    KC[a, i, j] += s
+    Mq = np.zeros((n, n))
+    for i in range(n):
+        for k in range(r["M_nnz"][i]):
+            j = r["M_col"][r["M_adr"][i] + k]
+            Mq[i, j] = Mq[j, i] = M[r["M_adr"][i] + k]
+    L = cholesky(Mq)
+    Mq_inv = np.empty((n, n))
+    unit = np.zeros(n)
+    for a in range(n):
+        unit[:] = 0.0
+        unit[a] = 1.0
+        Mq_inv[:, a] = cholesky_solve(L, unit)
+    hk, hc = implicit_shares(h, KC, _NO_OTHER, Mq, Mq_inv)
+    if hk == 0.0 and hc == 0.0:
+        return  # the explicit step is stable with margin: keep it as it is
+    for stage in (FWD_ACTUATION, FWD_ACCELERATION, FWD_CONSTRAINT):
+        call_model_data(mj[stage], mj[MODEL], mj[DATA])
+    acc = implicit_acceleration(h, hk, hc, KC[0], KC[1], Mq, qvel, matvec(Mq, qacc))
+    for g in range(m):
+        d[g] = -correction(hk, hc, KCb[g, 0], KCb[g, 1], matvec(Js[g], qvel), h, matvec(Js[g], acc))
+        for i in range(6):
+            xfrc[bodies[g], i] += d[g, i]
+    c, T = xipos[bodies[0]], r["T"]
+    shift_wrench(contact[6:12], d[0], T[0:3, 0:3], T[0:3, 3], c)
+    s_ft = r["site_ft"]
+    shift_wrench(contact[0:6], d[0], site_xmat[s_ft].reshape((3, 3)), site_xpos[s_ft], c)
+    for i in range(3):
+        contact[12 + i] += d[0, i]
 
 
 @njit(cache=True)

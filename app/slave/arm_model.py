@@ -198,7 +198,7 @@ def arm_record(
             "every joint must be a hinge on the flange's chain, one motor each",
         )
     owner, centers, radii = spheres
-    rec = np.zeros(1, dtype=arm_record_dtype(n, len(links), len(radii)))
+    rec = np.zeros(1, dtype=arm_record_dtype(n, len(links), len(radii), m.nM))
     r = rec[0]
     rng = m.jnt_range[:n]
     r["lo"] = rng[:, 0] + params.limit_margin
@@ -233,4 +233,6 @@ def arm_record(
     r["tool"] = tool
     r["root"] = m.body_rootid[tool]
     r["sensor"] = m.sensor_adr[0]
+    r["M_adr"], r["M_nnz"], r["M_col"] = m.M_rowadr, m.M_rownnz, m.M_colind
+    r["jnt_body"] = m.jnt_bodyid[:n]
     return rec

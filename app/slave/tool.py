@@ -80,6 +80,13 @@ _NO_ROWS = np.zeros((0, 9))
 SHAPE_6, SHAPE_44 = (6,), (4, 4)
 
 
+def contact_rows(contact: ContactResult) -> Array:
+    """The contact rows ``[p, n, depth, sphere, object]`` (k, 9) a compiled substep is handed:
+    the result's own, or a writeable empty array (one kernel for both, module note above)."""
+    rows: Array = contact.contacts
+    return rows if rows.flags.writeable else _NO_ROWS
+
+
 def _tool_xml(scene: Scene, timestep: float) -> str:
     tool = scene.tool
     g = " ".join(repr(float(v)) for v in scene.gravity_w)
@@ -163,6 +170,12 @@ class SlaveBase:
         self._T_ref = np.eye(4)
         self._T = np.eye(4)
         self._V = np.zeros(6)
+        # Stiffness, damping and friction per contact object id (static objects, then dynamic),
+        # for the implicit substep (:func:`~app.slave.tool_kernel.implicit_shares`).
+        self._materials = np.array(
+            [(o.stiffness, o.damping, o.friction) for o in (*scene.objects, *(b.object for b in scene.bodies))],
+            dtype=float,
+        ).reshape(-1, 3)
 
     def _update_reference(self, command: SlaveCommand, dt: float) -> None:
         """Step 1: the reference for this tick of ``dt`` (s) under ``command``."""
@@ -293,11 +306,6 @@ class VirtualSlave(SlaveBase):
         self.status = 0  # the ideal tool always follows (its limits are the PD's saturation)
         self.link_force = 0.0  # it has no links for the world to touch
         self.reset()
-        # Stiffness, damping and friction per contact object id (static objects, then dynamic).
-        self._materials = np.array(
-            [(o.stiffness, o.damping, o.friction) for o in (*scene.objects, *(b.object for b in scene.bodies))],
-            dtype=float,
-        ).reshape(-1, 3)
         # The substep's arguments that are the slave's own arrays, the same objects every call.
         own = (self._params, self._frames, self._T, self._V, self._T_ref, self._V_ref_w)
         self._own = (*own, self._qpos, self._qvel, self._qacc, self._xfrc)
@@ -401,7 +409,7 @@ class VirtualSlave(SlaveBase):
                 *self._own,
                 contact.w,
                 contact.valid,
-                contact.contacts if contact.contacts.flags.writeable else _NO_ROWS,
+                contact_rows(contact),
                 self._materials,
                 h,
                 self._ft_buffer,

@@ -180,72 +180,83 @@ def _add_point(r: Array, n: Array, a: float, b: float, out: Array) -> None:
 
 
 @njit(cache=True)
-def _solve_spd(A: Array, y: Array) -> Array:
-    """``A^-1 y`` for a symmetric positive definite (6, 6) ``A`` (Cholesky; no BLAS call)."""
-    return cholesky_solve(cholesky(A), y)
+def body_mass(mass: float, I_w: Array, I_inv_w: Array, M: Array, M_inv: Array) -> None:
+    """A rigid body's mass matrix ``diag(m, I_w)`` (6, 6) in the coordinates ``[v of the centre
+    of mass; w]`` and its inverse, into ``M`` and ``M_inv``; ``I_w`` (kg m^2) its inertia about the
+    centre of mass in {w}, (3, 3), ``I_inv_w`` that inverse."""
+    M[:, :] = 0.0
+    M_inv[:, :] = 0.0
+    for i in range(3):
+        M[i, i] = mass
+        M_inv[i, i] = 1.0 / mass
+        for j in range(3):
+            M[3 + i, 3 + j] = I_w[i, j]
+            M_inv[3 + i, 3 + j] = I_inv_w[i, j]
 
 
 @njit(cache=True)
-def _trace(X: Array, mass: float, I_inv_w: Array) -> float:
-    """``tr(M^-1 X)`` for the tool's mass matrix ``M = diag(m, I_w)`` (``I_inv_w`` its angular
-    block's inverse) and a (6, 6) ``X``."""
-    t = (X[0, 0] + X[1, 1] + X[2, 2]) / mass
-    for i in range(3):
-        for j in range(3):
-            t += I_inv_w[i, j] * X[3 + j, 3 + i]
+def _trace(X: Array, M_inv: Array) -> float:
+    """``tr(M^-1 X)`` for (n, n) ``M_inv`` and ``X``."""
+    t = 0.0
+    for i in range(X.shape[0]):
+        for j in range(X.shape[0]):
+            t += M_inv[i, j] * X[j, i]
     return t
 
 
 @njit(cache=True)
-def _largest_mode(X: Array, mass: float, I_w: Array, I_inv_w: Array) -> float:
-    """The largest eigenvalue of ``M^-1 X`` (1/s^2 for a stiffness, 1/s for a damping), M the
-    tool's mass matrix ``diag(m, I_w)`` and X symmetric positive semi-definite (6, 6): power
+def _largest_mode(X: Array, M: Array, M_inv: Array) -> float:
+    """The largest eigenvalue of ``M^-1 X`` (1/s^2 for a stiffness, 1/s for a damping), M a mass
+    matrix (n, n) (``M_inv`` its inverse) and X symmetric positive semi-definite (n, n): power
     iteration, then the Rayleigh quotient ``x^T X x / x^T M x`` (from below, within a few per
     cent after twelve steps; the callers' margins absorb that)."""
-    x = np.array((1.0, 0.9, 0.8, 0.7, 0.6, 0.5))
-    y = np.empty(6)
+    n = X.shape[0]
+    x = np.empty(n)
+    for i in range(n):
+        x[i] = (10 - i) / 10.0  # 1, 0.9, 0.8, ...: not orthogonal to the modes that matter
+    y = np.empty(n)
     for _ in range(12):
-        for i in range(6):
+        for i in range(n):
             s = 0.0
-            for j in range(6):
+            for j in range(n):
                 s += X[i, j] * x[j]
             y[i] = s
         top = 0.0
-        for i in range(3):
-            x[i] = y[i] / mass
-            x[3 + i] = I_inv_w[i, 0] * y[3] + I_inv_w[i, 1] * y[4] + I_inv_w[i, 2] * y[5]
-        for i in range(6):
-            top = max(top, abs(x[i]))
+        for i in range(n):
+            s = 0.0
+            for j in range(n):
+                s += M_inv[i, j] * y[j]
+            x[i] = s
+            top = max(top, abs(s))
         if top == 0.0:
             return 0.0
         x /= top
     num = den = 0.0
-    for i in range(6):
-        for j in range(6):
+    for i in range(n):
+        for j in range(n):
             num += x[i] * X[i, j] * x[j]
-    for i in range(3):
-        den += mass * x[i] * x[i]
-        for j in range(3):
-            den += x[3 + i] * I_w[i, j] * x[3 + j]
+            den += x[i] * M[i, j] * x[j]
     return num / den
 
 
 @njit(cache=True)
-def _correction(hk: float, hc: float, K: Array, C: Array, u: Array, h: float, acc: Array) -> Array:
-    """``hk K (u + h acc) + hc C acc`` (6,): how much less a stiffness K and a damping C push over
-    the substep ``h`` (s), implicit by ``hk = theta_k h`` and ``hc = theta_c h``, than at its
-    start, the body's velocity ``u`` and acceleration ``acc``."""
-    out = np.empty(6)
-    for i in range(6):
+def correction(hk: float, hc: float, K: Array, C: Array, u: Array, h: float, acc: Array) -> Array:
+    """``hk K (u + h acc) + hc C acc`` (n,): how much less a stiffness K and a damping C (n, n)
+    push over the substep ``h`` (s), implicit by ``hk = theta_k h`` and ``hc = theta_c h``
+    (:func:`implicit_shares`), than at its start, the velocity ``u`` and acceleration ``acc``
+    (n,) in the same coordinates."""
+    n = u.shape[0]
+    out = np.empty(n)
+    for i in range(n):
         s = 0.0
-        for j in range(6):
+        for j in range(n):
             s += hk * K[i, j] * (u[j] + h * acc[j]) + hc * C[i, j] * acc[j]
         out[i] = s
     return out
 
 
 @njit(cache=True)
-def _shift(w: Array, dF: Array, R: Array, p: Array, c: Array) -> None:
+def shift_wrench(w: Array, dF: Array, R: Array, p: Array, c: Array) -> None:
     """Add to the wrench ``w`` (6,), at the point ``p`` in the axes ``R`` (both {w}), the change
     ``dF`` = ``[force; torque about c]`` ({w})."""
     df = dF[0:3]
@@ -266,7 +277,80 @@ def pd_modes(pd: Array, r_C: Array, mass: float, inertia_C: Array, inertia_inv_C
     for a in range(3, 6):
         K[a, a] += pd[KP_ROT]
         C[a, a] += pd[KD_ROT]
-    return _largest_mode(K, mass, inertia_C, inertia_inv_C), _largest_mode(C, mass, inertia_C, inertia_inv_C)
+    M, M_inv = np.empty((6, 6)), np.empty((6, 6))
+    body_mass(mass, inertia_C, inertia_inv_C, M, M_inv)
+    return _largest_mode(K, M, M_inv), _largest_mode(C, M, M_inv)
+
+
+@njit(cache=True)
+def contact_gains(rows: Array, materials: Array, c: Array, u: Array, K: Array, C: Array) -> None:
+    """Add to ``K`` and ``C`` (6, 6) each pushing contact's normal stiffness ``k n n^T``, damping
+    ``b n n^T`` and its friction's secant damping ``mu f_n / max(|u_t|, V_SLIP)`` across the
+    normal, at the contact point, in a body's coordinates ``[v of the point c; w]`` ({w}); a
+    dynamic object taken as still over the substep (:func:`implicit_wrench`).
+
+    Args:
+        rows: Contact rows ``[p (3), n (3), depth, sphere, object]``
+            (:class:`~app.world.contact.ContactResult`), (k, 9).
+        materials: ``[stiffness, damping, friction]`` per object id (N/m, N s/m, -), (n, 3).
+        c: The body's reference point (m, {w}), (3,). ``u``: its twist ``[v of c; w]``, (6,).
+    """
+    r = np.empty(3)
+    for i in range(rows.shape[0]):
+        row = rows[i]
+        k, b, mu = materials[int(row[8])]
+        n = row[3:6]
+        for a in range(3):
+            r[a] = row[a] - c[a]
+        up = u[0:3] + cross3(u[3:6], r)
+        un = up[0] * n[0] + up[1] * n[1] + up[2] * n[2]
+        fn = k * row[6] - b * un
+        if fn <= 0.0:
+            continue  # separating: no force, nothing to linearise
+        _add_point(r, n, k, 0.0, K)
+        ct = 0.0
+        if mu > 0.0:
+            ut = up - un * n
+            ct = mu * fn / max(math.sqrt(ut[0] * ut[0] + ut[1] * ut[1] + ut[2] * ut[2]), V_SLIP)
+        _add_point(r, n, b - ct, ct, C)
+
+
+@njit(cache=True)
+def implicit_shares(h: float, KC: Array, other_alone: Array, M: Array, M_inv: Array) -> tuple[float, float]:
+    """``(theta_k h, theta_c h)`` (s) of the substep ``h`` (s) that hold the stiffest mode of the
+    stiffnesses and dampings ``KC`` = ``[contact K, contact C, other K, other C]`` (4, n, n) on a
+    system of mass matrix ``M`` (n, n, ``M_inv`` its inverse; any generalized coordinates) at ``(omega h)^2 <=``
+    :data:`SIGMA_MAX` and make the damping's decay monotone (:func:`implicit_wrench`); ``(0, 0)``
+    where the explicit step is comfortably stable. ``other_alone``: the largest modes of
+    ``M^-1 K_other`` (1/s^2) and ``M^-1 C_other`` (1/s), (2,), an upper bound is enough."""
+    # Weyl: the largest mode of the others + the contacts is at most the others' plus the contacts' trace.
+    sigma_contacts, beta_contacts = h * h * _trace(KC[0], M_inv), h * _trace(KC[1], M_inv)
+    if h * h * other_alone[0] + sigma_contacts <= SIGMA_MAX and h * other_alone[1] + beta_contacts <= 1.0:
+        return 0.0, 0.0
+    sigma = h * h * _largest_mode(KC[0] + KC[2], M, M_inv)
+    beta = h * _largest_mode(KC[1] + KC[3], M, M_inv)
+    hk = h * (1.0 / SIGMA_MAX - 1.0 / sigma) if sigma > SIGMA_MAX else 0.0
+    hc = h * (1.0 - 1.0 / beta) if beta > 1.0 else 0.0
+    return hk, hc
+
+
+@njit(cache=True)
+def implicit_acceleration(h: float, hk: float, hc: float, K: Array, C: Array, M: Array, u: Array, F: Array) -> Array:
+    """The acceleration (n,) that makes the substep ``h`` (s) implicit by ``hk``, ``hc``
+    (:func:`implicit_shares`) in the stiffness ``K`` and damping ``C`` (n, n): it solves
+    ``(M + hc C + hk h K) a = F - hk K u``, ``F`` = ``M a0`` (n,) with ``a0`` the explicit
+    acceleration (every force of the substep's start), ``u`` the velocity (n,). The forces then
+    change by ``-`` :func:`correction`."""
+    n = u.shape[0]
+    A = np.empty((n, n))
+    rhs = np.empty(n)
+    for i in range(n):
+        hKu = 0.0
+        for j in range(n):
+            A[i, j] = M[i, j] + hc * C[i, j] + hk * h * K[i, j]
+            hKu += hk * K[i, j] * u[j]
+        rhs[i] = F[i] - hKu
+    return cholesky_solve(cholesky(A), rhs)
 
 
 @njit(cache=True)
@@ -307,11 +391,11 @@ def implicit_wrench(
     spring-damper's ``sigma + 2 beta < 4``). Where the explicit step is
     comfortably stable both are 0 and the step is exactly the explicit one (no numerical damping
     of a soft contact, which the haptic loop would feel); at theta 1 it is backward Euler.
+    (:func:`implicit_shares`, :func:`implicit_acceleration`, :func:`correction`; the arm slave's
+    substep uses them in its joints' coordinates, :func:`app.slave.arm_kernel.implicit_contacts`.)
 
     K and C gather, in the body's coordinates ``[v of the centre of mass; w]`` ({w}): each
-    pushing contact's normal stiffness ``k n n^T`` and damping ``b n n^T`` and its friction's
-    secant damping ``mu f_n / max(|u_t|, V_SLIP)`` across the normal, at the contact point (a
-    dynamic object taken as still over the substep); and the PD's gains at {MRF} and on the
+    pushing contact's (:func:`contact_gains`) and the PD's gains at {MRF} and on the
     rotation, each unless saturated (then it is a constant force). The contact's share of the
     correction is taken off ``contact`` too: the wrench reported, and read by the F/T sensor, is
     the one the step applied, so the reading stays the robot's force on the tool (the sensor's
@@ -344,29 +428,7 @@ def implicit_wrench(
     u[3:6] = _apply(R, qvel[3:6])
     # [contact K, contact C, PD K, PD C]
     KC = np.zeros((4, 6, 6))
-    r = np.empty(3)
-    for i in range(rows.shape[0]):
-        row = rows[i]
-        k, b, mu = materials[int(row[8])]
-        n = row[3:6]
-        for a in range(3):
-            r[a] = row[a] - c[a]
-        up = u[0:3] + cross3(u[3:6], r)
-        un = up[0] * n[0] + up[1] * n[1] + up[2] * n[2]
-        fn = k * row[6] - b * un
-        if fn <= 0.0:
-            continue  # separating: no force, nothing to linearise
-        _add_point(r, n, k, 0.0, KC[0])
-        ct = 0.0
-        if mu > 0.0:
-            ut = up - un * n
-            ct = mu * fn / max(math.sqrt(ut[0] * ut[0] + ut[1] * ut[1] + ut[2] * ut[2]), V_SLIP)
-        _add_point(r, n, b - ct, ct, KC[1])
-    # Weyl: the largest mode of PD + contacts is at most the PD's plus the contacts' trace.
-    I_inv = _mul_t(_mul(R, inertia_inv_C), R)
-    sigma_contacts, beta_contacts = h * h * _trace(KC[0], mass, I_inv), h * _trace(KC[1], mass, I_inv)
-    if h * h * pd_alone[0] + sigma_contacts <= SIGMA_MAX and h * pd_alone[1] + beta_contacts <= 1.0:
-        return
+    contact_gains(rows, materials, c, u, KC[0], KC[1])
     if not force_saturated:
         r_m = T_w_MRF[0:3, 3] - c
         _add_point(r_m, r_m, 0.0, pd[KP_LIN], KC[2])
@@ -376,37 +438,25 @@ def implicit_wrench(
             KC[2, a, a] += pd[KP_ROT]
             KC[3, a, a] += pd[KD_ROT]
     I_w = _mul_t(_mul(R, inertia_C), R)
-    K, C = KC[0] + KC[2], KC[1] + KC[3]
-    sigma = h * h * _largest_mode(K, mass, I_w, I_inv)
-    beta = h * _largest_mode(C, mass, I_w, I_inv)
-    hk = h * (1.0 / SIGMA_MAX - 1.0 / sigma) if sigma > SIGMA_MAX else 0.0
-    hc = h * (1.0 - 1.0 / beta) if beta > 1.0 else 0.0
+    M, M_inv = np.empty((6, 6)), np.empty((6, 6))
+    body_mass(mass, I_w, _mul_t(_mul(R, inertia_inv_C), R), M, M_inv)
+    hk, hc = implicit_shares(h, KC, pd_alone, M, M_inv)
     if hk == 0.0 and hc == 0.0:
         return  # the explicit step is stable with margin: keep it as it is
     w = u[3:6]
     gyro = cross3(w, _apply(I_w, w))
-    A = np.empty((6, 6))
-    rhs = np.empty(6)
-    for i in range(6):
-        hKu = 0.0
-        for j in range(6):
-            A[i, j] = hc * C[i, j] + hk * h * K[i, j]
-            hKu += hk * K[i, j] * u[j]
-        rhs[i] = xfrc[i] - hKu
+    F = np.empty(6)
     for i in range(3):
-        A[i, i] += mass
-        rhs[i] += mass * gravity_w[i]
-        rhs[3 + i] -= gyro[i]
-        for j in range(3):
-            A[3 + i, 3 + j] += I_w[i, j]
-    acc = _solve_spd(A, rhs)
-    d_contact = -_correction(hk, hc, KC[0], KC[1], u, h, acc)
-    xfrc += d_contact - _correction(hk, hc, KC[2], KC[3], u, h, acc)
+        F[i] = xfrc[i] + mass * gravity_w[i]
+        F[3 + i] = xfrc[3 + i] - gyro[i]
+    acc = implicit_acceleration(h, hk, hc, KC[0] + KC[2], KC[1] + KC[3], M, u, F)
+    d_contact = -correction(hk, hc, KC[0], KC[1], u, h, acc)
+    xfrc += d_contact - correction(hk, hc, KC[2], KC[3], u, h, acc)
     if rows.shape[0] == 0:
         return
     R_w_MRF = T_w_MRF[0:3, 0:3]
-    _shift(contact[6:12], d_contact, R_w_MRF, T_w_MRF[0:3, 3], c)
-    _shift(contact[0:6], d_contact, _mul(R, T_C_S[0:3, 0:3]), c + _apply(R, T_C_S[0:3, 3]), c)
+    shift_wrench(contact[6:12], d_contact, R_w_MRF, T_w_MRF[0:3, 3], c)
+    shift_wrench(contact[0:6], d_contact, _mul(R, T_C_S[0:3, 0:3]), c + _apply(R, T_C_S[0:3, 3]), c)
     contact[12:15] += d_contact[0:3]
 
 

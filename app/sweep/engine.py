@@ -5,9 +5,15 @@ A *task* is a picklable callable ``task(payload) -> dict`` (a row of results); a
 A point that raises (a :class:`~app.errors.ConfigError` from a value out of range, a fault
 turned exception, any bug) becomes a row with ``status = "error"`` and the one-line ``error``;
 the other points go on. A worker process that dies (a crash, ``os._exit``, the OOM killer) is
-replaced: the points queued behind the one it was running are run again elsewhere, the point it
-was running is tried once more (the death may not be its fault) and, if it kills a worker
-again, becomes a row with ``status = "error"`` and ``error = "worker died ..."``.
+replaced, and every point lost with it (the one it was running and those queued behind it) is
+run again *alone*: on a worker that has loaded the task, with nothing queued behind it. A point
+that kills a worker while it runs alone there is charged with the death; one that does so twice
+(:data:`MAX_KILLS`) becomes a row with ``status = "error"`` and ``error = "worker died ..."``.
+Which of several points on a dead worker was running cannot be told from Ray's replies: the
+reply of a point that returned just before the next one killed the process can be lost with it,
+and a worker can die while it starts (on a loaded machine) with points queued on it; charging
+the first point that did not come back made an innocent point a "worker died" row. A worker that
+dies while it loads the task is replaced and charges nobody.
 
 Ray (https://docs.ray.io) rather than ``multiprocessing`` because the same code then runs on a
 cluster: with ``address`` (or ``RAY_ADDRESS``) it joins an existing Ray cluster, whose nodes must
@@ -32,7 +38,6 @@ block (a warm-up and a timed run, the rounds of a search) pay the start-up once.
 
 from __future__ import annotations
 
-import itertools
 import os
 import signal
 import socket
@@ -52,10 +57,12 @@ Point = tuple[int, Any]
 
 #: Points queued per worker beyond the one it runs: hides the round trip without hoarding work.
 QUEUE_PER_WORKER = 1
-#: Times a point may be running when its worker dies before it is reported as failed.
+#: Times a point may be running alone when its worker dies before it is reported as failed.
 MAX_KILLS = 2
-#: Times a point may be lost with a dead worker in all (running or queued) before it is reported.
+#: Times a point may be lost with a dead worker in all (alone or not) before it is reported.
 MAX_LOSSES = 4
+#: Workers of one slot that may die in a row while they load the task before the run stops.
+MAX_START_DEATHS = 4
 
 
 def error_row(exc: BaseException) -> dict[str, Any]:
@@ -227,13 +234,14 @@ def run_points(task: Task, points: Iterable[Point], workers: int = 1, address: s
 
 @dataclass
 class _Job:
-    """A point submitted to worker slot ``k`` during that slot's ``life`` (-th worker), ``seq``-th overall."""
+    """A point submitted to worker slot ``k`` during that slot's ``life`` (-th worker); ``alone``:
+    as a suspect, on a worker that had loaded the task, with nothing queued behind it."""
 
     index: int
     payload: Any
-    k: int
-    life: int
-    seq: int
+    k: int = 0
+    life: int = 0
+    alone: bool = False
     kills: int = 0
     losses: int = 0
 
@@ -260,6 +268,9 @@ class Engine:
         self._started = False
         self._actors: list[Any] = []
         self._lives: list[int] = []
+        # Per worker slot, the reference of its current worker's ``use`` call of this run (its
+        # load of the task): a suspect point runs only on a worker whose load has come back.
+        self._loads: list[Any] = []
 
     @property
     def size(self) -> int:
@@ -317,75 +328,88 @@ class Engine:
         from ray.exceptions import RayActorError, RayTaskError
 
         task_ref = ray.put(task)
-        for actor in self._actors:
-            actor.use.remote(task_ref)
+        self._loads = [actor.use.remote(task_ref) for actor in self._actors]
         n = len(self._actors)
+        loaded = [False] * n  # the slot's worker has loaded the task
+        start_deaths = [0] * n  # its workers that died loading, in a row
         pending: dict[Any, _Job] = {}
         load = [0] * n
+        alone = [False] * n  # the slot runs a suspect
         queue = iter(points)
-        again: deque[_Job] = deque()  # points of dead workers, run before new ones
-        culprit: dict[tuple[int, int], int] = {}  # (slot, life) of a dead worker -> seq of the point it ran
-        seq = itertools.count()
+        suspects: deque[_Job] = deque()  # points lost with a dead worker, to run alone
 
-        def submit(k: int) -> bool:
-            if again:
-                job = again.popleft()
-            else:
-                nxt = next(queue, None)
-                if nxt is None:
-                    return False
-                job = _Job(nxt[0], nxt[1], k, 0, 0)
-            job.k, job.life, job.seq = k, self._lives[k], next(seq)
+        def replace(k: int) -> None:
+            self._actors[k] = self._worker_cls.remote()
+            self._loads[k] = self._actors[k].use.remote(task_ref)
+            self._lives[k] += 1
+            loaded[k] = False
+
+        def submit(k: int, job: _Job) -> None:
+            job.k, job.life = k, self._lives[k]
             pending[self._actors[k].run.remote(job.payload)] = job
             load[k] += 1
-            return True
 
         def fill() -> None:
             for k in range(n):
-                while load[k] < 1 + QUEUE_PER_WORKER and submit(k):
-                    pass
+                if alone[k]:
+                    continue
+                if suspects and loaded[k] and load[k] == 0:
+                    job = suspects.popleft()
+                    job.alone = alone[k] = True
+                    submit(k, job)
+                    continue
+                # While suspects wait, queue nothing behind a running point: the slot comes free.
+                while load[k] < (1 if suspects else 1 + QUEUE_PER_WORKER):
+                    nxt = next(queue, None)
+                    if nxt is None:
+                        break
+                    submit(k, _Job(*nxt))
+
+        def lost(job: _Job, was_alone: bool, exc: BaseException) -> dict[str, Any] | None:
+            """``job``'s worker died (``was_alone``: running it alone): replace the worker; None to
+            run the job again alone, else its error row."""
+            if self._lives[job.k] == job.life:
+                replace(job.k)
+            job.losses += 1
+            job.kills += was_alone
+            if job.kills < MAX_KILLS and job.losses < MAX_LOSSES:
+                return None
+            return {"status": "error", "error": f"worker died running this point: {' '.join(str(exc).split())[:300]}"}
 
         fill()
-        while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
+        while pending or suspects:
+            loads = {self._loads[k]: k for k in range(n) if not loaded[k]}
+            done, _ = ray.wait([*pending, *loads], num_returns=1)
+            if done[0] in loads:
+                k = loads[done[0]]
+                try:
+                    ray.get(done[0])
+                    loaded[k], start_deaths[k] = True, 0
+                except RayActorError as exc:
+                    start_deaths[k] += 1
+                    if start_deaths[k] >= MAX_START_DEATHS:
+                        raise EngineError(
+                            f"{MAX_START_DEATHS} workers in a row died while loading the task: {' '.join(str(exc).split())[:300]}"
+                        ) from None
+                    replace(k)  # the points queued on it come back lost, charged nothing
+                fill()
+                continue
             job = pending.pop(done[0])
             load[job.k] -= 1
+            was_alone, job.alone = job.alone, False
+            if was_alone:
+                alone[job.k] = False
             try:
                 yield job.index, ray.get(done[0])
             except RayActorError as exc:
-                row = self._lost(job, exc, culprit, pending, task_ref)
+                row = lost(job, was_alone, exc)
                 if row is None:
-                    again.append(job)
+                    suspects.append(job)
                 else:
                     yield job.index, row
             except RayTaskError as exc:
                 yield job.index, error_row(exc.cause if isinstance(exc.cause, BaseException) else exc)
             fill()
-
-    def _lost(
-        self,
-        job: _Job,
-        exc: BaseException,
-        culprit: dict[tuple[int, int], int],
-        pending: dict[Any, _Job],
-        task_ref: Any,
-    ) -> dict[str, Any] | None:
-        """``job``'s worker died: replace the worker; None to run the job again, else its error row."""
-        life = (job.k, job.life)
-        if life not in culprit:
-            # Actor calls run in order: of the points still held by the dead worker, the first
-            # submitted is the one it was running, the others were queued behind it.
-            held = [j.seq for j in pending.values() if (j.k, j.life) == life]
-            culprit[life] = min([job.seq, *held])
-        if self._lives[job.k] == job.life:
-            self._actors[job.k] = self._worker_cls.remote()
-            self._actors[job.k].use.remote(task_ref)
-            self._lives[job.k] += 1
-        job.losses += 1
-        job.kills += job.seq == culprit[life]
-        if job.kills < MAX_KILLS and job.losses < MAX_LOSSES:
-            return None
-        return {"status": "error", "error": f"worker died running this point: {' '.join(str(exc).split())[:300]}"}
 
 
 class _Worker:

@@ -1,5 +1,5 @@
-"""The ``frhc`` command line as the sweep tests call it, and the processes and listening sockets
-a command started (Linux ``/proc``)."""
+"""The ``frhc`` command line as the sweep tests call it, the processes and listening sockets
+a command started (Linux ``/proc``), and a task whose loading ends the worker process."""
 
 from __future__ import annotations
 
@@ -7,8 +7,9 @@ import ipaddress
 import os
 import subprocess
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 
 def frhc(*args: str) -> subprocess.CompletedProcess[str]:
@@ -75,3 +76,37 @@ def is_loopback(address: ipaddress.IPv4Address | ipaddress.IPv6Address) -> bool:
     if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped is not None:
         return address.ipv4_mapped.is_loopback
     return address.is_loopback
+
+
+def _load_or_die(marks: str, deaths: int, task: Callable[[Any], Any]) -> Callable[[Any], Any]:
+    """``task``, unless one of the first ``deaths`` loads in any process: that one ends its process.
+
+    Each load claims the next free mark file ``death-<i>`` in ``marks`` (created exclusively, so
+    two processes never claim the same one); a load that claims one exits at once, before the
+    worker runs any point, as a worker does that dies while it starts on a loaded machine.
+    """
+    for i in range(deaths):
+        try:
+            os.close(os.open(os.path.join(marks, f"death-{i}"), os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        except FileExistsError:
+            continue
+        os._exit(3)
+    return task
+
+
+class DiesLoading:
+    """A task whose first ``deaths`` unpicklings (one per engine worker it is handed to) end the
+    worker's process (:func:`_load_or_die`); the others load ``task`` itself.
+
+    Pickle it by value (``ray.cloudpickle.register_pickle_by_value`` on this module): Ray's
+    workers cannot import the tests' helper modules.
+    """
+
+    def __init__(self, marks: Path, deaths: int, task: Callable[[Any], Any]) -> None:
+        self.marks, self.deaths, self.task = str(marks), deaths, task
+
+    def __call__(self, payload: Any) -> Any:
+        return self.task(payload)
+
+    def __reduce__(self) -> tuple[Callable[..., Any], tuple[str, int, Callable[[Any], Any]]]:
+        return _load_or_die, (self.marks, self.deaths, self.task)

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
-from sweep_helpers import frhc
+import sweep_helpers
+from sweep_helpers import DiesLoading, frhc
 
 from app.sweep import load_sweep, run_sweep
 from app.sweep.engine import run_points
@@ -136,3 +137,20 @@ def test_the_engine_turns_exceptions_and_dead_workers_into_rows(local_ray: None)
     assert rows[2]["error"].startswith("worker died running this point")
     for k in (0, *range(3, 10)):
         assert rows[k] == {"a": k, "status": "ok", "error": ""}
+
+
+def test_a_worker_that_dies_while_it_starts_charges_no_point(local_ray: None, tmp_path: Path) -> None:
+    """The first three workers to load the task die doing so, before running anything, as a
+    worker may while it starts on a loaded machine: both first workers, and the replacement of
+    the one the only point was queued on (whatever the order the loads come in, that point's
+    worker dies twice). The point ran nowhere, so it is not charged with a kill: its row comes
+    back. (The engine that charged the first point on a dead worker that did not come back made
+    it a "worker died running this point" row, every time.)"""
+    ray = pytest.importorskip("ray")
+    ray.cloudpickle.register_pickle_by_value(sweep_helpers)
+    try:
+        rows = dict(run_points(DiesLoading(tmp_path, 3, operator.call), [(0, partial(dict, [("a", 0)]))], workers=2))
+    finally:
+        ray.cloudpickle.unregister_pickle_by_value(sweep_helpers)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["death-0", "death-1", "death-2"]
+    assert rows == {0: {"a": 0, "status": "ok", "error": ""}}

@@ -196,6 +196,10 @@ class ArmSlave(SlaveBase):
         motion = (self._sdata, self._site_xpos, self._site_xmat, self._cvel, self._cacc, self._subtree_com)
         self._ft_args = (*motion, self._gravity_w, ft.wrench_S, ft.R_w_S, ft.acc_w, ft.omega_w)
         self._ft_reading = entry_point(ak.ft_reading, self._rec, True, *self._ft_args)
+        # The arm's lead is bounded by its own stiffness (:func:`~app.slave.arm_kernel.bound_lead`),
+        # not by the ideal tool's PD, about 30 times softer.
+        self._max_lead_lin = self._max_lead_rot = np.inf
+        self._bound_lead = entry_point(ak.bound_lead, self._rec)
         self.status = ArmStatus.NONE
         self._fault: str | None = None
         self.link_contacts: list[ContactResult] = []
@@ -362,6 +366,17 @@ class ArmSlave(SlaveBase):
         self._link_force = sum(float(np.linalg.norm(r.force_w)) for r in self.link_contacts if r.valid)
         self._reading = self._make_reading(contact)
         return self._reading
+
+    def _update_reference(self, command: SlaveCommand, dt: float) -> None:
+        """The reference for this tick of ``dt`` (s), as the ideal tool's; while the tool or a link
+        touches the world (last tick), its lead bounded by the arm's stiffness
+        (:func:`~app.slave.arm_kernel.bound_lead`). In free space the lead is the servos' lag,
+        which accelerates the arm, and at the edge of what the arm can reach it is what the
+        operator feels (the limit wrench): bounded there by the arm's stiffness, which grows
+        without bound toward a singularity, the reference could not pass the edge."""
+        super()._update_reference(command, dt)
+        if self._contact.count > 0 or self.status & ArmStatus.LINK_CONTACT:
+            self._bound_lead(self._rec)
 
     def _end_args(self, contact_w: Array, rows: Array, groups: IntArray, bodies: IntArray) -> tuple[Any, ...]:
         """:func:`~app.slave.arm_kernel.implicit_contacts`' arguments after ``h`` and ``qvel``, for

@@ -83,7 +83,7 @@ def _apply_t(R: Array, v: Array) -> Array:
 
 
 @njit(cache=True)
-def saturate(v: Array, limit: float) -> tuple[Array, bool]:
+def _saturate(v: Array, limit: float) -> tuple[Array, bool]:
     """``v`` scaled down to norm ``limit`` if longer (direction kept), and whether it was."""
     n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
     return (v * (limit / n), True) if n > limit else (v, False)
@@ -492,10 +492,10 @@ def drive_wrench(
     R_w_MRF = T_w_MRF[0:3, 0:3]
     p_w_MRF = T_w_MRF[0:3, 3]
     e_R = rotation_log(_mul_t(T_ref[0:3, 0:3], R_w_MRF))
-    f_pd, f_sat = saturate(
+    f_pd, f_sat = _saturate(
         pd[KP_LIN] * (T_ref[0:3, 3] - p_w_MRF) + pd[KD_LIN] * (V_ref_w[0:3] - V_w_MRF[0:3]), pd[FORCE_LIMIT]
     )
-    t_pd, t_sat = saturate(pd[KP_ROT] * e_R + pd[KD_ROT] * (V_ref_w[3:6] - V_w_MRF[3:6]), pd[TORQUE_LIMIT])
+    t_pd, t_sat = _saturate(pd[KP_ROT] * e_R + pd[KD_ROT] * (V_ref_w[3:6] - V_w_MRF[3:6]), pd[TORQUE_LIMIT])
     f_total = f_pd + contact_force_w
     # Both forces act at the {MRF} origin (the contact moment is already about it); MuJoCo wants
     # the moment about the centre of mass.

@@ -21,7 +21,7 @@ from app.controller.assist import constant_force_rtc, hooke_rtc
 from app.controller.kernel import _zyx_to_matrix
 from app.controller.record import RTC_CONSTANT, RTC_HOOKE
 from app.device.hand import copy_and_pull
-from app.slave.tool_kernel import _apply, _mul
+from app.slave.tool_kernel import _apply, mul3
 from app.spatial import Array, IntArray, rotation_exp, rotation_log
 
 # The strategy's constants. Their class (docs/experiment.md, "Every parameter of the physical
@@ -202,7 +202,7 @@ def react(
     # The tool angular velocity (rad/s, {MRF}): toward upright as misjudged, while inserting.
     w = np.zeros(3)
     if phase[0] == INSERT:
-        w = rotation_log(_mul(_mul(seen_R.T, rotation_exp(tilt)), R_home)) * (speed / SLOW_DISTANCE)
+        w = rotation_log(mul3(mul3(seen_R.T, rotation_exp(tilt)), R_home)) * (speed / SLOW_DISTANCE)
 
     # The learned rate-mode inverse, with the return-to-centre's force compensated as learned,
     # through the hand's motor bandwidth, plus tremor.
@@ -216,7 +216,7 @@ def react(
     k = min(tick, tremor.shape[0] - 1)
     for a in range(3):
         hand[a, 3] = T_start[a, 3] + motor[0, a] + tremor[k, a]
-    R = _mul(T_start, _zyx_to_matrix(motor[0, 3], motor[0, 4], motor[0, 5]))
+    R = mul3(T_start, _zyx_to_matrix(motor[0, 3], motor[0, 4], motor[0, 5]))
     for a in range(3):
         for b in range(3):
             hand[a, b] = R[a, b]

@@ -19,7 +19,7 @@ from app.compiled import F8, Arrays, ArraysType, array_type, entry_point
 from app.controller.types import Switches
 from app.device.hand import copy_and_pull
 from app.session.spec import SessionFile, SwitchEvent
-from app.slave.tool_kernel import _mul
+from app.slave.tool_kernel import mul3
 from app.spatial import Array, make_pose, rotation_exp, rotation_log, zyx_to_matrix
 
 if TYPE_CHECKING:
@@ -213,8 +213,8 @@ def _blend(poses: Array, k: int, s: float, tremor: Array, tick: int, T: Array) -
     a, b = poses[k], poses[k + 1]
     offset = tremor[min(tick, tremor.shape[0] - 1)]
     R_a = a[0:3, 0:3]
-    # Products written out (_mul): numba's ``@`` calls BLAS, ~0.3 us each on 3x3 blocks.
-    R = _mul(R_a, rotation_exp(s * rotation_log(_mul(R_a.T, b[0:3, 0:3]))))
+    # Products written out (mul3): numba's ``@`` calls BLAS, ~0.3 us each on 3x3 blocks.
+    R = mul3(R_a, rotation_exp(s * rotation_log(mul3(R_a.T, b[0:3, 0:3]))))
     for i in range(3):
         for j in range(3):
             T[i, j] = R[i, j]

@@ -5,9 +5,13 @@ controller's Cartesian command (rate or pose, :class:`~app.controller.types.Slav
 the slave sees. :class:`ArmSlave` carries the scene's tool on the wrist flange of a MuJoCo arm and
 follows that command as a real robot controller would:
 
-1. The Cartesian reference is updated exactly as for the ideal tool
-   (:func:`app.slave.tool_kernel.rate_reference`, with NTRFC accommodation and the following-error
-   limit, or the pose command).
+1. The Cartesian reference is updated as for the ideal tool
+   (:func:`app.slave.tool_kernel.rate_reference`, with NTRFC accommodation, or the pose command),
+   but its following-error limit is the arm's own: while the tool touches the world the
+   reference may lead the tool only as far as the joint servos' stiffness at {MRF},
+   ``(J K_q^-1 J^T)^-1``, turns into the scene's force and torque limits
+   (:func:`app.slave.arm_kernel.bound_lead`): a blocked tool is pushed with at most 40 N, as the
+   ideal tool's saturated PD pushes, not with the servos' 10^5 N/m times the ideal tool's lead.
 2. Differential IK (:mod:`app.slave.arm_ik`) moves a joint set-point toward that reference
    under joint, velocity and singularity limits; the redundant arm spends its null space on
    joint-limit avoidance. The pose error of the set-point is ``e(q) - J (q_c - q)``, linearised
@@ -196,6 +200,10 @@ class ArmSlave(SlaveBase):
         motion = (self._sdata, self._site_xpos, self._site_xmat, self._cvel, self._cacc, self._subtree_com)
         self._ft_args = (*motion, self._gravity_w, ft.wrench_S, ft.R_w_S, ft.acc_w, ft.omega_w)
         self._ft_reading = entry_point(ak.ft_reading, self._rec, True, *self._ft_args)
+        # The arm's lead is bounded by its own stiffness (:func:`~app.slave.arm_kernel.bound_lead`),
+        # not by the ideal tool's PD, about 30 times softer.
+        self._max_lead_lin = self._max_lead_rot = np.inf
+        self._bound_lead = entry_point(ak.bound_lead, self._rec)
         self.status = ArmStatus.NONE
         self._fault: str | None = None
         self.link_contacts: list[ContactResult] = []
@@ -362,6 +370,19 @@ class ArmSlave(SlaveBase):
         self._link_force = sum(float(np.linalg.norm(r.force_w)) for r in self.link_contacts if r.valid)
         self._reading = self._make_reading(contact)
         return self._reading
+
+    def _update_reference(self, command: SlaveCommand, dt: float) -> None:
+        """The reference for this tick of ``dt`` (s), as the ideal tool's; while the tool touches
+        the world (last tick), its lead bounded by the arm's stiffness
+        (:func:`~app.slave.arm_kernel.bound_lead`). In free space the lead is the servos' lag,
+        which accelerates the arm, and at the edge of what the arm can reach it is what the
+        operator feels (the limit wrench): bounded there by the arm's stiffness, which grows
+        without bound toward a singularity, the reference could not pass the edge. A link's
+        contact does not bound it: the limits are the tool's, and held to them the arm yields to
+        a push on a link (a slab pressing the PUMA's upper arm with 6 N drove it off, measured)."""
+        super()._update_reference(command, dt)
+        if self._contact.count > 0:
+            self._bound_lead(self._rec)
 
     def _end_args(self, contact_w: Array, rows: Array, groups: IntArray, bodies: IntArray) -> tuple[Any, ...]:
         """:func:`~app.slave.arm_kernel.implicit_contacts`' arguments after ``h`` and ``qvel``, for

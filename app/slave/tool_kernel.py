@@ -39,7 +39,7 @@ R_WRENCH, R_ROT, R_ACC, R_OMEGA, N_READING = 0, 6, 15, 21, 24
 
 
 @njit(cache=True)
-def _mul(A: Array, B: Array) -> Array:
+def mul3(A: Array, B: Array) -> Array:
     """``A @ B`` for (3, 3) blocks (any layout; numba's ``@`` would call BLAS)."""
     out = np.empty((3, 3))
     for i in range(3):
@@ -101,7 +101,7 @@ def mrf_state(qpos: Array, qvel: Array, T_C_MRF: Array, T_w_MRF: Array, V_w_MRF:
     R_w_C = quat_to_matrix(qpos[3:7])
     w_w = _apply(R_w_C, qvel[3:6])
     r = _apply(R_w_C, T_C_MRF[0:3, 3])  # centre of mass to {MRF} origin, {w}
-    T_w_MRF[0:3, 0:3] = _mul(R_w_C, T_C_MRF[0:3, 0:3])
+    T_w_MRF[0:3, 0:3] = mul3(R_w_C, T_C_MRF[0:3, 0:3])
     v = cross3(w_w, r)
     for i in range(3):
         T_w_MRF[i, 3] = qpos[i] + r[i]
@@ -138,7 +138,7 @@ def rate_reference(
     V_ref_w[0:3] = v_w
     V_ref_w[3:6] = w_w
     p_ref = T_ref[0:3, 3] + v_w * dt
-    R_ref = _mul(rotation_exp(w_w * dt), T_ref[0:3, 0:3])
+    R_ref = mul3(rotation_exp(w_w * dt), T_ref[0:3, 0:3])
     # Following-error limit: never lead the tool by more than the PD can push against.
     e_p = p_ref - T_w_MRF[0:3, 3]
     n = math.sqrt(e_p[0] * e_p[0] + e_p[1] * e_p[1] + e_p[2] * e_p[2])
@@ -147,7 +147,7 @@ def rate_reference(
     e_r = rotation_log(_mul_t(R_ref, R_w_MRF))
     n = math.sqrt(e_r[0] * e_r[0] + e_r[1] * e_r[1] + e_r[2] * e_r[2])
     if n > max_lead_rot:
-        R_ref = _mul(rotation_exp(e_r * (max_lead_rot / n)), R_w_MRF)
+        R_ref = mul3(rotation_exp(e_r * (max_lead_rot / n)), R_w_MRF)
     T_ref[0:3, 0:3] = R_ref
     T_ref[0:3, 3] = p_ref
 
@@ -437,9 +437,9 @@ def implicit_wrench(
         for a in range(3, 6):
             KC[2, a, a] += pd[KP_ROT]
             KC[3, a, a] += pd[KD_ROT]
-    I_w = _mul_t(_mul(R, inertia_C), R)
+    I_w = _mul_t(mul3(R, inertia_C), R)
     M, M_inv = np.empty((6, 6)), np.empty((6, 6))
-    body_mass(mass, I_w, _mul_t(_mul(R, inertia_inv_C), R), M, M_inv)
+    body_mass(mass, I_w, _mul_t(mul3(R, inertia_inv_C), R), M, M_inv)
     hk, hc = implicit_shares(h, KC, pd_alone, M, M_inv)
     if hk == 0.0 and hc == 0.0:
         return  # the explicit step is stable with margin: keep it as it is
@@ -456,7 +456,7 @@ def implicit_wrench(
         return
     R_w_MRF = T_w_MRF[0:3, 0:3]
     shift_wrench(contact[6:12], d_contact, R_w_MRF, T_w_MRF[0:3, 3], c)
-    shift_wrench(contact[0:6], d_contact, _mul(R, T_C_S[0:3, 0:3]), c + _apply(R, T_C_S[0:3, 3]), c)
+    shift_wrench(contact[0:6], d_contact, mul3(R, T_C_S[0:3, 0:3]), c + _apply(R, T_C_S[0:3, 3]), c)
     contact[12:15] += d_contact[0:3]
 
 
@@ -533,7 +533,7 @@ def sensor_reading(
             :class:`~app.controller.types.FTReading` defines them, (24,).
     """
     R_w_C = _mul_t(T_w_MRF[0:3, 0:3], T_C_MRF[0:3, 0:3])
-    R_w_S = _mul(R_w_C, T_C_S[0:3, 0:3])
+    R_w_S = mul3(R_w_C, T_C_S[0:3, 0:3])
     w_w = V_w_MRF[3:6]
     for i in range(3):
         reading[R_OMEGA + i] = w_w[i]

@@ -1,14 +1,19 @@
 """The Table I peg task with each arm slave, on a short horizon: it completes, and the contact
 with the 100 N/mm block is the arm's push, not a ringing substep.
 
-The ring is measured as the 95th percentile, over the ticks in contact (over 10 N), of the
-contact force's second difference ``|F(t+1) - 2 F(t) + F(t-1)|`` (N): a period-two ring at the
-servo rate makes it four times the ring's amplitude. Before the arms' contacts were made implicit
-(``app.slave.arm_kernel.implicit_contacts``), within these horizons: the PUMA pushing blind rang
-(981 N, peak 531 N), the 7-dof arm under FRHC/NTRFC rang from 2.86 s on (1603 N, peak 1439 N),
-and blind, with its wrist link on the block top at ~200 N, rang at 459 N (315 N with only the
-tool's contact implicit). Now 5.4, 4.2 and 0.8 N. The PUMA's ~450 N is its joint 2 at its motor
-torque limit (docs/experiment.md, "The arm slaves").
+The ring is measured as the 95th percentile, over the ticks of contacts held over 10 N (for at
+least ``HELD`` ticks), of the contact force's second difference ``|F(t+1) - 2 F(t) + F(t-1)|``
+(N): a period-two ring at the servo rate makes it four times the ring's amplitude. Before the
+arms' contacts were made implicit (``app.slave.arm_kernel.implicit_contacts``), within these
+horizons: the PUMA pushing blind rang (981 N, peak 531 N), the 7-dof arm under FRHC/NTRFC rang
+from 2.86 s on (1603 N, peak 1439 N), and blind, with its wrist link on the block top at ~200 N,
+rang at 459 N (315 N with only the tool's contact implicit). Then 5.4, 4.2 and 0.8 N; now, with
+the lead bounded by the arm's stiffness (``app.slave.arm_kernel.bound_lead``), 7.5, 0 and 2.0 N
+(the 7-dof arm's FRHC/NTRFC run holds no contact over 10 N: its 4.2 N, and 35.6 N after the
+bound, were taps of the pegs). The PUMA's push held ~450 N then, joint 2 at its motor torque
+limit; now the scene's force limit, 40 N, holds it (39.9-40.5 N over the last 0.2 s) and the
+peaks (84, 31, 33 N, against 481, 14, 191 N) are impacts of the arm's inertia
+(docs/experiment.md, "The arm slaves").
 """
 
 from __future__ import annotations
@@ -23,6 +28,10 @@ from app.study.experiment import BLIND, NTRFC, ExperimentPoint
 
 #: Largest ring (N, the module docstring's measure) of a contact that does not ring.
 RING = 20.0
+#: Ticks (1 ms) a contact must stay over 10 N to count: a ring at the servo rate is sustained (the
+#: explicit step's rang for seconds), a tap of the pegs on the block (0, 13, 31, 13, 0 N) is an
+#: impact of a few ticks, and over two such ticks the 95th percentile is the tap's peak.
+HELD = 10
 
 
 class ContactForces:
@@ -36,20 +45,26 @@ class ContactForces:
 
 
 def ring(F: np.ndarray) -> float:
-    """The module docstring's measure of a ring in the forces ``F`` (ticks, 3) (N)."""
+    """The module docstring's measure of a ring in the forces ``F`` (ticks, 3) (N), over the
+    ticks of contacts held over 10 N for at least :data:`HELD` ticks (0 if none is)."""
     second = np.linalg.norm(F[2:] - 2.0 * F[1:-1] + F[:-2], axis=1)
-    return float(np.percentile(second[np.linalg.norm(F[1:-1], axis=1) > 10.0], 95))
+    over = (np.linalg.norm(F, axis=1) > 10.0).astype(int)
+    # Ticks inside a window of HELD ticks all over 10 N.
+    full = np.convolve(over, np.ones(HELD, dtype=int), mode="valid") == HELD
+    held = np.convolve(full.astype(int), np.ones(HELD, dtype=int), mode="full") > 0
+    held = held[1:-1]
+    return float(np.percentile(second[held], 95)) if held.any() else 0.0
 
 
 @pytest.mark.parametrize(
     ("kind", "operator", "condition", "horizon", "peak"),
     [
-        # Blind: the PUMA's servo pushes the pegs onto the hole bottoms to joint 2's torque limit.
-        ("puma560", 0, BLIND, 2.0, 500.0),
+        # Blind: the PUMA's servo pushes the pegs onto the hole bottoms with the force limit.
+        ("puma560", 0, BLIND, 2.0, 100.0),
         # FRHC/NTRFC: after the insertion the operator lets the pegs rest in the holes.
-        ("redundant7", 1, NTRFC, 3.0, 100.0),
-        # Blind: the pegs go in and the wrist's link presses on the block top (~200 N, unfelt).
-        ("redundant7", 0, BLIND, 2.0, 250.0),
+        ("redundant7", 1, NTRFC, 3.0, 40.0),
+        # Blind: the pegs go in and the wrist's link touches the block top (43 N, unfelt).
+        ("redundant7", 0, BLIND, 2.0, 45.0),
     ],
 )
 def test_an_arm_slave_completes_the_peg_task_without_ringing(
@@ -69,4 +84,7 @@ def test_an_arm_slave_completes_the_peg_task_without_ringing(
     assert sum(summary["faults"].values()) == 0
     F = np.array(forces.forces)
     assert float(np.linalg.norm(F, axis=1).max()) < peak
+    # At the end the pegs are held: by at most the force limit (2 %: the contact reads the arm's
+    # dynamic push and the friction's viscous band, not only the servos' static wrench).
+    assert float(np.linalg.norm(F[-200:], axis=1).max()) <= 1.02 * session.scene.spec.slave.force_limit
     assert ring(F) < RING

@@ -200,9 +200,11 @@ class ArmSlave(SlaveBase):
         motion = (self._sdata, self._site_xpos, self._site_xmat, self._cvel, self._cacc, self._subtree_com)
         self._ft_args = (*motion, self._gravity_w, ft.wrench_S, ft.R_w_S, ft.acc_w, ft.omega_w)
         self._ft_reading = entry_point(ak.ft_reading, self._rec, True, *self._ft_args)
-        # The arm's lead is bounded by its own stiffness (:func:`~app.slave.arm_kernel.bound_lead`),
-        # not by the ideal tool's PD, about 30 times softer.
-        self._max_lead_lin = self._max_lead_rot = np.inf
+        # In contact the lead is bounded further, by the arm's own stiffness
+        # (:func:`~app.slave.arm_kernel.bound_lead`): the ideal tool's PD is about 30 times softer.
+        # Out of contact the ideal tool's bound stays: unbounded, a reference pushed past the edge
+        # of reach wound up (1.49 m after 6 s at 0.3 m/s on the PUMA) and the operator, reversing,
+        # felt the 40 N limit wrench for the ~30 s it took to unwind (measured).
         self._bound_lead = entry_point(ak.bound_lead, self._rec)
         self.status = ArmStatus.NONE
         self._fault: str | None = None
@@ -372,12 +374,13 @@ class ArmSlave(SlaveBase):
         return self._reading
 
     def _update_reference(self, command: SlaveCommand, dt: float) -> None:
-        """The reference for this tick of ``dt`` (s), as the ideal tool's; while the tool touches
-        the world (last tick), its lead bounded by the arm's stiffness
-        (:func:`~app.slave.arm_kernel.bound_lead`). In free space the lead is the servos' lag,
-        which accelerates the arm, and at the edge of what the arm can reach it is what the
-        operator feels (the limit wrench): bounded there by the arm's stiffness, which grows
-        without bound toward a singularity, the reference could not pass the edge. A link's
+        """The reference for this tick of ``dt`` (s), as the ideal tool's (its lead within the
+        tool's ``force_limit / kp_lin``, ``torque_limit / kp_rot``); while the tool touches the
+        world (last tick), its lead bounded further by the arm's stiffness
+        (:func:`~app.slave.arm_kernel.bound_lead`). Not in free space: there the lead is the
+        servos' lag, which accelerates the arm, and at the edge of what the arm can reach it is
+        what the operator feels (the limit wrench): bounded there by the arm's stiffness, which
+        grows without bound toward a singularity, the reference could not pass the edge. A link's
         contact does not bound it: the limits are the tool's, and held to them the arm yields to
         a push on a link (a slab pressing the PUMA's upper arm with 6 N drove it off, measured)."""
         super()._update_reference(command, dt)

@@ -353,21 +353,27 @@ def test_a_session_with_a_slab_on_the_arm_logs_and_sums_up_the_link_force(tmp_pa
 
 def test_out_of_reach_the_command_is_limited_flagged_and_felt() -> None:
     """Pushing the PUMA outward past its reach: the set-point stops at the edge, TRACKING is set,
-    and the reading (payload removed) pushes back against the command."""
+    and the reading (payload removed) pushes back against the command. Reversing, the wall lets
+    go within a second: the reference did not wind up past the edge (unbounded, 3 s at 0.25 m/s
+    would leave it ~0.6 m out, and the wall would push for ~12 s at the 0.05 m/s reversal)."""
     arm = ArmSlave(arm_scene("puma560"))
     model = arm.slave_model()
-    flags = ArmStatus.NONE
+
+    def felt_w(reading: FTReading) -> np.ndarray:
+        F = reading.wrench_S.copy()
+        remove_weight(reading.R_w_S, model.gravity_w, model.payload_mass, model.payload_com_S, F)
+        return reading.R_w_S @ F[0:3]
+
     for _ in range(3000):
         reading = arm.step(rate((0.0, 0.0, 0.25, 0.0, 0.0, 0.0)))
-        flags |= arm.status
     assert arm.status & ArmStatus.TRACKING
-    F = reading.wrench_S.copy()
-    remove_weight(reading.R_w_S, model.gravity_w, model.payload_mass, model.payload_com_S, F)
-    f_w = reading.R_w_S @ F[0:3]
-    assert f_w[2] < -5.0  # a wall above: the operator feels the arm's limit
+    assert felt_w(reading)[2] < -5.0  # a wall above: the operator feels the arm's limit
     lo, hi = arm.joint_limits.T
     assert np.all(arm.q >= lo)
     assert np.all(arm.q <= hi)
+    for _ in range(1000):
+        reading = arm.step(rate((0.0, 0.0, -0.05, 0.0, 0.0, 0.0)))
+    assert np.linalg.norm(felt_w(reading)) < 1.0
 
 
 def test_table1_experiment_and_the_log_run_with_an_arm(tmp_path: Path) -> None:

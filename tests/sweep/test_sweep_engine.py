@@ -12,8 +12,9 @@ import pytest
 import sweep_helpers
 from sweep_helpers import DiesLoading, frhc
 
+from app.errors import EngineError
 from app.sweep import load_sweep, run_sweep
-from app.sweep.engine import run_points
+from app.sweep.engine import MAX_START_DEATHS, run_points
 
 #: Six short probe sessions; tremor drawn from a normal distribution, so some draws are negative
 #: (out of its range): those points fail alone, with the one-line error naming the field.
@@ -154,3 +155,18 @@ def test_a_worker_that_dies_while_it_starts_charges_no_point(local_ray: None, tm
         ray.cloudpickle.unregister_pickle_by_value(sweep_helpers)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["death-0", "death-1", "death-2"]
     assert rows == {0: {"a": 0, "status": "ok", "error": ""}}
+
+
+def test_workers_that_always_die_while_they_start_stop_the_run(local_ray: None, tmp_path: Path) -> None:
+    """A task no worker can load (every unpickling ends the process): the engine replaces the dead
+    workers until one slot has lost MAX_START_DEATHS in a row, then stops the run with one line
+    instead of replacing workers for ever. Two slots: 4 to 8 workers died (one slot's fourth,
+    the other's up to three and a replacement loading as the run stops)."""
+    ray = pytest.importorskip("ray")
+    ray.cloudpickle.register_pickle_by_value(sweep_helpers)
+    try:
+        with pytest.raises(EngineError, match=f"^{MAX_START_DEATHS} workers in a row died while loading the task"):
+            dict(run_points(DiesLoading(tmp_path, 1000, operator.call), [(0, partial(dict, [("a", 0)]))], workers=2))
+    finally:
+        ray.cloudpickle.unregister_pickle_by_value(sweep_helpers)
+    assert MAX_START_DEATHS <= len(list(tmp_path.iterdir())) <= 2 * MAX_START_DEATHS

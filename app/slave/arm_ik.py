@@ -75,15 +75,17 @@ def matTvec(A: Array, x: Array) -> Array:
 
 
 @njit(cache=True)
-def _gram_cholesky(J: Array, free: BoolArray, lam2: float) -> Array:
-    """Lower Cholesky factor L (6, 6) of ``J_f J_f^T + lam2 I`` (``J_f``: the ``free`` columns of J)."""
+def gram_cholesky(J: Array, w: Array, lam2: float) -> Array:
+    """Lower Cholesky factor L (6, 6) of ``J W J^T + lam2 I``, ``W = diag(w)`` (n,): a column
+    weight of 0 leaves that column of J out (a joint not free), 1 takes it as it is, ``1 / kp``
+    gives the compliance of joint servos at the tool (:func:`~app.slave.arm_kernel.bound_lead`)."""
     A = np.zeros((6, 6))
     for i in range(6):
         for j in range(i + 1):
             acc = 0.0
             for k in range(J.shape[1]):
-                if free[k]:
-                    acc += J[i, k] * J[j, k]
+                if w[k] != 0.0:
+                    acc += J[i, k] * J[j, k] * w[k]
             A[i, j] = acc
         A[i, i] += lam2
     return cholesky(A)
@@ -134,8 +136,7 @@ def smallest_singular_value(J: Array, v: Array) -> float:
 
     A tiny regularisation keeps the factorisation defined at an exact singularity.
     """
-    free = np.ones(J.shape[1], dtype=np.bool_)
-    L = _gram_cholesky(J, free, 1e-12)
+    L = gram_cholesky(J, np.ones(J.shape[1]), 1e-12)
     x = v.copy()
     rq = 0.0
     for _ in range(4):
@@ -161,7 +162,11 @@ def _dls(J: Array, free: BoolArray, V: Array, z: Array, lam2: float) -> Array:
         if not free[k]:
             zf[k] = 0.0
     r = V - matvec(J, zf)
-    L = _gram_cholesky(J, free, lam2 + 1e-9)
+    w = np.zeros(n)
+    for k in range(n):
+        if free[k]:
+            w[k] = 1.0
+    L = gram_cholesky(J, w, lam2 + 1e-9)
     qd = matTvec(J, cholesky_solve(L, r))
     for k in range(n):
         qd[k] = qd[k] + zf[k] if free[k] else 0.0

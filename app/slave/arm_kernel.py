@@ -25,7 +25,17 @@ import numpy as np
 from numba import njit
 
 from app.mjcall import call_model_data
-from app.slave.arm_ik import TORQUE, VELOCITY, cholesky, cholesky_solve, ik_step, matTvec, matvec, pose_error
+from app.slave.arm_ik import (
+    TORQUE,
+    VELOCITY,
+    cholesky,
+    cholesky_solve,
+    gram_cholesky,
+    ik_step,
+    matTvec,
+    matvec,
+    pose_error,
+)
 from app.slave.tool_kernel import (
     contact_gains,
     correction,
@@ -198,15 +208,7 @@ def bound_lead(rec: Array) -> bool:
     J, kp, T, T_ref, V_ref, feel = r["jac"], r["kp"], r["T"], r["T_ref"], r["V_ref"], r["feel"]
     e = np.empty(6)
     pose_error(T_ref, T[0:3, 3], T[0:3, 0:3], e)
-    C = np.empty((6, 6))
-    for i in range(6):
-        for j in range(i + 1):
-            s = 0.0
-            for k in range(J.shape[1]):
-                s += J[i, k] * J[j, k] / kp[k]
-            C[i, j] = C[j, i] = s
-        C[i, i] += _RIGID
-    L = cholesky(C)
+    L = gram_cholesky(J, 1.0 / kp, _RIGID)
     lin, rot = np.zeros(6), np.zeros(6)
     lin[0:3] = e[0:3]
     rot[3:6] = e[3:6]

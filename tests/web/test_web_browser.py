@@ -319,8 +319,11 @@ TOOL_DRAWN = 2e-3
 
 
 def _tool_drawn_xy(demo: DemoApp, T_w_MRF: np.ndarray) -> np.ndarray:
-    """Where the page draws the probe's vertical stylus, (x, y) in {w} (m): the centroid of its
-    gold pixels in a render from :data:`ABOVE_HEIGHT` above ``T_w_MRF``, back-projected at {MRF}."""
+    """Where the page draws the probe's vertical stylus, (x, y) in {w} (m): the middle of the box
+    round its gold pixels in a render from :data:`ABOVE_HEIGHT` above ``T_w_MRF``, back-projected
+    at {MRF}. The box, not the pixels' mean: {MRF}'s and {S}'s x and y axes cover the +x and +y
+    halves of the round stylus seen from above and pull the mean 2 mm toward -x (the yellow origin
+    spheres viser's frames had, counted as gold, hid that)."""
     client = next(iter(demo.server.get_clients().values()))
     above = T_w_MRF[0:3, 3] + np.array([0.0, 0.0, ABOVE_HEIGHT])
     image = client.get_render(
@@ -333,7 +336,8 @@ def _tool_drawn_xy(demo: DemoApp, T_w_MRF: np.ndarray) -> np.ndarray:
     rows, cols = np.nonzero(gold)
     metres_per_px = ABOVE_HEIGHT * np.tan(0.5 * ABOVE_FOV) / (0.5 * ABOVE_H)
     # Image right is +x, image down is -y (the half turn about x).
-    du, dv = float(cols.mean()) - 0.5 * ABOVE_W, float(rows.mean()) - 0.5 * ABOVE_H
+    du = 0.5 * float(cols.min() + cols.max()) - 0.5 * ABOVE_W
+    dv = 0.5 * float(rows.min() + rows.max()) - 0.5 * ABOVE_H
     return above[0:2] + metres_per_px * np.array([du, -dv])
 
 

@@ -191,6 +191,14 @@ class DemoApp:
     def hand_to_grip(self) -> None:
         self.move_hand_target(self.rt.snapshot.T_0_G)
 
+    def set_hand_holds(self, on: bool) -> None:
+        """The operator's hand takes hold of the grip where the grip is (the gizmo moved there: no
+        pull), or lets go (``on`` False; a drag of the gizmo takes hold again)."""
+        if on:
+            self.hand_to_grip()
+        else:
+            self.rt.set_hand_target(None)
+
     def reset(self) -> None:
         """Device and slave home, switches off, the hand back on the grip's home pose."""
         self.rt.reset()

@@ -349,7 +349,10 @@ def test_the_tool_is_drawn_where_it_is_as_it_moves(demo: DemoApp, page: object) 
     _wait_until(lambda: not demo.rt.snapshot.deadman, "the reset did not reach the loop")
     time.sleep(0.5)
     home = demo.rt.snapshot.T_w_MRF
-    _wait_until(lambda: np.linalg.norm(_tool_drawn_xy(demo, home) - home[0:2, 3]) < TOOL_DRAWN, "the tool at home")
+    _wait_until(
+        lambda: np.linalg.norm(_tool_drawn_xy(demo, home) - home[0:2, 3]) < TOOL_DRAWN,
+        "the tool at home is not drawn where it is",
+    )
     demo.controls.deadman.value = True  # type: ignore[misc]  # viser 1.1: the setter exists
     T_0_H = demo.rt.snapshot.T_0_G.copy()
     T_0_H[0, 3] += 0.03  # past the deadband: the tool moves along +x
@@ -359,11 +362,40 @@ def test_the_tool_is_drawn_where_it_is_as_it_moves(demo: DemoApp, page: object) 
     _wait_until(lambda: not demo.rt.snapshot.deadman, "the deadman is still on")
     time.sleep(0.2)
     moved = demo.rt.snapshot.T_w_MRF
-    _wait_until(lambda: np.linalg.norm(_tool_drawn_xy(demo, moved) - moved[0:2, 3]) < TOOL_DRAWN, "the moved tool")
+    _wait_until(
+        lambda: np.linalg.norm(_tool_drawn_xy(demo, moved) - moved[0:2, 3]) < TOOL_DRAWN,
+        "the moved tool is not drawn where it is",
+    )
 
 
 def _wait_until(condition, what: str) -> None:  # type: ignore[no-untyped-def]
     end = time.monotonic() + STEP_TIMEOUT
     while not condition():
-        assert time.monotonic() < end, f"not drawn where it is: {what}"
+        assert time.monotonic() < end, what
         time.sleep(0.2)
+
+
+def _hand_box(page: object) -> object:
+    return page.get_by_label("Hand holds the grip", exact=True).first  # type: ignore[attr-defined]
+
+
+def test_the_hand_checkbox_lets_go_and_follows_the_loops_hand(demo: DemoApp, page: object) -> None:
+    """Unticked in the page, the operator's hand lets go of the grip (the loop has no hand target
+    and no hand wrench on the grip); ticked, it takes hold where the grip is. The box shows the
+    loop's hand whoever changes it: a drag of the gizmo takes hold (ticked), a release sent to the
+    loop from elsewhere (a script, another browser) unticks it."""
+    _wait_until(lambda: demo.rt.snapshot.T_0_H is not None, "the hand does not hold the grip at the start")
+    _wait_until(lambda: _hand_box(page).is_checked(), "the box is not ticked while the hand holds")  # type: ignore[attr-defined]
+    _hand_box(page).dispatch_event("click")  # type: ignore[attr-defined]
+    _wait_until(lambda: demo.rt.snapshot.T_0_H is None, "unticking the box did not let go")
+    _wait_until(lambda: not np.any(demo.rt.snapshot.hand_wrench_0), "the released hand still pulls the grip")
+    T_0_H = demo.rt.snapshot.T_0_G.copy()
+    T_0_H[2, 3] += 0.01
+    demo.move_hand_target(T_0_H)  # what a drag of the gizmo does
+    _wait_until(lambda: demo.rt.snapshot.T_0_H is not None, "the drag did not take hold")
+    _wait_until(lambda: _hand_box(page).is_checked(), "the box did not follow the hand taking hold")  # type: ignore[attr-defined]
+    demo.rt.set_hand_target(None)
+    _wait_until(lambda: not _hand_box(page).is_checked(), "the box did not follow the hand letting go")  # type: ignore[attr-defined]
+    _hand_box(page).dispatch_event("click")  # type: ignore[attr-defined]
+    _wait_until(lambda: demo.rt.snapshot.T_0_H is not None, "ticking the box did not take hold")
+    np.testing.assert_allclose(demo.rt.snapshot.T_0_H[0:3, 3], demo.rt.snapshot.T_0_G[0:3, 3], atol=2e-3)  # at the grip

@@ -44,6 +44,7 @@ from PIL import Image
 from viser.infra._messages import Message
 
 from app.errors import ConfigError
+from app.web.camera import SOFTWARE_PIXEL_RATIO
 from app.web.headless import open_page, press_probe, running_demo
 from app.web.replay import LogReplay
 from app.web.server import UI_RATE, DemoApp
@@ -195,18 +196,26 @@ def drag_circle(app: DemoApp, stop: threading.Event, radius: float = 0.02, perio
         app.move_hand_target(T_0_H)
 
 
+#: Sets the page's 3D view to ``ratio`` device px per CSS px (viser's ``fixedDpr``).
+PIXEL_RATIO_JS = "(ratio) => window.__viserTestpoints.devSettings.set({ fixedDpr: ratio })"
+
+
 def screenshot(page: Any, name: str) -> Path:
-    """A palette PNG of the page in ``assets/web/<name>.png`` (the README's; well under 300 KB)."""
+    """A palette PNG of the page in ``assets/web/<name>.png`` (the README's; well under 300 KB),
+    its 3D view at full resolution as a browser with a GPU draws it (headless chromium renders in
+    software, where the page draws at :data:`~app.web.camera.SOFTWARE_PIXEL_RATIO`)."""
     close = page.locator(".mantine-Notification-closeButton")  # viser's "software WebGL" notice
     for i in range(close.count()):
         close.nth(i).dispatch_event("click")
-    page.wait_for_timeout(500)
+    page.evaluate(PIXEL_RATIO_JS, 1.0)
+    page.wait_for_timeout(1000)
     SHOT_DIR.mkdir(parents=True, exist_ok=True)
     raw = SHOT_DIR / f"{name}.raw.png"
     page.screenshot(path=str(raw))
     out = SHOT_DIR / f"{name}.png"
     Image.open(raw).convert("RGB").quantize(colors=128).save(out, optimize=True)
     raw.unlink()
+    page.evaluate(PIXEL_RATIO_JS, SOFTWARE_PIXEL_RATIO)
     return out
 
 

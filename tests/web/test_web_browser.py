@@ -16,7 +16,7 @@ import pytest
 import viser
 from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT
 
-from app.web.camera import PANEL_SHARE, CameraPose, box_corners, fit_camera, project
+from app.web.camera import PANEL_SHARE, SOFTWARE_PIXEL_RATIO, CameraPose, box_corners, fit_camera, project
 from app.web.controls import format_six
 from app.web.scene_view import WORLD_ORIGIN_V, world_box
 from app.web.server import DemoApp
@@ -399,3 +399,29 @@ def test_the_hand_checkbox_lets_go_and_follows_the_loops_hand(demo: DemoApp, pag
     _hand_box(page).dispatch_event("click")  # type: ignore[attr-defined]
     _wait_until(lambda: demo.rt.snapshot.T_0_H is not None, "ticking the box did not take hold")
     np.testing.assert_allclose(demo.rt.snapshot.T_0_H[0:3, 3], demo.rt.snapshot.T_0_G[0:3, 3], atol=2e-3)  # at the grip
+
+
+#: The share of the 3D canvas' CSS width its backing store has (device px per CSS px).
+CANVAS_RATIO_JS = "() => { const c = window.__viserMutable.canvas; return c.width / c.clientWidth; }"
+
+
+def test_a_page_without_a_gpu_draws_its_view_at_the_software_pixel_ratio(demo: DemoApp, page: object) -> None:
+    """Headless chromium renders WebGL in software (SwiftShader): the page draws its 3D view at
+    :data:`SOFTWARE_PIXEL_RATIO` (viser's own floor would be 0.75); a page opened with
+    ``?fixedDpr=1`` keeps the resolution its visitor asked for."""
+    _wait_until(
+        lambda: abs(page.evaluate(CANVAS_RATIO_JS) - SOFTWARE_PIXEL_RATIO) < 0.01,  # type: ignore[attr-defined]
+        "the page without a GPU does not draw at the software pixel ratio",
+    )
+    own = page.context.browser.new_page(viewport=page.viewport_size)  # type: ignore[attr-defined]
+    try:
+        own.goto(f"http://127.0.0.1:{demo.server.get_port()}/?fixedDpr=1")
+        own.get_by_text("Deadman [D]").first.wait_for(timeout=STEP_TIMEOUT * 1000)
+        own.wait_for_function(
+            "() => window.__viserMutable && window.__viserMutable.canvas", timeout=STEP_TIMEOUT * 1000
+        )
+        for _ in range(10):  # the script came with the panel; two seconds for it to act (it must not)
+            assert own.evaluate(CANVAS_RATIO_JS) == 1.0
+            time.sleep(0.2)
+    finally:
+        own.close()

@@ -301,7 +301,10 @@ def main(seconds: float, shots: bool, trace: bool) -> None:
         print(f"messages received    {live_messages:6.1f} /s (websocket messages to the page, live)")
         print(f"page update rate     {update_hz:6.1f} Hz (status redraws the page painted over {seconds:g} s)")
         print(f"  while dragging     {moving_hz:6.1f} Hz (the hand circling: the 3D view moves every frame)")
-        print(f"3D frames drawn      {pressed_frames:6.1f} /s pressed, {moving_frames:.1f} /s dragging")
+        print(
+            f"3D frames drawn      {pressed_frames:6.1f} /s pressed, {moving_frames:.1f} /s dragging (with viser's "
+            "settle frames, drawn for 250 ms after any scene message whether or not another came)"
+        )
         if trace:
             print(f"  where the page's time went while dragging (chromium's trace):\n{split}")
         print(f"live page            {live / 1000:8.1f} kB/s (probe pressed: arrows, contacts, plots)")

@@ -12,6 +12,9 @@ Zoom about what is under the cursor, two ways: the page's camera controls dolly 
 (:data:`DOLLY_TO_CURSOR_JS`), and a click on a mesh makes the clicked surface point the orbit
 centre (:meth:`app.web.scene_view.SceneView.pick` finds it with trimesh's ray test, :func:`recentre`
 moves the camera onto it).
+
+A page whose WebGL runs in software draws its view at :data:`SOFTWARE_PIXEL_RATIO`
+(:data:`SOFTWARE_RESOLUTION_JS`).
 """
 
 from __future__ import annotations
@@ -131,7 +134,40 @@ DOLLY_TO_CURSOR_JS = """(() => {
 })();"""
 
 
-def dolly_to_cursor(client: viser.ClientHandle) -> None:
-    """Make ``client``'s wheel zoom toward the cursor (:data:`DOLLY_TO_CURSOR_JS`), through the
-    message viser itself uses to run script in a page (viser 1.1.1 has no public call for it)."""
-    client._websock_connection.queue_message(RunJavascriptMessage(source=DOLLY_TO_CURSOR_JS))
+#: Device pixels per CSS pixel of the 3D view in a page whose WebGL runs in software (no GPU).
+#: Each frame there costs the browser's GPU process CPU time roughly in proportion to the
+#: canvas' pixels beyond a fixed part: while dragging (1400x900 page, one run each, load 5-6)
+#: 45 ms a frame at viser's own adaptive floor of 0.75 (1050x675), 30-34 ms at 0.5, 25-27 ms at
+#: 0.25; the view then drew 17-23 frames/s against 11-16. 0.5 keeps the labels legible.
+SOFTWARE_PIXEL_RATIO = 0.5
+
+#: Run in each page: if its WebGL renderer is a software one (the names viser's own "software
+#: WebGL" notice looks for), draw the view at :data:`SOFTWARE_PIXEL_RATIO`, through viser's
+#: ``fixedDpr`` setting (its URL parameter; set here through ``window.__viserTestpoints``, viser's
+#: hook for its own browser tests). A page opened with ``?fixedDpr=`` keeps the visitor's choice;
+#: with a GPU, viser's adaptive pixel ratio stays in charge.
+SOFTWARE_RESOLUTION_JS = """(() => {
+  if (new URLSearchParams(window.location.search).has('fixedDpr')) return;
+  const probe = document.createElement('canvas').getContext('webgl');
+  const info = probe && probe.getExtension('WEBGL_debug_renderer_info');
+  const renderer = info ? String(probe.getParameter(info.UNMASKED_RENDERER_WEBGL)).toLowerCase() : '';
+  const lose = probe && probe.getExtension('WEBGL_lose_context');
+  if (lose) lose.loseContext();
+  if (!['swiftshader', 'llvmpipe', 'software'].some((name) => renderer.includes(name))) return;
+  const apply = () => {
+    const points = window.__viserTestpoints;
+    if (!points || !points.devSettings) return false;
+    points.devSettings.set({ fixedDpr: SOFTWARE_PIXEL_RATIO });
+    return true;
+  };
+  if (!apply()) {
+    const timer = setInterval(() => { if (apply()) clearInterval(timer); }, 200);
+  }
+})();""".replace("SOFTWARE_PIXEL_RATIO", str(SOFTWARE_PIXEL_RATIO))
+
+
+def run_in_page(client: viser.ClientHandle, source: str) -> None:
+    """Run the script ``source`` in ``client``'s page (:data:`DOLLY_TO_CURSOR_JS`,
+    :data:`SOFTWARE_RESOLUTION_JS`), through the message viser itself uses to run script in a
+    page (viser 1.1.1 has no public call for it)."""
+    client._websock_connection.queue_message(RunJavascriptMessage(source=source))

@@ -85,6 +85,8 @@ class DemoActions(Protocol):
 
     def hand_to_grip(self) -> None: ...
 
+    def set_hand_holds(self, on: bool) -> None: ...
+
     def reset(self) -> None: ...
 
     def select(self, scene: str, device: str) -> None: ...
@@ -226,6 +228,9 @@ class Controls:
             self.reference = gui.add_button("Reference [R]", hint="Momentary: sets {G0} (and indexes in pose mode)")
             self.reflection = gui.add_checkbox("Reflection [F]", False, hint="Task wrench, return-to-centre, damping")
             self.hand_to_grip = gui.add_button("Hand target to grip", hint="Move the gizmo to where the grip is")
+            self.hand_holds = gui.add_checkbox(
+                "Hand holds the grip", True, hint="Off: the hand lets go and the device moves under its own forces"
+            )
 
         with gui.add_folder("Camera"):
             self.camera = gui.add_button_group(
@@ -291,7 +296,7 @@ class Controls:
         self._connect()
         self._history: collections.deque[PlotRow] = collections.deque()
         self._frames = 0
-        self._switches_seen: tuple[bool, bool] | None = None
+        self._switches_seen: tuple[bool, bool, bool] | None = None
         self._quiet_thread: int | None = None
 
     def _connect(self) -> None:
@@ -306,6 +311,11 @@ class Controls:
         def _(_: viser.GuiEvent) -> None:
             if not self._quiet():
                 a.set_reflection(self.reflection.value)
+
+        @self.hand_holds.on_update
+        def _(_: viser.GuiEvent) -> None:
+            if not self._quiet():
+                a.set_hand_holds(self.hand_holds.value)
 
         @self.camera.on_click
         def _(event: viser.GuiEvent) -> None:
@@ -352,17 +362,19 @@ class Controls:
         finally:
             self._quiet_thread = None
 
-    def follow_switches(self, deadman: bool, reflection: bool) -> None:
-        """Tick the switch checkboxes as the shown state has them, whoever set them (a script, a
-        replayed log, another browser): on every change of that state, not on every frame, so a
-        click is never undone by a snapshot from before it."""
-        seen = (deadman, reflection)
+    def follow_switches(self, deadman: bool, reflection: bool, hand_holds: bool) -> None:
+        """Tick the switch checkboxes and the hand's as the shown state has them, whoever set them
+        (a script, a replayed log, another browser, a drag of the gizmo taking hold): on every
+        change of that state, not on every frame, so a click is never undone by a snapshot from
+        before it."""
+        seen = (deadman, reflection, hand_holds)
         if seen == self._switches_seen:
             return
         self._switches_seen = seen
         with self._showing():
             _assign(self.deadman, deadman)
             _assign(self.reflection, reflection)
+            _assign(self.hand_holds, hand_holds)
 
     def clear_plots(self) -> None:
         """Forget the plotted history (a new loop, a new play: its time starts again)."""
@@ -436,7 +448,7 @@ class Controls:
         the UI thread); ``servo_rate`` (Hz) is the simulated rate, ``notice`` a line shown above the
         status (loading, a stopped session)."""
         self.status.content = status_block(snap, timing, scheduling, servo_rate, notice)
-        self.follow_switches(snap.deadman, snap.reflection)
+        self.follow_switches(snap.deadman, snap.reflection, snap.T_0_H is not None)
         self._frames += 1
         if not live:
             return

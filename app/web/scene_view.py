@@ -134,6 +134,12 @@ def viser_to_device(wxyz: Array, position: Array) -> Array:
     return T_0_V @ wxyz_position_to_pose(wxyz, position)
 
 
+#: The most triangles a scene object is drawn with (:func:`drawn_mesh`). Without a GPU the page
+#: draws every triangle in software for every frame (about 1 us each here): large_mesh's terrain of
+#: 196,608 triangles alone would cost ~0.2 s a frame.
+OBJECT_FACES = 20_000
+
+
 #: Sections of a drawn capsule (round, along each end cap): trimesh's default 32 x 32 made a
 #: capsule of 4096 triangles, 20k for the Kraft's links, which the page re-renders every frame
 #: (in software WebGL on a machine without a GPU) and resends whenever the view is rebuilt.
@@ -166,13 +172,71 @@ def _geom_mesh(model: mujoco.MjModel, g: int) -> trimesh.Trimesh | None:
 
 
 def _tool_mesh(centers_T: Array, radii: Array) -> trimesh.Trimesh:
-    """The tool's sphere shell as one mesh in the tool frame {T}."""
+    """The tool's sphere shell as one mesh in the tool frame {T}, without the triangles that are
+    hidden inside another of its spheres: the shell's spheres overlap along its length, and the page
+    draws every triangle of every frame (3360 triangles for the probe's 42 spheres, 1600 shown).
+
+    A triangle is hidden when its three corners are inside the ball inscribed in another drawn
+    sphere (an icosphere is convex and holds that ball, so it holds the triangle too)."""
+    unit = trimesh.creation.icosphere(subdivisions=1)
+    inscribed = float(np.min(np.einsum("ij,ij->i", unit.face_normals, unit.vertices[unit.faces[:, 0]])))
     parts = []
-    for c, r in zip(centers_T, radii, strict=True):
-        s = trimesh.creation.icosphere(subdivisions=1, radius=float(r))
-        s.apply_translation(c)
-        parts.append(s)
+    for i, (c, r) in enumerate(zip(centers_T, radii, strict=True)):
+        sphere = trimesh.Trimesh(unit.vertices * float(r) + c, unit.faces, process=False)
+        others = np.delete(np.arange(len(radii)), i)
+        # (vertex, other sphere): inside that sphere's inscribed ball?
+        inside = (
+            np.linalg.norm(sphere.vertices[:, None] - centers_T[others][None], axis=2) < inscribed * radii[others][None]
+        )
+        sphere.update_faces(~inside[sphere.faces].all(axis=1).any(axis=1))
+        sphere.remove_unreferenced_vertices()
+        parts.append(sphere)
     return cast(trimesh.Trimesh, trimesh.util.concatenate(parts))
+
+
+def drawn_mesh(mesh: trimesh.Trimesh, faces: int = OBJECT_FACES) -> trimesh.Trimesh:
+    """``mesh`` as drawn: itself if it has at most ``faces`` triangles, else merged by vertex
+    clustering (the vertices in one cube of a grid become their mean; a triangle with two corners
+    in one cube goes), the cube's side growing from the median edge by 1.5x until at most
+    ``faces`` triangles remain. The shape keeps its size and place to within a cube's side."""
+    if len(mesh.faces) <= faces:
+        return mesh
+    cell = float(np.median(mesh.edges_unique_length))
+    while True:
+        cell *= 1.5
+        _, cluster, counts = np.unique(
+            np.floor(mesh.vertices / cell).astype(np.int64), axis=0, return_inverse=True, return_counts=True
+        )
+        cluster = cluster.reshape(-1)
+        vertices = np.zeros((len(counts), 3))
+        np.add.at(vertices, cluster, mesh.vertices)
+        vertices /= counts[:, None]
+        corners = cluster[mesh.faces]
+        corners = corners[
+            (corners[:, 0] != corners[:, 1]) & (corners[:, 1] != corners[:, 2]) & (corners[:, 0] != corners[:, 2])
+        ]
+        # A triangle merged onto another (the same three corners) once, in its first winding.
+        _, first = np.unique(np.sort(corners, axis=1), axis=0, return_index=True)
+        corners = corners[np.sort(first)]
+        if len(corners) <= faces:
+            return trimesh.Trimesh(vertices, corners, process=False)
+
+
+def _add_axes(
+    scene: viser.SceneApi, name: str, length: float, radius: float, position: Array | None = None
+) -> viser.BatchedAxesHandle:
+    """A coordinate frame's three axes (red x, green y, blue z) at ``name``: viser's batched axes
+    with one instance, 192 triangles in one draw. viser's ``add_frame`` adds an origin sphere of
+    960 triangles to each frame, five sixths of the frames' triangles, which a page without a GPU
+    draws in software every frame."""
+    return scene.add_batched_axes(
+        name,
+        np.array([[1.0, 0.0, 0.0, 0.0]]),
+        np.zeros((1, 3)),
+        axes_length=length,
+        axes_radius=radius,
+        position=np.zeros(3) if position is None else position,
+    )
 
 
 def _pose(handle: viser.SceneNodeHandle) -> Array:
@@ -221,11 +285,11 @@ class SceneView:
         #: and its parent frame's pose in the viser frame (4, 4; a function, as /mrf moves).
         self._pickable: list[tuple[viser.MeshHandle, trimesh.Trimesh, Callable[[], Array]]] = []
 
-        self._add(scene.add_frame("/device", axes_length=0.08, axes_radius=0.003, position=DEVICE_ORIGIN_V))
+        self._add(_add_axes(scene, "/device", 0.08, 0.003, DEVICE_ORIGIN_V))
         self._add(scene.add_label("/device/label", "device base {0}", position=(0.0, 0.0, -0.03)))
         # The world's frames at its own scale (8 cm axes hid a 13 cm peg block).
         axes = 1.5 * ARROW_UNIT_FRACTION * space_size(world_box(loop.slave.scene))
-        self._add(scene.add_frame("/world", axes_length=axes, axes_radius=0.04 * axes, position=WORLD_ORIGIN_V))
+        self._add(_add_axes(scene, "/world", axes, 0.04 * axes, WORLD_ORIGIN_V))
         self._add(scene.add_label("/world/label", "slave world {w}", position=(0.0, 0.0, -0.05)))
 
         model = loop.plant.model
@@ -240,9 +304,9 @@ class SceneView:
             self.geoms[g] = self._mesh(handle, mesh, _at_origin)
         self._links_shown = True
 
-        self.grip = self._add(scene.add_frame("/grip", axes_length=0.05, axes_radius=0.004))
+        self.grip = self._add(_add_axes(scene, "/grip", 0.05, 0.004))
         self._add(scene.add_label("/grip/label", "{G}", position=(0.0, 0.0, 0.02)))
-        self.reference = self._add(scene.add_frame("/reference", axes_length=0.04, axes_radius=0.0015))
+        self.reference = self._add(_add_axes(scene, "/reference", 0.04, 0.0015))
         self._add(scene.add_label("/reference/label", "{G0}", position=(0.0, 0.0, -0.02)))
         self.hand_target = self._add(
             scene.add_transform_controls("/hand_target", scale=0.12, depth_test=False, opacity=0.8)
@@ -255,16 +319,17 @@ class SceneView:
             self.on_hand_moved(viser_to_device(event.target.wxyz, event.target.position))
 
         for i, obj in enumerate(loop.slave.scene.objects):
+            mesh = drawn_mesh(obj.mesh)
             handle = scene.add_mesh_simple(
-                f"/world/object_{i}", obj.mesh.vertices, obj.mesh.faces, color=STATIC_COLOR, opacity=0.9
+                f"/world/object_{i}", mesh.vertices, mesh.faces, color=STATIC_COLOR, opacity=0.9
             )
-            self._mesh(handle, obj.mesh, _at_world)
+            self._mesh(handle, mesh, _at_world)
         # The dynamic objects: meshes in their own frames {B}, placed at {B}'s pose in {w} (their
         # parent /world is {w}) from each snapshot.
         self.bodies: list[viser.MeshHandle] = []
         for b, body in enumerate(loop.slave.scene.bodies):
             wxyz, position = pose_to_wxyz_position(body.T_w_B)
-            mesh = body.object.mesh
+            mesh = drawn_mesh(body.object.mesh)
             handle = scene.add_mesh_simple(
                 f"/world/body_{b}", mesh.vertices, mesh.faces, color=DYNAMIC_COLOR, wxyz=wxyz, position=position
             )
@@ -281,7 +346,7 @@ class SceneView:
         # The tool and the F/T sensor are rigid on {MRF}: children of /mrf, so a moving tool costs
         # one pose update, not three.
         tool = loop.slave.scene.tool
-        self.mrf = self._add(scene.add_frame("/mrf", axes_length=axes, axes_radius=0.04 * axes))
+        self.mrf = self._add(_add_axes(scene, "/mrf", axes, 0.04 * axes))
         self._add(scene.add_label("/mrf/label", "{MRF}", position=(0.015, 0.0, 0.0)))
         tool_mesh = _tool_mesh(tool.centers_T, tool.radii)
         #: Radius (m) of the tool's sphere shell about {MRF}: what the tool camera preset frames.
@@ -291,7 +356,7 @@ class SceneView:
             "/mrf/tool", tool_mesh.vertices, tool_mesh.faces, color=(200, 160, 60), wxyz=wxyz, position=position
         )
         self.tool = self._mesh(tool_handle, tool_mesh, lambda: _pose(self.mrf))
-        self.sensor = self._add(scene.add_frame("/mrf/sensor", axes_length=0.75 * axes, axes_radius=0.04 * axes))
+        self.sensor = self._add(_add_axes(scene, "/mrf/sensor", 0.75 * axes, 0.04 * axes))
         self._add(scene.add_label("/mrf/sensor/label", "{S}", position=(0.015, 0.0, 0.0)))
         self.device_box_v = device_box(loop) + DEVICE_ORIGIN_V
         self.world_box_v = world_box(loop.slave.scene) + WORLD_ORIGIN_V

@@ -33,7 +33,15 @@ from app.session.spec import Session, load_session
 from app.spatial import Array
 from app.teleop.channel import ChannelSettings
 from app.web.access import TokenGate
-from app.web.camera import FOV, CameraPose, dolly_to_cursor, fit_camera, recentre
+from app.web.camera import (
+    DOLLY_TO_CURSOR_JS,
+    FOV,
+    SOFTWARE_RESOLUTION_JS,
+    CameraPose,
+    fit_camera,
+    recentre,
+    run_in_page,
+)
 from app.web.controls import PLOT_SECONDS, Controls
 from app.web.realtime import RealtimeLoop
 from app.web.replay import LogReplay, ReplayPlayer
@@ -191,6 +199,14 @@ class DemoApp:
     def hand_to_grip(self) -> None:
         self.move_hand_target(self.rt.snapshot.T_0_G)
 
+    def set_hand_holds(self, on: bool) -> None:
+        """The operator's hand takes hold of the grip where the grip is (the gizmo moved there: no
+        pull), or lets go (``on`` False; a drag of the gizmo takes hold again)."""
+        if on:
+            self.hand_to_grip()
+        else:
+            self.rt.set_hand_target(None)
+
     def reset(self) -> None:
         """Device and slave home, switches off, the hand back on the grip's home pose."""
         self.rt.reset()
@@ -286,9 +302,10 @@ class DemoApp:
         camera.position = recentre(CameraPose(camera.position, camera.look_at), hit).position
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
-        """Zoom toward the cursor in the new browser, and fit its camera once it has reported its
-        canvas size."""
-        dolly_to_cursor(client)
+        """Zoom toward the cursor in the new browser, draw its view at a lower resolution if it has
+        no GPU, and fit its camera once it has reported its canvas size."""
+        run_in_page(client, DOLLY_TO_CURSOR_JS)
+        run_in_page(client, SOFTWARE_RESOLUTION_JS)
 
         @client.camera.on_update
         def _(camera: viser.CameraHandle) -> None:

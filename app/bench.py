@@ -230,10 +230,12 @@ def bench_stability(quick: bool = False, window: float = SETTLE_WINDOW) -> str:
     the press's two plateaus of rendered force and grip position
     (:class:`~app.session.stability.FeltStiffness`). *Stable* is settled with the motors and the
     slave within their limits (:attr:`~app.session.stability.PressResult.stable`); otherwise the
-    row says why (:attr:`~app.session.stability.PressResult.verdict`): OSCILLATES, SATURATED (the
+    row says why (:attr:`~app.session.stability.PressResult.verdict`): OSCILLATES, DRIFTS (a steady
+    force, but the grip not at rest: a released tool still coasting off the wall), SATURATED (the
     motors at their limit through the judged window: the device lacks the capacity for the push,
     gravity compensation is scaled down with the wall, not a stability failure) or PUSHED IN (the
-    hand pushed the slave through to its force limit with the motors within capacity). Each device runs as shipped with each hand of :data:`~app.session.stability.HANDS`
+    hand pushed the slave through to its force limit, or the grip on into the surface, with the
+    motors within capacity). Each device runs as shipped with each hand of :data:`~app.session.stability.HANDS`
     and with the hand let go, and as each variant of :data:`~app.device.variants.VARIANTS` (20-bit
     encoders separate the quantisation limit from the passivity bound). ``window``: how long (s)
     the hand holds each wall while its force is judged (the issue's bar: 8 s).
@@ -318,7 +320,13 @@ def _wall_rows(
 
 
 #: How the bench prints each :attr:`~app.session.stability.PressResult.verdict`.
-_VERDICT_WORDS = {"stable": "stable", "oscillating": "OSCILLATES", "saturated": "SATURATED", "pushed": "PUSHED IN"}
+_VERDICT_WORDS = {
+    "stable": "stable",
+    "oscillating": "OSCILLATES",
+    "drifting": "DRIFTS",
+    "saturated": "SATURATED",
+    "pushed": "PUSHED IN",
+}
 
 
 def _judged(r: PressResult) -> str:

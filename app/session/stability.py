@@ -107,19 +107,20 @@ class PressResult:
 
         A press that pushed the slave through to its force limit, or whose grip went on into
         the surface over the judged window by more than :data:`DRIFT_TOLERANCE` under a settled
-        force (the wall gave way; an oscillating grip's travel is its phase), is ``"saturated"`` when the motors were at their limit on at
+        contact force (the wall gave way; an oscillating grip's travel is its phase), is ``"saturated"`` when the motors were at their limit on at
         least :data:`SATURATED_SHARE` of the judged window's ticks: the uniform saturation (Sec
         3.4) scales the whole torque, gravity compensation included, so the device sags under
         the hand: it lacks the capacity for this push, a hardware limit, not a stability
         failure. Otherwise it is ``"pushed"``: the motors had the capacity and the rendered wall
         did not hold the hand back. A press within the slave's limit is ``"oscillating"`` when
         not settled, ``"drifting"`` when settled but the grip moved out of the surface by more
-        than :data:`DRIFT_TOLERANCE` (a steady force, a grip not at rest: a released tool the
-        rendering threw off the wall and that still coasts), ``"saturated"`` when settled with
+        than :data:`DRIFT_TOLERANCE`, or either way out of contact (a steady force, a grip not
+        at rest: a released tool the rendering threw off the wall and that still coasts), ``"saturated"`` when settled with
         the motors saturated in a plateau's window (:attr:`saturated`: a force source, not a
         wall), else ``"stable"``.
         """
-        if self.pushed_through or (self.settled and self.grip_drift < -DRIFT_TOLERANCE):
+        pressed = self.settled and self.mean_force >= SETTLE_MIN_FORCE
+        if self.pushed_through or (pressed and self.grip_drift < -DRIFT_TOLERANCE):
             return "saturated" if self.saturated_share >= SATURATED_SHARE else "pushed"
         if not self.settled:
             return "oscillating"

@@ -228,12 +228,13 @@ def test_a_released_tool_resting_at_zero_force_is_not_saturated_by_a_few_saturat
 
 
 def test_a_grip_not_at_rest_over_the_judged_window_is_not_a_stable_wall() -> None:
-    """The verdict from the grip's travel, with known answers: a steady force with the grip still
-    moving out of the surface is "drifting", on into it "pushed" (the wall gave way; "saturated"
-    if the motors spent the window at their limit), within the tolerance "stable"."""
+    """The verdict from the grip's travel, with known answers: a steady contact force with the
+    grip still moving out of the surface is "drifting", on into it "pushed" (the wall gave way;
+    "saturated" if the motors spent the window at their limit), within the tolerance "stable";
+    out of contact (0 N) a grip moving either way is "drifting" (it is not on the wall)."""
 
-    def judged(drift: float, share: float = 0.0) -> PressResult:
-        return PressResult(3.0, 0.01, True, 5e3, False, False, {}, share, drift)
+    def judged(drift: float, share: float = 0.0, force: float = 3.0) -> PressResult:
+        return PressResult(force, 0.01, True, 5e3, False, False, {}, share, drift)
 
     assert judged(0.5 * DRIFT_TOLERANCE).verdict == "stable"
     assert judged(-0.5 * DRIFT_TOLERANCE).stable
@@ -243,6 +244,8 @@ def test_a_grip_not_at_rest_over_the_judged_window_is_not_a_stable_wall() -> Non
     assert judged(-2.0 * DRIFT_TOLERANCE).verdict == "pushed"
     assert not judged(-2.0 * DRIFT_TOLERANCE).stable
     assert judged(-2.0 * DRIFT_TOLERANCE, share=0.8).verdict == "saturated"
+    assert judged(-2.0 * DRIFT_TOLERANCE, force=0.0).verdict == "drifting"
+    assert judged(0.5 * DRIFT_TOLERANCE, force=0.0).verdict == "stable"
 
 
 def test_a_released_grip_thrown_off_the_wall_is_drifting_not_resting(tmp_path: Path) -> None:

@@ -36,13 +36,21 @@ from app.teleop.channel import ChannelSettings, Coupling
 from app.world.scene import SCENES_DIR
 
 #: A press's verdicts (:attr:`PressResult.verdict`).
-VERDICTS = ("stable", "oscillating", "saturated", "pushed")
+VERDICTS = ("stable", "oscillating", "drifting", "saturated", "pushed")
 #: Share of the judged window's ticks at the motors' limit from which a press pushed through to
 #: the slave's limit lacked capacity: the motors spent most of the window saturated. Measured
 #: (issue 26): a Kraft with twice the link weight under the default hand's push, 0.66-1.00 (the
 #: PC's cut lets some ticks through); walls the PC let the hand push through, 0. Oscillations
 #: that swing through the limit reach 0.4-0.8 too, which is why only a pushed press is split.
 SATURATED_SHARE = 0.5
+#: Grip travel (m) over the judged window beyond which the grip is not at rest (a reading, not
+#: physical): about one encoder count at the grip on the shipped devices (~0.1 mm), the least
+#: motion the device itself can see. Measured (issue 26's stability matrix, 1,872 presses, 0.6 s
+#: windows; those settled, unsaturated and within the slave's limit): held presses 741 of 780
+#: under 0.01 mm and 768 under 0.1 mm; released ones either rest (< 0.01 mm: 179 of 390) or
+#: still creep or coast off the wall, spread from 0.01 mm to several cm (plain on the Kraft at 2x,
+#: released: 3.7 mm since the release, 0.47 mm within the window).
+DRIFT_TOLERANCE = 1e-4
 
 
 @dataclass(frozen=True)
@@ -65,6 +73,11 @@ class PressResult:
         summary: The whole session summary.
         saturated_share: Share of the judged window's ticks on which the uniform saturation
             (paper Sec 3.4) scaled the motors' torque below 1 (0..1).
+        grip_drift: Pose mode: how far (m) the grip's true position moved along +z of the base
+            {0} (out of the probe surface) over the judged window, the mean of its last tenth
+            less the mean of its first (:class:`GripTravel`); NaN in rate mode.
+        release_drift: Released press: how far (m) the grip moved along +z from the moment the
+            hand let go to the end of the judged window; NaN otherwise.
     """
 
     mean_force: float
@@ -75,30 +88,44 @@ class PressResult:
     pushed_through: bool
     summary: dict[str, Any]
     saturated_share: float = 0.0
+    grip_drift: float = math.nan
+    release_drift: float = math.nan
+
+    @property
+    def drifting(self) -> bool:
+        """The grip moved more than :data:`DRIFT_TOLERANCE` over the judged window: not at rest."""
+        return abs(self.grip_drift) > DRIFT_TOLERANCE
 
     @property
     def stable(self) -> bool:
-        """Settled with the motors and the slave within their limits: a wall was rendered."""
-        return self.settled and not self.saturated and not self.pushed_through
+        """Settled, the grip at rest, the motors and the slave within their limits: a wall was rendered."""
+        return self.settled and not self.drifting and not self.saturated and not self.pushed_through
 
     @property
     def verdict(self) -> str:
         """Why a press is or is not a stable wall, one of :data:`VERDICTS`.
 
-        A press that pushed the slave through to its force limit is ``"saturated"`` when the
-        motors were at their limit on at least :data:`SATURATED_SHARE` of the judged window's
-        ticks: the uniform saturation (Sec 3.4) scales the whole torque, gravity compensation
-        included, so the device sags under the hand: it lacks the capacity for this push, a
-        hardware limit, not a stability failure. Otherwise it is ``"pushed"``: the motors had
-        the capacity and the rendered wall did not hold the hand back. A press within the
-        slave's limit is ``"oscillating"`` when not settled, ``"saturated"`` when settled with
+        A press that pushed the slave through to its force limit, or whose grip went on into
+        the surface over the judged window by more than :data:`DRIFT_TOLERANCE` under a settled
+        contact force (the wall gave way; an oscillating grip's travel is its phase), is ``"saturated"`` when the motors were at their limit on at
+        least :data:`SATURATED_SHARE` of the judged window's ticks: the uniform saturation (Sec
+        3.4) scales the whole torque, gravity compensation included, so the device sags under
+        the hand: it lacks the capacity for this push, a hardware limit, not a stability
+        failure. Otherwise it is ``"pushed"``: the motors had the capacity and the rendered wall
+        did not hold the hand back. A press within the slave's limit is ``"oscillating"`` when
+        not settled, ``"drifting"`` when settled but the grip moved out of the surface by more
+        than :data:`DRIFT_TOLERANCE`, or either way out of contact (a steady force, a grip not
+        at rest: a released tool the rendering threw off the wall and that still coasts), ``"saturated"`` when settled with
         the motors saturated in a plateau's window (:attr:`saturated`: a force source, not a
         wall), else ``"stable"``.
         """
-        if self.pushed_through:
+        pressed = self.settled and self.mean_force >= SETTLE_MIN_FORCE
+        if self.pushed_through or (pressed and self.grip_drift < -DRIFT_TOLERANCE):
             return "saturated" if self.saturated_share >= SATURATED_SHARE else "pushed"
         if not self.settled:
             return "oscillating"
+        if self.drifting:
+            return "drifting"
         return "saturated" if self.saturated else "stable"
 
 
@@ -361,7 +388,9 @@ def press(
         duration = session.data.duration
         felt = FeltStiffness(_pose_push(duration, hold, window=window)[1]) if mode == "pose" else None
         judged = ContactForce(duration - window)
-        observers = (judged, felt) if felt else (judged,)
+        let_go = release_time(duration, hold, window) if released else None
+        grip = GripTravel(duration - window, let_go)
+        observers = (judged, grip, felt) if felt else (judged,)
         summary = run_session(session, out_dir=None, plots=False, observers=observers).summary
         force_limit = session.scene.spec.slave.force_limit
     mean, ripple = judged.mean_and_ripple()
@@ -371,7 +400,57 @@ def press(
         stiffness, settled = math.nan, bool(ripple < SETTLE_RIPPLE * felt.plateau_force(0))
         saturated = released_saturated(mean, judged.saturated_share())
     pushed_through = mean >= 0.95 * force_limit
-    return PressResult(mean, ripple, settled, stiffness, saturated, pushed_through, summary, judged.saturated_share())
+    drift = grip.drift() if felt else math.nan
+    return PressResult(
+        mean,
+        ripple,
+        settled,
+        stiffness,
+        saturated,
+        pushed_through,
+        summary,
+        judged.saturated_share(),
+        drift,
+        grip.since_release(),
+    )
+
+
+class GripTravel:
+    """Tick observer: the grip's true height (m, ``T_0_G``'s z in the base {0}, the probe
+    surface's normal) on every tick from ``start`` (s) on, and at ``release`` (s, the first tick
+    from then; None: not recorded), for :attr:`PressResult.grip_drift` and
+    :attr:`PressResult.release_drift`."""
+
+    def __init__(self, start: float, release: float | None = None) -> None:
+        self._start = start
+        self._release = release
+        self._heights: list[float] = []
+        self.at_release = math.nan
+
+    def on_tick(self, tick: TickRecord) -> None:
+        z = float(tick.reading.T_0_G[2, 3])
+        if self._release is not None and math.isnan(self.at_release) and tick.time >= self._release:
+            self.at_release = z
+        if tick.time >= self._start:
+            self._heights.append(z)
+
+    def _ends(self) -> tuple[float, float]:
+        """Mean height (m) over the first and the last tenth of the window (NaN without a tick):
+        an oscillation's phase at the window's edges does not read as travel."""
+        if not self._heights:
+            return math.nan, math.nan
+        z = np.array(self._heights)
+        n = max(1, len(z) // 10)
+        return float(z[:n].mean()), float(z[-n:].mean())
+
+    def drift(self) -> float:
+        """Travel (m) along +z over the window, last tenth's mean less the first's."""
+        first, last = self._ends()
+        return last - first
+
+    def since_release(self) -> float:
+        """Travel (m) along +z from the release to the window's last tenth (NaN if not recorded)."""
+        return self._ends()[1] - self.at_release
 
 
 class ContactForce:

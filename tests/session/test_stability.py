@@ -16,7 +16,9 @@ from app.device.variants import DeviceVariant, write_variant
 from app.session.run import run_session
 from app.session.spec import Waypoint, load_session
 from app.session.stability import (
+    DRIFT_TOLERANCE,
     PUSH_DEPTHS,
+    PressResult,
     design_stiffness,
     device_bound,
     grip_damping,
@@ -219,7 +221,54 @@ def test_a_released_tool_resting_at_zero_force_is_not_saturated_by_a_few_saturat
     assert r.ripple < 0.01, r
     assert 0.0 < r.saturated_share < 0.02, r.saturated_share
     assert not r.saturated
-    assert r.verdict == "stable"
+    # Not saturated; but not at rest either: the wall threw the grip off and it still creeps up
+    # (3.7 mm since the release, ~0.5 mm over the judged window), so the honest verdict is "drifting".
+    assert r.grip_drift > 3.0 * DRIFT_TOLERANCE, r.grip_drift
+    assert r.verdict == "drifting"
+
+
+def test_a_grip_not_at_rest_over_the_judged_window_is_not_a_stable_wall() -> None:
+    """The verdict from the grip's travel, with known answers: a steady contact force with the
+    grip still moving out of the surface is "drifting", on into it "pushed" (the wall gave way;
+    "saturated" if the motors spent the window at their limit), within the tolerance "stable";
+    out of contact (0 N) a grip moving either way is "drifting" (it is not on the wall)."""
+
+    def judged(drift: float, share: float = 0.0, force: float = 3.0) -> PressResult:
+        return PressResult(force, 0.01, True, 5e3, False, False, {}, share, drift)
+
+    assert judged(0.5 * DRIFT_TOLERANCE).verdict == "stable"
+    assert judged(-0.5 * DRIFT_TOLERANCE).stable
+    assert judged(math.nan).stable  # rate mode records no grip travel
+    assert judged(2.0 * DRIFT_TOLERANCE).verdict == "drifting"
+    assert not judged(2.0 * DRIFT_TOLERANCE).stable
+    assert judged(-2.0 * DRIFT_TOLERANCE).verdict == "pushed"
+    assert not judged(-2.0 * DRIFT_TOLERANCE).stable
+    assert judged(-2.0 * DRIFT_TOLERANCE, share=0.8).verdict == "saturated"
+    assert judged(-2.0 * DRIFT_TOLERANCE, force=0.0).verdict == "drifting"
+    assert judged(0.5 * DRIFT_TOLERANCE, force=0.0).verdict == "stable"
+
+
+def test_a_released_grip_thrown_off_the_wall_is_drifting_not_resting(tmp_path: Path) -> None:
+    """A 10-bit Kraft at its with-hand bound, PO/PC, the hand let go: the force over the judged
+    window is 0 N with no ripple, which the force alone read as a tool resting on the wall; the
+    grip's travel shows it was thrown off and still coasts up (~50 mm since the release, ~20 mm
+    within the window). A held press at rest moves less than the tolerance."""
+    device = str(write_variant("kraft", DeviceVariant("enc10", encoder_bits=10), tmp_path))
+    k_t = passivity_bound(device) / design_stiffness(1.0, device=device)
+    gains = {"k_t": [k_t] * 3 + [1.0] * 3}
+    r = press(1e5, "pose", device=device, gains=gains, released=True, passivity=PassivitySettings(enabled=True))
+    # The old judge: stable.
+    assert r.settled
+    assert not r.saturated
+    assert not r.pushed_through
+    assert r.mean_force < 0.1
+    assert r.grip_drift > 0.01, r.grip_drift
+    assert r.release_drift > 0.03, r.release_drift
+    assert r.verdict == "drifting"
+    held = press(1e5, "pose", gains={"k_t": [0.25 * passivity_bound("kraft") / design_stiffness(1.0)] * 3 + [1.0] * 3})
+    assert abs(held.grip_drift) < 0.1 * DRIFT_TOLERANCE
+    assert math.isnan(held.release_drift)
+    assert held.stable
 
 
 def test_a_stiff_hand_pushes_to_the_gap_plus_its_force_over_its_stiffness(tmp_path: Path) -> None:

@@ -316,7 +316,8 @@ def _wall_rows(
                 break
             upto = multiple
         listed = ", ".join(f"{m:g}" for m in good) or "none"
-        lines.append(f"    {name}: stable at {listed} x bound; at every tested multiple up to {upto:g} x")
+        run = f"at every tested multiple up to {upto:g} x" if upto else "not at the smallest tested multiple"
+        lines.append(f"    {name}: stable at {listed} x bound; {run}")
     return lines
 
 

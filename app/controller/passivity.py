@@ -120,7 +120,10 @@ change by the whole force per count, far above what the joints' friction holds (
 slave in (measured on the JPL: +-3 N per count at 7 N, the slave at 25 N). Predicting ``N`` counts
 divides that slope by ``N``. Measured as shipped (``frhc bench stability``): with one count the
 Kraft settled at 4 of 6 tested multiples of the bound, freflex at 4, the JPL at 1; with three,
-every multiple from 0.25x to 4x settles on all three. More counts cost felt stiffness (four: about
+every multiple from 0.25x to 4x settled on all three when it was chosen. (Not so today, with the
+device and judge as they have become: ``frhc bench stability --quick`` reads the Kraft with the
+default hand at 1x as oscillating, ripple 0.34 N on 6 N, 5.6 % against the 5 % line.)
+More counts cost felt stiffness (four: about
 5 kN/m against 6-7 with three) and are not more robust (four oscillated on the JPL at 2-3x).
 Encoders much finer than ``step`` (20-bit copies) are unaffected: there ``step`` is the larger.
 

@@ -198,11 +198,21 @@ def cross3(a: Array, b: Array) -> Array:
 @njit(cache=True)
 def rotation_log(R: Array) -> Array:
     """Rotation vector (3,) (axis times angle, rad) of ``R``; the SO(3) log map."""
+    out = np.empty(3)
+    rotation_log_into(R, out)
+    return out
+
+
+@njit(cache=True)
+def rotation_log_into(R: Array, out: Array) -> None:
+    """:func:`rotation_log` of ``R`` written into ``out`` (3,), allocating nothing (a per-tick
+    reduction's)."""
     cos_t = max(-1.0, min(1.0, (R[0, 0] + R[1, 1] + R[2, 2] - 1.0) * 0.5))
     theta = math.acos(cos_t)
-    v = np.array((R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]))
+    v0, v1, v2 = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]
     if theta < 1e-6:
-        return 0.5 * v
+        out[0], out[1], out[2] = 0.5 * v0, 0.5 * v1, 0.5 * v2
+        return
     if math.pi - theta < 1e-4:
         # Near pi the antisymmetric part vanishes; take the axis from the symmetric part
         # M = (R + I) / 2, column k of its largest diagonal entry.
@@ -211,11 +221,17 @@ def rotation_log(R: Array) -> Array:
             if R[i, i] > R[k, k]:
                 k = i
         scale = 1.0 / math.sqrt(max((R[k, k] + 1.0) * 0.5, 1e-300))
-        axis = np.array([(R[i, k] + (1.0 if i == k else 0.0)) * 0.5 * scale for i in range(3)])
-        if axis[0] * v[0] + axis[1] * v[1] + axis[2] * v[2] < 0:
-            axis = -axis
-        return axis * (theta / math.sqrt(axis[0] ** 2 + axis[1] ** 2 + axis[2] ** 2))
-    return v * (theta / (2.0 * math.sin(theta)))
+        for i in range(3):
+            out[i] = (R[i, k] + (1.0 if i == k else 0.0)) * 0.5 * scale
+        if out[0] * v0 + out[1] * v1 + out[2] * v2 < 0:
+            for i in range(3):
+                out[i] = -out[i]
+        c = theta / math.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2)
+        for i in range(3):
+            out[i] *= c
+        return
+    c = theta / (2.0 * math.sin(theta))
+    out[0], out[1], out[2] = v0 * c, v1 * c, v2 * c
 
 
 @njit(cache=True)

@@ -15,7 +15,7 @@ from app.controller.layout import SCALARS
 from app.controller.types import Fault
 from app.session.tick import STAGES, TickRecord
 from app.slave.arm import ArmStatus
-from app.spatial import Array, IntArray, rotation_log
+from app.spatial import Array, IntArray, rotation_log_into
 from app.world.scene import TaskSpec
 from app.world.scene_file import within_goal
 
@@ -39,26 +39,31 @@ def work_increment(T_prev: Array, T: Array, F_prev: Array, F: Array) -> Array:
     are the contact wrenches at {MRF} in {MRF} (N, N m), (6,).
     """
     work = np.zeros(6)
-    _add_work(T_prev, T, F_prev, F, work)
+    _add_work(T_prev, T, F_prev, F, work, np.empty(_N_SCRATCH))
     return work
 
 
+#: Scratch :func:`_add_work` needs: the displacement (6,) and the relative rotation (3, 3).
+_N_SCRATCH = 15
+
+
 @njit(cache=True)
-def _add_work(T_prev: Array, T: Array, F_prev: Array, F: Array, work: Array) -> None:
-    """Add :func:`work_increment` to ``work`` (6,)."""
+def _add_work(T_prev: Array, T: Array, F_prev: Array, F: Array, work: Array, scratch: Array) -> None:
+    """Add :func:`work_increment` to ``work`` (6,), in ``scratch`` (:data:`_N_SCRATCH`,): no
+    allocation per tick."""
     R_prev = T_prev[0:3, 0:3]
-    dxi = np.empty(6)
+    dxi = scratch[0:6]
     for a in range(3):
         dxi[a] = (
             R_prev[0, a] * (T[0, 3] - T_prev[0, 3])
             + R_prev[1, a] * (T[1, 3] - T_prev[1, 3])
             + R_prev[2, a] * (T[2, 3] - T_prev[2, 3])
         )
-    R_rel = np.empty((3, 3))  # R_prev^T R
+    R_rel = scratch[6:15].reshape((3, 3))  # R_prev^T R
     for a in range(3):
         for b in range(3):
             R_rel[a, b] = R_prev[0, a] * T[0, b] + R_prev[1, a] * T[1, b] + R_prev[2, a] * T[2, b]
-    dxi[3:6] = rotation_log(R_rel)
+    rotation_log_into(R_rel, dxi[3:6])
     for a in range(6):
         work[a] += 0.5 * (F[a] + F_prev[a]) * dxi[a]
 
@@ -66,7 +71,8 @@ def _add_work(T_prev: Array, T: Array, F_prev: Array, F: Array, work: Array) -> 
 # Slots of SessionMetrics' accumulator (see _reduce).
 _WORK, _PEAK_F, _PEAK_M, _SUM_F2, _SUM_M2, _MIN_ENERGY, _MAX_PC, _PC_TICKS = 0, 6, 7, 8, 9, 10, 11, 12
 _CONTACT_TICKS, _SATURATED, _RAMPING, _WATCHDOG, _PEAK_LINK, _DONE_AT, _TIME = 13, 14, 15, 16, 17, 18, 19
-_T_PREV, _F_PREV, _T_NOW, _GOAL, _TOLERANCES, _N_ACC = 20, 36, 42, 58, 74, 76
+_T_PREV, _F_PREV, _T_NOW, _GOAL, _TOLERANCES, _SCRATCH = 20, 36, 42, 58, 74, 76
+_N_ACC = _SCRATCH + _N_SCRATCH
 # Where _reduce finds its values in the state row (SessionMetrics fills these from the block).
 _AT_T, _AT_TOOL, _AT_R, _AT_F, _AT_SCALARS, _AT_SWITCHES, _AT_LINK, _AT_REFLECTING, _N_AT = range(9)
 # Then, in the same int array, the ticks per bit of the controller's faults and the slave's status.
@@ -98,7 +104,8 @@ def _reduce(
 
     ``acc`` also holds the last pose and contact wrench (``_T_PREV``, ``_F_PREV``; they become this
     tick's), scratch for this tick's pose (``_T_NOW``), the task's goal pose (``_GOAL``) and its
-    position (m) and angle (rad) tolerances (``_TOLERANCES``, NaN without a task); ``ints`` holds
+    position (m) and angle (rad) tolerances (``_TOLERANCES``, NaN without a task) and
+    :func:`_add_work`'s scratch (``_SCRATCH``); ``ints`` holds
     where the row's blocks start (``_AT_*``) and the per-bit tick counts (``_FAULT_BITS``,
     ``_STATUS_BITS``). Few arguments: each array costs its unboxing on every call.
     """
@@ -116,7 +123,7 @@ def _reduce(
         for b in range(3):
             T[a, b] = row[r + 3 * a + b]
     F = row[at[_AT_F] : at[_AT_F] + 6]
-    _add_work(T_prev, T, F_prev, F, acc[_WORK : _WORK + 6])
+    _add_work(T_prev, T, F_prev, F, acc[_WORK : _WORK + 6], acc[_SCRATCH:_N_ACC])
     T_prev[:] = T
     F_prev[:] = F
     f = math.sqrt(F[0] * F[0] + F[1] * F[1] + F[2] * F[2])

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -124,3 +125,16 @@ def test_rotation_log_exp_round_trip(w) -> None:
 def test_quaternion_round_trip(q) -> None:
     R = rotation(q)
     np.testing.assert_allclose(quat_to_matrix(matrix_to_quat(R)), R, atol=1e-9)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-8, 0.3, 2.0, math.pi - 1e-5, math.pi])
+def test_rotation_log_near_zero_and_pi_gives_the_rotation_back(angle: float) -> None:
+    """Each branch of the log map (small angle, general, near pi, where the axis comes from the
+    symmetric part) returns the rotation vector of a rotation about a skew axis (the near-pi
+    branch ignores the antisymmetric part: off by about pi minus the angle)."""
+    axis = np.array([0.48, -0.6, 0.64])
+    w = axis * angle
+    got = rotation_log(rotation_exp(w))
+    if angle == math.pi:  # +pi and -pi about the axis are the same rotation
+        got = got * np.sign(got @ axis)
+    np.testing.assert_allclose(got, w, atol=1e-7 + 2.0 * (math.pi - angle) * (math.pi - angle < 1e-4))

@@ -36,8 +36,9 @@ import math
 
 import mujoco
 import numpy as np
+from numba import njit
 
-from app.compiled import entry_point, is_f8
+from app.compiled import F8, entry_point, is_f8
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
 from app.errors import InputError
 from app.mjcall import address, pointers
@@ -106,8 +107,24 @@ def _tool_xml(scene: Scene, timestep: float) -> str:
 
 
 def finite(a: Array) -> bool:
-    """True if every entry of ``a`` is finite (a sum is NaN or inf otherwise, and cheaper than isfinite)."""
-    return math.isfinite(float(a.sum()))
+    """True if every entry of ``a`` is finite.
+
+    A float64 array is checked by compiled code (:func:`_all_finite`): once a tick on the slave
+    command, where numpy's ``a.sum()`` (the check before) cost 2-4 us on the shared machine
+    against ~0.3-0.5 us for the compiled call. (A sum also called huge finite entries that
+    overflow it non-finite.)"""
+    if a.__class__ is np.ndarray and a.dtype is F8:
+        return bool(_all_finite(a))
+    return bool(np.isfinite(a).all())
+
+
+@njit(cache=True)
+def _all_finite(a: Array) -> bool:
+    """Whether every entry of ``a`` (float64, any shape and layout) is finite."""
+    for v in a.flat:  # noqa: SIM110 (no generators in numba)
+        if not math.isfinite(v):
+            return False
+    return True
 
 
 def command_error(command: SlaveCommand, dt: float) -> str | None:

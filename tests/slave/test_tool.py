@@ -11,7 +11,7 @@ import pytest
 
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
 from app.errors import InputError
-from app.slave.tool import VirtualSlave
+from app.slave.tool import VirtualSlave, finite
 from app.world import load_scene
 from app.world.contact.force import V_SLIP
 from app.world.scene import Scene
@@ -292,3 +292,19 @@ def test_a_light_peg_tool_pushed_blind_into_the_holes_holds_the_force_limit(mass
     # over both tips' stiffness.
     k = s.objects[0].stiffness
     assert slave.T_w_MRF[2, 3] == pytest.approx(-0.025 - limit / (2.0 * k), abs=1e-6)
+
+
+def test_a_command_is_refused_for_any_non_finite_entry_and_only_then() -> None:
+    """The check is per entry, in any layout: one NaN or inf anywhere of a twist or pose (also in a
+    strided view) refuses it; entries as large as 1e308, whose sum overflows, are finite."""
+    pose = np.eye(4)
+    assert finite(pose) and finite(np.full(6, 1e308)) and finite(np.arange(6))
+    for bad in (np.nan, np.inf, -np.inf):
+        for i in range(16):
+            p = pose.copy()
+            p.flat[i] = bad
+            assert not finite(p)
+            assert not finite(np.asfortranarray(p)[:, :])
+        twist = np.zeros(12)
+        twist[11] = bad
+        assert finite(twist[::2]) and not finite(twist[1::2])

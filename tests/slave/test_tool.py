@@ -298,7 +298,9 @@ def test_a_command_is_refused_for_any_non_finite_entry_and_only_then() -> None:
     """The check is per entry, in any layout: one NaN or inf anywhere of a twist or pose (also in a
     strided view) refuses it; entries as large as 1e308, whose sum overflows, are finite."""
     pose = np.eye(4)
-    assert finite(pose) and finite(np.full(6, 1e308)) and finite(np.arange(6))
+    assert finite(pose)
+    assert finite(np.full(6, 1e308))
+    assert finite(np.arange(6))
     for bad in (np.nan, np.inf, -np.inf):
         for i in range(16):
             p = pose.copy()
@@ -307,4 +309,5 @@ def test_a_command_is_refused_for_any_non_finite_entry_and_only_then() -> None:
             assert not finite(np.asfortranarray(p)[:, :])
         twist = np.zeros(12)
         twist[11] = bad
-        assert finite(twist[::2]) and not finite(twist[1::2])
+        assert finite(twist[::2])
+        assert not finite(twist[1::2])

@@ -465,6 +465,20 @@ def implicit_contacts(
 
 
 @njit(cache=True)
+def frame_twist(b: int, root: int, xpos: Array, cvel: Array, subtree_com: Array, out: Array) -> None:
+    """Into ``out`` (6,): the twist ``[v; w]`` ({w}) of body ``b``'s frame origin (its contact
+    model's {MRF}), as ``mj_objectVelocity`` with ``mjOBJ_XBODY`` gives it ``[w; v]``: MuJoCo's
+    ``cvel`` holds v at the centre of mass of the subtree of ``root`` (``body_rootid``), so
+    ``v - (p - c) x w``. (``mjOBJ_BODY``, which the links' contacts were given before, is the
+    body's centre of mass's: 30-100 mm from the frame on the 7-dof arm's links.)"""
+    w = cvel[b, 0:3]
+    cr = cross3(xpos[b] - subtree_com[root], w)
+    for a in range(3):
+        out[a] = cvel[b, 3 + a] - cr[a]
+        out[3 + a] = w[a]
+
+
+@njit(cache=True)
 def links_end(
     mj: IntArray,
     rec: Array,
@@ -525,14 +539,7 @@ def links_end(
             for c in range(3):
                 T[a, c] = xmat[b, 3 * a + c]
             T[a, 3] = xpos[b, a]
-        # The twist handed to the link's contact model, as mj_objectVelocity(mjOBJ_BODY) gave it
-        # before this was compiled: v - (p - c) x w with p the link's centre of mass.
-        dif = xipos[b] - subtree_com[root]
-        w = cvel[b, 0:3]
-        cr = cross3(dif, w)
-        for a in range(3):
-            V[a] = cvel[b, 3 + a] - cr[a]
-            V[3 + a] = w[a]
+        frame_twist(b, root, xpos, cvel, subtree_com, V)
         model = models[i]
         code = contact_step_bundled(T, V, True, model)
         link_count[i] = code

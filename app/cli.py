@@ -20,8 +20,9 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-from app.config import fmt_number
+from app.config import Range, field_range, fmt_number
 from app.errors import ConfigError, FrhcError, Interrupted, InvalidField, OutputError
+from app.interrupts import signals_held
 
 
 @contextmanager
@@ -45,26 +46,32 @@ if TYPE_CHECKING:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from app.session.run import run_session
-    from app.session.spec import load_session
+    with signals_held():
+        from app.session.run import run_session
+        from app.session.spec import load_session
 
-    session = load_session(args.session)
+        session = load_session(args.session)
     if args.rate is not None:
         session = session.with_changes(servo_rate=args.rate)
     if args.device is not None:  # the device link's changes (connect, stall, loss) on stderr
         logging.basicConfig(level=logging.INFO, format="%(message)s")
         logging.getLogger("websockets").setLevel(logging.WARNING)
-    out_dir = Path(args.out) if args.out else Path("runs") / Path(args.session).stem
+    out_dir: Path = args.out or Path("runs") / Path(args.session).stem
     with _output_folder(out_dir):
-        result = run_session(
-            session,
-            out_dir=out_dir,
-            plots=not args.no_plots,
-            progress=True,
-            realtime=args.realtime,
-            flush_interval=args.flush_interval,
-            device_url=args.device,
-        )
+        try:
+            result = run_session(
+                session,
+                out_dir=out_dir,
+                plots=not args.no_plots,
+                progress=True,
+                realtime=args.realtime,
+                flush_interval=args.flush_interval,
+                device_url=args.device,
+            )
+        except KeyboardInterrupt as exc:
+            # The log's writer has flushed on the way here: say what it holds.
+            signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
+            raise Interrupted(signum, _kept_log(out_dir)) from None
     s = result.summary
     print(f"log:      {result.log_dir}/ (Parquet)")
     print(f"summary:  {out_dir / 'summary.json'}")
@@ -88,6 +95,20 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _kept_log(out_dir: Path) -> str:
+    """One line: how much of an interrupted run's log ``out_dir/log`` holds, and how to see it."""
+    import pyarrow.parquet as pq
+
+    log = out_dir / "log"
+    try:
+        t = pq.read_table(log, columns=["t"]).column("t")
+    except (OSError, ValueError, KeyError):  # no log yet, or no part written
+        return f"nothing logged yet; {out_dir} has no summary"
+    if len(t) == 0:
+        return f"nothing logged yet; {out_dir} has no summary"
+    return f"the log of the first {t[-1].as_py():.3f} s is in {log}/ (no summary; frhc web --replay {out_dir} shows it)"
+
+
 def _bounded(cast: Callable[[str], float], lo: float, hi: float, unit: str = "") -> Callable[[str], Any]:
     """An argparse type: ``cast`` of the text, refused outside [lo, hi] (``unit`` in the message)."""
 
@@ -108,15 +129,16 @@ _count = _bounded(int, 0, 10_000_000)
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
-    from app.study.experiment import run_experiment
-    from app.world.scene_file import check_slave_kind
+    with signals_held():
+        from app.study.experiment import run_experiment
+        from app.world.scene_file import check_slave_kind
 
     if args.slave is not None:
         try:
             check_slave_kind(args.slave, "--slave")
         except InvalidField as exc:
             raise ConfigError("frhc experiment", exc.field, exc.reason) from None
-    with _output_folder(Path(args.out)) as out_dir:
+    with _output_folder(args.out) as out_dir:
         report = run_experiment(
             out_dir,
             n_operators=args.operators,
@@ -133,10 +155,11 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from app.sweep import load_sweep, run_sweep
+    with signals_held():
+        from app.sweep import load_sweep, run_sweep
 
-    plan = load_sweep(args.file)
-    out_dir = Path(args.out) if args.out else Path("runs") / "sweeps" / Path(args.file).stem
+        plan = load_sweep(args.file)
+    out_dir: Path = args.out or Path("runs") / "sweeps" / Path(args.file).stem
     with _output_folder(out_dir):
         report = run_sweep(plan, out_dir, args.workers, args.address, args.metric, progress=True)
     print(
@@ -160,14 +183,15 @@ def _engine_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _cmd_device_serve(args: argparse.Namespace) -> int:
-    from app.device.cartesian_sim import SimCartesianDevice
-    from app.device.haply import DeviceServer
-    from app.device.spec import load_device
-    from app.session.pacer import SCHEDULING, raise_priority
+    with signals_held():
+        from app.device.cartesian_sim import SimCartesianDevice
+        from app.device.haply import DeviceServer
+        from app.device.spec import load_device
+        from app.session.pacer import SCHEDULING, raise_priority
 
+        spec = load_device(args.device)
     if not 10.0 <= args.rate <= 20000.0:
         raise FrhcError(f"--rate must be in [10, 20000] Hz, got {args.rate:g}")
-    spec = load_device(args.device)
     if spec.data.cartesian is None:
         raise ConfigError(spec.path, "cartesian", "serving a device needs its [cartesian] table (force limit)")
     try:
@@ -200,14 +224,16 @@ def _device_url(text: str) -> str:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from app import bench
+    with signals_held():
+        from app import bench
 
     print(bench.run(args.what, quick=args.quick, window=args.window))
     return 0
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    from app.check import check_file
+    with signals_held():
+        from app.check import check_file
 
     for name in args.files:
         print(f"ok: {check_file(name)}")
@@ -215,14 +241,16 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from app.device.calibrate import calibrate
+    with signals_held():
+        from app.device.calibrate import calibrate
 
     print(calibrate(args.device, write=args.write))
     return 0
 
 
 def _cmd_web(args: argparse.Namespace) -> int:
-    from app.web.launch import serve
+    with signals_held():
+        from app.web.launch import serve
 
     serve(
         args.scene,
@@ -239,8 +267,9 @@ def _cmd_web(args: argparse.Namespace) -> int:
 
 
 def _cmd_zwidth(args: argparse.Namespace) -> int:
-    from app.session.stability import device_bound, passivity_bound
-    from app.study.zwidth import zwidth
+    with signals_held():
+        from app.session.stability import device_bound, passivity_bound
+        from app.study.zwidth import zwidth
 
     device_only = device_bound(args.device, args.rate)
     if args.hand is None:
@@ -248,7 +277,7 @@ def _cmd_zwidth(args: argparse.Namespace) -> int:
     else:
         with_hand = passivity_bound(args.device, args.rate, args.hand)
         print(f"bound 2b/T with the hand {with_hand:,.0f} N/m, device only {device_only:,.0f} N/m")
-    with _output_folder(Path(args.out)) as out:
+    with _output_folder(args.out) as out:
         edges = zwidth(
             out,
             renderers=tuple(args.renderers),
@@ -279,9 +308,12 @@ def _list_of(kind: Callable[[str], object]) -> Callable[[str], list[object]]:
 
     def parse(text: str) -> list[object]:
         try:
-            return [kind(v) for v in text.split(",") if v.strip()]
+            values = [kind(v) for v in text.split(",") if v.strip()]
         except ValueError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
+        if not values:
+            raise argparse.ArgumentTypeError(f"expected at least one value, got {text!r}")
+        return values
 
     return parse
 
@@ -307,16 +339,60 @@ def _hand(text: str) -> HandParams | None:
         raise argparse.ArgumentTypeError(f"expected K,B (N/m, N s/m) or 'released': {exc}") from None
 
 
-def _servo_rate(text: str) -> float:
-    """``--rate``: a servo rate (Hz) in the range session files accept."""
-    from app.session.spec import check_servo_rate
+def _schema_number(module: str, owner: str, name: str, what: str) -> Callable[[str], float]:
+    """An argparse type: a number held to the range of field ``name`` of schema class ``owner``
+    (in ``module``, imported when the argument is parsed), so an argument and a file's field
+    accept the same values; ``what`` names the quantity in the message."""
+
+    def parse(text: str) -> float:
+        import importlib
+
+        rule = field_range(getattr(importlib.import_module(module), owner), name)
+        assert isinstance(rule, Range), f"{owner}.{name} has no range"
+        try:
+            value = float(text)
+            rule.check(name, value)
+        except InvalidField as exc:
+            raise argparse.ArgumentTypeError(f"expected {what}: {exc}") from None
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}: not a number: {text!r}") from None
+        return value
+
+    return parse
+
+
+_servo_rate = _schema_number("app.session.spec", "SessionFile", "servo_rate", "a servo rate in Hz")
+_delay_ms = _schema_number("app.teleop.channel", "ChannelSettings", "delay_ms", "a one-way delay in ms")
+
+
+def _port(text: str) -> int:
+    """A TCP port to listen on (0: any free one)."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a TCP port from 0 to 65535, got {text!r}")
+    return port
+
+
+def _host(text: str) -> str:
+    """An address to listen on: a name or an IP address this machine can resolve."""
+    import socket
 
     try:
-        rate = float(text)
-        check_servo_rate(rate)
-    except (ValueError, InvalidField) as exc:
-        raise argparse.ArgumentTypeError(f"expected a servo rate in Hz: {exc}") from None
-    return rate
+        socket.getaddrinfo(text, None)
+    except (OSError, UnicodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise argparse.ArgumentTypeError(f"cannot resolve {text!r}: {reason}") from None
+    return text
+
+
+def _out_dir(text: str) -> Path:
+    """An output folder (``--out``); an empty name would write into the working folder."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a folder name, got an empty one")
+    return Path(text)
 
 
 def _spin_share(text: str) -> float:
@@ -349,7 +425,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run a headless scripted session", description="Run a session file headless.")
     p.add_argument("session", help="session name in sessions/ or a path to a session .toml")
-    p.add_argument("--out", help="output directory (default runs/<session>)")
+    p.add_argument("--out", type=_out_dir, help="output directory (default runs/<session>)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--realtime", action="store_true", help="pace ticks to the wall clock")
     p.add_argument(
@@ -379,8 +455,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="the paper's Table I experiment",
         description="Dual peg-in-the-holes for several simulated operators, FRHC/NTRFC vs blind (paper Sec 4.3).",
     )
-    p.add_argument("--out", default="runs/experiment", help="output directory")
-    p.add_argument("--operators", type=_count, default=100, help="operators drawn from the population (default 100)")
+    p.add_argument(
+        "--out", type=_out_dir, default="runs/experiment", help="output directory; re-running into it resumes"
+    )
+    p.add_argument(
+        "--operators",
+        type=_bounded(int, 1, 10_000_000),
+        default=100,
+        help="operators drawn from the population (default 100)",
+    )
     p.add_argument("--seed", type=_count, default=0, help="seed of the population (default 0)")
     p.add_argument(
         "--time-limit",
@@ -399,7 +482,9 @@ def build_parser() -> argparse.ArgumentParser:
         "results to Parquet, resumable, with a plot.",
     )
     p.add_argument("file", help="sweep .toml file")
-    p.add_argument("--out", help="output directory (default runs/sweeps/<file>); re-running into it resumes")
+    p.add_argument(
+        "--out", type=_out_dir, help="output directory (default runs/sweeps/<file>); re-running into it resumes"
+    )
     _engine_arguments(p)
     p.add_argument("--metric", default=None, help="metric to plot (default: the sweep file's metric)")
     p.set_defaults(func=_cmd_sweep)
@@ -446,8 +531,8 @@ def build_parser() -> argparse.ArgumentParser:
         "Inverse Service JSON protocol, for frhc run/web --device ws://host:port (app/device/haply.py).",
     )
     p.add_argument("--device", default="kraft", help="device name or path with a [cartesian] table (default: kraft)")
-    p.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=10001, help="port (default 10001, as Haply's service)")
+    p.add_argument("--host", type=_host, default="127.0.0.1", help="bind address (default 127.0.0.1)")
+    p.add_argument("--port", type=_port, default=10001, help="port (default 10001, as Haply's service)")
     p.add_argument("--rate", type=float, default=1000.0, help="simulation rate (Hz, default 1000)")
     p.set_defaults(func=_cmd_device_serve)
 
@@ -463,10 +548,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--session", default=None, help="start with this session's gains and mode")
     p.add_argument(
         "--host",
+        type=_host,
         default="127.0.0.1",
         help="bind address (default 127.0.0.1); any other needs the access token in the printed URL",
     )
-    p.add_argument("--port", type=int, default=8080)
+    p.add_argument("--port", type=_port, default=8080)
     p.add_argument("--insecure", action="store_true", help="serve a non-loopback --host without an access token")
     p.add_argument("--replay", metavar="LOG", help="start replaying a recorded log (runs/<name> or runs/<name>/log)")
     p.add_argument(
@@ -491,18 +577,18 @@ def build_parser() -> argparse.ArgumentParser:
         description="Z-width by bisection on the task-wrench gain, pose-mode probe presses (see app/study/zwidth.py).",
     )
     p.add_argument("--device", default="kraft")
-    p.add_argument("--rate", type=float, default=1000.0, help="servo rate (Hz)")
-    p.add_argument("--delay-ms", type=float, default=0.0, help="one-way master-slave delay (ms)")
+    p.add_argument("--rate", type=_servo_rate, default=1000.0, help="servo rate (Hz)")
+    p.add_argument("--delay-ms", type=_delay_ms, default=0.0, help="one-way master-slave delay (ms)")
     p.add_argument("--renderers", type=_list_of(_renderer), default=["plain", "pc"], help="e.g. plain,pc,wave")
     p.add_argument("--dampings", type=_list_of(_damping), default=[0.0, 4.0, 16.0], help="K_D values (N s/m)")
     p.add_argument("--iterations", type=int, default=5, choices=range(1, 13), metavar="1..12", help="bisection steps")
     p.add_argument(
         "--hand",
         type=_hand,
-        default=_hand("400,10"),
+        default="400,10",
         help="the hand: K,B (N/m, N s/m; default 400,10) or 'released' (lets go after the first push)",
     )
-    p.add_argument("--out", default="runs/zwidth", help="output directory")
+    p.add_argument("--out", type=_out_dir, default="runs/zwidth", help="output directory")
     _engine_arguments(p)
     p.set_defaults(func=_cmd_zwidth)
     return parser
@@ -510,10 +596,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``frhc``; returns the exit code (2 for bad input)."""
-    args = build_parser().parse_args(argv)
-    func: Callable[[argparse.Namespace], int] = args.func
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
+        # Each command imports what it needs with the signals held too (app.interrupts says why).
+        with signals_held():
+            args = build_parser().parse_args(argv)
+        func: Callable[[argparse.Namespace], int] = args.func
         return func(args)
     except FrhcError as exc:
         print(f"error: {exc}", file=sys.stderr)

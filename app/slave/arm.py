@@ -47,7 +47,6 @@ one record of the arm's state); building the arm is :mod:`app.slave.arm_model`.
 from __future__ import annotations
 
 from enum import IntFlag
-from typing import Any
 
 import mujoco
 import numpy as np
@@ -55,12 +54,14 @@ import numpy as np
 from app.compiled import entry_point
 from app.controller.types import FTReading, SlaveCommand
 from app.mjcall import address, pointers
-from app.slave import arm_ik, tool_kernel
+from app.slave import arm_ik
 from app.slave import arm_kernel as ak
 from app.slave.arm_model import ArmGeom, ArmParams, arm_record, arm_spec, link_contact_models, place_base
 from app.slave.tool import DEFAULT_PERIOD, SlaveBase, command_error, contact_rows, finite, invalid_contact
-from app.spatial import Array, IntArray
+from app.spatial import Array
 from app.world.contact import ContactResult
+from app.world.contact.layout import MAX_PER_PAIR
+from app.world.contact.model import failed
 from app.world.dynamics import MovingWorld, world_contact
 from app.world.scene import Scene
 
@@ -123,6 +124,14 @@ class ArmSlave(SlaveBase):
         tool = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "tool")
         self._links, self._link_models, spheres = link_contact_models(m, tool, scene)
         self._rec = arm_record(m, d, scene, params, self._links, spheres)
+        # The near links' contact results, written by the compiled substep end
+        # (:func:`~app.slave.arm_kernel.links_end`): each link's ``w`` and contact count (or error
+        # code), and their rows, link after link (as many as every link sphere can make).
+        self._link_arrays = tuple(model.arrays for model in self._link_models)
+        self._link_w = np.zeros((len(self._links), 15))
+        self._link_count = np.full(len(self._links), -1, dtype=np.int64)
+        self._link_rows = np.zeros((MAX_PER_PAIR * len(spheres[2]) * len(scene.objects) + 1, 9))
+        self._links_were_near = False
         r = self._rec[0]
         # The base's buffers become views of the record, which the compiled tick writes.
         self._T, self._V, self._T_ref, self._V_ref_w = r["T"], r["V"], r["T_ref"], r["V_ref"]
@@ -141,7 +150,6 @@ class ArmSlave(SlaveBase):
         )
         self._cvel, self._cacc, self._subtree_com = d.cvel, d.cacc, d.subtree_com
         self._qacc, self._M = d.qacc, d.M
-        self._res = np.zeros(6)
         # The F/T reading every step returns (one buffer, overwritten): no allocation per tick.
         b = self._ft_buffer = np.zeros(24)
         self._ft = FTReading(b[0:6], b[6:15].reshape(3, 3), b[15:21], b[21:24])
@@ -186,15 +194,37 @@ class ArmSlave(SlaveBase):
             True,
             self._mj,
         )
-        self._implicit = entry_point(
-            ak.implicit_contacts,
-            self._mj,
-            self._rec,
-            self._h,
+        # MuJoCo's arrays and the outputs of the substep's end with links near, after ``h`` and
+        # before the tool's contact (:func:`~app.slave.arm_kernel.links_end`).
+        self._links_views = (
             self._qvel,
-            *self._end_args(
-                contact_w, contact_rows(invalid_contact("")), np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64)
-            ),
+            self._qacc,
+            self._M,
+            self._xfrc,
+            self._xanchor,
+            self._xaxis,
+            self._xipos,
+            self._xpos,
+            self._xmat,
+            self._cvel,
+            self._subtree_com,
+            self._site_xpos,
+            self._site_xmat,
+        )
+        self._links_out = (self._materials, self._link_arrays, self._link_w, self._link_rows, self._link_count)
+        self._links_end = (
+            entry_point(
+                ak.links_end,
+                self._mj,
+                self._rec,
+                self._h,
+                *self._links_views,
+                contact_w,
+                contact_rows(invalid_contact("")),
+                *self._links_out,
+            )
+            if self._links
+            else None
         )
         ft = self._ft
         motion = (self._sdata, self._site_xpos, self._site_xmat, self._cvel, self._cacc, self._subtree_com)
@@ -208,8 +238,6 @@ class ArmSlave(SlaveBase):
         self._bound_lead = entry_point(ak.bound_lead, self._rec)
         self.status = ArmStatus.NONE
         self._fault: str | None = None
-        self.link_contacts: list[ContactResult] = []
-        self._link_force = 0.0
         self.reset()
 
     # --- state ---------------------------------------------------------------------------------
@@ -243,7 +271,7 @@ class ArmSlave(SlaveBase):
         for model in self._link_models:
             model.reset()
         self._contact = self.contact_model.wrench(self._T, self._V)
-        self.link_contacts = []
+        self._links_were_near = False
         self._link_force = 0.0
         # At rest the sensor reads the payload weight; MuJoCo's sensor needs accelerations, which
         # a held arm does not have, so build that reading from the model directly.
@@ -359,17 +387,23 @@ class ArmSlave(SlaveBase):
                 self._mj,
             )
             status |= bits
+            self._links_were_near = near
             if near:  # the kernel stopped before its end: the links' wrenches go in first
-                if self._link_contacts():
+                assert self._links_end is not None
+                touching, failed = self._links_end(self._mj, rec, h, *self._links_views, w, rows, *self._links_out)
+                if touching:
                     status |= ArmStatus.LINK_CONTACT
-                self._end_with_links(h, w, rows)
-            elif self.link_contacts:
-                self.link_contacts = []
+                if failed:  # as a contact model does when its own step fails
+                    for i in np.flatnonzero(self._near * (self._link_count < 0)):
+                        self._link_models[i].reset()
             if self._moving is not None:
                 self._moving.step(h)
         self._contact = contact
         self.status = _STATUS[status]
-        self._link_force = sum(float(np.linalg.norm(r.force_w)) for r in self.link_contacts if r.valid)
+        self._link_force = 0.0
+        if self._links_were_near:
+            for i in np.flatnonzero(self._near * (self._link_count >= 0)):
+                self._link_force += float(np.linalg.norm(self._link_w[i, 12:15]))
         self._reading = self._make_reading(contact)
         return self._reading
 
@@ -387,65 +421,23 @@ class ArmSlave(SlaveBase):
         if self._contact.count > 0:
             self._bound_lead(self._rec)
 
-    def _end_args(self, contact_w: Array, rows: Array, groups: IntArray, bodies: IntArray) -> tuple[Any, ...]:
-        """:func:`~app.slave.arm_kernel.implicit_contacts`' arguments after ``h`` and ``qvel``, for
-        the contact rows ``rows`` of the bodies ``bodies`` (``groups``: each row's index into it)."""
-        qacc, M, xanchor, xaxis, site_xpos, site_xmat = self._end_views
-        d = np.zeros((len(bodies), 6))
-        return (
-            qacc,
-            M,
-            self._xfrc,
-            xanchor,
-            xaxis,
-            self._xipos,
-            site_xpos,
-            site_xmat,
-            contact_w,
-            rows,
-            groups,
-            bodies,
-            self._materials,
-            d,
-        )
-
-    def _end_with_links(self, h: float, contact_w: Array, rows: Array) -> None:
-        """The substep's end when links are near the world: the tool's and the touching links'
-        contacts made implicit together (:func:`~app.slave.arm_kernel.implicit_contacts`), each
-        link's result corrected to the wrench the step applied, then ``mj_step2``."""
-        touching = [(i, r) for i, r in zip(np.flatnonzero(self._near), self.link_contacts, strict=True) if r.count > 0]
-        bodies = np.array([self._rec[0]["tool"], *(self._links[i] for i, _ in touching)], dtype=np.int64)
-        groups = np.repeat(np.arange(len(bodies), dtype=np.int64), [len(rows), *(r.count for _, r in touching)])
-        if touching:
-            rows = np.concatenate([rows, *(r.contacts for _, r in touching)])
-        args = self._end_args(contact_w, rows, groups, bodies)
-        self._implicit(self._mj, self._rec, h, self._qvel, *args)
-        mujoco.mj_step2(self.model, self.data)
-        d = args[-1]
-        for g, (_, r) in enumerate(touching, start=1):
-            b = bodies[g]
-            R, p = self._xmat[b].reshape(3, 3), self._xpos[b]
-            for part in (r.w[0:6], r.w[6:12]):  # {S} and {MRF} are the link's frame
-                tool_kernel.shift_wrench(part, d[g], R, p, self._xipos[b])
-            r.w[12:15] += d[g, 0:3]
-
-    def _link_contacts(self) -> bool:
-        """Contact wrenches of the links near the world (``near`` in the record), added to
-        ``xfrc_applied``; whether any link touches."""
-        self.link_contacts = []
-        xfrc = self._xfrc
+    @property
+    def link_contacts(self) -> list[ContactResult]:
+        """The contact results of the links near the world at the last substep (empty when none
+        is), in the order of their bodies; the wrench each reads is the one the step applied.
+        (New lists each call; their ``queries`` and ``gathers`` counts are not kept.)"""
+        if not self._links_were_near:
+            return []
+        out: list[ContactResult] = []
+        at = 0
         for i in np.flatnonzero(self._near):
-            b = self._links[i]
-            T = np.eye(4)
-            T[0:3, 0:3] = self._xmat[b].reshape(3, 3)
-            T[0:3, 3] = self._xpos[b]
-            mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_BODY, b, self._res, 0)
-            V = np.concatenate((self._res[3:6], self._res[0:3]))
-            r = self._link_models[i].wrench(T, V)
-            self.link_contacts.append(r)
-            if r.valid:
-                ak.body_wrench(r.force_w, r.wrench_MRF[3:6], T[0:3, 0:3], T[0:3, 3], self._xipos[b], xfrc[b])
-        return any(r.count > 0 for r in self.link_contacts)
+            code = int(self._link_count[i])
+            if code < 0:
+                out.append(failed(code))
+                continue
+            out.append(ContactResult(True, self._link_w[i].copy(), self._link_rows[at : at + code].copy(), 0, 0, None))
+            at += code
+        return out
 
     @property
     def link_force(self) -> float:

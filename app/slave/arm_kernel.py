@@ -3,7 +3,9 @@
 One servo tick of :class:`~app.slave.arm.ArmSlave` crosses from Python into compiled code three
 times, whatever the arm: :func:`mrf_state` after ``mj_step1`` (the {MRF} Jacobian, pose and
 twist), :func:`control` before ``mj_step2`` (the IK of :mod:`app.slave.arm_ik`, the joint servo,
-the tool's contact wrench and which links are near the world) and :func:`ft_reading` after it.
+the tool's contact wrench and which links are near the world) and :func:`ft_reading` after it;
+with a link near the world once more, :func:`links_end` (the links' contacts, the implicit step
+and ``mj_step2``), which was Python glue around the compiled parts before.
 Each crossing costs about 0.1 us per argument, so everything the arm owns (its constants, the IK
 state and the {MRF} buffers) is one numpy record (:func:`arm_record_dtype`) passed as a single
 argument; MuJoCo's arrays are passed as they are (views of ``MjData``, fetched once).
@@ -45,6 +47,7 @@ from app.slave.tool_kernel import (
     shift_wrench,
 )
 from app.spatial import Array, IntArray, cross3, rotation_exp
+from app.world.contact.step import contact_step_bundled
 
 #: Slots of the MuJoCo addresses a substep is handed (:mod:`app.mjcall`): ``mj_step1``,
 #: ``mj_step2``, ``mjModel*``, ``mjData*``, then the acceleration stages ``mj_step2`` runs before
@@ -459,6 +462,138 @@ def implicit_contacts(
     shift_wrench(contact[0:6], d[0], site_xmat[s_ft].reshape((3, 3)), site_xpos[s_ft], c)
     for i in range(3):
         contact[12 + i] += d[0, i]
+
+
+@njit(cache=True)
+def frame_twist(b: int, root: int, xpos: Array, cvel: Array, subtree_com: Array, out: Array) -> None:
+    """Into ``out`` (6,): the twist ``[v; w]`` ({w}) of body ``b``'s frame origin (its contact
+    model's {MRF}), as ``mj_objectVelocity`` with ``mjOBJ_XBODY`` gives it ``[w; v]``: MuJoCo's
+    ``cvel`` holds v at the centre of mass of the subtree of ``root`` (``body_rootid``), so
+    ``v - (p - c) x w``. (``mjOBJ_BODY``, which the links' contacts were given before, is the
+    body's centre of mass's: 30-100 mm from the frame on the 7-dof arm's links.)"""
+    w = cvel[b, 0:3]
+    cr = cross3(xpos[b] - subtree_com[root], w)
+    for a in range(3):
+        out[a] = cvel[b, 3 + a] - cr[a]
+        out[3 + a] = w[a]
+
+
+@njit(cache=True)
+def links_end(
+    mj: IntArray,
+    rec: Array,
+    h: float,
+    qvel: Array,
+    qacc: Array,
+    M: Array,
+    xfrc: Array,
+    xanchor: Array,
+    xaxis: Array,
+    xipos: Array,
+    xpos: Array,
+    xmat: Array,
+    cvel: Array,
+    subtree_com: Array,
+    site_xpos: Array,
+    site_xmat: Array,
+    contact: Array,
+    rows: Array,
+    materials: Array,
+    models: tuple,
+    link_w: Array,
+    link_rows: Array,
+    link_count: IntArray,
+) -> tuple[bool, bool]:
+    """The substep's end when links are near the world (``rec.near``, after :func:`control`):
+    each near link's contact wrench (its contact model's compiled step, the link's frame as
+    {MRF}) into ``xfrc``; the tool's and the touching links' contacts made implicit together
+    (:func:`implicit_contacts`); ``mj_step2``; each link's wrench corrected to the one the step applied.
+
+    Args:
+        mj, rec, h, qvel ... site_xmat, contact, rows, materials: As for :func:`control` (``rows``
+            the tool's alone); ``cvel``, ``subtree_com``: MuJoCo's body velocities (nbody, 6)
+            ``[w; v at the subtree's centre of mass]`` and those centres (nbody, 3).
+        models: Each link's contact model's arrays (:class:`~app.world.contact.bundle.KernelArrays`).
+        link_w: Output, each near link's contact result's ``w`` (links, 15), as the tool's ``contact``.
+        link_rows: Output, the near links' contact rows (capacity, 9), link after link.
+        link_count: Output, each link's contact count, or its step's error code (< 0); -1 where
+            the link is not near (-1 is also the code of a non-finite pose: only ``near`` tells).
+
+    Returns:
+        Whether any link touches, and whether any link's step failed (its model must be reset).
+    """
+    r = rec[0]
+    near, links = r["near"], r["links"]
+    root = r["root"]
+    T = np.eye(4)
+    V = np.empty(6)
+    used = 0
+    touching = 0
+    failed = False
+    for i in range(links.shape[0]):
+        link_count[i] = -1
+        if near[i] == 0:
+            continue
+        b = links[i]
+        for a in range(3):
+            for c in range(3):
+                T[a, c] = xmat[b, 3 * a + c]
+            T[a, 3] = xpos[b, a]
+        frame_twist(b, root, xpos, cvel, subtree_com, V)
+        model = models[i]
+        code = contact_step_bundled(T, V, True, model)
+        link_count[i] = code
+        if code < 0:
+            link_w[i, :] = 0.0
+            failed = True
+            continue
+        out_w = model.tool[0].out
+        for a in range(15):
+            link_w[i, a] = out_w[a]
+        out = model.out
+        for k in range(code):
+            o = out[k]
+            for a in range(3):
+                link_rows[used + k, a] = o.p[a]
+                link_rows[used + k, 3 + a] = o.n[a]
+            link_rows[used + k, 6] = o.depth
+            link_rows[used + k, 7] = o.sphere
+            link_rows[used + k, 8] = o.obj
+        used += code
+        if code > 0:
+            touching += 1
+        body_wrench(link_w[i, 12:15], link_w[i, 9:12], T[0:3, 0:3].copy(), T[0:3, 3].copy(), xipos[b], xfrc[b])
+    k0 = rows.shape[0]
+    every = np.empty((k0 + used, 9))
+    every[:k0] = rows
+    every[k0:] = link_rows[:used]
+    bodies = np.empty(1 + touching, dtype=np.int64)
+    bodies[0] = r["tool"]
+    groups = np.zeros(k0 + used, dtype=np.int64)
+    g, at = 0, k0
+    for i in range(links.shape[0]):
+        if near[i] != 0 and link_count[i] > 0:
+            g += 1
+            bodies[g] = links[i]
+            groups[at : at + link_count[i]] = g
+            at += link_count[i]
+    d = np.zeros((1 + touching, 6))
+    implicit_contacts(
+        mj, rec, h, qvel, qacc, M, xfrc, xanchor, xaxis, xipos, site_xpos, site_xmat, contact, every, groups, bodies,
+        materials, d,
+    )  # fmt: skip
+    call_model_data(mj[STEP2], mj[MODEL], mj[DATA])
+    g = 0
+    for i in range(links.shape[0]):
+        if near[i] != 0 and link_count[i] > 0:
+            g += 1
+            b = links[i]
+            R = xmat[b].reshape((3, 3))
+            for part in range(2):  # {S} and {MRF} are the link's frame
+                shift_wrench(link_w[i, 6 * part : 6 * part + 6], d[g], R, xpos[b], xipos[b])
+            for a in range(3):
+                link_w[i, 12 + a] += d[g, a]
+    return touching > 0, failed
 
 
 @njit(cache=True)

@@ -21,6 +21,8 @@ where every parameter of the task and the operators comes from, and how the resu
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,7 +33,6 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
-import pyarrow as pa
 import pyarrow.parquet as pq
 from matplotlib.ticker import MaxNLocator
 from tqdm import tqdm
@@ -50,6 +51,19 @@ PAPER = {NTRFC: (0.59, 0.61, 0.42), BLIND: (1.66, 2.55, 1.51)}
 INSERTION_AXIS = 2
 #: Longest simulated time (s) a run may take; an operator who has not finished by then failed.
 TIME_LIMIT = 12.0
+#: The columns of a run's row (:meth:`ExperimentPoint.__call__`) and their types.
+RUN_METRICS: dict[str, type] = {
+    "work_eq13": float,
+    "peak_contact_force_N": float,
+    "completed": bool,
+    "completion_time_s": float,
+    "simulated_s": float,
+    "fault_ticks": int,
+    "work_axial_J": float,
+    "work_other_J": float,
+}
+#: The operator's parameters as columns of the results, with their types.
+OPERATOR_COLUMNS: dict[str, type] = {k: type(v) for k, v in dataclasses.asdict(OperatorParams("")).items()}
 
 
 @dataclass(frozen=True)
@@ -123,23 +137,46 @@ def run_experiment(
         on_run: Called with (runs done, total) after each run (e.g. to show progress in the web page).
         slave: Replaces the scene's slave (``"tool"`` or an arm in ``slaves/``): the paper ran the
             same task with a PUMA 560 and a redundant arm.
+
+    Each run's row is kept in ``out_dir/parts`` as it finishes (:class:`app.sweep.results.ResultsWriter`):
+    running the same experiment into ``out_dir`` again runs only the runs missing there.
+
+    Raises:
+        ConfigError: ``out_dir`` holds another experiment (other operators, time limit or slave).
+        Interrupted: on SIGINT or SIGTERM, once the finished rows are kept; it says how many.
     """
-    from app.sweep.engine import run_points
+    from app.sweep.engine import Engine
+    from app.sweep.results import ResultsWriter, arrow_schema
 
     out_dir.mkdir(parents=True, exist_ok=True)
     ops = tuple(operators) if operators is not None else sample_population(n_operators, seed)
     points = [(k, (op, cond)) for k, (op, cond) in enumerate((op, c) for op in ops for c in CONDITIONS)]
-    rows: list[dict[str, Any]] = []
-    with tqdm(total=len(points), unit="run", disable=not progress) as bar:
-        for index, row in run_points(ExperimentPoint(time_limit, slave), points, workers, address):
-            op, cond = points[index][1]
-            rows.append({"point": index, "operator": op.name, "condition": cond, **dataclasses.asdict(op), **row})
-            bar.update(1)
-            if on_run is not None:
-                on_run(len(rows), len(points))
-    rows.sort(key=lambda r: r["point"])
-    results = out_dir / "results.parquet"
-    pq.write_table(pa.Table.from_pylist(rows), results)
+    task = ExperimentPoint(time_limit, slave)
+    # Rows are kept as they finish (a Ctrl-C keeps them; the same command resumes), in a folder
+    # that holds this population, time limit and slave only.
+    described = json.dumps([[dataclasses.asdict(op) for op in ops], dataclasses.asdict(task), CONDITIONS])
+    identity = {"experiment": hashlib.sha256(described.encode()).hexdigest()[:16], "points": len(points)}
+    schema = arrow_schema({"operator": str, "condition": str, **OPERATOR_COLUMNS}, RUN_METRICS)
+    writer = ResultsWriter(out_dir, schema, identity, "frhc experiment", kind="experiment", field="--out")
+    done = writer.finished()
+    todo = [p for p in points if p[0] not in done]
+    try:
+        with (
+            tqdm(total=len(points), initial=len(done), unit="run", disable=not progress) as bar,
+            Engine(workers, address) as engine,
+        ):
+            for index, row in engine.run(task, todo):
+                op, cond = points[index][1]
+                writer.add({"point": index, "operator": op.name, "condition": cond, **dataclasses.asdict(op), **row})
+                done.add(index)
+                bar.update(1)
+                if on_run is not None:
+                    on_run(len(done), len(points))
+    except KeyboardInterrupt as exc:
+        # The engine has ended its workers (and its Ray instance) on the way here.
+        raise writer.interrupted(exc, len(done), len(points), "runs") from None
+    results = writer.close()
+    rows = pq.read_table(results).to_pylist()
     summary = _summary(rows)
     table = _table(rows, summary)
     chart = _chart(rows, summary, out_dir / "table1.png")

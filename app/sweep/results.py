@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import time
 from pathlib import Path
 from typing import Any
@@ -24,7 +25,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from app.errors import ConfigError
+from app.errors import ConfigError, Interrupted
 
 #: Summary metrics of a point: the results' columns after the varied fields, with their types.
 METRICS: dict[str, type] = {
@@ -92,12 +93,21 @@ class ResultsWriter:
         schema: From :func:`arrow_schema`.
         identity: What makes two runs the same sweep (fingerprint, fields): checked against a
             ``sweep.json`` already in ``out_dir``.
-        source: The sweep file, named in the error when ``out_dir`` holds another sweep.
+        source, field: The sweep file and its field (or the command and its argument), named in
+            the error when ``out_dir`` holds another sweep.
         flush_s: Longest time (s) a finished row waits in memory.
+        kind: What the rows are the results of (``sweep``, ``experiment``), for messages.
     """
 
     def __init__(
-        self, out_dir: Path, schema: pa.Schema, identity: dict[str, Any], source: Path, flush_s: float = 2.0
+        self,
+        out_dir: Path,
+        schema: pa.Schema,
+        identity: dict[str, Any],
+        source: str | Path,
+        flush_s: float = 2.0,
+        kind: str = "sweep",
+        field: str = "<file>",
     ) -> None:
         self.out_dir = out_dir
         self.parts = out_dir / "parts"
@@ -108,7 +118,7 @@ class ResultsWriter:
             old = json.loads(meta.read_text())
             if old != identity:
                 raise ConfigError(
-                    source, "<file>", f"{out_dir} holds the results of another sweep; give another --out or remove it"
+                    source, field, f"{out_dir} holds the results of another {kind}; give another --out or remove it"
                 )
         self.parts.mkdir(parents=True, exist_ok=True)
         meta.write_text(json.dumps(identity, indent=1))
@@ -141,6 +151,13 @@ class ResultsWriter:
         os.replace(tmp, self.parts / name)
         self._n_parts += 1
         self._rows.clear()
+
+    def interrupted(self, exc: KeyboardInterrupt, done: int, total: int, unit: str = "points") -> Interrupted:
+        """Flush the rows held; the :class:`~app.errors.Interrupted` to raise for ``exc`` (SIGINT or
+        SIGTERM), saying that ``done`` of ``total`` ``unit`` are kept and a re-run resumes."""
+        self.flush()
+        signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
+        return Interrupted(signum, f"{done} of {total} {unit} are in {self.parts}; the same command resumes")
 
     def close(self) -> Path:
         """Flush, then write ``results.parquet`` (every part, sorted by point); returns its path."""

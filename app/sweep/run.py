@@ -9,7 +9,6 @@ Example::
 
 from __future__ import annotations
 
-import signal
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,7 +17,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from tqdm import tqdm
 
-from app.errors import ConfigError, Interrupted
+from app.errors import ConfigError
 from app.session.run import run_session
 from app.sweep.engine import Engine
 from app.sweep.results import METRICS, ResultsWriter, arrow_schema, metrics_row
@@ -102,12 +101,7 @@ def run_sweep(
                 bar.update(1)
     except KeyboardInterrupt as exc:
         # The engine has ended its workers (and its Ray instance) on the way here.
-        writer.flush()
-        signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
-        kept = (
-            f"{len(points) - len(todo) + ran} of {len(points)} points are in {writer.parts}; the same command resumes"
-        )
-        raise Interrupted(signum, kept) from None
+        raise writer.interrupted(exc, len(points) - len(todo) + ran, len(points)) from None
     results = writer.close()
     table = pq.read_table(results)
     failed = sum(1 for s in table.column("status").to_pylist() if s != "ok")

@@ -12,49 +12,22 @@ panel's light modules; :mod:`app.web.server` (the demo itself) is imported in :f
 from __future__ import annotations
 
 import io
-import signal
 import sys
 import tempfile
-import threading
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager, redirect_stdout
+from contextlib import redirect_stdout
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import viser
 
+from app.interrupts import signals_held
 from app.session.files import RUNS_DIR
 from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token, viser_on_unix_socket
 from app.web.session_panel import SessionPanel
 
 if TYPE_CHECKING:
     from app.web.server import DemoApp
-
-
-@contextmanager
-def signals_held() -> Iterator[None]:
-    """Hold SIGINT and SIGTERM until the block ends, then deliver them to the handlers in place
-    before (in the main thread only: elsewhere Python cannot set handlers, and does not run them).
-
-    The demo is imported and built with the page already served, so a Ctrl+C or ``kill`` can come
-    in the middle of third-party imports, some of which catch ``BaseException`` (trimesh's guards
-    for optional dependencies): the ``KeyboardInterrupt`` raised there was swallowed and the demo
-    served on after the signal (seen in ``bench/web_launch.py``, which stops it with SIGTERM as
-    soon as the guide shows).
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    held: list[int] = []
-    previous = {s: signal.signal(s, lambda signum, _: held.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-        for signum in dict.fromkeys(held):
-            signal.raise_signal(signum)
 
 
 def _demo(

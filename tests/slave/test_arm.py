@@ -21,6 +21,7 @@ from app.session.log import read_log
 from app.session.operators import sample_population
 from app.session.run import run_session
 from app.session.spec import load_session
+from app.slave import arm_kernel as ak
 from app.slave.arm import ArmSlave, ArmStatus
 from app.slave.tool import VirtualSlave
 from app.spatial import rotation_log, zyx_to_matrix
@@ -387,3 +388,21 @@ def test_table1_experiment_and_the_log_run_with_an_arm(tmp_path: Path) -> None:
     log = read_log(result.log_dir)
     assert "slave_status" in log.column_names
     assert "slave_status_ticks" in result.summary
+
+
+def test_a_links_contact_model_is_handed_the_twist_of_the_links_frame() -> None:
+    """The links' contact models take the link frame as {MRF}, so their twist is that of the frame's
+    origin (MuJoCo's ``mjOBJ_XBODY``), which on the 7-dof arm's links with offset centres of mass
+    (30-100 mm) differs from the centre of mass's (``mjOBJ_BODY``), handed before."""
+    arm = ArmSlave(arm_scene("redundant7", "peg_in_hole"))
+    m, d = arm.model, arm.data
+    d.qvel[:] = np.linspace(0.8, -1.1, m.nv)
+    mujoco.mj_forward(m, d)
+    expected, mine = np.zeros(6), np.zeros(6)
+    offset = 0
+    for b in arm._links:
+        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_XBODY, b, expected, 0)
+        ak.frame_twist(b, m.body_rootid[b], d.xpos, d.cvel, d.subtree_com, mine)
+        np.testing.assert_allclose(mine, np.r_[expected[3:6], expected[0:3]], rtol=0, atol=1e-15)
+        offset = max(offset, float(np.linalg.norm(d.xipos[b] - d.xpos[b])))
+    assert offset > 0.09  # the case this tells apart is there

@@ -166,10 +166,12 @@ class StateBlock:
         ):
             self._bundle(tick, T_0_G, wrench_G)
         contact = tick.contact
+        # float(): the compiled fill keeps the types of its first call, and a slave's link force
+        # can be an int (0, the sum over no near link) on it: later forces were cut to whole N.
         return (
             self.sources, tick.ft.wrench_S, tick.T_w_MRF, contact.w, tick.time, tick.hand_on, tick.deadman,
             tick.reference, tick.reflection, contact.count, int(out.faults), reading.watchdog_trips,
-            tick.slave_status, int(tick.device_link), tick.link_force, out.reflecting,
+            tick.slave_status, int(tick.device_link), float(tick.link_force), out.reflecting,
         )  # fmt: skip
 
     def _bundle(self, tick: TickRecord, T_0_G: Array, wrench_G: Array) -> None:

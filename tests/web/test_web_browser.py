@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import viser
-from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT
+from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT, wait_until
 
 from app.web.camera import PANEL_SHARE, SOFTWARE_PIXEL_RATIO, CameraPose, box_corners, fit_camera, project
 from app.web.controls import format_six
@@ -348,38 +348,29 @@ def _tool_drawn_xy(demo: DemoApp, T_w_MRF: np.ndarray) -> np.ndarray:
     return above[0:2] + metres_per_px * np.array([du, -dv])
 
 
+def _wait_drawn_at(demo: DemoApp, T_w_MRF: np.ndarray, what: str) -> None:
+    """Wait until the page draws the tool within :data:`TOOL_DRAWN` of ``T_w_MRF``'s (x, y)."""
+    wait_until(lambda: np.linalg.norm(_tool_drawn_xy(demo, T_w_MRF) - T_w_MRF[0:2, 3]) < TOOL_DRAWN, what)
+
+
 def test_the_tool_is_drawn_where_it_is_as_it_moves(demo: DemoApp, page: object) -> None:
     """The tool (drawn on {MRF}, with {S}: one node moved for the three) is where the simulation
     has it in a render read back from the page, at home and after the hand drove it 1.5 cm along x
     (rate mode) and let go."""
     demo.reset()  # switches off, the tool at home, the hand on the grip
-    _wait_until(lambda: not demo.rt.snapshot.deadman, "the reset did not reach the loop")
+    wait_until(lambda: not demo.rt.snapshot.deadman, "the reset did not reach the loop")
     time.sleep(0.5)
     home = demo.rt.snapshot.T_w_MRF
-    _wait_until(
-        lambda: np.linalg.norm(_tool_drawn_xy(demo, home) - home[0:2, 3]) < TOOL_DRAWN,
-        "the tool at home is not drawn where it is",
-    )
+    _wait_drawn_at(demo, home, "the tool at home is not drawn where it is")
     demo.controls.deadman.value = True  # type: ignore[misc]  # viser 1.1: the setter exists
     T_0_H = demo.rt.snapshot.T_0_G.copy()
     T_0_H[0, 3] += 0.03  # past the deadband: the tool moves along +x
     demo.move_hand_target(T_0_H)
-    _wait_until(lambda: demo.rt.snapshot.T_w_MRF[0, 3] - home[0, 3] > 0.015, "the tool did not move")
+    wait_until(lambda: demo.rt.snapshot.T_w_MRF[0, 3] - home[0, 3] > 0.015, "the tool did not move")
     demo.controls.deadman.value = False  # type: ignore[misc]
-    _wait_until(lambda: not demo.rt.snapshot.deadman, "the deadman is still on")
+    wait_until(lambda: not demo.rt.snapshot.deadman, "the deadman is still on")
     time.sleep(0.2)
-    moved = demo.rt.snapshot.T_w_MRF
-    _wait_until(
-        lambda: np.linalg.norm(_tool_drawn_xy(demo, moved) - moved[0:2, 3]) < TOOL_DRAWN,
-        "the moved tool is not drawn where it is",
-    )
-
-
-def _wait_until(condition, what: str) -> None:  # type: ignore[no-untyped-def]
-    end = time.monotonic() + STEP_TIMEOUT
-    while not condition():
-        assert time.monotonic() < end, what
-        time.sleep(0.2)
+    _wait_drawn_at(demo, demo.rt.snapshot.T_w_MRF, "the moved tool is not drawn where it is")
 
 
 def _hand_box(page: object) -> object:
@@ -391,20 +382,20 @@ def test_the_hand_checkbox_lets_go_and_follows_the_loops_hand(demo: DemoApp, pag
     and no hand wrench on the grip); ticked, it takes hold where the grip is. The box shows the
     loop's hand whoever changes it: a drag of the gizmo takes hold (ticked), a release sent to the
     loop from elsewhere (a script, another browser) unticks it."""
-    _wait_until(lambda: demo.rt.snapshot.T_0_H is not None, "the hand does not hold the grip at the start")
-    _wait_until(lambda: _hand_box(page).is_checked(), "the box is not ticked while the hand holds")  # type: ignore[attr-defined]
+    wait_until(lambda: demo.rt.snapshot.T_0_H is not None, "the hand does not hold the grip at the start")
+    wait_until(lambda: _hand_box(page).is_checked(), "the box is not ticked while the hand holds")  # type: ignore[attr-defined]
     _hand_box(page).dispatch_event("click")  # type: ignore[attr-defined]
-    _wait_until(lambda: demo.rt.snapshot.T_0_H is None, "unticking the box did not let go")
-    _wait_until(lambda: not np.any(demo.rt.snapshot.hand_wrench_0), "the released hand still pulls the grip")
+    wait_until(lambda: demo.rt.snapshot.T_0_H is None, "unticking the box did not let go")
+    wait_until(lambda: not np.any(demo.rt.snapshot.hand_wrench_0), "the released hand still pulls the grip")
     T_0_H = demo.rt.snapshot.T_0_G.copy()
     T_0_H[2, 3] += 0.01
     demo.move_hand_target(T_0_H)  # what a drag of the gizmo does
-    _wait_until(lambda: demo.rt.snapshot.T_0_H is not None, "the drag did not take hold")
-    _wait_until(lambda: _hand_box(page).is_checked(), "the box did not follow the hand taking hold")  # type: ignore[attr-defined]
+    wait_until(lambda: demo.rt.snapshot.T_0_H is not None, "the drag did not take hold")
+    wait_until(lambda: _hand_box(page).is_checked(), "the box did not follow the hand taking hold")  # type: ignore[attr-defined]
     demo.rt.set_hand_target(None)
-    _wait_until(lambda: not _hand_box(page).is_checked(), "the box did not follow the hand letting go")  # type: ignore[attr-defined]
+    wait_until(lambda: not _hand_box(page).is_checked(), "the box did not follow the hand letting go")  # type: ignore[attr-defined]
     _hand_box(page).dispatch_event("click")  # type: ignore[attr-defined]
-    _wait_until(lambda: demo.rt.snapshot.T_0_H is not None, "ticking the box did not take hold")
+    wait_until(lambda: demo.rt.snapshot.T_0_H is not None, "ticking the box did not take hold")
     np.testing.assert_allclose(demo.rt.snapshot.T_0_H[0:3, 3], demo.rt.snapshot.T_0_G[0:3, 3], atol=2e-3)  # at the grip
 
 
@@ -416,7 +407,7 @@ def test_a_page_without_a_gpu_draws_its_view_at_the_software_pixel_ratio(demo: D
     """Headless chromium renders WebGL in software (SwiftShader): the page draws its 3D view at
     :data:`SOFTWARE_PIXEL_RATIO` (viser's own floor would be 0.75); a page opened with
     ``?fixedDpr=1`` keeps the resolution its visitor asked for."""
-    _wait_until(
+    wait_until(
         lambda: abs(page.evaluate(CANVAS_RATIO_JS) - SOFTWARE_PIXEL_RATIO) < 0.01,  # type: ignore[attr-defined]
         "the page without a GPU does not draw at the software pixel ratio",
     )

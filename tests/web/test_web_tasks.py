@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT
+from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT, wait_until
 
 from app.session.log import read_log
 from app.session.run import run_session
@@ -53,13 +53,6 @@ FOLDER_OF = {
 }
 
 
-def _wait_for(condition, what: str) -> None:  # type: ignore[no-untyped-def]
-    end = time.monotonic() + STEP_TIMEOUT
-    while not condition():
-        assert time.monotonic() < end, what
-        time.sleep(0.1)
-
-
 def test_the_guide_is_on_the_first_page(page: object) -> None:
     text = _body(page)
     assert "Start here" in text
@@ -82,7 +75,7 @@ def test_try_the_peg_task_plays_it_to_the_inserted_state(demo: DemoApp, page: ob
         assert time.monotonic() < clicked + STEP_TIMEOUT, "no loading notice"
         time.sleep(0.02)
     print(f"loading notice on the page {time.monotonic() - clicked:.2f} s after the click")
-    _wait_for(lambda: demo.rt.snapshot.playing is not None, "the session did not start playing")
+    wait_until(lambda: demo.rt.snapshot.playing is not None, "the session did not start playing")
     task = load_scene("peg_in_hole").spec.task
     assert task is not None
     # Hold the play once the pegs press on the block, so the page (slow: software WebGL) can show it.
@@ -92,21 +85,21 @@ def test_try_the_peg_task_plays_it_to_the_inserted_state(demo: DemoApp, page: ob
         assert time.monotonic() < end, "no contact force"
         time.sleep(0.01)
     demo.panel.pause.value = True
-    _wait_for(lambda: demo.rt.snapshot.paused, "the loop did not pause")
+    wait_until(lambda: demo.rt.snapshot.paused, "the loop did not pause")
     snap = demo.rt.snapshot
     assert snap.deadman  # the script holds both while it presses
     assert snap.reflection
-    _wait_for(
+    wait_until(
         lambda: (_checked(page, "Deadman [D]"), _checked(page, "Reflection [F]")) == (snap.deadman, snap.reflection),
         "the switch checkboxes do not show the script's switches",
     )
     shown = float(np.linalg.norm(snap.F_MRF[0:3]))
-    _wait_for(
+    wait_until(
         lambda: f"|F_MRF| = {shown:.2f} N" in _body(page), f"the page does not show the {shown:.2f} N contact force"
     )
     demo.panel.pause.value = False
     demo.panel.speed.value = "2"  # the rest of the play at 2x (and a shorter test)
-    _wait_for(lambda: demo.rt.snapshot.speed == 2.0, "the speed did not reach the loop")
+    wait_until(lambda: demo.rt.snapshot.speed == 2.0, "the speed did not reach the loop")
     inserted = False
     while demo.rt.snapshot.playing is not None:
         assert time.monotonic() < end, "the session did not finish"
@@ -119,8 +112,8 @@ def test_try_the_peg_task_plays_it_to_the_inserted_state(demo: DemoApp, page: ob
     assert inserted or (np.linalg.norm(p[0:2] - goal[0:2]) < task.position_tolerance and p[2] < goal[2]), p
     page.get_by_text("no session playing").first.wait_for(state="attached", timeout=STEP_TIMEOUT * 1000)  # type: ignore[attr-defined]
     assert demo.rt.snapshot.speed == 1.0  # the speed ended with the session
-    _wait_for(lambda: demo.panel.speed.value == "1", "the speed selector is not back at 1")
-    _wait_for(
+    wait_until(lambda: demo.panel.speed.value == "1", "the speed selector is not back at 1")
+    wait_until(
         lambda: (
             (_checked(page, "Deadman [D]"), _checked(page, "Reflection [F]"))
             == (demo.rt.snapshot.deadman, demo.rt.snapshot.reflection)
@@ -140,14 +133,14 @@ def test_replay_shows_the_recorded_tick(demo: DemoApp, page: object, tmp_path: P
     live_ticks = demo.rt.stats().counted
     demo.panel.log_path.value = str(tmp_path / "run")
     _click(page, "Open")
-    _wait_for(lambda: demo.player is not None, "the replay did not open")
+    wait_until(lambda: demo.player is not None, "the replay did not open")
     force = log["F_MRF_fz"].to_numpy()
     i = int(np.argmax(force))  # the firmest contact of the run
     t = float(log["t"][i].as_py())
     demo.panel.timeline.value = t
     tool = [1000 * float(log[f"tool_{a}"][i].as_py()) for a in "xyz"]
     expected = f"[{tool[0]:+.1f}, {tool[1]:+.1f}, {tool[2]:+.1f}] mm"
-    _wait_for(lambda: f"replay t = {t:.3f} s" in _body(page), "the page does not show the scrubbed time")
+    wait_until(lambda: f"replay t = {t:.3f} s" in _body(page), "the page does not show the scrubbed time")
     text = _body(page)
     assert expected in text
     shown = float(re.search(r"replay t = [^\n]*\|F_MRF\| = ([0-9.]+) N", text).group(1))  # type: ignore[union-attr]
@@ -155,7 +148,7 @@ def test_replay_shows_the_recorded_tick(demo: DemoApp, page: object, tmp_path: P
     assert shown == pytest.approx(float(np.linalg.norm(f)), abs=0.006)
     assert demo.rt.stats().counted > live_ticks  # the live loop kept running beside the replay
     _click(page, "Back to live")
-    _wait_for(lambda: demo.player is None, "did not go back to live")
+    wait_until(lambda: demo.player is None, "did not go back to live")
 
 
 def test_experiment_button_shows_the_table(demo: DemoApp, page: object) -> None:
@@ -182,15 +175,15 @@ def test_the_experiment_chart_opens_full_size(demo: DemoApp, page: object) -> No
     before = images.count()
     thumbnail = float(images.last.bounding_box()["width"])
     _click(page, FULL_CHART)
-    _wait_for(lambda: images.count() == before + 1, "the chart's window did not open")
+    wait_until(lambda: images.count() == before + 1, "the chart's window did not open")
     chart = images.last
-    _wait_for(lambda: chart.evaluate("i => i.complete && i.naturalWidth") > 0, "the chart did not load")
+    wait_until(lambda: chart.evaluate("i => i.complete && i.naturalWidth") > 0, "the chart did not load")
     assert chart.evaluate("i => [i.naturalWidth, i.naturalHeight]") == [1600, 1000]
     shown = chart.bounding_box()
     assert shown["width"] > 2 * thumbnail, (shown, thumbnail)
     assert shown["width"] >= 0.5 * 1600
     page.get_by_role("button", name="Close").last.dispatch_event("click")  # type: ignore[attr-defined]
-    _wait_for(lambda: images.count() == before, "the chart's window did not close")
+    wait_until(lambda: images.count() == before, "the chart's window did not close")
 
 
 #: The x scale ``[min, max]`` of the page's uPlot chart with the given viser GUI id (viser's own
@@ -208,7 +201,7 @@ def test_a_device_change_stops_the_session_and_says_so(demo: DemoApp, page: obje
     is left before them, none lies ahead of the new loop's time."""
     demo.panel.speed.value = "0.1"  # a 55 s play: it cannot end by itself before the change
     demo.play_session("peg_ntrfc")
-    _wait_for(lambda: demo.rt.snapshot.playing is not None, "the session did not start playing")
+    wait_until(lambda: demo.rt.snapshot.playing is not None, "the session did not start playing")
     device = next(name for name in ("touch3", "kraft") if name != demo.rt.config.device.name)
     demo.controls.device.value = device  # what choosing it in the page's dropdown does
     assert demo.rt.config.device.name == device
@@ -216,9 +209,9 @@ def test_a_device_change_stops_the_session_and_says_so(demo: DemoApp, page: obje
     text = _body(page)
     assert "stopped peg_ntrfc" in text
     assert "Session stopped" in text  # the notification
-    _wait_for(lambda: demo.rt.snapshot.playing is None and demo.rt.snapshot.time > 2.0, "the new loop does not run")
+    wait_until(lambda: demo.rt.snapshot.playing is None and demo.rt.snapshot.time > 2.0, "the new loop does not run")
     demo.pause(True)  # the plots then hold still, and the page can catch up with them
-    _wait_for(lambda: demo.rt.snapshot.paused, "the loop did not pause")
+    wait_until(lambda: demo.rt.snapshot.paused, "the loop did not pause")
     time.sleep(2 * PLOT_EVERY / UI_RATE)  # a plot refresh after the pause
     times = demo.controls.delta_plot.data[0]  # the Delta X chart's time axis as sent
     now = demo.rt.snapshot.time
@@ -232,7 +225,7 @@ def test_a_device_change_stops_the_session_and_says_so(demo: DemoApp, page: obje
         shown = page.evaluate(PLOT_X_SCALE_JS, uuid)  # type: ignore[attr-defined]
         return [float("nan")] * 2 if shown is None else [float(v) for v in shown]
 
-    _wait_for(
+    wait_until(
         lambda: np.allclose(x_scale(), (times[0], times[-1]), atol=1e-6),
         f"the page's Delta X axis {x_scale()} is not the {times[0]:.3f}-{times[-1]:.3f} s it was sent",
     )
@@ -266,12 +259,12 @@ def test_a_pushed_box_is_drawn_where_it_is_live_and_replayed(demo: DemoApp, page
     """box_push played live: the box the page draws (a render read back from the browser) starts
     and ends where the simulation has it; its recorded log replayed: drawn at the logged poses."""
     demo.play_session("box_push")
-    _wait_for(lambda: demo.rt.snapshot.playing is not None, "the session did not start playing")
+    wait_until(lambda: demo.rt.snapshot.playing is not None, "the session did not start playing")
     assert demo.rt.snapshot.object_poses.shape == (1, 7)
-    _wait_for(lambda: demo.rt.snapshot.playing is None, "the session did not end")
+    wait_until(lambda: demo.rt.snapshot.playing is None, "the session did not end")
     moved = float(demo.rt.snapshot.object_poses[0, 0])
     assert moved > 0.01  # the stylus pushed the box along x (the script moves the hand 3 cm)
-    _wait_for(lambda: abs(_box_drawn_x(demo) - moved) < 2e-3, f"the page does not draw the box at x = {moved:.4f} m")
+    wait_until(lambda: abs(_box_drawn_x(demo) - moved) < 2e-3, f"the page does not draw the box at x = {moved:.4f} m")
 
     run_session(load_session("box_push"), out_dir=tmp_path / "run", plots=False)
     log = read_log(tmp_path / "run" / "log")
@@ -282,7 +275,7 @@ def test_a_pushed_box_is_drawn_where_it_is_live_and_replayed(demo: DemoApp, page
             demo.panel.timeline.value = t
             i = int(np.searchsorted(log["t"].to_numpy(), t, side="right")) - 1
             x = float(xs[max(i, 0)])
-            _wait_for(lambda x=x: abs(_box_drawn_x(demo) - x) < 2e-3, f"replay at {t} s: the box is not at {x:.4f} m")
+            wait_until(lambda x=x: abs(_box_drawn_x(demo) - x) < 2e-3, f"replay at {t} s: the box is not at {x:.4f} m")
         assert xs[-1] - xs[0] > 0.01
     finally:
         demo.close_replay()

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import socket
+import time
+from collections.abc import Callable
 
 from app.world.scene import ROOT_DIR
 
@@ -17,3 +19,11 @@ def nothing_listens(port: int) -> bool:
     """Whether a connection to ``port`` on 127.0.0.1 is refused."""
     with socket.socket() as s:
         return s.connect_ex(("127.0.0.1", port)) != 0
+
+
+def wait_until(condition: Callable[[], object], what: str) -> None:
+    """Poll ``condition`` every 0.1 s until it holds; fail with ``what`` after :data:`STEP_TIMEOUT`."""
+    end = time.monotonic() + STEP_TIMEOUT
+    while not condition():
+        assert time.monotonic() < end, what
+        time.sleep(0.1)

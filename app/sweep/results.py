@@ -2,7 +2,8 @@
 
 Layout of an output directory::
 
-    sweep.json              the sweep's fingerprint, fields and metrics (a resume must match it)
+    sweep.json              the sweep's fingerprint, fields and metrics (a resume must match it);
+                            ``experiment.json`` for an experiment (``kind``)
     parts/part-000003.parquet  rows as they finished (atomic: written under a hidden name, renamed)
     results.parquet         every row, sorted by point, written when the sweep ends
     <metric>.png            the plot
@@ -92,7 +93,7 @@ class ResultsWriter:
         out_dir: The sweep's output directory.
         schema: From :func:`arrow_schema`.
         identity: What makes two runs the same sweep (fingerprint, fields): checked against a
-            ``sweep.json`` already in ``out_dir``.
+            ``<kind>.json`` already in ``out_dir``.
         source, field: The sweep file and its field (or the command and its argument), named in
             the error when ``out_dir`` holds another sweep.
         flush_s: Longest time (s) a finished row waits in memory.
@@ -113,7 +114,7 @@ class ResultsWriter:
         self.parts = out_dir / "parts"
         self.schema = schema
         self.flush_s = flush_s
-        meta = out_dir / "sweep.json"
+        meta = out_dir / f"{kind}.json"
         if meta.exists():
             old = json.loads(meta.read_text())
             if old != identity:

@@ -24,6 +24,7 @@ def test_an_interrupted_experiment_keeps_its_runs_and_the_same_command_resumes(t
     with pytest.raises(Interrupted) as stopped:
         run_experiment(tmp_path / "x", operators=ops, time_limit=0.3, on_run=ctrl_c_after_three)
     assert stopped.value.kept == f"3 of 4 runs are in {tmp_path / 'x' / 'parts'}; the same command resumes"
+    assert sorted(p.name for p in (tmp_path / "x").glob("*.json")) == ["experiment.json"]
     calls: list[tuple[int, int]] = []
     resumed = run_experiment(tmp_path / "x", operators=ops, time_limit=0.3, on_run=lambda *a: calls.append(a))
     assert calls == [(4, 4)]

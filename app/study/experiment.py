@@ -162,8 +162,9 @@ def run_experiment(
     todo = [p for p in points if p[0] not in done]
     try:
         with (
-            tqdm(total=len(points), initial=len(done), unit="run", disable=not progress) as bar,
+            # The bar starts once the engine is up: a cluster that does not answer is one line.
             Engine(workers, address) as engine,
+            tqdm(total=len(points), initial=len(done), unit="run", disable=not progress) as bar,
         ):
             for index, row in engine.run(task, todo):
                 op, cond = points[index][1]

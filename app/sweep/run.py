@@ -92,8 +92,9 @@ def run_sweep(
     ran = 0
     try:
         with (
-            tqdm(total=len(points), initial=len(points) - len(todo), unit="point", disable=not progress) as bar,
+            # The bar starts once the engine is up: a cluster that does not answer is one line.
             Engine(workers, address) as engine,
+            tqdm(total=len(points), initial=len(points) - len(todo), unit="point", disable=not progress) as bar,
         ):
             for index, row in engine.run(SweepPoint(plan), todo):
                 writer.add({"point": index, **dict(zip(plan.fields, points[index], strict=True)), **row})

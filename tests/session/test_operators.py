@@ -105,7 +105,8 @@ def test_operator_81_gives_way_without_circling() -> None:
     swing and the velocity brake tripped on 753 ticks (0.51 J). Giving way by taking their own
     push back, they complete without a fault."""
     op = sample_population(100, seed=0)[80]
-    assert op.name == "Operator 81" and op.damping_trans < 3.8
+    assert op.name == "Operator 81"
+    assert op.damping_trans < 3.8
     row = ExperimentPoint()((op, NTRFC))
     assert (row["fault_ticks"], row["completed"]) == (0, True)
     assert row["work_eq13"] < 0.1

@@ -106,8 +106,8 @@ def give_way(v: Array, felt: Array, f: float, threshold: float) -> Array:
     drove the pegs across the 0.2 mm clearance into the opposite wall, felt that a haptic delay
     later and swung back: a cycle the paper warns of ("the manipulator will reverse, only to be
     returned with the command from the operator's hand recovering forward", Sec 3.3), which on
-    the least damped hand of the population (223 N/m, 3.7 N s/m) grew to a +-35 mm grip swing
-    and tripped the velocity brake. Taken back, the velocity never points along ``felt`` more
+    the least damped hand of the population (223 N/m, 3.7 N s/m) grew to a +-35 mm swing of the
+    hand target (+-58 mm of the grip) and tripped the velocity brake. Taken back, the velocity never points along ``felt`` more
     than it did, so the yield needs no speed bound of its own. Zero when ``v`` does not push
     against the force."""
     n = felt / f

@@ -101,8 +101,8 @@ def test_operators_with_a_soft_hand_push_past_the_return_to_centre() -> None:
 def test_operator_81_gives_way_without_circling() -> None:
     """Operator 81 of seed 0 (223 N/m, 3.7 N s/m: the least damped hand; threshold 1.37 N; haptic
     delay 0.115 s) used to yield to the wall force by driving the tool along it at their own speed:
-    the pegs crossed the clearance into the opposite wall, the exchange grew into a +-35 mm grip
-    swing and the velocity brake tripped on 753 ticks (0.51 J). Giving way by taking their own
+    the pegs crossed the clearance into the opposite wall, the exchange grew into a +-35 mm swing
+    of the hand target and the velocity brake tripped on 753 ticks (0.51 J). Giving way by taking their own
     push back, they complete without a fault."""
     op = sample_population(100, seed=0)[80]
     assert op.name == "Operator 81"

@@ -19,8 +19,10 @@ The strategy, per tick, in the base frame {0} (its axes are the slave world's, `
    Phases: insert until, past the goal depth, the tool is seen to stop (:data:`BOTTOM_S`) or a
    force above the threshold is felt; hold :data:`HOLD_S`; withdraw toward the start height until
    seen :data:`CLEAR` above the goal; done.
-2. Force threshold: a felt force above ``force_threshold`` (N) is yielded to: the operator moves
-   along it at ``speed`` per threshold of excess force, at most :data:`YIELD_MAX` times ``speed``.
+2. Force threshold: a felt force above ``force_threshold`` (N) is given way to: the operator takes
+   back the part of their intended velocity that pushes against it, in proportion to the excess
+   force, all of it from twice the threshold; they never drive the tool along the force
+   (:func:`~app.session.operator_kernel.give_way`).
 3. Searching: when the seen tool has not gone deeper by :data:`STALL_DEPTH` in :data:`STALL_S` while
    inserting, the operator looks again and halves their aim and tilt errors (lifts, re-aims,
    pushes again).
@@ -117,7 +119,6 @@ from app.session.operator_kernel import (  # noqa: F401 (the strategy's constant
     STALL_S,
     V_DB,
     W_DB,
-    YIELD_MAX,
 )
 from app.session.script import OperatorScript, _tremor
 from app.session.spec import Session

@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 
 from app.session import load_session
 from app.session.loop import LoopConfig, ServoLoop
+from app.session.operator_kernel import give_way
 from app.session.operators import (
     MOTOR_BANDWIDTH,
     POPULATION,
@@ -97,6 +98,61 @@ def test_operators_with_a_soft_hand_push_past_the_return_to_centre() -> None:
         assert (row["fault_ticks"], row["completed"]) == (0, True), f"operator {i}"
 
 
+def test_operator_81_gives_way_without_circling() -> None:
+    """Operator 81 of seed 0 (223 N/m, 3.7 N s/m: the least damped hand; threshold 1.37 N; haptic
+    delay 0.115 s) used to yield to the wall force by driving the tool along it at their own speed:
+    the pegs crossed the clearance into the opposite wall, the exchange grew into a +-35 mm swing
+    of the hand target and the velocity brake tripped on 753 ticks (0.51 J). Giving way by taking their own
+    push back, they complete without a fault."""
+    op = sample_population(100, seed=0)[80]
+    assert op.name == "Operator 81"
+    assert op.damping_trans < 3.8
+    row = ExperimentPoint()((op, NTRFC))
+    assert (row["fault_ticks"], row["completed"]) == (0, True)
+    assert row["work_eq13"] < 0.1
+
+
+@settings(max_examples=200)
+@given(
+    v=st.lists(st.floats(-0.05, 0.05), min_size=3, max_size=3),
+    felt=st.lists(st.floats(-20.0, 20.0), min_size=3, max_size=3),
+    threshold=st.floats(0.5, 5.0),
+)
+def test_giving_way_takes_back_only_the_push_against_the_felt_force(
+    v: list[float], felt: list[float], threshold: float
+) -> None:
+    """Whatever the intent and the force: the velocity along the force grows by the push against it
+    times the excess share ``min(f / threshold - 1, 1)``, never past zero; across it nothing
+    changes; a velocity that does not push against the force is left as it is."""
+    f = float(np.linalg.norm(felt))
+    if f <= threshold:
+        return
+    v_, felt_ = np.array(v), np.array(felt)
+    n = felt_ / f
+    after = v_ + give_way(v_, felt_, f, threshold)
+    along, along_after = float(v_ @ n), float(after @ n)
+    share = min(f / threshold - 1.0, 1.0)
+    assert along_after == pytest.approx(along + max(0.0, -along) * share, abs=1e-15)
+    assert along_after <= max(along, 0.0) + 1e-15
+    assert after - along_after * n == pytest.approx(v_ - along * n, abs=1e-15)
+
+
+def test_giving_way_known_answers() -> None:
+    """Pushing down at 40 mm/s against 3 N up: with a 1 N threshold all of it is taken back, with
+    2 N half; pushing down against a sideways force, or moving with the force, nothing."""
+    down = np.array([0.0, 0.0, -0.04])
+    up3 = np.array([0.0, 0.0, 3.0])
+    assert give_way(down, up3, 3.0, 1.0).tolist() == pytest.approx([0.0, 0.0, 0.04], abs=1e-15)
+    assert give_way(down, up3, 3.0, 2.0).tolist() == pytest.approx([0.0, 0.0, 0.02], abs=1e-15)
+    assert give_way(down, np.array([3.0, 0.0, 0.0]), 3.0, 1.0).tolist() == [0.0, 0.0, 0.0]
+    assert give_way(-down, up3, 3.0, 1.0).tolist() == [0.0, 0.0, 0.0]
+    # Down and 10 mm/s into a wall whose force points +x: only the 10 mm/s is taken back.
+    slanted = np.array([-0.01, 0.0, -0.04])
+    assert (slanted + give_way(slanted, np.array([4.0, 0.0, 0.0]), 4.0, 1.0)).tolist() == pytest.approx(
+        [0.0, 0.0, -0.04], abs=1e-15
+    )
+
+
 def stub(record_T_0_G: np.ndarray, tool: np.ndarray, force: np.ndarray, t: float, tick: int) -> SimpleNamespace:
     T_w_MRF = np.eye(4)
     T_w_MRF[0:3, 3] = tool
@@ -112,7 +168,7 @@ def test_a_felt_force_above_the_threshold_is_yielded_to_after_the_haptic_delay()
     """Seen at home, far from the goal, the operator wants the tool down at ``speed``; holding the
     rate-mode inverse ``d = v / K_V + DB tanh(v / V_DB)``, set further down by the constant
     return-to-centre force ``a DB^2`` over the hand's stiffness (the operator has learned it). A
-    felt upward force of twice the threshold adds ``+speed`` upward: the two cancel and the hand
+    felt upward force of twice the threshold makes them take the whole downward push back: the hand
     returns to the start, ``haptic_delay`` later."""
     session = load_session("peg_ntrfc")
     loop = ServoLoop(LoopConfig.from_session(session))

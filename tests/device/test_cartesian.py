@@ -220,11 +220,19 @@ def served() -> Iterator[DeviceServer]:
     server.shutdown()
 
 
+#: How long (s) the loopback tests' loop waits for a reply before counting the tick as stalled. A
+#: loaded 2-core machine delayed replies past 50 ms (the watchdog tripped in a run meant to have
+#: no trip, and a stall showed at tick 967 instead of 1400); a stopped stream still stalls, at
+#: this cost a tick.
+REPLY_WAIT = 0.5
+
+
 def test_session_over_loopback_reaches_the_in_process_contact_force(tmp_path: Path, served: DeviceServer) -> None:
     """The same session against ``frhc device serve``: the served simulation is synchronous, so
     the steady contact force matches the in-process run within 2 %. The comparison is of forces,
-    not of the watchdog (the tests below): the loop waits up to 50 ms for a reply, because on this
-    shared machine a reply a period late is common, and each is a (correct) zero for a period."""
+    not of the watchdog (the tests below): the loop waits up to :data:`REPLY_WAIT` for a reply,
+    because on this shared machine a reply a period late is common, and each is a (correct) zero
+    for a period."""
     session = load_session(session_file(tmp_path, 2.5))
     run_session(session, out_dir=tmp_path / "local", plots=False)
     result = run_session(
@@ -232,7 +240,7 @@ def test_session_over_loopback_reaches_the_in_process_contact_force(tmp_path: Pa
         out_dir=tmp_path / "served",
         plots=False,
         device_url=f"ws://127.0.0.1:{served.port}",
-        sample_wait=0.05,
+        sample_wait=REPLY_WAIT,
     )
     local, _ = steady_contact_force(tmp_path / "local", 2.0)
     remote, _ = steady_contact_force(tmp_path / "served", 2.0)
@@ -463,7 +471,7 @@ def test_link_state_is_logged_per_tick_through_a_stall_and_a_dropped_connection_
         out_dir=tmp_path / "run",
         plots=False,
         device_url=f"ws://127.0.0.1:{served.port}",
-        sample_wait=0.05,  # a reply is late only when the stream stopped (see the loopback test)
+        sample_wait=REPLY_WAIT,  # a reply is late only when the stream stopped
         operator=lambda loop: LinkTrouble(OperatorScript.for_loop(session.data, loop), served, stall_at, 3, drop_at),
     )
     table = read_log(tmp_path / "run" / "log")

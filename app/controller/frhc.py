@@ -277,6 +277,8 @@ class FRHCController:
         rec["po_damping"] = self._damping if observed else 0.0
         rec["po_count"] = self.device.encoder_step
         rec["po_share"] = settings.quantization_share
+        rec["po_edge"] = settings.quantization_edge
+        rec["pc_damping"] = settings.kind == "damping"
         rec["pc_filter"] = settings.velocity_filter
         rec["pc_hold"] = settings.enabled and settings.hold_slave
         rec["pc_b_device"] = self._b_device

@@ -30,7 +30,13 @@ from numba import njit
 from app.controller.assist import constant_force_rtc, damping, deadband, hooke_rtc, saturate, uniform_scale
 from app.controller.calibration import curve_counts
 from app.controller.kinematics import RecordArray, gravity_torque, wrist_jacobian
-from app.controller.passivity import coupling_hold, observe_energy, passivity_control
+from app.controller.passivity import (
+    coupling_hold,
+    damping_share,
+    observe_energy,
+    passivity_control,
+    passivity_damping,
+)
 from app.controller.payload import add_inertial_load, remove_weight
 from app.controller.record import (
     ASSIST_SCALE,
@@ -215,6 +221,7 @@ def controller_tick(
         r.po_damping[:],
         r.po_count[:],
         r.po_share,
+        r.po_edge,
     )
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]
@@ -239,7 +246,12 @@ def controller_tick(
     for j in range(n):
         po_tau[j] = torques[TAU, j] - torques[TAU_G, j]
         torques[TAU_PC, j] = 0.0
-    if r.pc_on:
+    if r.pc_on and r.pc_damping:
+        passivity_damping(
+            po_energy, pc_velocity, dt, r.pc_reserve, r.pc_limit[:], torques[TAU], torques[TAU_PC]
+        )
+        out.scalars[PC_CUT] = damping_share(po_tau, torques[TAU_PC])
+    elif r.pc_on:
         out.scalars[PC_CUT] = passivity_control(
             po_energy,
             po_tau,
@@ -260,7 +272,8 @@ def controller_tick(
     if deadman and not r.rate_mode:
         dx_cmd = out.vectors[DELTA_X_CMD]
         if r.pc_hold:
-            cut = out.scalars[PC_CUT] if r.pc_on else 0.0
+            # A damping PC cuts no share of the rendered force: nothing to hold back.
+            cut = out.scalars[PC_CUT] if r.pc_on and not r.pc_damping else 0.0
             coupling_hold(
                 cut,
                 T_0_G[0:3, 0:3],

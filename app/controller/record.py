@@ -116,7 +116,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         lock. gravity_compensation, remove_payload, remove_inertia: the options of the same
         names. min_period, max_period: accepted periods (s). ramp_rate (1/s), max_joint_speed and
         release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. pc_on, pc_limit
-        (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), po_count (rad, (n,)), po_share (-), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_filter (s),
+        (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), po_count (rad, (n,)), po_share (-), po_edge, pc_damping, pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_filter (s),
         pc_hold, pc_b_device (N s/m), pc_bleed (s): :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
         (n,) each (N m or N; -). horner_pos, horner_neg: (n, n_coeffs) torque curves, highest
         order first; counts_max: the amplifier's range. payload_mass (kg), payload_com_S (m, in
@@ -167,6 +167,8 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("po_damping", f8, (n,)),
             ("po_count", f8, (n,)),
             ("po_share", f8),
+            ("po_edge", b1),
+            ("pc_damping", b1),
             ("pc_reserve", f8),
             ("pc_step", f8, (n,)),
             ("pc_credit", f8, (n,)),

@@ -44,7 +44,7 @@ def observe(
     device: tuple[np.ndarray, np.ndarray, np.ndarray] = NO_DEVICE,
 ) -> float:
     """One observer step at encoder angles ``q`` (``state`` from :func:`start`, updated)."""
-    return observe_energy(e, tau_prev, q, *state, qdot, T, cap, *device, 1.0)
+    return observe_energy(e, tau_prev, q, *state, qdot, T, cap, *device, 1.0, False)
 
 
 def observed(q: np.ndarray, tau_held: np.ndarray) -> np.ndarray:

@@ -36,6 +36,7 @@ from app.controller.passivity import (
     observe_energy,
     passivity_control,
     passivity_damping,
+    travel_direction,
 )
 from app.controller.payload import add_inertial_load, remove_weight
 from app.controller.record import (
@@ -226,6 +227,10 @@ def controller_tick(
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]
     lowpass(qdot, lowpass_gain(dt if period_ok else 0.0, r.pc_filter), pc_velocity)
+    pc_direction = r.pc_direction[:]
+    if r.pc_directed and moved:
+        for j in range(qdot.shape[0]):
+            travel_direction(qdot[j] * dt, r.po_count[j], pc_direction, r.pc_last_sign[:], j)
     if not ft_valid:
         faults |= FT_INVALID
     elif not math.isfinite(
@@ -263,6 +268,7 @@ def controller_tick(
             r.pc_limit[:],
             torques[TAU],
             torques[TAU_PC],
+            pc_direction,
         )
     s = motor_commands(torques, record_motors(rec), out.counts)
     out.scalars[SATURATION_SCALE] = s

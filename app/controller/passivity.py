@@ -223,6 +223,9 @@ class PassivitySettings(Checked):
         kind: ``"scale"``: the PC scales the rendered torque down (energy-bounding, admittance
             type); ``"damping"``: it adds a damper on the low-passed joint velocity instead
             (impedance type, Hannaford & Ryu 2002), see "The damping PC" in the module docstring.
+        directed: The scale PC predicts a joint whose last two count changes went the same way
+            to go on that way, so a torque against its travel (which absorbs energy) is not cut
+            (:func:`travel_direction`; see "The directed prediction" in the module docstring).
     """
 
     enabled: bool = False
@@ -239,6 +242,7 @@ class PassivitySettings(Checked):
     quantization_share: Annotated[float, Range(0.0, 1.0)] = 0.0
     quantization_edge: bool = False
     kind: Literal["scale", "damping"] = "scale"
+    directed: bool = False
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -450,6 +454,22 @@ def damping_share(tau_r: Array, tau_pc: Array) -> float:
 
 
 @njit(cache=True)
+def travel_direction(dq: float, count: float, direction: Array, last_sign: Array, j: int) -> None:
+    """Update joint ``j``'s known direction of travel from its encoder difference ``dq`` (rad or m).
+
+    A step of two or more counts, or a count change the same way as the one before it, makes the
+    direction that sign (the joint travels); a count change reversing the one before makes it
+    unknown (0: a dither, whose next step may go either way); no change keeps it. ``count`` is one
+    encoder count (rad or m; 0 for ideal encoders).
+    """
+    if abs(dq) < 0.5 * count or dq == 0.0:
+        return
+    sign = 1.0 if dq > 0.0 else -1.0
+    direction[j] = sign if abs(dq) >= 1.5 * count or sign == last_sign[j] else 0.0
+    last_sign[j] = sign
+
+
+@njit(cache=True)
 def passivity_control(
     energy: Array,
     tau_r: Array,
@@ -461,6 +481,7 @@ def passivity_control(
     limit: Array,
     tau: Array,
     tau_pc: Array,
+    direction: Array,
 ) -> float:
     """PC step: scale the rendered torque so the next observed step cannot overdraw the energy.
 
@@ -474,6 +495,8 @@ def passivity_control(
         limit: Largest ``|tau_j|`` the PC may lead to (N m or N), (n,).
         tau: The total joint torque (N m or N), (n,): the PC torque is added in place.
         tau_pc: The PC torque ``(s - 1) tau_r`` (N m or N), (n,), written.
+        direction: Each joint's known direction of travel (+-1), or 0 when unknown
+            (:func:`travel_direction`): a known one charges only the torque along it.
 
     Returns:
         ``1 - s``: the share of the rendered torque the PC removed (0 when it does not act).
@@ -482,7 +505,8 @@ def passivity_control(
     budget = max(energy[0] + reserve, 0.0)
     for j in range(tau_r.shape[0]):
         d = max(step[j], abs(velocity[j]) * dt)
-        worst += abs(tau_r[j]) * d
+        along = abs(tau_r[j]) if direction[j] == 0.0 else max(tau_r[j] * direction[j], 0.0)
+        worst += along * d
         budget += credit[j] * d
     s = budget / worst if worst > budget else 1.0
     for j in range(tau_r.shape[0]):

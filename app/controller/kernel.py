@@ -252,9 +252,7 @@ def controller_tick(
         po_tau[j] = torques[TAU, j] - torques[TAU_G, j]
         torques[TAU_PC, j] = 0.0
     if r.pc_on and r.pc_damping:
-        passivity_damping(
-            po_energy, pc_velocity, dt, r.pc_reserve, r.pc_limit[:], torques[TAU], torques[TAU_PC]
-        )
+        passivity_damping(po_energy, pc_velocity, dt, r.pc_reserve, r.pc_limit[:], torques[TAU], torques[TAU_PC])
         out.scalars[PC_CUT] = damping_share(po_tau, torques[TAU_PC])
     elif r.pc_on:
         out.scalars[PC_CUT] = passivity_control(

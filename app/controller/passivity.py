@@ -169,7 +169,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Annotated, Literal
+from typing import Annotated
 
 import numpy as np
 from numba import njit
@@ -217,15 +217,6 @@ class PassivitySettings(Checked):
             docstring): the port it watches is the one the hand holds, not the motors'.
         quantization_share: Where between the encoder reading (0) and its own angle within the
             count (1) the observer takes the work (see "Quantization" in the module docstring).
-        quantization_edge: The observer takes each joint's angle at the edge of its count the
-            joint last crossed, not at the count's middle (see "Quantization: the crossed edge"
-            in the module docstring); overrides ``quantization_share``.
-        kind: ``"scale"``: the PC scales the rendered torque down (energy-bounding, admittance
-            type); ``"damping"``: it adds a damper on the low-passed joint velocity instead
-            (impedance type, Hannaford & Ryu 2002), see "The damping PC" in the module docstring.
-        directed: The scale PC predicts a joint whose last two count changes went the same way
-            to go on that way, so a torque against its travel (which absorbs energy) is not cut
-            (:func:`travel_direction`; see "The directed prediction" in the module docstring).
     """
 
     enabled: bool = False
@@ -240,9 +231,6 @@ class PassivitySettings(Checked):
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
     quantization_share: Annotated[float, Range(0.0, 1.0)] = 0.0
-    quantization_edge: bool = False
-    kind: Literal["scale", "damping"] = "scale"
-    directed: bool = False
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -286,7 +274,6 @@ def observe_energy(
     damping: Array,
     count: Array,
     share: float,
-    edge: bool,
 ) -> float:
     """PO step: the port's work plus the device's own sure dissipation, capped; returns ``E``.
 
@@ -311,8 +298,6 @@ def observe_energy(
         count: One encoder count of each joint (rad or m; 0 for ideal encoders), (n,).
         share: How far (0..1) the observed angle goes from the reading to ``q_hat``
             (``quantization_share``).
-        edge: The observed angle is the edge of the count last crossed (:func:`crossed_edge`,
-            kept in ``q_hat``; ``quantization_edge``), whatever ``share``.
     """
     if dt <= 0.0:
         for j in range(q.shape[0]):
@@ -323,11 +308,8 @@ def observe_energy(
     for j in range(tau_prev.shape[0]):
         dq = qdot[j] * dt
         sure = max(abs(dq) - count[j], 0.0)
-        if edge:
-            moved = crossed_edge(q[j], dq, count[j], q_hat, j)
-        else:
-            moved_hat = angle_within_count(q[j], dq, dt, count[j], q_hat, v_hat, age, j)
-            moved = dq + share * (moved_hat - dq)
+        moved_hat = angle_within_count(q[j], dq, dt, count[j], q_hat, v_hat, age, j)
+        moved = dq + share * (moved_hat - dq)
         change += -tau_prev[j] * moved + friction[j] * abs(moved) + damping[j] * sure * sure / dt
     energy[0] = min(energy[0] + change, cap)
     return energy[0]
@@ -369,107 +351,6 @@ def angle_within_count(
 
 
 @njit(cache=True)
-def crossed_edge(reading: float, dq: float, count: float, edge: Array, j: int) -> float:
-    """Move joint ``j``'s observed angle ``edge[j]`` (rad or m) to the edge of its count it last
-    crossed; returns how far it moved.
-
-    A count that changes by ``n`` (``dq`` about ``n count``) was entered across its edge on the
-    side the joint came from, ``reading - sign(n) count / 2``; while no count changes the angle
-    stays where it is (inside the count the encoder reports, so it is as admissible as the
-    reading: see "Quantization: the crossed edge" in the module docstring). A dither across one
-    edge then moves the observed angle by nothing, steady travel by a count per count. Ideal
-    encoders (``count`` 0) give the reading itself.
-
-    Args:
-        reading: The encoder angle now (rad or m). ``dq``: its change over the tick (rad or m).
-        count: One encoder count (rad or m).
-        edge: The observed angles (rad or m), (n,), updated at ``j``.
-    """
-    half = 0.5 * count
-    target = edge[j]
-    if count <= 0.0:
-        target = reading
-    elif dq >= half:
-        target = reading - half
-    elif dq <= -half:
-        target = reading + half
-    target = min(max(target, reading - half), reading + half)
-    moved = target - edge[j]
-    edge[j] = target
-    return moved
-
-
-@njit(cache=True)
-def passivity_damping(
-    energy: Array, velocity: Array, dt: float, reserve: float, limit: Array, tau: Array, tau_pc: Array
-) -> float:
-    """Damping PC step (impedance type): a damper on the joint velocity that dissipates the deficit.
-
-    When the observed energy is below ``-reserve``, ``tau_pc = -alpha v`` with ``alpha = -(E +
-    reserve) / (dt sum_j v_j^2)`` (Hannaford & Ryu 2002, Eq. 12; Ryu, Kwon & Hannaford 2004):
-    over a tick at the velocity ``v`` it dissipates exactly the deficit, ``alpha |v|^2 dt``. It
-    never scales the rendered torque, so a zero-mean rendered force stays zero-mean (see "The
-    damping PC" in the module docstring). The total stays within ``limit`` as in
-    :func:`passivity_control`.
-
-    Args:
-        energy: Observed energy (J), (1,).
-        velocity: Low-passed joint velocity (rad/s or m/s), (n,).
-        dt: Servo period (s). ``reserve``: energy (J) the port may give out beyond what it absorbed.
-        limit: Largest ``|tau_j|`` the PC may lead to (N m or N), (n,).
-        tau: The total joint torque (N m or N), (n,): the PC torque is added in place.
-        tau_pc: The PC torque (N m or N), (n,), written.
-
-    Returns:
-        ``alpha`` (N m s/rad, or N s/m for slides): 0 when the PC does not act.
-    """
-    deficit = -(energy[0] + reserve)
-    speed2 = 0.0
-    for j in range(velocity.shape[0]):
-        speed2 += velocity[j] * velocity[j]
-    alpha = deficit / (dt * speed2) if deficit > 0.0 and dt > 0.0 and speed2 > 0.0 else 0.0
-    for j in range(velocity.shape[0]):
-        t = -alpha * velocity[j]
-        if t > 0.0 and tau[j] + t > limit[j]:
-            t = max(limit[j] - tau[j], 0.0)
-        elif t < 0.0 and tau[j] + t < -limit[j]:
-            t = min(-limit[j] - tau[j], 0.0)
-        tau_pc[j] = t
-        tau[j] += t
-    return alpha
-
-
-@njit(cache=True)
-def damping_share(tau_r: Array, tau_pc: Array) -> float:
-    """The damping PC's torque as a share of the rendered torque, ``min(1, |tau_pc| / |tau_r|)``
-    (0..1; 1 when nothing is rendered and the PC acts): the trace's ``pc_cut`` for that kind."""
-    pc = 0.0
-    r = 0.0
-    for j in range(tau_r.shape[0]):
-        pc += tau_pc[j] * tau_pc[j]
-        r += tau_r[j] * tau_r[j]
-    if pc == 0.0:
-        return 0.0
-    return 1.0 if pc >= r else math.sqrt(pc / r)
-
-
-@njit(cache=True)
-def travel_direction(dq: float, count: float, direction: Array, last_sign: Array, j: int) -> None:
-    """Update joint ``j``'s known direction of travel from its encoder difference ``dq`` (rad or m).
-
-    A step of two or more counts, or a count change the same way as the one before it, makes the
-    direction that sign (the joint travels); a count change reversing the one before makes it
-    unknown (0: a dither, whose next step may go either way); no change keeps it. ``count`` is one
-    encoder count (rad or m; 0 for ideal encoders).
-    """
-    if abs(dq) < 0.5 * count or dq == 0.0:
-        return
-    sign = 1.0 if dq > 0.0 else -1.0
-    direction[j] = sign if abs(dq) >= 1.5 * count or sign == last_sign[j] else 0.0
-    last_sign[j] = sign
-
-
-@njit(cache=True)
 def passivity_control(
     energy: Array,
     tau_r: Array,
@@ -481,7 +362,6 @@ def passivity_control(
     limit: Array,
     tau: Array,
     tau_pc: Array,
-    direction: Array,
 ) -> float:
     """PC step: scale the rendered torque so the next observed step cannot overdraw the energy.
 
@@ -495,8 +375,6 @@ def passivity_control(
         limit: Largest ``|tau_j|`` the PC may lead to (N m or N), (n,).
         tau: The total joint torque (N m or N), (n,): the PC torque is added in place.
         tau_pc: The PC torque ``(s - 1) tau_r`` (N m or N), (n,), written.
-        direction: Each joint's known direction of travel (+-1), or 0 when unknown
-            (:func:`travel_direction`): a known one charges only the torque along it.
 
     Returns:
         ``1 - s``: the share of the rendered torque the PC removed (0 when it does not act).
@@ -505,8 +383,7 @@ def passivity_control(
     budget = max(energy[0] + reserve, 0.0)
     for j in range(tau_r.shape[0]):
         d = max(step[j], abs(velocity[j]) * dt)
-        along = abs(tau_r[j]) if direction[j] == 0.0 else max(tau_r[j] * direction[j], 0.0)
-        worst += along * d
+        worst += abs(tau_r[j]) * d
         budget += credit[j] * d
     s = budget / worst if worst > budget else 1.0
     for j in range(tau_r.shape[0]):

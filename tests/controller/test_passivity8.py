@@ -7,7 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.controller.passivity import crossed_edge, passivity_control, passivity_damping, travel_direction
+from app.controller.passivity import (
+    crossed_edge,
+    dither_edge,
+    passivity_control,
+    passivity_damping,
+    travel_direction,
+)
 
 T = 1e-3
 
@@ -50,6 +56,8 @@ def test_the_damping_pc_does_not_rectify_a_zero_mean_force_the_scale_pc_does() -
             np.array([1e3]),
             tau,
             tau_pc,
+            np.zeros(1),
+            np.zeros(1),
             np.zeros(1),
         )
         scaled.append(tau[0])
@@ -102,5 +110,25 @@ def test_a_directed_prediction_charges_only_the_torque_along_the_travel() -> Non
             tau,
             tau_pc,
             np.array([1.0]),
+            np.zeros(1),
+            np.zeros(1),
         )
         assert tau[0] == pytest.approx(kept)
+
+
+def test_a_dithering_joint_is_held_within_twice_its_friction_above_the_other_side() -> None:
+    """Diolaiti et al. 2006 / Abbott & Okamura 2005: a one-count dither is passive when the torque
+    step across the edge is below 2 f_c. Joint in count 1 (torque -1 N m), crossed back to 0
+    (torque 0) and in again: dithering, the other side's torque 0, so with f_c = 0.1 N m a
+    rendered -1 N m is scaled to -0.2 N m; a second count the same way is travel, not a dither."""
+    c, f_c = 0.01, 0.1
+    sign, dither, other = np.zeros(1), np.zeros(1), np.zeros(1)
+    for dq, tau_prev in ((c, 0.0), (-c, -1.0), (c, 0.0)):
+        dither_edge(dq, c, tau_prev, sign, dither, other, 0)
+    assert dither[0] == 1.0 and other[0] == 0.0
+    tau, tau_pc = np.array([-1.0]), np.zeros(1)
+    args = (np.zeros(1), T, np.array([1e-3]), np.array([f_c]), 0.02, np.array([1e3]), tau, tau_pc, np.zeros(1))
+    passivity_control(np.array([0.0]), np.array([-1.0]), *args, dither, other)
+    assert tau[0] == pytest.approx(-2 * f_c)
+    dither_edge(c, c, -0.2, sign, dither, other, 0)
+    assert dither[0] == 0.0

@@ -277,14 +277,6 @@ class FRHCController:
         rec["po_damping"] = self._damping if observed else 0.0
         rec["po_count"] = self.device.encoder_step
         rec["po_share"] = settings.quantization_share
-        rec["po_edge"] = settings.quantization_edge
-        rec["pc_damping"] = settings.kind == "damping"
-        rec["pc_directed"] = settings.directed
-        rec["pc_dither_step"] = settings.dither_step
-        if not settings.dither_step:
-            rec["pc_dither"] = 0.0
-        if not settings.directed:
-            rec["pc_direction"] = 0.0  # unknown: every torque is charged whole
         rec["pc_filter"] = settings.velocity_filter
         rec["pc_hold"] = settings.enabled and settings.hold_slave
         rec["pc_b_device"] = self._b_device
@@ -302,18 +294,7 @@ class FRHCController:
         for flag in ("prev_reference", "prev_deadman", "prev_reflecting", "have_q_prev", "braking"):
             self._rec[flag] = False
         self.out.scalars[RAMP] = 0.0
-        for name in (
-            "po_energy",
-            "po_tau",
-            "pc_velocity",
-            "pc_direction",
-            "pc_last_sign",
-            "pc_dither",
-            "pc_other",
-            "pc_edge_sign",
-            "pc_offset",
-            "pc_dx_prev",
-        ):
+        for name in ("po_energy", "po_tau", "pc_velocity", "pc_offset", "pc_dx_prev"):
             self._rec[name] = 0.0
         self.out.scalars[PO_ENERGY] = self.out.scalars[PC_CUT] = 0.0
 

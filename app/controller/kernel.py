@@ -30,15 +30,7 @@ from numba import njit
 from app.controller.assist import constant_force_rtc, damping, deadband, hooke_rtc, saturate, uniform_scale
 from app.controller.calibration import curve_counts
 from app.controller.kinematics import RecordArray, gravity_torque, wrist_jacobian
-from app.controller.passivity import (
-    coupling_hold,
-    damping_share,
-    observe_energy,
-    passivity_control,
-    passivity_damping,
-    travel_direction,
-    dither_edge,
-)
+from app.controller.passivity import coupling_hold, observe_energy, passivity_control
 from app.controller.payload import add_inertial_load, remove_weight
 from app.controller.record import (
     ASSIST_SCALE,
@@ -223,20 +215,10 @@ def controller_tick(
         r.po_damping[:],
         r.po_count[:],
         r.po_share,
-        r.po_edge,
     )
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]
     lowpass(qdot, lowpass_gain(dt if period_ok else 0.0, r.pc_filter), pc_velocity)
-    pc_direction = r.pc_direction[:]
-    if r.pc_directed and moved:
-        for j in range(qdot.shape[0]):
-            travel_direction(qdot[j] * dt, r.po_count[j], pc_direction, r.pc_last_sign[:], j)
-    pc_dither, pc_other = r.pc_dither[:], r.pc_other[:]
-    if r.pc_dither_step and moved:
-        po_prev = r.po_tau[:]
-        for j in range(qdot.shape[0]):
-            dither_edge(qdot[j] * dt, r.po_count[j], po_prev[j], r.pc_edge_sign[:], pc_dither, pc_other, j)
     if not ft_valid:
         faults |= FT_INVALID
     elif not math.isfinite(
@@ -257,10 +239,7 @@ def controller_tick(
     for j in range(n):
         po_tau[j] = torques[TAU, j] - torques[TAU_G, j]
         torques[TAU_PC, j] = 0.0
-    if r.pc_on and r.pc_damping:
-        passivity_damping(po_energy, pc_velocity, dt, r.pc_reserve, r.pc_limit[:], torques[TAU], torques[TAU_PC])
-        out.scalars[PC_CUT] = damping_share(po_tau, torques[TAU_PC])
-    elif r.pc_on:
+    if r.pc_on:
         out.scalars[PC_CUT] = passivity_control(
             po_energy,
             po_tau,
@@ -272,9 +251,6 @@ def controller_tick(
             r.pc_limit[:],
             torques[TAU],
             torques[TAU_PC],
-            pc_direction,
-            pc_dither,
-            pc_other,
         )
     s = motor_commands(torques, record_motors(rec), out.counts)
     out.scalars[SATURATION_SCALE] = s
@@ -284,8 +260,7 @@ def controller_tick(
     if deadman and not r.rate_mode:
         dx_cmd = out.vectors[DELTA_X_CMD]
         if r.pc_hold:
-            # A damping PC cuts no share of the rendered force: nothing to hold back.
-            cut = out.scalars[PC_CUT] if r.pc_on and not r.pc_damping else 0.0
+            cut = out.scalars[PC_CUT] if r.pc_on else 0.0
             coupling_hold(
                 cut,
                 T_0_G[0:3, 0:3],

@@ -163,13 +163,47 @@ force it holds back while the grip moves is a held force source that gives out e
 task torque and only by scaling it down (``|tau| <= |tau_r|``, as the PC does) it was still below
 plain: 35 / 84 and 19 / 81, worse than plain at 6 and 9 points (notes and patches: issue 26,
 helper eba26).
+
+Three more PCs were measured against this one and rejected (issue 26, helper passivity8; the
+stability matrix's 444 tuned-on points, 0.6 s windows, the honest judge; stable / worse than
+plain / wall vanishes, this PC 258 / 4 / 33, plain stable at 180; patches in the notes):
+
+- *A damping PC* (impedance type: Hannaford & Ryu 2002; Ryu, Kwon & Hannaford 2004): once
+  ``E < -E_r``, ``tau_PC = -alpha v`` with ``alpha = -(E + E_r) / (T |v|^2)`` on the low-passed
+  joint velocity, in place of the scale. It never scales the rendered force, so it cannot
+  rectify the F/T's zero-mean inertial reading into a push on a released grip, which the scale
+  does (it cuts the large spikes of one sign more than the small ones of the other: a released
+  JPL with armature +0.002 is pushed up at 9 mm/s). But a damper on a lagging, count-grained
+  velocity is active itself: 160 / 20 / 71 (held-out set 92 / 14 / 29 against 122 / 3 / 9), the
+  observed energy falling to -2 ... -31 J where it acted. Colgate & Schenkel's ``b > K T / 2 +
+  |B|`` bounds a sampled damper ``B`` by the device's own damping (0.17-1.9 N s/m at the grip),
+  far below the ~50 N s/m that would hold back that push.
+- *The observed angle on the crossed edge* of the count (the edge the joint last crossed, not
+  the count's middle), for the quantization over-read (an 11-bit JPL released at 0.25x: the
+  encoder work -0.32 J against a true -15 mJ). This angle and the reading differ only when a
+  count reverses the one before; there, over a one-count dither cycle, the encoder work with
+  the friction credit is ``-(|Delta tau| - 2 f_c) c``: exactly the quantization energy bound of
+  Abbott & Okamura 2005 and Diolaiti, Niemeyer, Barbagli & Salisbury 2006 (IEEE T-RO 22(2):
+  ``K < 2 f_c / Delta``), with ``Delta tau`` the torque step across the edge. So bounding the
+  over-read by that condition changes nothing: the over-read *is* the bound, read as if the
+  joint crossed a whole count each way. Without it: 204 / 1 / 14 (held out 108 / 1 / 0, encoder
+  variants 218 / 2 / 36 against 292 / 3 / 71): the walls no longer vanish, but none of the 61
+  tuned walls it lost is stable under plain rendering: the reversal charge is what detects the
+  one-count chatter this PC stops. With one predicted count instead of three: 205 / 2 / 24.
+- *A directed prediction* (a joint whose last two counts went the same way charges only the
+  torque along its travel, so a braking force is not cut) and *a dither step* (a joint
+  dithering across one edge held within ``2 f_c`` of the torque on the other side, Diolaiti's
+  condition imposed directly): the first 94 / 1 / 40 on the first 187 points (this PC 124 / 0
+  / 17 there), the second 201 / 52 / 54. The first lets through the force at a wall's turning
+  point, where a limit cycle draws its energy; the second is a force law with a step at every
+  change of the dither flag, and chatters on it (ripple up to 15 N on walls this PC holds).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Annotated, Literal
+from typing import Annotated
 
 import numpy as np
 from numba import njit
@@ -217,17 +251,6 @@ class PassivitySettings(Checked):
             docstring): the port it watches is the one the hand holds, not the motors'.
         quantization_share: Where between the encoder reading (0) and its own angle within the
             count (1) the observer takes the work (see "Quantization" in the module docstring).
-        quantization_edge: The observer takes each joint's angle at the edge of its count the
-            joint last crossed, not at the count's middle (see "Quantization: the crossed edge"
-            in the module docstring); overrides ``quantization_share``.
-        kind: ``"scale"``: the PC scales the rendered torque down (energy-bounding, admittance
-            type); ``"damping"``: it adds a damper on the low-passed joint velocity instead
-            (impedance type, Hannaford & Ryu 2002), see "The damping PC" in the module docstring.
-        directed: The scale PC predicts a joint whose last two count changes went the same way
-            to go on that way, so a torque against its travel (which absorbs energy) is not cut
-            (:func:`travel_direction`; see "The directed prediction" in the module docstring).
-        dither_step: A joint dithering across one encoder edge is rendered no more than its
-            friction's ``2 f_c`` above the torque on the edge's other side (:func:`dither_edge`).
     """
 
     enabled: bool = False
@@ -242,10 +265,6 @@ class PassivitySettings(Checked):
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
     quantization_share: Annotated[float, Range(0.0, 1.0)] = 0.0
-    quantization_edge: bool = False
-    kind: Literal["scale", "damping"] = "scale"
-    directed: bool = False
-    dither_step: bool = False
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -289,7 +308,6 @@ def observe_energy(
     damping: Array,
     count: Array,
     share: float,
-    edge: bool,
 ) -> float:
     """PO step: the port's work plus the device's own sure dissipation, capped; returns ``E``.
 
@@ -314,8 +332,6 @@ def observe_energy(
         count: One encoder count of each joint (rad or m; 0 for ideal encoders), (n,).
         share: How far (0..1) the observed angle goes from the reading to ``q_hat``
             (``quantization_share``).
-        edge: The observed angle is the edge of the count last crossed (:func:`crossed_edge`,
-            kept in ``q_hat``; ``quantization_edge``), whatever ``share``.
     """
     if dt <= 0.0:
         for j in range(q.shape[0]):
@@ -326,11 +342,8 @@ def observe_energy(
     for j in range(tau_prev.shape[0]):
         dq = qdot[j] * dt
         sure = max(abs(dq) - count[j], 0.0)
-        if edge:
-            moved = crossed_edge(q[j], dq, count[j], q_hat, j)
-        else:
-            moved_hat = angle_within_count(q[j], dq, dt, count[j], q_hat, v_hat, age, j)
-            moved = dq + share * (moved_hat - dq)
+        moved_hat = angle_within_count(q[j], dq, dt, count[j], q_hat, v_hat, age, j)
+        moved = dq + share * (moved_hat - dq)
         change += -tau_prev[j] * moved + friction[j] * abs(moved) + damping[j] * sure * sure / dt
     energy[0] = min(energy[0] + change, cap)
     return energy[0]
@@ -372,124 +385,6 @@ def angle_within_count(
 
 
 @njit(cache=True)
-def crossed_edge(reading: float, dq: float, count: float, edge: Array, j: int) -> float:
-    """Move joint ``j``'s observed angle ``edge[j]`` (rad or m) to the edge of its count it last
-    crossed; returns how far it moved.
-
-    A count that changes by ``n`` (``dq`` about ``n count``) was entered across its edge on the
-    side the joint came from, ``reading - sign(n) count / 2``; while no count changes the angle
-    stays where it is (inside the count the encoder reports, so it is as admissible as the
-    reading: see "Quantization: the crossed edge" in the module docstring). A dither across one
-    edge then moves the observed angle by nothing, steady travel by a count per count. Ideal
-    encoders (``count`` 0) give the reading itself.
-
-    Args:
-        reading: The encoder angle now (rad or m). ``dq``: its change over the tick (rad or m).
-        count: One encoder count (rad or m).
-        edge: The observed angles (rad or m), (n,), updated at ``j``.
-    """
-    half = 0.5 * count
-    target = edge[j]
-    if count <= 0.0:
-        target = reading
-    elif dq >= half:
-        target = reading - half
-    elif dq <= -half:
-        target = reading + half
-    target = min(max(target, reading - half), reading + half)
-    moved = target - edge[j]
-    edge[j] = target
-    return moved
-
-
-@njit(cache=True)
-def passivity_damping(
-    energy: Array, velocity: Array, dt: float, reserve: float, limit: Array, tau: Array, tau_pc: Array
-) -> float:
-    """Damping PC step (impedance type): a damper on the joint velocity that dissipates the deficit.
-
-    When the observed energy is below ``-reserve``, ``tau_pc = -alpha v`` with ``alpha = -(E +
-    reserve) / (dt sum_j v_j^2)`` (Hannaford & Ryu 2002, Eq. 12; Ryu, Kwon & Hannaford 2004):
-    over a tick at the velocity ``v`` it dissipates exactly the deficit, ``alpha |v|^2 dt``. It
-    never scales the rendered torque, so a zero-mean rendered force stays zero-mean (see "The
-    damping PC" in the module docstring). The total stays within ``limit`` as in
-    :func:`passivity_control`.
-
-    Args:
-        energy: Observed energy (J), (1,).
-        velocity: Low-passed joint velocity (rad/s or m/s), (n,).
-        dt: Servo period (s). ``reserve``: energy (J) the port may give out beyond what it absorbed.
-        limit: Largest ``|tau_j|`` the PC may lead to (N m or N), (n,).
-        tau: The total joint torque (N m or N), (n,): the PC torque is added in place.
-        tau_pc: The PC torque (N m or N), (n,), written.
-
-    Returns:
-        ``alpha`` (N m s/rad, or N s/m for slides): 0 when the PC does not act.
-    """
-    deficit = -(energy[0] + reserve)
-    speed2 = 0.0
-    for j in range(velocity.shape[0]):
-        speed2 += velocity[j] * velocity[j]
-    alpha = deficit / (dt * speed2) if deficit > 0.0 and dt > 0.0 and speed2 > 0.0 else 0.0
-    for j in range(velocity.shape[0]):
-        t = -alpha * velocity[j]
-        if t > 0.0 and tau[j] + t > limit[j]:
-            t = max(limit[j] - tau[j], 0.0)
-        elif t < 0.0 and tau[j] + t < -limit[j]:
-            t = min(-limit[j] - tau[j], 0.0)
-        tau_pc[j] = t
-        tau[j] += t
-    return alpha
-
-
-@njit(cache=True)
-def damping_share(tau_r: Array, tau_pc: Array) -> float:
-    """The damping PC's torque as a share of the rendered torque, ``min(1, |tau_pc| / |tau_r|)``
-    (0..1; 1 when nothing is rendered and the PC acts): the trace's ``pc_cut`` for that kind."""
-    pc = 0.0
-    r = 0.0
-    for j in range(tau_r.shape[0]):
-        pc += tau_pc[j] * tau_pc[j]
-        r += tau_r[j] * tau_r[j]
-    if pc == 0.0:
-        return 0.0
-    return 1.0 if pc >= r else math.sqrt(pc / r)
-
-
-@njit(cache=True)
-def travel_direction(dq: float, count: float, direction: Array, last_sign: Array, j: int) -> None:
-    """Update joint ``j``'s known direction of travel from its encoder difference ``dq`` (rad or m).
-
-    A step of two or more counts, or a count change the same way as the one before it, makes the
-    direction that sign (the joint travels); a count change reversing the one before makes it
-    unknown (0: a dither, whose next step may go either way); no change keeps it. ``count`` is one
-    encoder count (rad or m; 0 for ideal encoders).
-    """
-    if abs(dq) < 0.5 * count or dq == 0.0:
-        return
-    sign = 1.0 if dq > 0.0 else -1.0
-    direction[j] = sign if abs(dq) >= 1.5 * count or sign == last_sign[j] else 0.0
-    last_sign[j] = sign
-
-
-@njit(cache=True)
-def dither_edge(dq: float, count: float, tau_prev: float, sign: Array, dither: Array, other: Array, j: int) -> None:
-    """Track whether joint ``j`` dithers across one encoder edge, and the torque on its other side.
-
-    On a count change (``dq`` rad or m, ``count`` one count): ``other[j]`` becomes the torque held
-    before it, ``tau_prev`` (N m or N; rendered in the count just left, across the edge), and
-    ``dither[j]`` is 1 when the change reverses the one before (back across the same edge), 0 on
-    steady travel or a step of two counts or more. No count change keeps both.
-    """
-    if dq == 0.0 or abs(dq) < 0.5 * count:
-        return
-    s = 1.0 if dq > 0.0 else -1.0
-    dither[j] = 1.0 if s == -sign[j] and abs(dq) < 1.5 * count else 0.0
-    other[j] = tau_prev
-    sign[j] = s
-
-
-@njit(cache=True)
 def passivity_control(
     energy: Array,
     tau_r: Array,
@@ -501,9 +396,6 @@ def passivity_control(
     limit: Array,
     tau: Array,
     tau_pc: Array,
-    direction: Array,
-    dither: Array,
-    other: Array,
 ) -> float:
     """PC step: scale the rendered torque so the next observed step cannot overdraw the energy.
 
@@ -517,12 +409,6 @@ def passivity_control(
         limit: Largest ``|tau_j|`` the PC may lead to (N m or N), (n,).
         tau: The total joint torque (N m or N), (n,): the PC torque is added in place.
         tau_pc: The PC torque ``(s - 1) tau_r`` (N m or N), (n,), written.
-        direction: Each joint's known direction of travel (+-1), or 0 when unknown
-            (:func:`travel_direction`): a known one charges only the torque along it.
-        dither, other: Each joint dithering across the edge it last crossed (1, else 0) and the
-            torque it was rendered on the edge's other side (N m or N), (n,) each
-            (:func:`dither_edge`): a dithering joint's torque is held within ``|other| + 2
-            credit`` (Diolaiti et al. 2006's quantization condition, ``K count < 2 f_c``).
 
     Returns:
         ``1 - s``: the share of the rendered torque the PC removed (0 when it does not act).
@@ -531,14 +417,9 @@ def passivity_control(
     budget = max(energy[0] + reserve, 0.0)
     for j in range(tau_r.shape[0]):
         d = max(step[j], abs(velocity[j]) * dt)
-        along = abs(tau_r[j]) if direction[j] == 0.0 else max(tau_r[j] * direction[j], 0.0)
-        worst += along * d
+        worst += abs(tau_r[j]) * d
         budget += credit[j] * d
     s = budget / worst if worst > budget else 1.0
-    for j in range(tau_r.shape[0]):
-        most = abs(other[j]) + 2.0 * credit[j]
-        if dither[j] != 0.0 and abs(tau_r[j]) * s > most:
-            s = most / abs(tau_r[j])
     for j in range(tau_r.shape[0]):
         t = (s - 1.0) * tau_r[j]
         # The PC may not push the total out past the limit (a clip that would reverse its sign

@@ -116,7 +116,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         lock. gravity_compensation, remove_payload, remove_inertia: the options of the same
         names. min_period, max_period: accepted periods (s). ramp_rate (1/s), max_joint_speed and
         release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. pc_on, pc_limit
-        (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), po_count (rad, (n,)), po_share (-), po_edge, pc_damping, pc_directed, pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_filter (s),
+        (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), po_count (rad, (n,)), po_share (-), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_filter (s),
         pc_hold, pc_b_device (N s/m), pc_bleed (s): :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
         (n,) each (N m or N; -). horner_pos, horner_neg: (n, n_coeffs) torque curves, highest
         order first; counts_max: the amplifier's range. payload_mass (kg), payload_com_S (m, in
@@ -135,8 +135,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         the passivity observer's energy of the whole port (J), (1,); po_tau: the rendered torque
         commanded last tick (N m or N), (n,); po_q_hat, po_v_hat, po_age: the observer's
         estimate of the joint angles within the encoders' counts (rad or m), its count-interval
-        velocities (rad/s or m/s) and the time since each count last changed (s), (n,) each; pc_direction, pc_last_sign: each joint's known direction of travel (-1, 0 unknown, +1) and
-        the sign of its last count change (:func:`~app.controller.passivity.travel_direction`); pc_velocity: the low-passed joint velocity the
+        velocities (rad/s or m/s) and the time since each count last changed (s), (n,) each; pc_velocity: the low-passed joint velocity the
         passivity controller uses (n,); pc_offset: the PC's hold on
         the slave's command (m, {0}, (3,)); pc_dx_prev: last tick's Delta X command translations
         before it (m, (3,)).
@@ -168,10 +167,6 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("po_damping", f8, (n,)),
             ("po_count", f8, (n,)),
             ("po_share", f8),
-            ("po_edge", b1),
-            ("pc_damping", b1),
-            ("pc_directed", b1),
-            ("pc_dither_step", b1),
             ("pc_reserve", f8),
             ("pc_step", f8, (n,)),
             ("pc_credit", f8, (n,)),
@@ -211,11 +206,6 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("po_v_hat", f8, (n,)),
             ("po_age", f8, (n,)),
             ("pc_velocity", f8, (n,)),
-            ("pc_direction", f8, (n,)),
-            ("pc_last_sign", f8, (n,)),
-            ("pc_dither", f8, (n,)),
-            ("pc_other", f8, (n,)),
-            ("pc_edge_sign", f8, (n,)),
             ("J_W", f8, (6, n)),
             ("T_0_G", f8, (4, 4)),
             ("T_0_G0", f8, (4, 4)),

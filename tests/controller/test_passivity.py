@@ -44,7 +44,7 @@ def observe(
     device: tuple[np.ndarray, np.ndarray, np.ndarray] = NO_DEVICE,
 ) -> float:
     """One observer step at encoder angles ``q`` (``state`` from :func:`start`, updated)."""
-    return observe_energy(e, tau_prev, q, *state, qdot, T, cap, *device, 1.0, False)
+    return observe_energy(e, tau_prev, q, *state, qdot, T, cap, *device, 1.0)
 
 
 def observed(q: np.ndarray, tau_held: np.ndarray) -> np.ndarray:
@@ -117,7 +117,7 @@ def test_an_active_sampled_wall_is_detected_and_the_pc_keeps_the_bounce_passive(
             tau = np.array([-K * q - B * vel[0]]) if q > 0.0 else np.zeros(1)
             if pc:
                 passivity_control(
-                    e, tau.copy(), vel, T, np.array([step]), np.array([f_c]), reserve, np.array([1e9]), tau, tau_pc, np.zeros(1), np.zeros(1), np.zeros(1)
+                    e, tau.copy(), vel, T, np.array([step]), np.array([f_c]), reserve, np.array([1e9]), tau, tau_pc
                 )
             tau_prev[:] = tau
             f_max = max(f_max, abs(tau[0]))
@@ -158,7 +158,7 @@ def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits
     tau = tau_r + tau_g
     tau_pc = np.zeros(4)
     cut = passivity_control(
-        np.array([energy]), tau_r, velocity, T, step, np.full(4, credit), reserve, limit, tau, tau_pc, np.zeros(4), np.zeros(4), np.zeros(4)
+        np.array([energy]), tau_r, velocity, T, step, np.full(4, credit), reserve, limit, tau, tau_pc
     )
     np.testing.assert_allclose(tau, tau_r + tau_g + tau_pc)
     rendered = tau_r + tau_pc

@@ -164,7 +164,7 @@ task torque and only by scaling it down (``|tau| <= |tau_r|``, as the PC does) i
 plain: 35 / 84 and 19 / 81, worse than plain at 6 and 9 points (notes and patches: issue 26,
 helper eba26).
 
-Three more PCs were measured against this one and rejected (issue 26, helper passivity8; the
+Four more PC variants were measured against this one and rejected (issue 26, helper passivity8; the
 stability matrix's 444 tuned-on points, 0.6 s windows, the honest judge; stable / worse than
 plain / wall vanishes, this PC 258 / 4 / 33, plain stable at 180; patches in the notes):
 
@@ -187,10 +187,11 @@ plain / wall vanishes, this PC 258 / 4 / 33, plain stable at 180; patches in the
   ``K < 2 f_c / Delta``), with ``Delta tau`` the torque step across the edge. So bounding the
   over-read by that condition changes nothing: the over-read *is* the bound, read as if the
   joint crossed a whole count each way. Without it: 204 / 1 / 14 (held out 108 / 1 / 0, encoder
-  variants 218 / 2 / 36 against 292 / 3 / 71): the walls no longer vanish, but none of the 61
-  tuned walls it lost is stable under plain rendering: the reversal charge is what detects the
-  one-count chatter this PC stops. With one predicted count instead of three: 205 / 2 / 24.
-  It does settle both released presses diagnosed above (the 11-bit JPL at 0.25x and the JPL
+  variants 218 / 2 / 36 against 292 / 3 / 71; the 51 worst points held 8 s, 20 / 0 / 14 against
+  37 / 5 / 35): the walls no longer vanish, but none of the 61 tuned walls it lost is stable
+  under plain rendering: the reversal charge is what detects the one-count chatter this PC
+  stops. With one predicted count instead of three: 205 / 2 / 24.
+  It does settle both released presses issue 26 diagnosed (the 11-bit JPL at 0.25x and the JPL
   with armature +0.002 at 1x: their grips rest as under plain rendering; the bank had been
   drained by the reversal charge, not by the inertial reading), but over all 240 released
   presses of the three sets it settles 107 against this PC's 104 (plain 100).

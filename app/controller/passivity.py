@@ -163,6 +163,45 @@ force it holds back while the grip moves is a held force source that gives out e
 task torque and only by scaling it down (``|tau| <= |tau_r|``, as the PC does) it was still below
 plain: 35 / 84 and 19 / 81, worse than plain at 6 and 9 points (notes and patches: issue 26,
 helper eba26).
+
+Four more PC variants were measured against this one and rejected (issue 26, helper passivity8; the
+stability matrix's 444 tuned-on points, 0.6 s windows, the honest judge; stable / worse than
+plain / wall vanishes, this PC 258 / 4 / 33, plain stable at 180; patches in the notes):
+
+- *A damping PC* (impedance type: Hannaford & Ryu 2002; Ryu, Kwon & Hannaford 2004): once
+  ``E < -E_r``, ``tau_PC = -alpha v`` with ``alpha = -(E + E_r) / (T |v|^2)`` on the low-passed
+  joint velocity, in place of the scale. It never scales the rendered force, so it cannot
+  rectify the F/T's zero-mean inertial reading into a push on a released grip, which the scale
+  does (it cuts the large spikes of one sign more than the small ones of the other: a released
+  JPL with armature +0.002 is pushed up at 9 mm/s). But a damper on a lagging, count-grained
+  velocity is active itself: 160 / 20 / 71 (held-out set 92 / 14 / 29 against 122 / 3 / 9), the
+  observed energy falling to -2 ... -31 J where it acted. Colgate & Schenkel's ``b > K T / 2 +
+  |B|`` bounds a sampled damper ``B`` by the device's own damping (0.17-1.9 N s/m at the grip),
+  far below the ~50 N s/m that would hold back that push.
+- *The observed angle on the crossed edge* of the count (the edge the joint last crossed, not
+  the count's middle), for the quantization over-read (an 11-bit JPL released at 0.25x: the
+  encoder work -0.32 J against a true -15 mJ). This angle and the reading differ only when a
+  count reverses the one before; there, over a one-count dither cycle, the encoder work with
+  the friction credit is ``-(|Delta tau| - 2 f_c) c``: exactly the quantization energy bound of
+  Abbott & Okamura 2005 and Diolaiti, Niemeyer, Barbagli & Salisbury 2006 (IEEE T-RO 22(2):
+  ``K < 2 f_c / Delta``), with ``Delta tau`` the torque step across the edge. So bounding the
+  over-read by that condition changes nothing: the over-read *is* the bound, read as if the
+  joint crossed a whole count each way. Without it: 204 / 1 / 14 (held out 108 / 1 / 0, encoder
+  variants 218 / 2 / 36 against 292 / 3 / 71; the 51 worst points held 8 s, 20 / 0 / 14 against
+  37 / 5 / 35): the walls no longer vanish, but none of the 61 tuned walls it lost is stable
+  under plain rendering: the reversal charge is what detects the one-count chatter this PC
+  stops. With one predicted count instead of three: 205 / 2 / 24.
+  It does settle both released presses issue 26 diagnosed (the 11-bit JPL at 0.25x and the JPL
+  with armature +0.002 at 1x: their grips rest as under plain rendering; the bank had been
+  drained by the reversal charge, not by the inertial reading), but over all 240 released
+  presses of the three sets it settles 107 against this PC's 104 (plain 100).
+- *A directed prediction* (a joint whose last two counts went the same way charges only the
+  torque along its travel, so a braking force is not cut) and *a dither step* (a joint
+  dithering across one edge held within ``2 f_c`` of the torque on the other side, Diolaiti's
+  condition imposed directly): the first 94 / 1 / 40 on the first 187 points (this PC 124 / 0
+  / 17 there), the second 201 / 52 / 54. The first lets through the force at a wall's turning
+  point, where a limit cycle draws its energy; the second is a force law with a step at every
+  change of the dither flag, and chatters on it (ripple up to 15 N on walls this PC holds).
 """
 
 from __future__ import annotations

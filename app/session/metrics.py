@@ -13,6 +13,7 @@ from numba.experimental import structref
 from app.compiled import F8, I8, Arrays, ArraysType, array_type, entry_point
 from app.controller.layout import SCALARS
 from app.controller.types import Fault
+from app.session.state import fill_row
 from app.session.tick import STAGES, TickRecord
 from app.slave.arm import ArmStatus
 from app.spatial import Array, IntArray, rotation_log_into
@@ -196,6 +197,37 @@ def _reduce_row(src: Arrays, sinks: Arrays, tick: int, log_row: int) -> None:
     _reduce(b.acc, b.tail, row, b.ints, tick, b.stage_table, a.stage_ns)
 
 
+@njit(cache=True)
+def _fill_and_reduce(
+    sinks: Arrays,
+    tick: int,
+    log_row: int,
+    src: Arrays,
+    contact_w: Array,
+    t: float,
+    hand_on: bool,
+    deadman: bool,
+    reference: bool,
+    reflection: bool,
+    contacts: int,
+    faults: int,
+    watchdog_trips: int,
+    slave_status: int,
+    device_link: int,
+    link_force: float,
+    reflecting: bool,
+    full: bool,
+) -> None:
+    """The state row filled (:func:`~app.session.state.fill_row` of the arguments after
+    ``sinks``, ``tick`` and ``log_row``), then :func:`_reduce_row`: one compiled call a tick
+    (:meth:`~app.session.state.StateBlock.kernel`)."""
+    fill_row(
+        src, contact_w, t, hand_on, deadman, reference, reflection, contacts, faults, watchdog_trips, slave_status,
+        device_link, link_force, reflecting, full,
+    )  # fmt: skip
+    _reduce_row(src, sinks, tick, log_row)
+
+
 def _bit_counts(flags: type[Fault] | type[ArmStatus], counts: IntArray) -> dict[str, int]:
     """Ticks per flag of ``flags`` (single-bit flags) from per-bit tick counts, the flags seen only."""
     return {
@@ -259,22 +291,25 @@ class SessionMetrics:
         ints[_AT_LINK], ints[_AT_REFLECTING] = starts["link_force"], starts["reflecting"]
         self._log = log
         self._sinks = _sinks(acc, self._tail, ints, self._stage_ns, np.zeros((0, 0)) if log is None else log.buffer)
+        # Called every tick with the same kinds of arguments: the compiled specialisations, once.
+        self._fill_and_reduce = start.block.kernel(_fill_and_reduce, self._sinks)
         self._reduce: Callable[..., None] | None = None
 
     def on_tick(self, tick: TickRecord) -> None:
-        """Reduce the tick's state row (:func:`_reduce_row`): with a log, the whole row filled
-        (unless an observer before filled it) and its logged part written to the log's buffer in
-        the same compiled call; without, only the values the reduction reads are filled (the
-        whole row costs ~2 us more)."""
+        """Reduce the tick's state row (:func:`_reduce_row`) in the compiled call that fills it
+        (:meth:`~app.session.state.StateBlock.fill_with`): with a log, the whole row, its logged
+        part written to the log's buffer in the same call; without, only the values the reduction
+        reads (the whole row costs ~2 us more). A row an observer before filled is only reduced."""
         block = tick.block
         assert block is not None, "the loop sets the record's state block"
         log = self._log
-        if tick.serial != block.serial:  # no observer before filled the row
-            block.fill(tick, full=log is not None)
-        if self._reduce is None:
-            # The same kinds of arguments every tick: the compiled specialisation, once.
-            self._reduce = entry_point(_reduce_row, block.sources, self._sinks, 0, 0)
-        self._reduce(block.sources, self._sinks, self._ticks, -1 if log is None else log.rows)
+        log_row = -1 if log is None else log.rows
+        if tick.serial != block.serial:
+            block.fill_with(tick, log is not None, self._fill_and_reduce, self._sinks, self._ticks, log_row)
+        else:
+            if self._reduce is None:
+                self._reduce = entry_point(_reduce_row, block.sources, self._sinks, 0, 0)
+            self._reduce(block.sources, self._sinks, self._ticks, log_row)
         self._ticks += 1
         if log is not None:
             log.row_written()

@@ -261,10 +261,10 @@ def _bundle(
 
 
 @njit(cache=True)
-def _pose7(R: Array, p: Array, out: Array) -> None:
-    """Position ``p`` (3,) and the wxyz quaternion of the rotation ``R`` (3, 3) into ``out`` (7,)."""
-    out[0], out[1], out[2] = p[0], p[1], p[2]
-    quat_into(R, out[3:7])
+def _pose7(R: Array, p: Array, row: Array, at: int) -> None:
+    """Position ``p`` (3,) and the wxyz quaternion of the rotation ``R`` (3, 3) into ``row`` from ``at``."""
+    row[at], row[at + 1], row[at + 2] = p[0], p[1], p[2]
+    quat_into(R, row[at + 3 : at + 7])
 
 
 @njit(cache=True)
@@ -283,12 +283,20 @@ def _hand_wrench(how: int, T_H: Array, w_H: Array, row: Array, at: int) -> None:
 
 
 @njit(cache=True)
-def _put(row: Array, at: int, values: Array | IntArray) -> int:
-    """Copy ``values`` (any shape, row-major) into ``row`` from ``at``; return the next index."""
-    for v in values.ravel():
-        row[at] = v
-        at += 1
-    return at
+def _put1(row: Array, at: int, values: Array | IntArray) -> None:
+    """Copy ``values`` (n,) into ``row`` from ``at``. Element by element, with no view made: a
+    view (a slice, ``ravel``) costs its reference counting, several times the copy of a block."""
+    for k in range(values.shape[0]):
+        row[at + k] = values[k]
+
+
+@njit(cache=True)
+def _put2(row: Array, at: int, values: Array) -> None:
+    """Copy ``values`` (n, m) row-major into ``row`` from ``at`` (as :func:`_put1`)."""
+    m = values.shape[1]
+    for i in range(values.shape[0]):
+        for j in range(m):
+            row[at + i * m + j] = values[i, j]
 
 
 @njit(cache=True)
@@ -326,7 +334,7 @@ def fill_row(
         row[starts[6] + i] = T_w_MRF[i, 3]
     for i in range(6):
         row[starts[8] + i] = contact_w[6 + i]
-    _put(row, starts[12], a.scalars)
+    _put1(row, starts[12], a.scalars)
     at = starts[13]
     row[at], row[at + 1], row[at + 2] = 1.0 if deadman else 0.0, 1.0 if reference else 0.0, 1.0 if reflection else 0.0
     row[at + 3], row[at + 4], row[at + 5], row[at + 6] = contacts, faults, watchdog_trips, slave_status
@@ -339,23 +347,23 @@ def fill_row(
     row[starts[18]] = 1.0 if reflecting else 0.0
     if not full:
         return
-    _put(row, starts[1], a.q)
-    _pose7(a.R, a.p, row[starts[2] : starts[2] + 7])
+    _put1(row, starts[1], a.q)
+    _pose7(a.R, a.p, row, starts[2])
     hand = a.hand if hand_on else a.no_hand
     for i in range(3):
         row[starts[3] + i] = hand[i, 3]
-    _put(row, starts[4], a.vectors)
-    _put(row, starts[5], a.twist)
-    _pose7(T_w_MRF[0:3, 0:3], T_w_MRF[0:3, 3], row[starts[6] : starts[6] + 7])
-    _put(row, starts[7], a.F_S)
+    _put2(row, starts[4], a.vectors)
+    _put1(row, starts[5], a.twist)
+    _pose7(T_w_MRF[0:3, 0:3], T_w_MRF[0:3, 3], row, starts[6])
+    _put1(row, starts[7], a.F_S)
     _hand_wrench(a.how[0], a.T_H, a.w_H, row, starts[9])
-    _put(row, starts[10], a.torques)
-    _put(row, starts[11], a.counts)
+    _put2(row, starts[10], a.torques)
+    _put1(row, starts[11], a.counts)
     at = starts[15]
     for v in a.stage_ns:
         row[at] = v * 1e-3
         at += 1
-    _put(row, starts[16], a.objects)
+    _put2(row, starts[16], a.objects)
 
 
 @njit(cache=True)

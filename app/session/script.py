@@ -19,8 +19,7 @@ from app.compiled import F8, I8, Arrays, ArraysType, array_type, entry_point
 from app.controller.types import Switches
 from app.device.hand import copy_and_pull
 from app.session.spec import SessionFile, SwitchEvent
-from app.slave.tool_kernel import mul3
-from app.spatial import Array, IntArray, make_pose, rotation_exp, rotation_log, zyx_to_matrix
+from app.spatial import Array, IntArray, make_pose, rotation_exp_into, rotation_log_into, zyx_to_matrix
 
 if TYPE_CHECKING:
     from app.session.loop import ServoLoop
@@ -72,7 +71,9 @@ class OperatorScript:
         self._T = np.eye(4)
         # The waypoint poses stacked, with the last repeated: the blend from it to itself holds it.
         self._stack = np.stack([*self._poses, self._poses[-1]])
-        self._path = (np.array(self._times), self._stack, self._tremor)
+        # The blend's scratch: R_a^T R_b and the rotation from R_a (3, 3), the rotation vector (3,).
+        scratch = (np.empty((3, 3)), np.empty((3, 3)), np.empty(3))
+        self._path = (np.array(self._times), self._stack, self._tremor, *scratch)
         # Called every tick with the same kinds of arguments: the compiled specialisations, once.
         self._pose = entry_point(_scripted_pose, *self._path, 0.0, 0, self._T)
         # The loop whose held hand before_tick moves in one compiled call (_pose_and_pull), that
@@ -154,10 +155,12 @@ class OperatorScript:
 
 
 @njit(cache=True)
-def _scripted_pose(times: Array, poses: Array, tremor: Array, t: float, tick: int, T: Array) -> None:
+def _scripted_pose(
+    times: Array, poses: Array, tremor: Array, M: Array, E: Array, w: Array, t: float, tick: int, T: Array
+) -> None:
     """``T`` (4, 4) = the hand target at time ``t`` (s): before the first waypoint time (``times``)
-    the first pose, after the last the last, in between the smoothstep blend (:func:`_blend`) of
-    the two around ``t``; plus the tremor of ``tick``."""
+    the first pose, after the last the last, in between the smoothstep blend (:func:`_blend`, in
+    the scratch ``M``, ``E``, ``w``) of the two around ``t``; plus the tremor of ``tick``."""
     n = times.shape[0]
     i = 0  # the first waypoint after t (bisect_right; a session has a few waypoints)
     while i < n and times[i] <= t:
@@ -167,14 +170,14 @@ def _scripted_pose(times: Array, poses: Array, tremor: Array, t: float, tick: in
         k = n - 1
     elif i > 0:
         k, s = i - 1, (t - times[i - 1]) / (times[i] - times[i - 1])
-    _blend(poses, k, s * s * (3.0 - 2.0 * s), tremor, tick, T)
+    _blend(poses, k, s * s * (3.0 - 2.0 * s), tremor, tick, T, M, E, w)
 
 
 _F1, _F2, _F3 = (array_type(n, F8) for n in (1, 2, 3))
 # The waypoint times, poses and tremor (_scripted_pose), its target, the loop's hand target, and
 # the simulated hand's target and mocap pose (pull_target's arrays).
-_SCRIPT_FIELDS = {"times": _F1, "poses": _F3, "tremor": _F2, "T": _F2, "hand": _F2, "T_hand": _F2}
-_SCRIPT_FIELDS |= {"mocap_pos": _F1, "mocap_quat": _F1}
+_SCRIPT_FIELDS = {"times": _F1, "poses": _F3, "tremor": _F2, "M": _F2, "E": _F2, "w": _F1, "T": _F2, "hand": _F2}
+_SCRIPT_FIELDS |= {"T_hand": _F2, "mocap_pos": _F1, "mocap_quat": _F1}
 _SCRIPT_ARRAYS = ArraysType([*_SCRIPT_FIELDS.items(), ("model", array_type(1, I8))])
 
 
@@ -183,6 +186,9 @@ def _script_arrays(
     times: Array,
     poses: Array,
     tremor: Array,
+    M: Array,
+    E: Array,
+    w: Array,
     T: Array,
     hand: Array,
     T_hand: Array,
@@ -195,6 +201,9 @@ def _script_arrays(
     arrays.times = times
     arrays.poses = poses
     arrays.tremor = tremor
+    arrays.M = M
+    arrays.E = E
+    arrays.w = w
     arrays.T = T
     arrays.hand = hand
     arrays.T_hand = T_hand
@@ -212,25 +221,31 @@ def _pose_and_pull(t: float, tick: int, arrays: Arrays) -> bool:
     False if not finite."""
     a: Any = arrays
     T, f = a.T, a.model
-    _scripted_pose(a.times, a.poses, a.tremor, t, tick, T)
+    _scripted_pose(a.times, a.poses, a.tremor, a.M, a.E, a.w, t, tick, T)
     return copy_and_pull(T, a.hand, a.T_hand, a.mocap_pos, a.mocap_quat, f[0], f[1], f[2], f[3])
 
 
 @njit(cache=True)
-def _blend(poses: Array, k: int, s: float, tremor: Array, tick: int, T: Array) -> None:
+def _blend(poses: Array, k: int, s: float, tremor: Array, tick: int, T: Array, M: Array, E: Array, w: Array) -> None:
     """``T`` (4, 4) = waypoint pose k blended a fraction ``s`` toward pose k + 1 (position on the
     straight line, rotation along the geodesic), plus the tremor offset of ``tick`` (m): row
-    ``tick`` of ``tremor`` (n, 3), its last row past the end (indexed here: a view made in Python
-    costs ~0.2 us a tick)."""
-    a, b = poses[k], poses[k + 1]
-    offset = tremor[min(tick, tremor.shape[0] - 1)]
-    R_a = a[0:3, 0:3]
-    # Products written out (mul3): numba's ``@`` calls BLAS, ~0.3 us each on 3x3 blocks.
-    R = mul3(R_a, rotation_exp(s * rotation_log(mul3(R_a.T, b[0:3, 0:3]))))
-    for i in range(3):
+    ``tick`` of ``tremor`` (n, 3), its last row past the end. In the scratch ``M``, ``E`` (3, 3)
+    and ``w`` (3,), indexed, never sliced: an allocation or a view costs more than this
+    arithmetic (the products written out: numba's ``@`` calls BLAS, ~0.3 us each on 3x3 blocks)."""
+    for i in range(3):  # M = R_a^T R_b
         for j in range(3):
-            T[i, j] = R[i, j]
-        T[i, 3] = a[i, 3] + s * (b[i, 3] - a[i, 3]) + offset[i]
+            M[i, j] = poses[k, 0, i] * poses[k + 1, 0, j] + poses[k, 1, i] * poses[k + 1, 1, j] + (
+                poses[k, 2, i] * poses[k + 1, 2, j]
+            )
+    rotation_log_into(M, w)
+    for i in range(3):
+        w[i] = s * w[i]
+    rotation_exp_into(w, E)
+    m = min(tick, tremor.shape[0] - 1)
+    for i in range(3):
+        for j in range(3):  # R_a E
+            T[i, j] = poses[k, i, 0] * E[0, j] + poses[k, i, 1] * E[1, j] + poses[k, i, 2] * E[2, j]
+        T[i, 3] = poses[k, i, 3] + s * (poses[k + 1, i, 3] - poses[k, i, 3]) + tremor[m, i]
         T[3, i] = 0.0
     T[3, 3] = 1.0
 

@@ -234,8 +234,10 @@ def _blend(poses: Array, k: int, s: float, tremor: Array, tick: int, T: Array, M
     arithmetic (the products written out: numba's ``@`` calls BLAS, ~0.3 us each on 3x3 blocks)."""
     for i in range(3):  # M = R_a^T R_b
         for j in range(3):
-            M[i, j] = poses[k, 0, i] * poses[k + 1, 0, j] + poses[k, 1, i] * poses[k + 1, 1, j] + (
-                poses[k, 2, i] * poses[k + 1, 2, j]
+            M[i, j] = (
+                poses[k, 0, i] * poses[k + 1, 0, j]
+                + poses[k, 1, i] * poses[k + 1, 1, j]
+                + (poses[k, 2, i] * poses[k + 1, 2, j])
             )
     rotation_log_into(M, w)
     for i in range(3):

@@ -149,7 +149,9 @@ class StateBlock:
         (then does its own work on the row)."""
         return entry_point(kernel, sinks, types.int64, types.int64, _ROW_SOURCES, *_ROW_VALUE_TYPES)
 
-    def fill_with(self, tick: TickRecord, full: bool, kernel: Callable[..., None], sinks: object, i: int, j: int) -> None:
+    def fill_with(
+        self, tick: TickRecord, full: bool, kernel: Callable[..., None], sinks: object, i: int, j: int
+    ) -> None:
         """Call ``kernel`` (:meth:`kernel`) with ``sinks``, ``i``, ``j`` and :func:`fill_row`'s
         arguments for ``tick``: the bundle of the rooms' buffers (:attr:`sources`), then this tick's
         own values, passed as they are (the kernel's signature types them). A full fill counts as

@@ -225,12 +225,12 @@ def _fill_and_reduce(
     reflecting: bool,
     full: bool,
 ) -> None:
-    """The state row filled (:func:`~app.session.state.fill_row` of the arguments after
-    ``sinks``, ``tick`` and ``log_row``), then :func:`_reduce_row`: one compiled call a tick
+    """The state row filled (:func:`~app.session.state.fill_row`), then :func:`_reduce_row` into
+    ``sinks`` as tick ``tick`` (``log_row``: see there): one compiled call a tick
     (:meth:`~app.session.state.StateBlock.kernel`)."""
     fill_row(
-        src, contact_w, t, hand_on, deadman, reference, reflection, contacts, faults, watchdog_trips, slave_status,
-        device_link, link_force, reflecting, full,
+        sinks, tick, log_row, src, contact_w, t, hand_on, deadman, reference, reflection, contacts, faults,
+        watchdog_trips, slave_status, device_link, link_force, reflecting, full,
     )  # fmt: skip
     _reduce_row(src, sinks, tick, log_row)
 

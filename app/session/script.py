@@ -237,7 +237,7 @@ def _blend(poses: Array, k: int, s: float, tremor: Array, tick: int, T: Array, M
             M[i, j] = (
                 poses[k, 0, i] * poses[k + 1, 0, j]
                 + poses[k, 1, i] * poses[k + 1, 1, j]
-                + (poses[k, 2, i] * poses[k + 1, 2, j])
+                + poses[k, 2, i] * poses[k + 1, 2, j]
             )
     rotation_log_into(M, w)
     for i in range(3):

@@ -138,15 +138,15 @@ class StateBlock:
         if tick.serial == self.serial:
             return self.row
         if self._fill is None:
-            self._fill = self.kernel(_fill_only, None)
+            self._fill = self.kernel(fill_row, None)
         self.fill_with(tick, full, self._fill, None, 0, 0)
         return self.row
 
     @staticmethod
     def kernel(kernel: Any, sinks: object) -> Callable[..., None]:
-        """``kernel`` compiled for :meth:`fill_with`: it takes ``sinks`` (an observer's own arrays,
-        or None), two ints, then :func:`fill_row`'s arguments, and calls :func:`fill_row` with them
-        (then does its own work on the row)."""
+        """``kernel`` compiled for :meth:`fill_with`: it takes :func:`fill_row`'s arguments, the
+        first three (``sinks``: an observer's own arrays, or None; two ints) its own, and calls
+        :func:`fill_row` with them (then does its own work on the row); :func:`fill_row` itself is one."""
         return entry_point(kernel, sinks, types.int64, types.int64, _ROW_SOURCES, *_ROW_VALUE_TYPES)
 
     def fill_with(
@@ -303,6 +303,9 @@ def _put2(row: Array, at: int, values: Array) -> None:
 
 @njit(cache=True)
 def fill_row(
+    sinks: object,
+    i: int,
+    j: int,
     src: Arrays,
     contact_w: Array,
     t: float,
@@ -320,7 +323,8 @@ def fill_row(
     full: bool,
 ) -> None:
     """One state row (the blocks of :func:`state_layout`) from one tick's buffers (``src``) and
-    values (:meth:`StateBlock.fill_with`). ``contact_w`` is the contact result's ``w`` (15,):
+    values (:meth:`StateBlock.fill_with`); ``sinks``, ``i``, ``j`` are not read (the leading
+    arguments of a :meth:`StateBlock.kernel`, which calls this first). ``contact_w`` is the contact result's ``w`` (15,):
     the wrench at {MRF} in {MRF} is its ``[6:12]``
     (:attr:`~app.world.contact.model.ContactResult.wrench_MRF`).
 
@@ -366,31 +370,3 @@ def fill_row(
         row[at] = v * 1e-3
         at += 1
     _put2(row, starts[16], a.objects)
-
-
-@njit(cache=True)
-def _fill_only(
-    sinks: None,
-    i: int,
-    j: int,
-    src: Arrays,
-    contact_w: Array,
-    t: float,
-    hand_on: bool,
-    deadman: bool,
-    reference: bool,
-    reflection: bool,
-    contacts: int,
-    faults: int,
-    watchdog_trips: int,
-    slave_status: int,
-    device_link: int,
-    link_force: float,
-    reflecting: bool,
-    full: bool,
-) -> None:
-    """:func:`fill_row` as a :meth:`StateBlock.kernel` (no sinks: ``sinks``, ``i``, ``j`` unused)."""
-    fill_row(
-        src, contact_w, t, hand_on, deadman, reference, reflection, contacts, faults, watchdog_trips, slave_status,
-        device_link, link_force, reflecting, full,
-    )  # fmt: skip

@@ -34,10 +34,16 @@ I8 = np.dtype(np.int64)
 def entry_point(kernel: Any, *example: object) -> Callable[..., Any]:
     """The compiled ``kernel`` (a numba dispatcher) for the types of ``example``, as a plain callable.
 
+    An example may be a numba type (``types.float64``) instead of a value: the argument is then
+    of that type whatever is passed, where a value's type would be the first call's (a Python
+    int where the argument is a float would make it an integer and cut every later float). A
+    scalar declared so is converted on each call (an int to float64, a bool-like to a boolean).
+
     Compiles the specialisation (or loads it from numba's cache) now. Call the result only with
     arguments of exactly the example's types (module docstring).
     """
-    compiled: Callable[..., Any] = kernel.compile(tuple(typeof(a) for a in example))
+    signature = tuple(a if isinstance(a, types.Type) else typeof(a) for a in example)
+    compiled: Callable[..., Any] = kernel.compile(signature)
     return compiled
 
 

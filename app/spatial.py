@@ -237,13 +237,20 @@ def rotation_log_into(R: Array, out: Array) -> None:
 @njit(cache=True)
 def rotation_exp(w: Array) -> Array:
     """Rotation (3, 3) of rotation vector ``w`` (3,); the SO(3) exp map (Rodrigues)."""
+    R = np.empty((3, 3))
+    rotation_exp_into(w, R)
+    return R
+
+
+@njit(cache=True)
+def rotation_exp_into(w: Array, R: Array) -> None:
+    """:func:`rotation_exp` of ``w`` written into ``R`` (3, 3), allocating nothing (a per-tick blend's)."""
     theta = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
     # R = I + a K + b K^2 with K = skew(w) and K^2 = w w^T - |w|^2 I.
     if theta < 1e-9:
         a, b = 1.0, 0.0
     else:
         a, b = math.sin(theta) / theta, (1 - math.cos(theta)) / theta**2
-    R = np.empty((3, 3))
     for i in range(3):
         for j in range(3):
             R[i, j] = b * (w[i] * w[j] - (theta * theta if i == j else 0.0)) + (1.0 if i == j else 0.0)
@@ -253,4 +260,3 @@ def rotation_exp(w: Array) -> Array:
     R[1, 2] -= a * w[0]
     R[2, 0] -= a * w[1]
     R[2, 1] += a * w[0]
-    return R

@@ -15,7 +15,7 @@ one period when the device's stream stops.
 from __future__ import annotations
 
 from enum import IntEnum
-from typing import Literal, Protocol
+from typing import Literal, NamedTuple, Protocol
 
 import numpy as np
 
@@ -35,6 +35,31 @@ class LinkStatus(IntEnum):
     RAMPING = 1
     STALLED = 2
     DISCONNECTED = 3
+
+
+#: :attr:`GripSources.how`: the hand's wrench on the grip is zero (released), the force ``w_H``
+#: in the axes of ``T_H`` (a simulated hand holding the grip), or ``w_H`` as it is (a reading's
+#: own ``wrench_G``).
+HAND_OFF, HAND_ROTATED, HAND_AS_IS = 0, 1, 2
+
+
+class GripSources(NamedTuple):
+    """The buffers a reading's grip pose and hand wrench are made of, for compiled code that
+    builds them itself (the tick's state row) instead of through the reading's properties:
+    ``T_0_G`` is ``[[R, p], [0, 0, 0, 1]]`` and ``wrench_G`` (N, N m, {0}) is as :attr:`how`
+    says. The reading keeps them current and never replaces them.
+
+    Attributes:
+        R: Grip rotation in {0}, (3, 3). p: Grip position in {0} (m), (3,).
+        T_H: The hand's target pose in {0}, (4, 4). w_H: The hand's wrench (N, N m), (6,).
+        how: ``[HAND_OFF | HAND_ROTATED | HAND_AS_IS]``, int64 (1,).
+    """
+
+    R: Array
+    p: Array
+    T_H: Array
+    w_H: Array
+    how: IntArray
 
 
 class CartesianReading:
@@ -86,6 +111,10 @@ class CartesianReading:
         self.motors_off = True
         self.time = 0.0
 
+    def grip_sources(self) -> GripSources:
+        """:attr:`T_0_G` and :attr:`wrench_G` as :class:`GripSources` (views of them)."""
+        return GripSources(self.T_0_G[:3, :3], self.T_0_G[:3, 3], _EYE4, self.wrench_G, _AS_IS)
+
     def set_pose(self, R_0_G: Array, p_0_G: Array) -> None:
         """Store a new grip pose (rotation (3, 3), position (3,) m, in {0}) and its coordinates."""
         T = self.T_0_G
@@ -93,6 +122,10 @@ class CartesianReading:
         T[:3, 3] = p_0_G
         self.q[:3] = p_0_G
         self.q[3:] = matrix_to_zyx(T[:3, :3])
+
+
+_EYE4 = np.eye(4)
+_AS_IS = np.array([HAND_AS_IS], dtype=np.int64)
 
 
 class JointDevice(Protocol):

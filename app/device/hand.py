@@ -30,8 +30,9 @@ from numba import njit
 
 from app.compiled import entry_point, is_f8
 from app.config import Checked, Range
+from app.device.boundary import HAND_OFF, HAND_ROTATED
 from app.mjcall import address, call_model_data, pointers
-from app.spatial import Array, quat_into
+from app.spatial import Array, IntArray, quat_into
 
 #: MuJoCo actuator group of the hand's actuators; disabled (``opt.disableactuator``) when released.
 HAND_GROUP = 5
@@ -157,6 +158,8 @@ class OperatorHand:
         self._force_H = data.actuator_force[first : first + 6]
         self._wrench_G = np.zeros(6)
         self._T = np.eye(4)
+        # How the wrench is made (GripSources.how): held or not, for compiled readers.
+        self._how = np.array([HAND_OFF], dtype=np.int64)
         # Read every tick by the state row: the compiled specialisation, without numba's typing.
         self._rotate = entry_point(_rotate_wrench, self._T, self._force_H, self._wrench_G)
         self._mocap_pos = data.mocap_pos[self._mocap]
@@ -181,6 +184,7 @@ class OperatorHand:
         opt = self._opt
         if T_0_H is None:
             self.T_0_H = None
+            self._how[0] = HAND_OFF
             opt.disableactuator |= 1 << HAND_GROUP
             mujoco.mj_kinematics(self._model, self._data)
             mujoco.mj_transmission(self._model, self._data)
@@ -193,6 +197,7 @@ class OperatorHand:
             raise ValueError("T_0_H must be a finite 4x4 pose")
         if self.T_0_H is None:
             opt.disableactuator &= ~(1 << HAND_GROUP)
+            self._how[0] = HAND_ROTATED
         self.T_0_H = self._T
 
     def pull_args(self) -> PullArgs | None:
@@ -200,6 +205,11 @@ class OperatorHand:
         from its own compiled code every tick (:meth:`~app.session.loop.ServoLoop.hand_pull`); None
         while the hand is off the grip (only :meth:`set_target` takes hold)."""
         return None if self.T_0_H is None else self._pull_args
+
+    def wrench_sources(self) -> tuple[Array, Array, IntArray]:
+        """What :meth:`wrench_G` is made of (:class:`~app.device.boundary.GripSources`' ``T_H``,
+        ``w_H``, ``how``): the target pose, the actuators' forces, whether the hand holds."""
+        return self._T, self._force_H, self._how
 
     def wrench_G(self) -> Array:
         """The hand's wrench on the grip in the last physics step.

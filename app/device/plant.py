@@ -36,6 +36,7 @@ import numpy.typing as npt
 from numba import njit
 
 from app.compiled import I8, entry_point
+from app.device.boundary import GripSources
 from app.device.hand import HandParams, OperatorHand, add_hand
 from app.device.plant_kernel import plant_period
 from app.device.spec import DeviceSpec, MotorSpec, PlantParams
@@ -142,6 +143,11 @@ class PlantReading:
     def wrench_G(self) -> Array:
         """The hand's wrench on the grip ``[f; m]`` (N, N m) at G in {0}, (6,); zero when released."""
         return self._hand.wrench_G()
+
+    def grip_sources(self) -> GripSources:
+        """:attr:`T_0_G` and :attr:`wrench_G` as :class:`~app.device.boundary.GripSources`: MuJoCo's
+        grip site and the hand's buffers."""
+        return GripSources(self._xmat_G, self._xpos_G, *self._hand.wrench_sources())
 
 
 @njit(cache=True)

@@ -13,6 +13,7 @@ from numba.experimental import structref
 from app.compiled import F8, I8, Arrays, ArraysType, array_type, entry_point
 from app.controller.layout import SCALARS
 from app.controller.types import Fault
+from app.session.state import fill_row
 from app.session.tick import STAGES, TickRecord
 from app.slave.arm import ArmStatus
 from app.spatial import Array, IntArray, rotation_log_into
@@ -39,40 +40,35 @@ def work_increment(T_prev: Array, T: Array, F_prev: Array, F: Array) -> Array:
     are the contact wrenches at {MRF} in {MRF} (N, N m), (6,).
     """
     work = np.zeros(6)
-    _add_work(T_prev, T, F_prev, F, work, np.empty(_N_SCRATCH))
+    _add_work(T_prev, T, F_prev, F, 0, work, np.empty((3, 3)), np.empty(3))
     return work
 
 
-#: Scratch :func:`_add_work` needs: the displacement (6,) and the relative rotation (3, 3).
-_N_SCRATCH = 15
-
-
 @njit(cache=True)
-def _add_work(T_prev: Array, T: Array, F_prev: Array, F: Array, work: Array, scratch: Array) -> None:
-    """Add :func:`work_increment` to ``work`` (6,), in ``scratch`` (:data:`_N_SCRATCH`,): no
-    allocation per tick."""
-    R_prev = T_prev[0:3, 0:3]
-    dxi = scratch[0:6]
-    for a in range(3):
-        dxi[a] = (
-            R_prev[0, a] * (T[0, 3] - T_prev[0, 3])
-            + R_prev[1, a] * (T[1, 3] - T_prev[1, 3])
-            + R_prev[2, a] * (T[2, 3] - T_prev[2, 3])
+def _add_work(T_prev: Array, T: Array, F_prev: Array, F: Array, f: int, work: Array, R_rel: Array, rot: Array) -> None:
+    """Add :func:`work_increment` to ``work`` (6,), the wrench ``F`` being ``F[f : f + 6]``, in
+    the scratch ``R_rel`` (3, 3) and ``rot`` (3,): no allocation and no view per tick (a view's
+    reference counting costs more than this arithmetic)."""
+    for a in range(3):  # the translation in the axes of T_prev
+        d = (
+            T_prev[0, a] * (T[0, 3] - T_prev[0, 3])
+            + T_prev[1, a] * (T[1, 3] - T_prev[1, 3])
+            + T_prev[2, a] * (T[2, 3] - T_prev[2, 3])
         )
-    R_rel = scratch[6:15].reshape((3, 3))  # R_prev^T R
-    for a in range(3):
+        work[a] += 0.5 * (F[f + a] + F_prev[a]) * d
+    for a in range(3):  # R_prev^T R
         for b in range(3):
-            R_rel[a, b] = R_prev[0, a] * T[0, b] + R_prev[1, a] * T[1, b] + R_prev[2, a] * T[2, b]
-    rotation_log_into(R_rel, dxi[3:6])
-    for a in range(6):
-        work[a] += 0.5 * (F[a] + F_prev[a]) * dxi[a]
+            R_rel[a, b] = T_prev[0, a] * T[0, b] + T_prev[1, a] * T[1, b] + T_prev[2, a] * T[2, b]
+    rotation_log_into(R_rel, rot)
+    for a in range(3):
+        work[3 + a] += 0.5 * (F[f + 3 + a] + F_prev[3 + a]) * rot[a]
 
 
-# Slots of SessionMetrics' accumulator (see _reduce).
+# Slots of SessionMetrics' accumulator (see _reduce): the work per axis, then the sums and peaks,
+# then the task's position (m) and angle (rad) tolerances (NaN without a task).
 _WORK, _PEAK_F, _PEAK_M, _SUM_F2, _SUM_M2, _MIN_ENERGY, _MAX_PC, _PC_TICKS = 0, 6, 7, 8, 9, 10, 11, 12
 _CONTACT_TICKS, _SATURATED, _RAMPING, _WATCHDOG, _PEAK_LINK, _DONE_AT, _TIME = 13, 14, 15, 16, 17, 18, 19
-_T_PREV, _F_PREV, _T_NOW, _GOAL, _TOLERANCES, _SCRATCH = 20, 36, 42, 58, 74, 76
-_N_ACC = _SCRATCH + _N_SCRATCH
+_TOL_P, _TOL_A, _N_ACC = 20, 21, 22
 # Where _reduce finds its values in the state row (SessionMetrics fills these from the block).
 _AT_T, _AT_TOOL, _AT_R, _AT_F, _AT_SCALARS, _AT_SWITCHES, _AT_LINK, _AT_REFLECTING, _N_AT = range(9)
 # Then, in the same int array, the ticks per bit of the controller's faults and the slave's status.
@@ -84,94 +80,36 @@ _SATURATION_SCALE, _RAMP, _PO_ENERGY, _PC_CUT = (
 
 
 @njit(cache=True)
-def _count_bits_into(value: int, counts: IntArray) -> None:
-    """Add one to ``counts[b]`` for every bit b set in ``value``."""
+def _count_bits_into(value: int, counts: IntArray, at: int) -> None:
+    """Add one to ``counts[at + b]`` for every bit b (< :data:`_N_BITS`) set in ``value``."""
     b = 0
-    while value and b < counts.shape[0]:
+    while value and b < _N_BITS:
         if value & 1:
-            counts[b] += 1
+            counts[at + b] += 1
         value >>= 1
         b += 1
 
 
-@njit(cache=True)
-def _reduce(
-    acc: Array, tail: Array, row: Array, ints: IntArray, tick: int, stage_table: IntArray, stage_ns: IntArray
-) -> None:
-    """One tick of :class:`SessionMetrics` from the tick's state row ``row``: the sums in ``acc``
-    (slots ``_WORK`` ... ``_TIME``), the contact force magnitude into the ring ``tail``, the stage
-    durations into ``stage_table[tick]``, the fault and slave-status bits counted in ``ints``.
-
-    ``acc`` also holds the last pose and contact wrench (``_T_PREV``, ``_F_PREV``; they become this
-    tick's), scratch for this tick's pose (``_T_NOW``), the task's goal pose (``_GOAL``) and its
-    position (m) and angle (rad) tolerances (``_TOLERANCES``, NaN without a task) and
-    :func:`_add_work`'s scratch (``_SCRATCH``); ``ints`` holds
-    where the row's blocks start (``_AT_*``) and the per-bit tick counts (``_FAULT_BITS``,
-    ``_STATUS_BITS``). Few arguments: each array costs its unboxing on every call.
-    """
-    at = ints[0:_N_AT]
-    fault_ticks = ints[_FAULT_BITS : _FAULT_BITS + _N_BITS]
-    status_ticks = ints[_STATUS_BITS : _STATUS_BITS + _N_BITS]
-    T_prev = acc[_T_PREV : _T_PREV + 16].reshape((4, 4))
-    F_prev = acc[_F_PREV : _F_PREV + 6]
-    T = acc[_T_NOW : _T_NOW + 16].reshape((4, 4))
-    goal = acc[_GOAL : _GOAL + 16].reshape((4, 4))
-    tolerances = acc[_TOLERANCES : _TOLERANCES + 2]
-    p, r = at[_AT_TOOL], at[_AT_R]
-    for a in range(3):
-        T[a, 3] = row[p + a]
-        for b in range(3):
-            T[a, b] = row[r + 3 * a + b]
-    F = row[at[_AT_F] : at[_AT_F] + 6]
-    _add_work(T_prev, T, F_prev, F, acc[_WORK : _WORK + 6], acc[_SCRATCH:_N_ACC])
-    T_prev[:] = T
-    F_prev[:] = F
-    f = math.sqrt(F[0] * F[0] + F[1] * F[1] + F[2] * F[2])
-    m = math.sqrt(F[3] * F[3] + F[4] * F[4] + F[5] * F[5])
-    acc[_PEAK_F] = max(acc[_PEAK_F], f)
-    acc[_PEAK_M] = max(acc[_PEAK_M], m)
-    acc[_SUM_F2] += f * f
-    acc[_SUM_M2] += m * m
-    tail[tick % tail.shape[0]] = f
-    scalars = at[_AT_SCALARS]
-    acc[_MIN_ENERGY] = min(acc[_MIN_ENERGY], row[scalars + _PO_ENERGY])
-    pc = row[scalars + _PC_CUT]
-    acc[_MAX_PC] = max(acc[_MAX_PC], pc)
-    if pc > 0.0:
-        acc[_PC_TICKS] += 1.0
-    sw = at[_AT_SWITCHES]
-    if row[sw + 3] > 0.0:
-        acc[_CONTACT_TICKS] += 1.0
-    _count_bits_into(int(row[sw + 4]), fault_ticks)
-    if row[scalars + _SATURATION_SCALE] < 1.0:
-        acc[_SATURATED] += 1.0
-    if row[at[_AT_REFLECTING]] > 0.0 and row[scalars + _RAMP] < 1.0:
-        acc[_RAMPING] += 1.0
-    acc[_WATCHDOG] = row[sw + 5]
-    status = int(row[sw + 6])
-    if status:
-        _count_bits_into(status, status_ticks)
-        # A link force comes with the LINK_CONTACT bit: the ticks without bits have none.
-        acc[_PEAK_LINK] = max(acc[_PEAK_LINK], row[at[_AT_LINK]])
-    if tick < stage_table.shape[0]:
-        stage_table[tick, :] = stage_ns
-    acc[_TIME] = row[at[_AT_T]]
-    # Not done yet (NaN), with a task (finite tolerances), and within its goal now.
-    if (
-        math.isnan(acc[_DONE_AT])
-        and not math.isnan(tolerances[0])
-        and within_goal(T, goal, tolerances[0], tolerances[1])
-    ):
-        acc[_DONE_AT] = acc[_TIME]
-
-
 # The metrics' arrays (see _reduce) and the log's row buffer (rows, columns).
 _F1, _F2, _I1, _I2 = array_type(1, F8), array_type(2, F8), array_type(1, I8), array_type(2, I8)
-_METRIC_SINKS = ArraysType([("acc", _F1), ("tail", _F1), ("ints", _I1), ("stage_table", _I2), ("log", _F2)])
+_SINK_FIELDS = {"acc": _F1, "tail": _F1, "ints": _I1, "stage_table": _I2, "log": _F2, "T_prev": _F2, "T_now": _F2}
+_METRIC_SINKS = ArraysType([*_SINK_FIELDS.items(), ("goal", _F2), ("F_prev", _F1), ("R_rel", _F2), ("rot", _F1)])
 
 
 @njit(cache=True)
-def _sinks(acc: Array, tail: Array, ints: IntArray, stage_table: IntArray, log: Array) -> Arrays:
+def _sinks(
+    acc: Array,
+    tail: Array,
+    ints: IntArray,
+    stage_table: IntArray,
+    log: Array,
+    T_prev: Array,
+    T_now: Array,
+    goal: Array,
+    F_prev: Array,
+    R_rel: Array,
+    rot: Array,
+) -> Arrays:
     """The metrics' arrays (see :func:`_reduce`) and the log's row buffer (rows, columns) as one
     :class:`Arrays`; no copy."""
     sinks: Any = structref.new(_METRIC_SINKS)  # type: ignore[call-arg]  # an intrinsic, typed by numba
@@ -180,7 +118,77 @@ def _sinks(acc: Array, tail: Array, ints: IntArray, stage_table: IntArray, log: 
     sinks.ints = ints
     sinks.stage_table = stage_table
     sinks.log = log
+    sinks.T_prev = T_prev
+    sinks.T_now = T_now
+    sinks.goal = goal
+    sinks.F_prev = F_prev
+    sinks.R_rel = R_rel
+    sinks.rot = rot
     return sinks
+
+
+@njit(cache=True)
+def _reduce(sinks: Arrays, row: Array, tick: int, stage_ns: IntArray) -> None:
+    """One tick of :class:`SessionMetrics` from the tick's state row ``row``: the sums in the
+    bundle's ``acc`` (slots ``_WORK`` ... ``_TIME``), the contact force magnitude into the ring
+    ``tail``, the stage durations into ``stage_table[tick]``, the fault and slave-status bits
+    counted in ``ints``.
+
+    ``T_prev`` and ``F_prev`` hold the last pose and contact wrench (they become this tick's),
+    ``T_now`` this tick's pose, ``goal`` the task's goal pose (with the tolerances in ``acc``),
+    ``R_rel`` and ``rot`` :func:`_add_work`'s scratch; ``ints`` holds where the row's blocks start
+    (``_AT_*``) and the per-bit tick counts (``_FAULT_BITS``, ``_STATUS_BITS``). Indexed, never
+    sliced: each view costs its reference counting.
+    """
+    b: Any = sinks
+    acc, ints, T_prev, F_prev, T = b.acc, b.ints, b.T_prev, b.F_prev, b.T_now
+    p, r, af = ints[_AT_TOOL], ints[_AT_R], ints[_AT_F]
+    for i in range(3):
+        T[i, 3] = row[p + i]
+        for j in range(3):
+            T[i, j] = row[r + 3 * i + j]
+    _add_work(T_prev, T, F_prev, row, af, acc, b.R_rel, b.rot)
+    for i in range(4):
+        for j in range(4):
+            T_prev[i, j] = T[i, j]
+    for i in range(6):
+        F_prev[i] = row[af + i]
+    f = math.sqrt(row[af] * row[af] + row[af + 1] * row[af + 1] + row[af + 2] * row[af + 2])
+    m = math.sqrt(row[af + 3] * row[af + 3] + row[af + 4] * row[af + 4] + row[af + 5] * row[af + 5])
+    acc[_PEAK_F] = max(acc[_PEAK_F], f)
+    acc[_PEAK_M] = max(acc[_PEAK_M], m)
+    acc[_SUM_F2] += f * f
+    acc[_SUM_M2] += m * m
+    tail = b.tail
+    tail[tick % tail.shape[0]] = f
+    scalars = ints[_AT_SCALARS]
+    acc[_MIN_ENERGY] = min(acc[_MIN_ENERGY], row[scalars + _PO_ENERGY])
+    pc = row[scalars + _PC_CUT]
+    acc[_MAX_PC] = max(acc[_MAX_PC], pc)
+    if pc > 0.0:
+        acc[_PC_TICKS] += 1.0
+    sw = ints[_AT_SWITCHES]
+    if row[sw + 3] > 0.0:
+        acc[_CONTACT_TICKS] += 1.0
+    _count_bits_into(int(row[sw + 4]), ints, _FAULT_BITS)
+    if row[scalars + _SATURATION_SCALE] < 1.0:
+        acc[_SATURATED] += 1.0
+    if row[ints[_AT_REFLECTING]] > 0.0 and row[scalars + _RAMP] < 1.0:
+        acc[_RAMPING] += 1.0
+    acc[_WATCHDOG] = row[sw + 5]
+    status = int(row[sw + 6])
+    if status:
+        _count_bits_into(status, ints, _STATUS_BITS)
+        # A link force comes with the LINK_CONTACT bit: the ticks without bits have none.
+        acc[_PEAK_LINK] = max(acc[_PEAK_LINK], row[ints[_AT_LINK]])
+    stage_table = b.stage_table
+    if tick < stage_table.shape[0]:
+        for i in range(stage_ns.shape[0]):
+            stage_table[tick, i] = stage_ns[i]
+    acc[_TIME] = row[ints[_AT_T]]
+    # Not done yet (NaN), with a task (finite tolerances), and within its goal now.
+    if math.isnan(acc[_DONE_AT]) and not math.isnan(acc[_TOL_P]) and within_goal(T, b.goal, acc[_TOL_P], acc[_TOL_A]):
+        acc[_DONE_AT] = acc[_TIME]
 
 
 @njit(cache=True)
@@ -193,7 +201,38 @@ def _reduce_row(src: Arrays, sinks: Arrays, tick: int, log_row: int) -> None:
     if log_row >= 0:
         for c in range(log.shape[1]):
             log[log_row, c] = row[c]
-    _reduce(b.acc, b.tail, row, b.ints, tick, b.stage_table, a.stage_ns)
+    _reduce(sinks, row, tick, a.stage_ns)
+
+
+@njit(cache=True)
+def _fill_and_reduce(
+    sinks: Arrays,
+    tick: int,
+    log_row: int,
+    src: Arrays,
+    contact_w: Array,
+    t: float,
+    hand_on: bool,
+    deadman: bool,
+    reference: bool,
+    reflection: bool,
+    contacts: int,
+    faults: int,
+    watchdog_trips: int,
+    slave_status: int,
+    device_link: int,
+    link_force: float,
+    reflecting: bool,
+    full: bool,
+) -> None:
+    """The state row filled (:func:`~app.session.state.fill_row`), then :func:`_reduce_row` into
+    ``sinks`` as tick ``tick`` (``log_row``: see there): one compiled call a tick
+    (:meth:`~app.session.state.StateBlock.kernel`)."""
+    fill_row(
+        sinks, tick, log_row, src, contact_w, t, hand_on, deadman, reference, reflection, contacts, faults,
+        watchdog_trips, slave_status, device_link, link_force, reflecting, full,
+    )  # fmt: skip
+    _reduce_row(src, sinks, tick, log_row)
 
 
 def _bit_counts(flags: type[Fault] | type[ArmStatus], counts: IntArray) -> dict[str, int]:
@@ -236,12 +275,11 @@ class SessionMetrics:
         self._acc = acc = np.zeros(_N_ACC)
         acc[_DONE_AT] = math.nan
         acc[_TIME] = start.time
-        acc[_T_PREV : _T_PREV + 16] = start.T_w_MRF.ravel()
-        acc[_F_PREV : _F_PREV + 6] = start.contact_wrench_MRF
-        acc[_TOLERANCES : _TOLERANCES + 2] = math.nan
+        acc[_TOL_P] = acc[_TOL_A] = math.nan
+        goal = np.zeros((4, 4))
         if task is not None:
-            acc[_GOAL : _GOAL + 16] = task.goal.matrix().ravel()
-            acc[_TOLERANCES : _TOLERANCES + 2] = task.position_tolerance, math.radians(task.angle_tolerance_deg)
+            goal[:] = task.goal.matrix()
+            acc[_TOL_P], acc[_TOL_A] = task.position_tolerance, math.radians(task.angle_tolerance_deg)
         self._ticks = 0
         self._stage_ns = np.zeros((n_ticks, len(STAGES)), dtype=np.int64)
         # The contact force of the last SETTLE_WINDOW of ticks (a ring).
@@ -258,23 +296,28 @@ class SessionMetrics:
         )
         ints[_AT_LINK], ints[_AT_REFLECTING] = starts["link_force"], starts["reflecting"]
         self._log = log
-        self._sinks = _sinks(acc, self._tail, ints, self._stage_ns, np.zeros((0, 0)) if log is None else log.buffer)
+        log_rows = np.zeros((0, 0)) if log is None else log.buffer
+        poses = (start.T_w_MRF.copy(), np.zeros((4, 4)), goal, start.contact_wrench_MRF.copy())
+        self._sinks = _sinks(acc, self._tail, ints, self._stage_ns, log_rows, *poses, np.zeros((3, 3)), np.zeros(3))
+        # Called every tick with the same kinds of arguments: the compiled specialisations, once.
+        self._fill_and_reduce = start.block.kernel(_fill_and_reduce, self._sinks)
         self._reduce: Callable[..., None] | None = None
 
     def on_tick(self, tick: TickRecord) -> None:
-        """Reduce the tick's state row (:func:`_reduce_row`): with a log, the whole row filled
-        (unless an observer before filled it) and its logged part written to the log's buffer in
-        the same compiled call; without, only the values the reduction reads are filled (the
-        whole row costs ~2 us more)."""
+        """Reduce the tick's state row (:func:`_reduce_row`) in the compiled call that fills it
+        (:meth:`~app.session.state.StateBlock.fill_with`): with a log, the whole row, its logged
+        part written to the log's buffer in the same call; without, only the values the reduction
+        reads (the whole row costs ~2 us more). A row an observer before filled is only reduced."""
         block = tick.block
         assert block is not None, "the loop sets the record's state block"
         log = self._log
-        if tick.serial != block.serial:  # no observer before filled the row
-            block.fill(tick, full=log is not None)
-        if self._reduce is None:
-            # The same kinds of arguments every tick: the compiled specialisation, once.
-            self._reduce = entry_point(_reduce_row, block.sources, self._sinks, 0, 0)
-        self._reduce(block.sources, self._sinks, self._ticks, -1 if log is None else log.rows)
+        log_row = -1 if log is None else log.rows
+        if tick.serial != block.serial:
+            block.fill_with(tick, log is not None, self._fill_and_reduce, self._sinks, self._ticks, log_row)
+        else:
+            if self._reduce is None:
+                self._reduce = entry_point(_reduce_row, block.sources, self._sinks, 0, 0)
+            self._reduce(block.sources, self._sinks, self._ticks, log_row)
         self._ticks += 1
         if log is not None:
             log.row_written()

@@ -12,15 +12,14 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
-from numba import njit
+from numba import njit, types
 from numba.experimental import structref
 
-from app.compiled import F8, Arrays, ArraysType, array_type, entry_point
+from app.compiled import F8, I8, Arrays, ArraysType, array_type, entry_point
 from app.controller.types import Switches
 from app.device.hand import copy_and_pull
 from app.session.spec import SessionFile, SwitchEvent
-from app.slave.tool_kernel import mul3
-from app.spatial import Array, make_pose, rotation_exp, rotation_log, zyx_to_matrix
+from app.spatial import Array, IntArray, make_pose, rotation_exp_into, rotation_log_into, zyx_to_matrix
 
 if TYPE_CHECKING:
     from app.session.loop import ServoLoop
@@ -62,6 +61,7 @@ class OperatorScript:
         self._events = sorted(data.events, key=lambda e: e.t)
         self._event_times = [e.t * scale for e in self._events]
         self._next_event = 0
+        self._next_time = self._event_at(0)
         self.switches = Switches() if switches is None else switches
         self.hand_on = True
         # A grip event due and not yet applied to a loop (apply_events): True closes, False opens.
@@ -71,14 +71,16 @@ class OperatorScript:
         self._T = np.eye(4)
         # The waypoint poses stacked, with the last repeated: the blend from it to itself holds it.
         self._stack = np.stack([*self._poses, self._poses[-1]])
-        self._path = (np.array(self._times), self._stack, self._tremor)
+        # The blend's scratch: R_a^T R_b and the rotation from R_a (3, 3), the rotation vector (3,).
+        scratch = (np.empty((3, 3)), np.empty((3, 3)), np.empty(3))
+        self._path = (np.array(self._times), self._stack, self._tremor, *scratch)
         # Called every tick with the same kinds of arguments: the compiled specialisations, once.
         self._pose = entry_point(_scripted_pose, *self._path, 0.0, 0, self._T)
         # The loop whose held hand before_tick moves in one compiled call (_pose_and_pull), that
         # call and its arguments; set on the first tick the hand holds (ServoLoop.hand_pull).
         self._pulled: object = None
         self._pose_and_pull: Callable[..., bool] | None = None
-        self._pull_args: tuple[object, ...] = ()
+        self._arrays: Arrays | None = None
 
     def hand_target(self, t: float, tick: int) -> Array:
         """Hand-target pose ``T_0_H`` (4, 4) at time ``t`` (s); ``tick`` indexes the tremor."""
@@ -98,21 +100,23 @@ class OperatorScript:
         less than :meth:`hand_target` and ``set_hand_target``, the same values.
         """
         t, tick = loop.time, loop.ticks
-        self.apply_events(loop)
+        if self._next_time <= t or self._grip is not None:
+            self.apply_events(loop)
         if not self.hand_on:
             loop.set_hand_target(None)
         elif loop is self._pulled and loop.record.hand_on:
             assert self._pose_and_pull is not None
-            if not self._pose_and_pull(t, tick, *self._pull_args):
+            if not self._pose_and_pull(t, tick, self._arrays):
                 raise ValueError("T_0_H must be a finite 4x4 pose")
         else:
             loop.set_hand_target(self.hand_target(t, tick))
             pull = loop.hand_pull()
             if pull is not None:
                 hand, (T_hand, mocap_pos, mocap_quat, *functions) = pull
-                arrays = _script_arrays(*self._path, self._T, hand, T_hand, mocap_pos, mocap_quat)
-                self._pulled, self._pull_args = loop, (arrays, *functions)
-                self._pose_and_pull = entry_point(_pose_and_pull, t, tick, *self._pull_args)
+                model = np.array(functions, dtype=np.int64)
+                self._arrays = _script_arrays(*self._path, self._T, hand, T_hand, mocap_pos, mocap_quat, model)
+                self._pulled = loop
+                self._pose_and_pull = entry_point(_pose_and_pull, types.float64, types.int64, self._arrays)
 
     def apply_events(self, loop: ServoLoop) -> None:
         """Apply the events due by ``loop.time``: the switches, and the last grip event due to
@@ -126,10 +130,15 @@ class OperatorScript:
         """Apply the events due by time ``t`` (s). A reference press sets the switch; the loop
         releases it after one tick (:meth:`~app.session.loop.ServoLoop.tick`)."""
         sw = self.switches
-        while self._next_event < len(self._events) and self._event_times[self._next_event] <= t:
+        while self._next_time <= t:
             self._apply(self._events[self._next_event])
             self._next_event += 1
+            self._next_time = self._event_at(self._next_event)
         return sw
+
+    def _event_at(self, i: int) -> float:
+        """When event ``i`` is due (s); infinity past the last."""
+        return self._event_times[i] if i < len(self._event_times) else math.inf
 
     def _apply(self, e: SwitchEvent) -> None:
         sw = self.switches
@@ -146,10 +155,12 @@ class OperatorScript:
 
 
 @njit(cache=True)
-def _scripted_pose(times: Array, poses: Array, tremor: Array, t: float, tick: int, T: Array) -> None:
+def _scripted_pose(
+    times: Array, poses: Array, tremor: Array, M: Array, E: Array, w: Array, t: float, tick: int, T: Array
+) -> None:
     """``T`` (4, 4) = the hand target at time ``t`` (s): before the first waypoint time (``times``)
-    the first pose, after the last the last, in between the smoothstep blend (:func:`_blend`) of
-    the two around ``t``; plus the tremor of ``tick``."""
+    the first pose, after the last the last, in between the smoothstep blend (:func:`_blend`, in
+    the scratch ``M``, ``E``, ``w``) of the two around ``t``; plus the tremor of ``tick``."""
     n = times.shape[0]
     i = 0  # the first waypoint after t (bisect_right; a session has a few waypoints)
     while i < n and times[i] <= t:
@@ -159,14 +170,15 @@ def _scripted_pose(times: Array, poses: Array, tremor: Array, t: float, tick: in
         k = n - 1
     elif i > 0:
         k, s = i - 1, (t - times[i - 1]) / (times[i] - times[i - 1])
-    _blend(poses, k, s * s * (3.0 - 2.0 * s), tremor, tick, T)
+    _blend(poses, k, s * s * (3.0 - 2.0 * s), tremor, tick, T, M, E, w)
 
 
 _F1, _F2, _F3 = (array_type(n, F8) for n in (1, 2, 3))
 # The waypoint times, poses and tremor (_scripted_pose), its target, the loop's hand target, and
 # the simulated hand's target and mocap pose (pull_target's arrays).
-_SCRIPT_FIELDS = {"times": _F1, "poses": _F3, "tremor": _F2, "T": _F2, "hand": _F2, "T_hand": _F2}
-_SCRIPT_ARRAYS = ArraysType([*_SCRIPT_FIELDS.items(), ("mocap_pos", _F1), ("mocap_quat", _F1)])
+_SCRIPT_FIELDS = {"times": _F1, "poses": _F3, "tremor": _F2, "M": _F2, "E": _F2, "w": _F1, "T": _F2, "hand": _F2}
+_SCRIPT_FIELDS |= {"T_hand": _F2, "mocap_pos": _F1, "mocap_quat": _F1}
+_SCRIPT_ARRAYS = ArraysType([*_SCRIPT_FIELDS.items(), ("model", array_type(1, I8))])
 
 
 @njit(cache=True)
@@ -174,51 +186,68 @@ def _script_arrays(
     times: Array,
     poses: Array,
     tremor: Array,
+    M: Array,
+    E: Array,
+    w: Array,
     T: Array,
     hand: Array,
     T_hand: Array,
     mocap_pos: Array,
     mocap_quat: Array,
+    model: IntArray,
 ) -> Arrays:
     """The arrays of :func:`_pose_and_pull` as one :class:`~app.compiled.Arrays`; no copy."""
     arrays: Any = structref.new(_SCRIPT_ARRAYS)  # type: ignore[call-arg]  # an intrinsic, typed by numba
     arrays.times = times
     arrays.poses = poses
     arrays.tremor = tremor
+    arrays.M = M
+    arrays.E = E
+    arrays.w = w
     arrays.T = T
     arrays.hand = hand
     arrays.T_hand = T_hand
     arrays.mocap_pos = mocap_pos
     arrays.mocap_quat = mocap_quat
+    arrays.model = model
     return arrays
 
 
 @njit(cache=True)
-def _pose_and_pull(t: float, tick: int, arrays: Arrays, kinematics: int, transmission: int, m: int, d: int) -> bool:
+def _pose_and_pull(t: float, tick: int, arrays: Arrays) -> bool:
     """:func:`_scripted_pose` at ``t``, ``tick`` into the bundle's ``T``, copied to the loop's
     ``hand`` (4, 4) and pulled (:func:`~app.device.hand.copy_and_pull`, the bundle's ``T_hand``,
-    ``mocap_pos``, ``mocap_quat`` and these functions and model); False if not finite."""
+    ``mocap_pos``, ``mocap_quat``, and its ``model``: the functions, model and data that takes);
+    False if not finite."""
     a: Any = arrays
-    T = a.T
-    _scripted_pose(a.times, a.poses, a.tremor, t, tick, T)
-    return copy_and_pull(T, a.hand, a.T_hand, a.mocap_pos, a.mocap_quat, kinematics, transmission, m, d)
+    T, f = a.T, a.model
+    _scripted_pose(a.times, a.poses, a.tremor, a.M, a.E, a.w, t, tick, T)
+    return copy_and_pull(T, a.hand, a.T_hand, a.mocap_pos, a.mocap_quat, f[0], f[1], f[2], f[3])
 
 
 @njit(cache=True)
-def _blend(poses: Array, k: int, s: float, tremor: Array, tick: int, T: Array) -> None:
+def _blend(poses: Array, k: int, s: float, tremor: Array, tick: int, T: Array, M: Array, E: Array, w: Array) -> None:
     """``T`` (4, 4) = waypoint pose k blended a fraction ``s`` toward pose k + 1 (position on the
     straight line, rotation along the geodesic), plus the tremor offset of ``tick`` (m): row
-    ``tick`` of ``tremor`` (n, 3), its last row past the end (indexed here: a view made in Python
-    costs ~0.2 us a tick)."""
-    a, b = poses[k], poses[k + 1]
-    offset = tremor[min(tick, tremor.shape[0] - 1)]
-    R_a = a[0:3, 0:3]
-    # Products written out (mul3): numba's ``@`` calls BLAS, ~0.3 us each on 3x3 blocks.
-    R = mul3(R_a, rotation_exp(s * rotation_log(mul3(R_a.T, b[0:3, 0:3]))))
-    for i in range(3):
+    ``tick`` of ``tremor`` (n, 3), its last row past the end. In the scratch ``M``, ``E`` (3, 3)
+    and ``w`` (3,), indexed, never sliced: an allocation or a view costs more than this
+    arithmetic (the products written out: numba's ``@`` calls BLAS, ~0.3 us each on 3x3 blocks)."""
+    for i in range(3):  # M = R_a^T R_b
         for j in range(3):
-            T[i, j] = R[i, j]
-        T[i, 3] = a[i, 3] + s * (b[i, 3] - a[i, 3]) + offset[i]
+            M[i, j] = (
+                poses[k, 0, i] * poses[k + 1, 0, j]
+                + poses[k, 1, i] * poses[k + 1, 1, j]
+                + poses[k, 2, i] * poses[k + 1, 2, j]
+            )
+    rotation_log_into(M, w)
+    for i in range(3):
+        w[i] = s * w[i]
+    rotation_exp_into(w, E)
+    m = min(tick, tremor.shape[0] - 1)
+    for i in range(3):
+        for j in range(3):  # R_a E
+            T[i, j] = poses[k, i, 0] * E[0, j] + poses[k, i, 1] * E[1, j] + poses[k, i, 2] * E[2, j]
+        T[i, 3] = poses[k, i, 3] + s * (poses[k + 1, i, 3] - poses[k, i, 3]) + tremor[m, i]
         T[3, i] = 0.0
     T[3, 3] = 1.0
 

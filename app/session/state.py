@@ -7,7 +7,8 @@ row to every later one. The log copies the row's first :attr:`StateBlock.n_logge
 Parquet columns, in order); a session's metrics have it filled, then write the log's row and
 reduce it in one compiled call of their own (:class:`~app.session.metrics.SessionMetrics`). The rooms'
 buffers reach the compiled code as one :class:`~app.compiled.Arrays` bundle
-(:meth:`StateBlock.tick_args`).
+(:meth:`StateBlock.fill_with`), and an observer's own compiled work on the row can run in the same
+call (:meth:`StateBlock.kernel`).
 
 The row is made of named blocks (:func:`state_layout`): the log's columns first, then values only
 the observers use (the tool's rotation, the reflecting flag). To add a column, add a block to
@@ -21,11 +22,12 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numba import njit
+from numba import njit, types
 from numba.experimental import structref
 
 from app.compiled import F8, I8, Arrays, ArraysType, array_type, entry_point
 from app.controller.layout import SCALARS, TORQUE_ROWS, TWIST_AXES, VECTOR_ROWS, WRENCH_AXES
+from app.device.boundary import HAND_OFF, HAND_ROTATED
 from app.session.tick import STAGES
 from app.spatial import Array, IntArray, quat_into
 
@@ -121,8 +123,6 @@ class StateBlock:
         # room's output object or a reading's buffer is another than last tick's.
         self.sources: Arrays | None = None
         self._made_from: tuple[object, ...] = ()
-        self._T_0_G: Array | None = None
-        self._wrench_G: Array | None = None
         self._fill: Callable[..., None] | None = None
 
     def view(self, name: str) -> Array:
@@ -137,68 +137,83 @@ class StateBlock:
         does not count as the tick's fill: a later call fills the whole row."""
         if tick.serial == self.serial:
             return self.row
-        args = self.tick_args(tick, full)
         if self._fill is None:
-            # The same kinds of arguments every tick: the compiled row writer for their types, once.
-            self._fill = entry_point(fill_row, *args, full)
-        self._fill(*args, full)
-        if full:
-            self.serial = tick.serial
+            self._fill = self.kernel(fill_row, None)
+        self.fill_with(tick, full, self._fill, None, 0, 0)
         return self.row
 
-    def tick_args(self, tick: TickRecord, full: bool) -> tuple[object, ...]:
-        """What :func:`fill_row` takes for ``tick``, but its last argument (``full``): the bundle
-        of the rooms' buffers (:attr:`sources`), then this tick's own values. ``full`` False
-        (only the values a session's metrics read) leaves out the reading's pose and hand wrench,
-        which compute on access."""
-        out, reading = tick.out, tick.reading
-        made = self._made_from
-        if full or self._T_0_G is None or self._wrench_G is None:
-            T_0_G, wrench_G = reading.T_0_G, reading.wrench_G
-        else:  # not read: the bundle's, whichever tick last filled them
-            T_0_G, wrench_G = self._T_0_G, self._wrench_G
-        if (
-            not made
-            or out is not made[0]
-            or reading is not made[1]
-            or T_0_G is not self._T_0_G
-            or wrench_G is not self._wrench_G
-        ):
-            self._bundle(tick, T_0_G, wrench_G)
-        contact = tick.contact
-        # float(): the compiled fill keeps the types of its first call, and a slave's link force
-        # can be an int (0, the sum over no near link) on it: later forces were cut to whole N.
-        return (
-            self.sources, tick.ft.wrench_S, tick.T_w_MRF, contact.w, tick.time, tick.hand_on, tick.deadman,
-            tick.reference, tick.reflection, contact.count, int(out.faults), reading.watchdog_trips,
-            tick.slave_status, int(tick.device_link), float(tick.link_force), out.reflecting,
-        )  # fmt: skip
+    @staticmethod
+    def kernel(kernel: Any, sinks: object) -> Callable[..., None]:
+        """``kernel`` compiled for :meth:`fill_with`: it takes :func:`fill_row`'s arguments, the
+        first three (``sinks``: an observer's own arrays, or None; two ints) its own, and calls
+        :func:`fill_row` with them (then does its own work on the row); :func:`fill_row` itself is one."""
+        return entry_point(kernel, sinks, types.int64, types.int64, _ROW_SOURCES, *_ROW_VALUE_TYPES)
 
-    def _bundle(self, tick: TickRecord, T_0_G: Array, wrench_G: Array) -> None:
+    def fill_with(
+        self, tick: TickRecord, full: bool, kernel: Callable[..., None], sinks: object, i: int, j: int
+    ) -> None:
+        """Call ``kernel`` (:meth:`kernel`) with ``sinks``, ``i``, ``j`` and :func:`fill_row`'s
+        arguments for ``tick``: the bundle of the rooms' buffers (:attr:`sources`), then this tick's
+        own values, passed as they are (the kernel's signature types them). A full fill counts as
+        the tick's."""
+        out, reading, ft = tick.out, tick.reading, tick.ft
+        T_w_MRF = tick.T_w_MRF  # refreshes the slave's pose buffer (Slave.pose_view)
+        made = self._made_from
+        if not made or out is not made[0] or reading is not made[1] or ft is not made[2] or T_w_MRF is not made[3]:
+            self._bundle(tick, T_w_MRF)
+        contact = tick.contact
+        kernel(
+            sinks, i, j, self.sources, contact.w, tick.time, tick.hand_on, tick.deadman, tick.reference,
+            tick.reflection, len(contact.contacts), out.faults, reading.watchdog_trips, tick.slave_status,
+            tick.device_link, tick.link_force, out.reflecting, full,
+        )  # fmt: skip
+        if full:
+            self.serial = tick.serial
+
+    def _bundle(self, tick: TickRecord, T_w_MRF: Array) -> None:
         """Bundle the buffers the rooms keep (their output objects' array attributes, views of the
-        rooms' buffers assigned once; the reading's pose and hand wrench, refilled in place on
-        access; the loop's hand target; MuJoCo's coordinates of the dynamic objects)."""
+        rooms' buffers assigned once; what the reading's grip pose and hand wrench are made of
+        (:class:`~app.device.boundary.GripSources`); the F/T reading's wrench; the slave's pose;
+        the loop's hand target; MuJoCo's coordinates of the dynamic objects)."""
         out, reading = tick.out, tick.reading
+        grip = reading.grip_sources()
         arrays = {
             "q": reading.q, "vectors": out.vectors, "twist": out.command.twist, "torques": out.torques,
-            "counts": out.counts, "stage_ns": tick.stage_ns, "scalars": out.scalars, "T_0_G": T_0_G,
-            "wrench_G": wrench_G, "hand": tick._hand, "objects": tick.object_poses(),
+            "counts": out.counts, "stage_ns": tick.stage_ns, "scalars": out.scalars, "T_H": grip.T_H,
+            "w_H": grip.w_H, "how": grip.how, "hand": tick._hand, "F_S": tick.ft.wrench_S, "T_w_MRF": T_w_MRF,
+            "objects": tick.object_poses(),
         }  # fmt: skip
         for name, a in arrays.items():
             # The bundle's fields are C-contiguous arrays: another layout would be misread.
             if not (a.__class__ is np.ndarray and a.flags.c_contiguous and a.flags.writeable and a.dtype in (F8, I8)):
                 raise TypeError(f"the state row's source '{name}' is not a writable C-contiguous numeric array")
+        for name, a in (("grip R", grip.R), ("grip p", grip.p)):  # any layout (their field's is 'A')
+            if not (a.__class__ is np.ndarray and a.dtype is F8):
+                raise TypeError(f"the state row's source '{name}' is not a float64 array")
         values: list[Any] = list(arrays.values())
-        self.sources = _bundle(self.row, self.at, self._no_hand, *values)
-        self._made_from = (out, reading)
-        self._T_0_G, self._wrench_G = T_0_G, wrench_G
+        self.sources = _bundle(self.row, self.at, self._no_hand, grip.R, grip.p, *values)
+        self._made_from = (out, reading, tick.ft, T_w_MRF)
 
 
 _F1, _F2, _I1 = array_type(1, F8), array_type(2, F8), array_type(1, I8)
-# Field names and types (the arrays of StateBlock._bundle, and the row's own).
-_ROW_FIELDS = {"row": _F1, "at": _I1, "no_hand": _F2, "q": _F1, "vectors": _F2, "twist": _F1, "torques": _F2}
-_ROW_FIELDS |= {"counts": _I1, "stage_ns": _I1, "scalars": _F1, "T_0_G": _F2, "wrench_G": _F1, "hand": _F2}
-_ROW_SOURCES = ArraysType([*_ROW_FIELDS.items(), ("objects", _F2)])
+# Field names and types (the row's own arrays, then those of StateBlock._bundle); the grip's
+# rotation and position in any layout (a Cartesian reading's are views of its pose).
+_ROW_FIELDS = {"row": _F1, "at": _I1, "no_hand": _F2, "R": types.Array(types.float64, 2, "A")}
+_ROW_FIELDS |= {"p": types.Array(types.float64, 1, "A"), "q": _F1, "vectors": _F2, "twist": _F1, "torques": _F2}
+_ROW_FIELDS |= {"counts": _I1, "stage_ns": _I1, "scalars": _F1, "T_H": _F2, "w_H": _F1, "how": _I1, "hand": _F2}
+_ROW_SOURCES = ArraysType([*_ROW_FIELDS.items(), ("F_S", _F1), ("T_w_MRF", _F2), ("objects", _F2)])
+#: The types of fill_row's arguments after its bundle: the contact result's ``w``, then the tick's
+#: scalars. Declared, not taken from a first call: an int 0 on a first tick (a link force summed
+#: over no link) would otherwise make the argument an integer and cut every later value.
+_ROW_VALUE_TYPES = (
+    _F1,
+    types.float64,  # t
+    *(types.boolean,) * 4,  # hand_on, deadman, reference, reflection
+    *(types.int64,) * 5,  # contacts, faults, watchdog_trips, slave_status, device_link
+    types.float64,  # link_force
+    types.boolean,  # reflecting
+    types.boolean,  # full
+)
 
 
 @njit(cache=True)
@@ -206,6 +221,8 @@ def _bundle(
     row: Array,
     at: IntArray,
     no_hand: Array,
+    R: Array,
+    p: Array,
     q: Array,
     vectors: Array,
     twist: Array,
@@ -213,9 +230,12 @@ def _bundle(
     counts: IntArray,
     stage_ns: IntArray,
     scalars: Array,
-    T_0_G: Array,
-    wrench_G: Array,
+    T_H: Array,
+    w_H: Array,
+    how: IntArray,
     hand: Array,
+    F_S: Array,
+    T_w_MRF: Array,
     objects: Array,
 ) -> Arrays:
     """The arrays (of exactly the types of ``_ROW_SOURCES``) as one :class:`Arrays`; no copy."""
@@ -223,6 +243,8 @@ def _bundle(
     src.row = row
     src.at = at
     src.no_hand = no_hand
+    src.R = R
+    src.p = p
     src.q = q
     src.vectors = vectors
     src.twist = twist
@@ -230,34 +252,61 @@ def _bundle(
     src.counts = counts
     src.stage_ns = stage_ns
     src.scalars = scalars
-    src.T_0_G = T_0_G
-    src.wrench_G = wrench_G
+    src.T_H = T_H
+    src.w_H = w_H
+    src.how = how
     src.hand = hand
+    src.F_S = F_S
+    src.T_w_MRF = T_w_MRF
     src.objects = objects
     return src
 
 
 @njit(cache=True)
-def _pose7(T: Array, out: Array) -> None:
-    """Position and wxyz quaternion of the pose ``T`` (4, 4) into ``out`` (7,)."""
-    out[0], out[1], out[2] = T[0, 3], T[1, 3], T[2, 3]
-    quat_into(T[0:3, 0:3], out[3:7])
+def _pose7(R: Array, p: Array, row: Array, at: int) -> None:
+    """Position ``p`` (3,) and the wxyz quaternion of the rotation ``R`` (3, 3) into ``row`` from ``at``."""
+    row[at], row[at + 1], row[at + 2] = p[0], p[1], p[2]
+    quat_into(R, row[at + 3 : at + 7])
 
 
 @njit(cache=True)
-def _put(row: Array, at: int, values: Array | IntArray) -> int:
-    """Copy ``values`` (any shape, row-major) into ``row`` from ``at``; return the next index."""
-    for v in values.ravel():
-        row[at] = v
-        at += 1
-    return at
+def _hand_wrench(how: int, T_H: Array, w_H: Array, row: Array, at: int) -> None:
+    """The hand's wrench on the grip (:class:`~app.device.boundary.GripSources`) into ``row`` from
+    ``at``: zero, ``w_H`` in the axes of ``T_H`` (the sum
+    :meth:`~app.device.hand.OperatorHand.wrench_G` computes, in its order), or ``w_H``."""
+    for a in range(3):
+        if how == HAND_OFF:
+            row[at + a], row[at + 3 + a] = 0.0, 0.0
+        elif how == HAND_ROTATED:
+            row[at + a] = T_H[a, 0] * w_H[0] + T_H[a, 1] * w_H[1] + T_H[a, 2] * w_H[2]
+            row[at + 3 + a] = T_H[a, 0] * w_H[3] + T_H[a, 1] * w_H[4] + T_H[a, 2] * w_H[5]
+        else:
+            row[at + a], row[at + 3 + a] = w_H[a], w_H[3 + a]
+
+
+@njit(cache=True)
+def _put1(row: Array, at: int, values: Array | IntArray) -> None:
+    """Copy ``values`` (n,) into ``row`` from ``at``. Element by element, with no view made: a
+    view (a slice, ``ravel``) costs its reference counting, several times the copy of a block."""
+    for k in range(values.shape[0]):
+        row[at + k] = values[k]
+
+
+@njit(cache=True)
+def _put2(row: Array, at: int, values: Array) -> None:
+    """Copy ``values`` (n, m) row-major into ``row`` from ``at`` (as :func:`_put1`)."""
+    m = values.shape[1]
+    for i in range(values.shape[0]):
+        for j in range(m):
+            row[at + i * m + j] = values[i, j]
 
 
 @njit(cache=True)
 def fill_row(
+    sinks: object,
+    i: int,
+    j: int,
     src: Arrays,
-    F_S: Array,
-    T_w_MRF: Array,
     contact_w: Array,
     t: float,
     hand_on: bool,
@@ -274,7 +323,8 @@ def fill_row(
     full: bool,
 ) -> None:
     """One state row (the blocks of :func:`state_layout`) from one tick's buffers (``src``) and
-    values (:meth:`StateBlock.tick_args`). ``contact_w`` is the contact result's ``w`` (15,):
+    values (:meth:`StateBlock.fill_with`); ``sinks``, ``i``, ``j`` are not read (the leading
+    arguments of a :meth:`StateBlock.kernel`, which calls this first). ``contact_w`` is the contact result's ``w`` (15,):
     the wrench at {MRF} in {MRF} is its ``[6:12]``
     (:attr:`~app.world.contact.model.ContactResult.wrench_MRF`).
 
@@ -284,13 +334,13 @@ def fill_row(
     rest of the row is then stale (the metrics of a loop without a log).
     """
     a: Any = src
-    row, starts = a.row, a.at
+    row, starts, T_w_MRF = a.row, a.at, a.T_w_MRF
     row[starts[0]] = t
     for i in range(3):
         row[starts[6] + i] = T_w_MRF[i, 3]
     for i in range(6):
         row[starts[8] + i] = contact_w[6 + i]
-    _put(row, starts[12], a.scalars)
+    _put1(row, starts[12], a.scalars)
     at = starts[13]
     row[at], row[at + 1], row[at + 2] = 1.0 if deadman else 0.0, 1.0 if reference else 0.0, 1.0 if reflection else 0.0
     row[at + 3], row[at + 4], row[at + 5], row[at + 6] = contacts, faults, watchdog_trips, slave_status
@@ -303,20 +353,20 @@ def fill_row(
     row[starts[18]] = 1.0 if reflecting else 0.0
     if not full:
         return
-    _put(row, starts[1], a.q)
-    _pose7(a.T_0_G, row[starts[2] : starts[2] + 7])
+    _put1(row, starts[1], a.q)
+    _pose7(a.R, a.p, row, starts[2])
     hand = a.hand if hand_on else a.no_hand
     for i in range(3):
         row[starts[3] + i] = hand[i, 3]
-    _put(row, starts[4], a.vectors)
-    _put(row, starts[5], a.twist)
-    _pose7(T_w_MRF, row[starts[6] : starts[6] + 7])
-    _put(row, starts[7], F_S)
-    _put(row, starts[9], a.wrench_G)
-    _put(row, starts[10], a.torques)
-    _put(row, starts[11], a.counts)
+    _put2(row, starts[4], a.vectors)
+    _put1(row, starts[5], a.twist)
+    _pose7(T_w_MRF[0:3, 0:3], T_w_MRF[0:3, 3], row, starts[6])
+    _put1(row, starts[7], a.F_S)
+    _hand_wrench(a.how[0], a.T_H, a.w_H, row, starts[9])
+    _put2(row, starts[10], a.torques)
+    _put1(row, starts[11], a.counts)
     at = starts[15]
     for v in a.stage_ns:
         row[at] = v * 1e-3
         at += 1
-    _put(row, starts[16], a.objects)
+    _put2(row, starts[16], a.objects)

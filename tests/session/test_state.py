@@ -6,6 +6,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from app.controller.types import Fault
 from app.session.log import TickLog, read_log
@@ -194,3 +195,46 @@ def test_metrics_write_the_logs_rows_as_the_log_does() -> None:
     for name in alone.column_names:
         if not name.endswith("_us"):
             np.testing.assert_array_equal(fused.column(name).to_numpy(), alone.column(name).to_numpy(), err_msg=name)
+
+
+@pytest.mark.parametrize("device", ["kraft", "touch3"])
+def test_the_rows_grip_pose_and_hand_wrench_follow_the_reading_as_the_hand_lets_go_and_takes_hold(
+    device: str,
+) -> None:
+    """The row builds the grip pose and the hand's wrench from the reading's buffers
+    (GripSources) in compiled code: for a joint-space plant (the hand's force rotated, zero when
+    let go) and for a Cartesian device (its pose and wrench as they are), every tick equals the
+    reading's own properties, through a let-go and a new hold."""
+    session = load_session("probe_rate").with_changes(device=device)
+    loop = ServoLoop(LoopConfig.from_session(session))
+    op = OperatorScript.for_loop(session.data, loop)
+    block = loop.record.block
+    assert block is not None
+    grip, hand = block.starts["grip"], block.starts["hand_G"]
+    held_force = let_go = 0
+    for i in range(600):
+        if 200 <= i < 300:
+            loop.set_hand_target(None)
+        else:
+            op.before_tick(loop)
+        row = loop.tick().state()
+        T_0_G, wrench_G = loop.reading.T_0_G, loop.reading.wrench_G
+        np.testing.assert_array_equal(row[grip : grip + 3], T_0_G[0:3, 3])
+        np.testing.assert_array_equal(row[grip + 3 : grip + 7], matrix_to_quat(T_0_G[0:3, 0:3]))
+        np.testing.assert_array_equal(row[hand : hand + 6], wrench_G)
+        held_force += bool(np.any(row[hand : hand + 3] != 0.0))
+        let_go += bool(200 <= i < 300 and not np.any(row[hand : hand + 6]))
+    assert held_force > 400  # the hand pulls: the compared wrenches were not all zero
+    assert let_go == 100  # and it pulled nothing while let go
+
+
+def test_the_rows_scalars_keep_their_declared_types_whatever_the_first_tick_passes() -> None:
+    """The row's kernel is compiled for declared argument types, not for its first call's: a link
+    force that is the integer 0 on the first tick (a sum over no touching link) does not make the
+    later forces integers (which would cut 2.75 N to 2)."""
+    loop = ServoLoop(LoopConfig.from_session(load_session("probe_rate")))
+    loop.slave.link_force = 0  # type: ignore[misc]  # an int, as a sum over no link gives
+    at = loop.record.block.starts["link_force"]  # type: ignore[union-attr]
+    assert loop.tick().state()[at] == 0.0
+    loop.slave.link_force = 2.75  # type: ignore[misc]
+    assert loop.tick().state()[at] == 2.75

@@ -24,6 +24,9 @@ from app.errors import InputError
         ),
         (["run", "probe_rate", "--device", "fd:"], "forcedimension-core is not installed (pip install 'frhc[fd]')"),
         (["run", "probe_rate", "--device", "openhaptics:"], "pyOpenHaptics is not installed"),
+        # The web demo's loop process failed alone: a traceback, and the page waited (harden8).
+        (["web", "--device", "fd:", "--port", "0"], "forcedimension-core is not installed (pip install 'frhc[fd]')"),
+        (["web", "--device", "openhaptics:Left", "--port", "0"], "pyOpenHaptics is not installed"),
     ],
 )
 def test_device_errors_are_one_line_exit_2(

@@ -238,7 +238,7 @@ def read_log(directory: Path, n_joints: int | None = None, objects: tuple[str, .
             not this log's.
     """
     expected = None if n_joints is None else log_columns(n_joints, objects)
-    tables = []
+    tables: list[pa.Table] = []
     for k, part in enumerate(sorted(directory.glob("part-*.parquet"))):
         if part.name != f"part-{k:05d}.parquet":
             raise ConfigError(

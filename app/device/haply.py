@@ -50,7 +50,7 @@ from app.device.cartesian_sim import SimCartesianDevice
 from app.device.guard import limited
 from app.device.plant import WATCHDOG
 from app.device.spec import DeviceSpec, load_device
-from app.device.vendors import check_device_url, open_device_url, vendor_device
+from app.device.vendors import check_device_url, vendor_device
 from app.device.wslink import WsLink
 from app.errors import FrhcError
 from app.spatial import Array, matrix_to_quat, quat_to_matrix
@@ -273,7 +273,6 @@ def served_device(url: str, session_device: DeviceSpec | None) -> DeviceSpec:
     Raises:
         InputError: ``url`` is not a well-formed device address.
         DeviceUnreachable: nothing usable answers at a ``ws://`` address.
-        DeviceUnavailable: the runtime or the device of ``fd:`` or ``openhaptics:`` is not here.
     """
     check_device_url(url)
     if url.startswith(("ws://", "wss://")):
@@ -282,10 +281,6 @@ def served_device(url: str, session_device: DeviceSpec | None) -> DeviceSpec:
         client.disconnect()  # it sent no force: nothing to zero, and a served simulation stays put
         if served is not None:
             return load_device(served.device)
-    else:
-        # Opened once here, so that an absent runtime or device is refused now, in one line, and
-        # not only by the web demo's loop process, whose failure the page never showed.
-        open_device_url(url, CONNECT_TIMEOUT).close()
     if session_device is not None and session_device.data.interface == "cartesian":
         spec = session_device
     else:

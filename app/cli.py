@@ -21,7 +21,7 @@ from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 from app.config import Range, field_range, fmt_number
-from app.errors import ConfigError, FrhcError, Interrupted, InvalidField, OutputError
+from app.errors import ConfigError, FrhcError, InputError, Interrupted, InvalidField, OutputError
 from app.interrupts import signals_held
 
 
@@ -216,11 +216,12 @@ def _cmd_device_serve(args: argparse.Namespace) -> int:
 
 def _device_url(text: str) -> str:
     """An argparse type: a device outside this process (ws://host:port, fd:N, openhaptics:NAME)."""
-    from app.device.vendors import is_device_url
+    from app.device.vendors import check_device_url
 
-    if not is_device_url(text):
-        raise argparse.ArgumentTypeError(f"expected ws://host:port, fd:N or openhaptics:NAME, got {text!r}")
-    return text
+    try:
+        return check_device_url(text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:

@@ -144,7 +144,19 @@ class Count:
             raise InvalidField(name, f"expected {self.text()}, got {len(value)}")
 
 
-Rule = Range | Count
+@dataclass(frozen=True)
+class OneOf:
+    """The choices of a ``Literal`` field, checked on construction too (not only when a file is
+    read): a value that reaches a dataclass from the page or a call is held to the same choices."""
+
+    choices: tuple[Any, ...]
+
+    def check(self, name: str, value: Any) -> None:
+        if value not in self.choices:
+            raise InvalidField(name, f"must be one of {', '.join(repr(c) for c in self.choices)}, got {value!r}")
+
+
+Rule = Range | Count | OneOf
 
 
 class Checked:
@@ -193,6 +205,8 @@ def _field_rules(cls: type) -> tuple[FieldRules, ...]:
             tp, *meta = get_args(tp)
             rules = tuple(m for m in meta if isinstance(m, Range | Count))
             tp = _strip_optional(tp)
+        if get_origin(tp) is Literal:
+            rules = (*rules, OneOf(get_args(tp)))
         args = get_args(tp)
         length = len(args) if get_origin(tp) is tuple and Ellipsis not in args else None
         if rules or length is not None:
@@ -208,12 +222,13 @@ def _strip_optional(tp: Any) -> Any:
     return tp
 
 
-def field_range(cls: type, name: str) -> Rule | None:
+def field_range(cls: type, name: str) -> Range | Count | None:
     """The :class:`Range` (or else :class:`Count`) of field ``name`` of ``cls``, for documents and tests."""
     for fname, _, rules in field_rules(cls):
-        if fname == name and rules:
-            ranges = [r for r in rules if isinstance(r, Range)]
-            return ranges[0] if ranges else rules[0]
+        bounds = [r for r in rules if isinstance(r, Range | Count)]
+        if fname == name and bounds:
+            ranges = [r for r in bounds if isinstance(r, Range)]
+            return ranges[0] if ranges else bounds[0]
     return None
 
 

@@ -19,6 +19,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
 
+import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
@@ -169,6 +171,25 @@ def _damage(log: Path, how: str) -> tuple[Path, str, str]:
     if how == "meta not an object":
         meta.write_text("[1, 2]")
         return meta, "<file>", "expected a JSON object"
+    # The four below replayed (a gap in time, or a traceback) before harden8.
+    if how == "middle part missing":
+        parts[1].unlink()
+        return parts[1], "<file>", "missing (the log goes on at part-00002.parquet)"
+    if how == "integer column stored as float":
+        table = pq.read_table(parts[2])
+        i = table.column_names.index("faults")
+        pq.write_table(table.set_column(i, "faults", table.column("faults").cast("float64")), parts[2])
+        return parts[2], "<file>", "not a log part: column faults is double, not int32"
+    if how == "text column":
+        table = pq.read_table(parts[0])
+        i = table.column_names.index("ramp")
+        pq.write_table(table.set_column(i, "ramp", table.column("ramp").cast("string")), parts[0])
+        return parts[0], "<file>", "not a log part: column ramp is string, not double"
+    if how == "times not finite":
+        table = pq.read_table(parts[1])
+        nan = pa.array(np.full(table.num_rows, np.nan))
+        pq.write_table(table.set_column(table.column_names.index("t"), "t", nan), parts[1])
+        return log, "t", f"{table.num_rows} of "
     assert how == "part with other columns"
     table = pq.read_table(parts[1])
     pq.write_table(table.drop_columns(["t"]).append_column("time", table.column("t")), parts[1])
@@ -184,6 +205,10 @@ def _damage(log: Path, how: str) -> tuple[Path, str, str]:
         "meta without device",
         "meta not an object",
         "part with other columns",
+        "middle part missing",
+        "integer column stored as float",
+        "text column",
+        "times not finite",
     ],
 )
 def test_replay_of_a_damaged_log_is_one_line(

@@ -39,7 +39,7 @@ import socket
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import msgspec
 import numpy as np
@@ -50,7 +50,7 @@ from app.device.cartesian_sim import SimCartesianDevice
 from app.device.guard import limited
 from app.device.plant import WATCHDOG
 from app.device.spec import DeviceSpec, load_device
-from app.device.vendors import vendor_device
+from app.device.vendors import check_device_url, vendor_device
 from app.device.wslink import WsLink
 from app.errors import FrhcError
 from app.spatial import Array, matrix_to_quat, quat_to_matrix
@@ -95,7 +95,6 @@ _STATE = (
     '"buttons":{"a":%s,"b":%s,"c":%s}}}]'
 )
 _COMMAND = '{"inverse3":[{"device_id":%s,"commands":{"set_cursor_force":{"values":{"x":%r,"y":%r,"z":%r}}}}]'
-_decode = msgspec.json.Decoder().decode
 _encode = msgspec.json.Encoder().encode
 
 
@@ -107,14 +106,6 @@ def _quoted(text: str) -> str:
 
 def _bool(value: bool) -> str:
     return "true" if value else "false"
-
-
-def _loads(text: str | bytes) -> Any:
-    """JSON text to Python values; ValueError if it is not JSON."""
-    try:
-        return _decode(text)
-    except msgspec.DecodeError as exc:
-        raise ValueError(f"not a JSON message ({exc})") from None
 
 
 def state_message(device_id: str, T_0_G: Array, buttons: tuple[bool, bool, bool], sim: dict[str, Any] | None) -> str:
@@ -139,6 +130,88 @@ def force_command(device_id: str, force: Array, hand_target: Array | None, sim: 
     return text + "}"
 
 
+class _Xyz(msgspec.Struct):
+    x: float
+    y: float
+    z: float
+
+
+class _Quaternion(msgspec.Struct):
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    w: float = 1.0
+
+
+class _Buttons(msgspec.Struct):
+    a: bool = False
+    b: bool = False
+    c: bool = False
+
+
+class _GripState(msgspec.Struct):
+    orientation: _Quaternion | None = None
+    buttons: _Buttons = msgspec.field(default_factory=_Buttons)
+
+
+class _Grip(msgspec.Struct):
+    state: _GripState = msgspec.field(default_factory=_GripState)
+
+
+class _Inverse3State(msgspec.Struct):
+    cursor_position: _Xyz
+
+
+class _Inverse3(msgspec.Struct):
+    device_id: str | int
+    state: _Inverse3State
+
+
+class SimInfo(msgspec.Struct):
+    """What ``frhc device serve`` says of itself in each state (``"frhc_sim"``): the device file's
+    name, the simulation's period (s), its time (s) and the simulated hand's wrench on the grip
+    (N, N m, {0})."""
+
+    device: str
+    period: float = 0.0
+    time: float | None = None
+    hand_wrench: Annotated[list[float], msgspec.Meta(min_length=6, max_length=6)] | None = None
+
+
+class _State(msgspec.Struct):
+    inverse3: Annotated[list[_Inverse3], msgspec.Meta(min_length=1)]
+    wireless_verse_grip: list[_Grip] = msgspec.field(default_factory=list)
+    frhc_sim: SimInfo | None = None
+
+
+class _SetForce(msgspec.Struct):
+    values: _Xyz
+
+
+class _Commands(msgspec.Struct):
+    set_cursor_force: _SetForce
+
+
+class _Inverse3Command(msgspec.Struct):
+    commands: _Commands
+
+
+class _SimCommand(msgspec.Struct):
+    hand_target: Annotated[list[float], msgspec.Meta(min_length=16, max_length=16)] | None = None
+
+
+class _Command(msgspec.Struct):
+    inverse3: Annotated[list[_Inverse3Command], msgspec.Meta(min_length=1)]
+    frhc_sim: _SimCommand | None = None
+
+
+# Typed decoders: a field of the wrong type (a string or a boolean for a number, a number for a
+# button), a missing one or a number JSON cannot hold as a double is refused, naming its path, so
+# what reaches the controller is finite and of the kind the protocol says.
+_decode_state = msgspec.json.Decoder(_State).decode
+_decode_command = msgspec.json.Decoder(_Command).decode
+
+
 @dataclass
 class ParsedState:
     """What a state message said. Position in m, orientation as a rotation matrix, both in {0}."""
@@ -147,50 +220,46 @@ class ParsedState:
     position: Array
     R: Array
     buttons: tuple[bool, bool, bool] | None
-    sim: dict[str, Any] | None = None
+    sim: SimInfo | None = None
 
 
 def parse_state(text: str | bytes) -> ParsedState:
-    """Read a state message; raises ValueError naming the missing field."""
-    data = _loads(text)
+    """Read a state message; raises ValueError naming the field that is missing or wrong."""
     try:
-        inv = data["inverse3"][0]
-        pos = inv["state"]["cursor_position"]
-        position = np.array([float(pos[k]) for k in "xyz"])
-        device_id = str(inv["device_id"])
-    except (KeyError, IndexError, TypeError) as exc:
-        raise ValueError(f"state message without inverse3[0].state.cursor_position / device_id ({exc})") from None
+        data = _decode_state(text)
+    except msgspec.DecodeError as exc:
+        raise ValueError(f"bad state message ({exc})") from None
+    inv = data.inverse3[0]
+    p = inv.state.cursor_position
     R = np.eye(3)
     buttons = None
-    grips = data.get("wireless_verse_grip") or []
-    if grips:
-        state = grips[0].get("state", {})
-        o = state.get("orientation")
-        if o:
-            R = quat_to_matrix(
-                np.array(
-                    [float(o.get("w", 1.0)), float(o.get("x", 0.0)), float(o.get("y", 0.0)), float(o.get("z", 0.0))]
-                )
-            )
-        b = state.get("buttons", {})
-        buttons = (bool(b.get("a", False)), bool(b.get("b", False)), bool(b.get("c", False)))
-    return ParsedState(device_id, position, R, buttons, data.get("frhc_sim"))
+    if data.wireless_verse_grip:
+        state = data.wireless_verse_grip[0].state
+        o = state.orientation
+        if o is not None:
+            q = np.array([o.w, o.x, o.y, o.z])
+            norm = float(np.linalg.norm(q))
+            if not norm > 1e-9:  # nothing to normalise: no rotation is meant
+                raise ValueError("bad state message (zero orientation quaternion - at `$.wireless_verse_grip[0]`)")
+            R = quat_to_matrix(q / norm)
+        b = state.buttons
+        buttons = (b.a, b.b, b.c)
+    return ParsedState(str(inv.device_id), np.array([p.x, p.y, p.z]), R, buttons, data.frhc_sim)
 
 
 def parse_command(text: str | bytes) -> tuple[Array, Array | None, bool]:
     """Read a command: the force (N, (3,)), the simulated hand target ((4, 4) or None) and
-    whether the message carried the ``frhc_sim`` extension. Raises ValueError."""
-    data = _loads(text)
+    whether the message carried the ``frhc_sim`` extension. Raises ValueError naming the field."""
     try:
-        values = data["inverse3"][0]["commands"]["set_cursor_force"]["values"]
-        force = np.array([float(values[k]) for k in "xyz"])
-    except (KeyError, IndexError, TypeError) as exc:
-        raise ValueError(f"command without inverse3[0].commands.set_cursor_force.values ({exc})") from None
-    sim = data.get("frhc_sim")
+        data = _decode_command(text)
+    except msgspec.DecodeError as exc:
+        raise ValueError(f"bad command ({exc})") from None
+    v = data.inverse3[0].commands.set_cursor_force.values
+    sim = data.frhc_sim
     target = None
-    if sim is not None and sim.get("hand_target") is not None:
-        target = np.array(sim["hand_target"], dtype=float).reshape(4, 4)
-    return force, target, sim is not None
+    if sim is not None and sim.hand_target is not None:
+        target = np.array(sim.hand_target).reshape(4, 4)
+    return np.array([v.x, v.y, v.z]), target, sim is not None
 
 
 def served_device(url: str, session_device: DeviceSpec | None) -> DeviceSpec:
@@ -202,14 +271,16 @@ def served_device(url: str, session_device: DeviceSpec | None) -> DeviceSpec:
     another device's limits.
 
     Raises:
-        DeviceUnreachable: nothing answers at a ``ws://`` address.
+        InputError: ``url`` is not a well-formed device address.
+        DeviceUnreachable: nothing usable answers at a ``ws://`` address.
     """
+    check_device_url(url)
     if url.startswith(("ws://", "wss://")):
         client = HaplyClient(url, period=CONNECT_TIMEOUT)
         served = client.served
         client.disconnect()  # it sent no force: nothing to zero, and a served simulation stays put
         if served is not None:
-            return load_device(str(served["device"]))
+            return load_device(served.device)
     if session_device is not None and session_device.data.interface == "cartesian":
         spec = session_device
     else:
@@ -234,8 +305,9 @@ class HaplyClient:
 
     Attributes:
         device_id: The Inverse3's id, as the service named it.
-        served: What ``frhc device serve`` said of itself (``{"device", "period", ...}``), or None
-            for a real Inverse Service.
+        served: What ``frhc device serve`` said of itself (:class:`SimInfo`), or None for a real
+            Inverse Service.
+        why: Why the last connect failed (one line), or "".
     """
 
     kind: Literal["cartesian"] = "cartesian"
@@ -249,13 +321,15 @@ class HaplyClient:
         self.reading = CartesianReading()
         self.name = url
         self.device_id = ""
-        self.served: dict[str, Any] | None = None
+        self.served: SimInfo | None = None
+        self.why = ""
         self._ws: WsLink | None = None
         self._hand: Array | None = None
         self._last_attempt = -math.inf
+        self._bad_states = 0  # bad state messages in a row (logged when the run starts and ends)
         if not self.connect():
             raise DeviceUnreachable(
-                f"no Inverse Service answers at {url} (is `frhc device serve` or Haply's service running?)"
+                f"no usable Inverse Service at {url}: {self.why} (is `frhc device serve` or Haply's service running?)"
             )
 
     def connect(self) -> bool:
@@ -264,19 +338,22 @@ class HaplyClient:
         self._drop()
         try:
             ws = WsLink.connect(self.url, CONNECT_TIMEOUT)
-        except (OSError, TimeoutError, InvalidHandshake, InvalidURI) as exc:
-            log.info("device %s: cannot connect (%s)", self.url, exc)
+        except (OSError, TimeoutError, InvalidHandshake, InvalidURI, ValueError) as exc:
+            self.why = f"cannot connect ({exc})"
+            log.info("device %s: %s", self.url, self.why)
             return False
         try:
             first = parse_state(ws.recv(CONNECT_TIMEOUT))
         except (TimeoutError, ConnectionClosed, ValueError) as exc:
-            log.info("device %s: no usable first state (%s)", self.url, exc)
+            self.why = f"no usable first state ({exc})"
+            log.info("device %s: %s", self.url, self.why)
             ws.close()
             return False
+        self.why = ""
         self._ws = ws
         self.device_id = first.device_id
         self.served = first.sim
-        self.name = f"{first.sim['device']} at {self.url}" if first.sim else f"Inverse3 {first.device_id}"
+        self.name = f"{first.sim.device} at {self.url}" if first.sim else f"Inverse3 {first.device_id}"
         self._take(first)
         return True
 
@@ -296,11 +373,12 @@ class HaplyClient:
         r = self.reading
         r.set_pose(state.R, state.position)
         r.buttons = state.buttons
-        if state.sim is not None:
-            r.time = float(state.sim.get("time", r.time))
-            hand = state.sim.get("hand_wrench")
-            if hand is not None:
-                r.wrench_G[:] = hand
+        sim = state.sim
+        if sim is not None:
+            if sim.time is not None:
+                r.time = sim.time
+            if sim.hand_wrench is not None:
+                r.wrench_G[:] = sim.hand_wrench
         r.fresh = True
         if r.status == LinkStatus.DISCONNECTED:
             r.status = LinkStatus.RAMPING
@@ -338,15 +416,24 @@ class HaplyClient:
             spin = self.spin
             if spin is None:
                 spin = min(REALTIME_SPIN, self.period) if realtime else self.period
-            self._take(parse_state(ws.recv_latest(self.period, spin, yield_cpu=realtime)))
+            state = parse_state(ws.recv_latest(self.period, spin, yield_cpu=realtime))
         except TimeoutError:
             r.fresh = False
         except (ConnectionClosed, OSError) as exc:
             log.info("device %s: connection lost (%s)", self.url, exc)
             self._drop()
         except ValueError as exc:
-            log.warning("device %s: bad state message (%s)", self.url, exc)
+            # A missed sample (the guard sends zero): said once per run of bad messages, not
+            # once a period.
+            if self._bad_states == 0:
+                log.warning("device %s: %s; zero force until a good one", self.url, exc)
+            self._bad_states += 1
             r.fresh = False
+        else:
+            if self._bad_states:
+                log.warning("device %s: good state again after %d bad", self.url, self._bad_states)
+                self._bad_states = 0
+            self._take(state)
         return r
 
     def close(self) -> None:

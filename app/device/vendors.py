@@ -39,8 +39,11 @@ import importlib
 import threading
 from types import ModuleType
 from typing import Any, Literal
+from urllib.parse import urlsplit
 
 import numpy as np
+from websockets.exceptions import InvalidURI
+from websockets.uri import parse_uri
 
 from app.device.boundary import CartesianDevice, CartesianReading, LinkStatus
 from app.errors import FrhcError, InputError
@@ -252,6 +255,32 @@ def vendor_device(url: str) -> str:
     raise InputError(f"not a device address: {url!r} (ws://host:port, fd:N, openhaptics:NAME)")
 
 
+def check_device_url(url: str) -> str:
+    """``url`` if it is a well-formed device address (:func:`open_device_url`), else a one-line
+    :class:`InputError` naming what is wrong; nothing is opened or resolved.
+
+    Raises:
+        InputError: not a device address, a ``ws://`` address without a host or with a port
+            outside 1-65535, or ``fd:`` with something other than a device number.
+    """
+    if url.startswith(("ws://", "wss://")):
+        try:
+            parse_uri(url)
+            port = urlsplit(url).port  # websockets takes an explicit port 0 for the default
+        except (InvalidURI, ValueError) as exc:
+            raise InputError(f"bad device address {url!r}: {exc}") from None
+        if port == 0:
+            raise InputError(f"bad device address {url!r}: port 0 (ports are 1-65535)")
+        return url
+    if url.startswith("fd:"):
+        if not (url[3:] or "0").isdigit():
+            raise InputError(f"fd:N needs a device number, got {url!r}")
+        return url
+    if url.startswith("openhaptics:"):
+        return url
+    raise InputError(f"not a device address: {url!r} (ws://host:port, fd:N, openhaptics:NAME)")
+
+
 def is_device_url(name: str) -> bool:
     """Whether a ``--device`` value names a device outside this process (``ws://``, ``fd:``,
     ``openhaptics:``) rather than a device file."""
@@ -267,15 +296,11 @@ def open_device_url(url: str, period: float) -> CartesianDevice:
         DeviceUnavailable: its runtime or the device is not here (one line naming which).
         InputError: ``url`` is none of these.
     """
+    check_device_url(url)
     if url.startswith(("ws://", "wss://")):
         from app.device.haply import HaplyClient
 
         return HaplyClient(url, period)
     if url.startswith("fd:"):
-        index = url[3:] or "0"
-        if not index.isdigit():
-            raise InputError(f"fd:N needs a device number, got {url!r}")
-        return ForceDimensionDevice(int(index))
-    if url.startswith("openhaptics:"):
-        return TouchDevice(url[len("openhaptics:") :] or "Default Device", period)
-    raise InputError(f"not a device address: {url!r} (ws://host:port, fd:N, openhaptics:NAME)")
+        return ForceDimensionDevice(int(url[3:] or "0"))
+    return TouchDevice(url[len("openhaptics:") :] or "Default Device", period)

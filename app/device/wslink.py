@@ -222,7 +222,9 @@ class WsLink:
         else:
             return
         if frame.fin:
-            self._messages.append(b"".join(self._fragments).decode())
+            # A binary message that is not UTF-8 must not end the connection with a decoding
+            # error: its bad bytes become U+FFFD, and the reader refuses it as it does any garbage.
+            self._messages.append(b"".join(self._fragments).decode(errors="replace"))
             self._fragments = []
 
     def _flush(self) -> None:

@@ -202,13 +202,24 @@ def _tail_name(part: int) -> str:
     return f"_tail-{part:05d}.f8"
 
 
+def _is_int(name: str) -> bool:
+    """Whether the log stores column ``name`` as int32 (else float64)."""
+    return name in INT_COLUMNS or name.startswith("counts_")
+
+
 def _table(rows: Array, columns: list[str]) -> pa.Table:
     """The log's table of ``rows`` (n, len(columns)): the integer columns as int32."""
-    arrays = [
-        pa.array(rows[:, i].astype(np.int32) if name in INT_COLUMNS or name.startswith("counts_") else rows[:, i])
-        for i, name in enumerate(columns)
-    ]
+    arrays = [pa.array(rows[:, i].astype(np.int32) if _is_int(name) else rows[:, i]) for i, name in enumerate(columns)]
     return pa.Table.from_arrays(arrays, names=columns)
+
+
+def _wrong_type(table: pa.Table) -> str | None:
+    """The first column of ``table`` not of the type the log writes it as, described; else None."""
+    for name, kind in zip(table.column_names, table.schema.types, strict=True):
+        expected = pa.int32() if _is_int(name) else pa.float64()
+        if kind != expected:
+            return f"column {name} is {kind}, not {expected}"
+    return None
 
 
 def read_log(directory: Path, n_joints: int | None = None, objects: tuple[str, ...] = ()) -> pa.Table:
@@ -221,22 +232,33 @@ def read_log(directory: Path, n_joints: int | None = None, objects: tuple[str, .
             and of the dynamic objects named ``objects``.
 
     Raises:
-        ConfigError: Naming the first part that is not a readable Parquet file (truncated, empty,
-            random bytes) or, with ``n_joints``, whose columns are not this log's.
+        ConfigError: Naming the first part that is missing (the parts are numbered from 0 without
+            a gap), is not a readable Parquet file (truncated, empty, random bytes), holds a
+            column of another type than the log writes, or, with ``n_joints``, whose columns are
+            not this log's.
     """
     expected = None if n_joints is None else log_columns(n_joints, objects)
-    tables = []
-    for part in sorted(directory.glob("part-*.parquet")):
+    tables: list[pa.Table] = []
+    for k, part in enumerate(sorted(directory.glob("part-*.parquet"))):
+        if part.name != f"part-{k:05d}.parquet":
+            raise ConfigError(
+                directory / f"part-{k:05d}.parquet", "<file>", f"missing (the log goes on at {part.name})"
+            )
         try:
             table = pq.read_table(part)
         except (pa.ArrowException, OSError) as exc:
             reason = " ".join(str(exc).split())[:200]
             raise ConfigError(part, "<file>", f"not a readable log part: {reason}") from None
+        wrong = _wrong_type(table)
+        if wrong is not None:
+            raise ConfigError(part, "<file>", f"not a log part: {wrong}")
         if expected is not None and table.column_names != expected:
             missing = sorted(set(expected) - set(table.column_names))
             extra = sorted(set(table.column_names) - set(expected))
             diff = f"missing {', '.join(missing[:3]) or 'none'}; unknown {', '.join(extra[:3]) or 'none'}"
             raise ConfigError(part, "<file>", f"not a part of a {n_joints}-joint log ({diff})")
+        if tables and table.column_names != tables[0].column_names:  # parts of two logs
+            raise ConfigError(part, "<file>", "its columns are not those of part-00000.parquet")
         tables.append(table)
     tail = directory / _tail_name(len(tables))
     if tail.exists():

@@ -42,9 +42,9 @@ def _demo(
 ) -> DemoApp:
     """Check the inputs and build the demo on ``server`` (whose page already shows ``panel``)."""
     # Imported here, with the page already served: see the module's docstring.
-    from app.device.haply import served_device
+    from app.device.haply import CONNECT_TIMEOUT, served_device
     from app.device.spec import load_device
-    from app.device.vendors import is_device_url
+    from app.device.vendors import is_device_url, open_device_url
     from app.session.spec import check_servo_rate, load_session
     from app.web.replay import LogReplay
     from app.web.server import DemoApp
@@ -57,6 +57,10 @@ def _demo(
     device_url = device if is_device_url(device) else None
     if device_url is not None:
         device_obj = served_device(device_url, loaded_session.device if loaded_session is not None else None)
+        if not device_url.startswith(("ws://", "wss://")):  # served_device has reached a served one
+            # Opened (and closed) once here: the loop process opens it again, but a failure there
+            # is a traceback in that process and a page that waits; here it is one line, exit 2.
+            open_device_url(device_url, CONNECT_TIMEOUT).close()
     else:
         device_obj = load_device(device)
     loaded_replay = LogReplay(Path(replay)) if replay is not None else None

@@ -25,6 +25,7 @@ geometry and kinematics.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import mujoco
@@ -108,7 +109,12 @@ class LogReplay:
         table = read_log(directory, self._n_joints, self.objects)
         if table.num_rows == 0:
             raise ConfigError(directory, "<file>", "the log has no ticks")
-        order = np.argsort(table.column("t").to_numpy(), kind="stable")
+        t = table.column("t").to_numpy()
+        if not np.isfinite(t).all():
+            raise ConfigError(
+                directory, "t", f"{np.count_nonzero(~np.isfinite(t))} of {len(t)} rows have no finite time"
+            )
+        order = np.argsort(t, kind="stable")
         self._cols: dict[str, Array] = {name: table.column(name).to_numpy()[order] for name in table.column_names}
         self.t: Array = self._cols["t"]
         self._T_MRF_S = self.loop.controller.slave.T_MRF_S
@@ -229,7 +235,9 @@ class ReplayPlayer:
         return float(self.replay.t[-1])
 
     def seek(self, t: float) -> None:
-        self.cursor = float(np.clip(t, self.replay.t[0], self.replay.t[-1]))
+        """Show time ``t`` (s), clipped to the log; a non-finite ``t`` (no time) is ignored."""
+        if math.isfinite(t):
+            self.cursor = float(np.clip(t, self.replay.t[0], self.replay.t[-1]))
 
     def advance(self, wall_seconds: float) -> None:
         """Move the cursor on by ``wall_seconds`` of playing (stops at the end)."""

@@ -374,6 +374,10 @@ class DemoApp:
     def pause(self, on: bool) -> None:
         self.rt.pause(on)
 
+    def show_notice(self, text: str) -> None:
+        self._notice, self._loading = text, False
+        self.panel.show_play_status(text)
+
     def set_speed(self, factor: float) -> None:
         self.rt.set_speed(factor)
 

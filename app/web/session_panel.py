@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 import viser
 
+from app.errors import InvalidField
 from app.session.files import META_FILE, SESSIONS_DIR
 from app.web.commands import MAX_SPEED, MIN_SPEED
 
@@ -43,6 +44,29 @@ GUIDE = """**Start here.** The left space is the hand controller, the right one 
 3. Arrows: red is the contact wrench on the tool, orange what the grip renders to your hand, blue
    the assists (return-to-centre and damping), green your hand's push. Magenta dots: contacts.
 """
+
+
+def offered(handle: viser.GuiDropdownHandle[str]) -> str:
+    """A dropdown's value, if it is one of its options: the page offers no other, but a client
+    speaking viser's protocol may send any text (viser casts it, checks nothing).
+
+    Raises:
+        InvalidField: naming the dropdown's label.
+    """
+    if handle.value not in handle.options:
+        raise InvalidField(handle.label, f"not one of the choices, got {handle.value!r}")
+    return handle.value
+
+
+def within(handle: viser.GuiSliderHandle[int]) -> int:
+    """A slider's value, if it is within its own bounds (as :func:`offered`: viser checks none).
+
+    Raises:
+        InvalidField: naming the slider's label.
+    """
+    if not handle.min <= handle.value <= handle.max:
+        raise InvalidField(handle.label, f"must be in [{handle.min}, {handle.max}], got {handle.value}")
+    return handle.value
 
 
 def available_sessions() -> list[str]:
@@ -77,6 +101,9 @@ class SessionActions(Protocol):
 
     def start_experiment(self, operators: int) -> None: ...
 
+    def show_notice(self, text: str) -> None:
+        """Say ``text`` in the player's status line until a session is played (Markdown)."""
+
 
 class SessionPanel:
     """Guide, session player, log replay and experiment folders of the demo's panel.
@@ -107,9 +134,9 @@ class SessionPanel:
             self.speed = gui.add_dropdown("Speed", SPEEDS, initial_value="1")
             self._speed_seen = 1.0
             self.play_status = gui.add_markdown("")
-        self.play.on_click(on(lambda a: a.play_session(self.session.value)))
+        self.play.on_click(on(lambda a: a.play_session(offered(self.session))))
         self.pause.on_update(on(lambda a: a.pause(self.pause.value)))
-        self.speed.on_update(on(lambda a: a.set_speed(float(self.speed.value))))
+        self.speed.on_update(on(lambda a: a.set_speed(float(offered(self.speed)))))
 
         with gui.add_folder("Replay a log", expand_by_default=False):
             self.log_path = gui.add_text("Log directory", latest_log(runs), hint="runs/<name> or runs/<name>/log")
@@ -123,7 +150,7 @@ class SessionPanel:
         self.live.on_click(on(lambda a: a.close_replay()))
         self.timeline.on_update(on(lambda a: a.seek(float(self.timeline.value))))
         self.replay_playing.on_update(on(lambda a: a.set_replay_playing(self.replay_playing.value)))
-        self.replay_speed.on_update(on(lambda a: a.set_replay_speed(float(self.replay_speed.value))))
+        self.replay_speed.on_update(on(lambda a: a.set_replay_speed(float(offered(self.replay_speed)))))
 
         with gui.add_folder("Experiment (Table I)", expand_by_default=False):
             gui.add_markdown(
@@ -140,7 +167,7 @@ class SessionPanel:
                 FULL_CHART, visible=False, hint="Table I's chart in a window beside the panel, large enough to read"
             )
             self._chart_image: np.ndarray | None = None
-        self.run_experiment.on_click(on(lambda a: a.start_experiment(int(self.operators.value))))
+        self.run_experiment.on_click(on(lambda a: a.start_experiment(within(self.operators))))
         self.full_chart.on_click(lambda event: self._open_chart(event.client))
 
     def ready(self, actions: SessionActions) -> None:
@@ -152,16 +179,24 @@ class SessionPanel:
     def _when_ready(self, action: Callable[[SessionActions], None]) -> Callable[[viser.GuiEvent], None]:
         """A callback running ``action`` once the demo is up: a click made while its loop is still
         being built (the guide is shown first) waits, with :data:`STARTING` shown, in viser's
-        callback thread instead of reaching a demo that does not exist yet."""
+        callback thread instead of reaching a demo that does not exist yet. A value the page
+        would not send (:func:`offered`, :func:`within`) is refused in the status line, naming
+        the input, instead of raising in viser's thread."""
 
-        def callback(_: viser.GuiEvent) -> None:
+        def callback(event: viser.GuiEvent) -> None:
             if not self._ready.is_set():
                 self.show_play_status(STARTING)
                 if not self._ready.wait(READY_TIMEOUT):
                     self.show_play_status("**the demo did not start**: reload the page to try again")
                     return
             assert self._actions is not None  # set before the event
-            action(self._actions)
+            try:
+                action(self._actions)
+            except InvalidField as exc:
+                message = f"Refused {exc.field}: {exc.reason}"
+                self._actions.show_notice(f"**{message}**")
+                if event.client is not None:
+                    event.client.add_notification("Input refused", message, color="red", auto_close_seconds=6.0)
 
         return callback
 

@@ -5,17 +5,23 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+from device_helpers import make_served_loop, press_into_contact
 
-from app.controller.types import Switches
 from app.device.boundary import CartesianReading, LinkStatus
 from app.device.cartesian_sim import SimCartesianDevice
 from app.device.guard import ForceGuard
-from app.device.haply import DeviceServer, HaplyClient, force_command, parse_command, parse_state, state_message
+from app.device.haply import (
+    DeviceServer,
+    SimInfo,
+    force_command,
+    parse_command,
+    parse_state,
+    state_message,
+)
 from app.device.spec import CartesianSpec, load_device
 from app.session.cartesian_loop import CartesianServoLoop
 from app.session.log import read_log
@@ -127,12 +133,12 @@ def test_messages_round_trip_pose_buttons_force_and_hand_target() -> None:
     np.testing.assert_allclose(state.R, R, atol=1e-15)
     np.testing.assert_array_equal(state.position, [0.01, 0.02, 0.03])
     assert state.buttons == (False, True, False)
-    assert state.sim == {"device": "touch3"}
+    assert state.sim == SimInfo("touch3")
     force, target, sim = parse_command(force_command("d", np.array([0.1, 0.2, 0.3]), T, sim=True))
     np.testing.assert_array_equal(force, [0.1, 0.2, 0.3])
     np.testing.assert_array_equal(target, T)
     assert sim
-    with pytest.raises(ValueError, match="cursor_position"):
+    with pytest.raises(ValueError, match=r"length >= 1 - at `\$.inverse3`"):
         parse_state('{"inverse3": []}')
 
 
@@ -213,13 +219,6 @@ def test_a_cartesian_devices_log_replays_its_grip_reference_and_tool_without_lin
 # -- served over loopback -----------------------------------------------------------------------
 
 
-@pytest.fixture
-def served() -> Iterator[DeviceServer]:
-    server = DeviceServer(SimCartesianDevice(load_device("touch3")), port=0).start()
-    yield server
-    server.shutdown()
-
-
 #: How long (s) the loopback tests' loop waits for a reply before counting the tick as stalled. A
 #: loaded 2-core machine delayed replies past 50 ms (the watchdog tripped in a run meant to have
 #: no trip, and a stall showed at tick 967 instead of 1400); a stopped stream still stalls, at
@@ -259,7 +258,8 @@ def test_served_device_holds_its_own_force_limit_and_answers_each_command_once(s
         first = parse_state(ws.recv(timeout=5.0))
         assert first.device_id == "sim-touch3"
         assert first.sim is not None
-        t0 = first.sim["time"]
+        t0 = first.sim.time
+        assert t0 is not None
         ws.send(force_command(first.device_id, np.array([6.0, 0.0, -8.0]), None, sim=False))
         second = parse_state(ws.recv(timeout=5.0))
     np.testing.assert_allclose(served.device.applied[:3], [3.3 * 0.6, 0.0, -3.3 * 0.8])
@@ -270,32 +270,7 @@ def test_served_device_holds_its_own_force_limit_and_answers_each_command_once(s
     assert served.log.events[-1].reason == "disconnect"
     np.testing.assert_array_equal(served.log.commanded, 0.0)  # zeroed when the client left
     assert second.sim is not None
-    assert second.sim["time"] == pytest.approx(t0 + DT)
-
-
-def make_served_loop(port: int) -> CartesianServoLoop:
-    """A loop driving the server of this process at one period's wait. Its client blocks for the
-    reply: polling would hold the GIL the server's thread needs (up to Python's 5 ms switch
-    interval), which a server in its own process, as deployed, does not need."""
-    spec = load_device("touch3")
-    loop = ServoLoop(LoopConfig(spec, load_scene("probe"), spec.data.gains, device_url=f"ws://127.0.0.1:{port}"))
-    assert isinstance(loop, CartesianServoLoop)
-    assert isinstance(loop.device, HaplyClient)
-    loop.device.spin = 0.0
-    return loop
-
-
-def press_into_contact(loop: CartesianServoLoop) -> None:
-    """Deadman and reflection on, hand 3 cm below the start: 1.5 s later the tool is in contact."""
-    loop.switches = Switches(deadman=True, reflection=True)
-    target = loop.reading.T_0_G.copy()
-    target[2, 3] -= 0.03
-    for _ in range(1500):
-        loop.set_hand_target(target)
-        loop.tick()
-    assert loop.slave.contact.count > 0
-    assert loop.reading.fresh
-    assert loop.wrench[2] > 0.0  # the device pushes the hand back up
+    assert second.sim.time == pytest.approx(t0 + DT)
 
 
 def test_dropped_connection_zeroes_the_force_the_next_period_and_ramps_back_on_reconnect(served: DeviceServer) -> None:

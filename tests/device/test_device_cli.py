@@ -8,6 +8,9 @@ from pathlib import Path
 import pytest
 
 from app.cli import main
+from app.device.haply import served_device
+from app.device.vendors import open_device_url
+from app.errors import InputError
 
 
 @pytest.mark.parametrize(
@@ -15,10 +18,15 @@ from app.cli import main
     [
         (["device", "serve", "--device", "jpl"], "field 'cartesian': serving a device needs its [cartesian] table"),
         (["device", "serve", "--rate", "0"], "--rate must be in [10, 20000] Hz, got 0"),
-        (["run", "probe_rate", "--device", "ws://127.0.0.1:1"], "no Inverse Service answers at ws://127.0.0.1:1"),
+        (
+            ["run", "probe_rate", "--device", "ws://127.0.0.1:1"],
+            "no usable Inverse Service at ws://127.0.0.1:1: cannot connect",
+        ),
         (["run", "probe_rate", "--device", "fd:"], "forcedimension-core is not installed (pip install 'frhc[fd]')"),
         (["run", "probe_rate", "--device", "openhaptics:"], "pyOpenHaptics is not installed"),
-        (["run", "probe_rate", "--device", "fd:left"], "fd:N needs a device number, got 'fd:left'"),
+        # The web demo's loop process failed alone: a traceback, and the page waited (harden8).
+        (["web", "--device", "fd:", "--port", "0"], "forcedimension-core is not installed (pip install 'frhc[fd]')"),
+        (["web", "--device", "openhaptics:Left", "--port", "0"], "pyOpenHaptics is not installed"),
     ],
 )
 def test_device_errors_are_one_line_exit_2(
@@ -31,8 +39,37 @@ def test_device_errors_are_one_line_exit_2(
     assert expected in err
 
 
-def test_an_address_that_is_no_device_is_refused_by_the_argument_parser(capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize(
+    ("address", "expected"),
+    [
+        ("usb:1", "not a device address: 'usb:1' (ws://host:port, fd:N, openhaptics:NAME)"),
+        ("fd:left", "fd:N needs a device number, got 'fd:left'"),
+        # These four gave a ValueError traceback from the URL parser (harden8).
+        ("ws://localhost:port", "bad device address 'ws://localhost:port': Port could not be cast to integer"),
+        ("ws://localhost:99999", "bad device address 'ws://localhost:99999': Port out of range 0-65535"),
+        ("ws://localhost:-1", "bad device address 'ws://localhost:-1': Port could not be cast to integer"),
+        ("ws://[::1", "bad device address 'ws://[::1': Invalid IPv6 URL"),
+        # websockets reads port 0 as "the default" (80): it was tried there.
+        ("ws://localhost:0", "bad device address 'ws://localhost:0': port 0 (ports are 1-65535)"),
+        ("ws://", "bad device address 'ws://': ws:// isn't a valid URI: hostname isn't provided"),
+    ],
+)
+def test_an_address_that_is_no_device_is_refused_by_the_argument_parser(
+    address: str, expected: str, capsys: pytest.CaptureFixture[str]
+) -> None:
     with pytest.raises(SystemExit) as done:
-        main(["run", "probe_rate", "--device", "usb:1"])
+        main(["run", "probe_rate", "--device", address])
     assert done.value.code == 2
-    assert "expected ws://host:port, fd:N or openhaptics:NAME, got 'usb:1'" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1].startswith(f"frhc run: error: argument --device: {expected}")
+
+
+@pytest.mark.parametrize("address", ["ws://localhost:port", "ws://[::1", "ws://localhost:0"])
+def test_the_web_demo_and_the_loop_check_the_address_too(address: str) -> None:
+    """``frhc web --device`` takes device names as well, so its address reaches
+    :func:`served_device` unparsed; the loop's :func:`open_device_url` is public too."""
+    with pytest.raises(InputError, match="bad device address"):
+        served_device(address, None)
+    with pytest.raises(InputError, match="bad device address"):
+        open_device_url(address, 1e-3)

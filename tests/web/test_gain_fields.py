@@ -73,3 +73,16 @@ def test_good_gains_are_applied() -> None:
     assert apply(p) == "gains applied"
     assert p.shown == []
     assert p.actions.applied[0].k_t == (0.5, 0.5, 0.5, 0.2, 0.2, 0.2)
+
+
+@pytest.mark.parametrize(("name", "text"), [("mode", "nonsense"), ("rtc", ""), ("rtc", "../hooke")])
+def test_a_choice_the_dropdown_does_not_offer_is_refused_naming_it(name: str, text: str) -> None:
+    """A client speaking viser's protocol can send any text for a dropdown (viser checks none): the
+    gains hold ``Literal`` fields to their choices on construction (harden8). Before, such an
+    ``rtc`` was applied and ended the servo loop's process (``RTC_LAWS.index``)."""
+    p = panel()
+    setattr(p, name, SimpleNamespace(value=text))
+    message = apply(p)
+    assert message.startswith(f"**Refused {name}: must be one of ")
+    assert f"got {text!r}" in message
+    assert p.actions.applied == []

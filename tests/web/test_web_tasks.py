@@ -6,13 +6,18 @@ the browser displays. Needs Debian's chromium; skips without it.
 
 from __future__ import annotations
 
+import asyncio
 import re
 import shutil
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+import viser
+import viser._gui_api
+from viser._messages import GuiUpdateMessage
 from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT, wait_until
 
 from app.session.log import read_log
@@ -279,3 +284,51 @@ def test_a_pushed_box_is_drawn_where_it_is_live_and_replayed(demo: DemoApp, page
         assert xs[-1] - xs[0] > 0.01
     finally:
         demo.close_replay()
+
+
+def test_values_the_page_would_not_send_are_refused_on_the_page_not_raised(
+    demo: DemoApp, page: object, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each value goes through viser's own handler for the connected page's client, as a message
+    from a client that sends what the widgets do not offer (viser casts a value to the widget's
+    type and checks nothing else). Before harden8: a speed of "abc" and operators of -3 raised in
+    viser's thread, a replay speed of "nan" was taken, a NaN time broke the replay's plots."""
+    finished: list[BaseException | None] = []
+    monkeypatch.setattr(viser._gui_api, "print_threadpool_errors", lambda f: finished.append(f.exception()))
+    client = next(iter(demo.server.get_clients()))
+
+    def send(handle: viser.GuiInputHandle[Any], value: object) -> None:
+        before, callbacks = len(finished), len(handle._impl.update_cb)  # a dropdown read on Play has none
+        message = GuiUpdateMessage(handle._impl.uuid, {"value": value})
+        update = demo.server.gui._handle_gui_updates(client, message)
+        asyncio.run_coroutine_threadsafe(update, demo.server._event_loop).result(STEP_TIMEOUT)
+        wait_until(lambda: len(finished) == before + callbacks, f"{handle.label}'s callbacks did not finish")
+        raised = [e for e in finished[before:] if e is not None]
+        assert not raised, f"{handle.label} = {value!r} raised {raised!r}"
+
+    demo.rt.stop_playing()  # a session an earlier test played would own the status line
+    wait_until(lambda: demo.rt.snapshot.playing is None, "the session did not stop")
+    demo.close_replay()
+    job = demo.experiment
+    p = demo.panel
+    send(p.speed, "abc")
+    assert p.play_status.content == "**Refused Speed: not one of the choices, got 'abc'**"
+    assert demo.rt.snapshot.speed == 1.0
+    send(p.session, "../../etc/passwd")
+    send(p.play, True)
+    assert p.play_status.content == "**Refused Session: not one of the choices, got '../../etc/passwd'**"
+    assert demo.rt.snapshot.playing is None
+    send(p.operators, -3)
+    send(p.run_experiment, True)
+    assert p.play_status.content == "**Refused Operators: must be in [1, 20], got -3**"
+    assert demo.experiment is job
+    run_session(load_session("probe_rate").with_changes(duration=0.5), out_dir=tmp_path / "run", plots=False)
+    send(p.log_path, str(tmp_path / "run"))
+    send(p.open, True)
+    assert demo.player is not None
+    send(p.timeline, 0.25)
+    send(p.timeline, float("nan"))
+    assert demo.player.cursor == pytest.approx(0.25)
+    send(p.replay_speed, "nan")
+    assert demo.player.speed == 1.0
+    send(p.live, True)

@@ -50,6 +50,7 @@ from app.slave.tool_kernel import (
     MASS,
     N_PARAMS,
     N_READING,
+    N_SCRATCH,
     N_WORK,
     POSE,
     R_ACC,
@@ -188,8 +189,10 @@ class SlaveBase:
         self._T_ref = np.eye(4)
         self._T = np.eye(4)
         self._V = np.zeros(6)
-        # The compiled kernels' scratch (:data:`~app.slave.tool_kernel.N_WORK`): nothing allocated per tick.
-        self._work = np.zeros((N_WORK, 3, 3))
+        # The compiled kernels' scratch (:data:`~app.slave.tool_kernel.N_SCRATCH`; its first blocks for
+        # the stages called alone): nothing is allocated per tick.
+        self._scratch = np.zeros((N_SCRATCH, 3, 3))
+        self._work = self._scratch[0:N_WORK]
         # Stiffness, damping and friction per contact object id (static objects, then dynamic),
         # for the implicit substep (:func:`~app.slave.tool_kernel.implicit_shares`).
         self._materials = np.array(
@@ -336,7 +339,7 @@ class VirtualSlave(SlaveBase):
         self.reset()
         # The substep's arguments that are the slave's own arrays, the same objects every call.
         own = (self._params, self._frames, self._T, self._V, self._T_ref, self._V_ref_w)
-        self._own = (*own, self._qpos, self._qvel, self._qacc, self._xfrc, self._work)
+        self._own = (*own, self._qpos, self._qvel, self._qacc, self._xfrc, self._scratch)
         # ``step`` checks the command's arrays, so the compiled substep is called without numba's typing.
         example_command = (RATE, np.zeros(6), np.eye(4), _ZERO15, period)
         self._substep = entry_point(

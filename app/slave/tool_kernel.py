@@ -24,7 +24,6 @@ from app.slave.arm_ik import cholesky, cholesky_solve
 from app.spatial import (
     Array,
     IntArray,
-    cross3,
     cross3_into,
     quat_to_matrix_into,
     rotation_exp_into,
@@ -44,10 +43,13 @@ HOLD, RATE, POSE, KEEP = range(4)
 SIGMA_MAX = 1.0
 # Slots of the packed F/T reading (the fields of :class:`~app.controller.types.FTReading`).
 R_WRENCH, R_ROT, R_ACC, R_OMEGA, N_READING = 0, 6, 15, 21, 24
-# How many (3, 3) blocks of scratch :func:`tool_substep` is handed (its ``work``): each stage
-# writes its intermediates there instead of allocating them (~55 ns an allocation, a hundred a
-# tick); the stages run one after another, so each starts at block 0.
-N_WORK = 5
+# The scratch :func:`tool_substep` is handed (its ``work``): each stage writes its intermediates
+# there instead of allocating them (~55 ns an allocation, fifty a substep); the stages run one
+# after another, so each starts at block 0. N_WORK (3, 3) blocks, then N_WORK6 (6, 6) blocks (for
+# :func:`implicit_wrench`'s gains, mass matrices and 6-vectors) in the same array, N_SCRATCH
+# (3, 3) blocks in all: one array argument, unboxed once a call.
+N_WORK, N_WORK6 = 5, 9
+N_SCRATCH = N_WORK + 4 * N_WORK6
 
 
 @njit(cache=True)
@@ -202,10 +204,10 @@ def rate_reference(
 @njit(cache=True)
 def _add_point(r: Array, n: Array, a: float, b: float, out: Array) -> None:
     """Add to ``out`` (6, 6) the matrix ``J^T (a n n^T + b I) J`` of a point at ``r`` (m, from the
-    centre of mass, {w}): J maps the body's ``[v; w]`` to the point's velocity ``v + w x r``."""
-    g = np.empty(6)
-    g[0:3] = n
-    g[3:6] = cross3(r, n)  # J^T n
+    centre of mass, {w}; (3,) or a 3-tuple): J maps the body's ``[v; w]`` to the point's velocity
+    ``v + w x r``."""
+    # J^T n = [n; r x n], a tuple: nothing allocated.
+    g = (n[0], n[1], n[2], r[1] * n[2] - r[2] * n[1], r[2] * n[0] - r[0] * n[2], r[0] * n[1] - r[1] * n[0])
     for i in range(6):
         for j in range(6):
             out[i, j] += a * g[i] * g[j]
@@ -292,14 +294,20 @@ def correction(hk: float, hc: float, K: Array, C: Array, u: Array, h: float, acc
     push over the substep ``h`` (s), implicit by ``hk = theta_k h`` and ``hc = theta_c h``
     (:func:`implicit_shares`), than at its start, the velocity ``u`` and acceleration ``acc``
     (n,) in the same coordinates."""
+    out = np.empty(u.shape[0])
+    correction_into(hk, hc, K, C, u, h, acc, out)
+    return out
+
+
+@njit(cache=True)
+def correction_into(hk: float, hc: float, K: Array, C: Array, u: Array, h: float, acc: Array, out: Array) -> None:
+    """:func:`correction` written into ``out`` (n,), which must be none of the others."""
     n = u.shape[0]
-    out = np.empty(n)
     for i in range(n):
         s = 0.0
         for j in range(n):
             s += hk * K[i, j] * (u[j] + h * acc[j]) + hc * C[i, j] * acc[j]
         out[i] = s
-    return out
 
 
 @njit(cache=True)
@@ -346,23 +354,24 @@ def contact_gains(rows: Array, materials: Array, c: Array, u: Array, K: Array, C
         materials: ``[stiffness, damping, friction]`` per object id (N/m, N s/m, -), (n, 3).
         c: The body's reference point (m, {w}), (3,). ``u``: its twist ``[v of c; w]``, (6,).
     """
-    r = np.empty(3)
     for i in range(rows.shape[0]):
         row = rows[i]
         k, b, mu = materials[int(row[8])]
         n = row[3:6]
-        for a in range(3):
-            r[a] = row[a] - c[a]
-        up = u[0:3] + cross3(u[3:6], r)
-        un = up[0] * n[0] + up[1] * n[1] + up[2] * n[2]
+        r = (row[0] - c[0], row[1] - c[1], row[2] - c[2])  # a tuple: nothing allocated
+        # The point's velocity u[0:3] + u[3:6] x r, in scalars (nothing allocated).
+        up0 = u[0] + (u[4] * r[2] - u[5] * r[1])
+        up1 = u[1] + (u[5] * r[0] - u[3] * r[2])
+        up2 = u[2] + (u[3] * r[1] - u[4] * r[0])
+        un = up0 * n[0] + up1 * n[1] + up2 * n[2]
         fn = k * row[6] - b * un
         if fn <= 0.0:
             continue  # separating: no force, nothing to linearise
         _add_point(r, n, k, 0.0, K)
         ct = 0.0
         if mu > 0.0:
-            ut = up - un * n
-            ct = mu * fn / max(math.sqrt(ut[0] * ut[0] + ut[1] * ut[1] + ut[2] * ut[2]), V_SLIP)
+            ut0, ut1, ut2 = up0 - un * n[0], up1 - un * n[1], up2 - un * n[2]
+            ct = mu * fn / max(math.sqrt(ut0 * ut0 + ut1 * ut1 + ut2 * ut2), V_SLIP)
         _add_point(r, n, b - ct, ct, C)
 
 
@@ -424,6 +433,7 @@ def implicit_wrench(
     xfrc: Array,
     pd_alone: Array,
     work: Array,
+    work6: Array,
 ) -> None:
     """Make MuJoCo's (semi-implicit) Euler substep of ``h`` (s) implicit in the stiffnesses and
     dampings on the tool as far as its stability needs: correct the explicit wrench ``xfrc`` and
@@ -470,21 +480,24 @@ def implicit_wrench(
         xfrc: In: the explicit ``[force; torque about the centre of mass]`` (N, N m, {w}); out: the
             wrench to apply, (6,).
         pd_alone: :func:`pd_modes`, (2,): without contacts the step is explicit if they allow.
-        work: Scratch, (5, 3, 3) at least (:data:`N_WORK`).
+        work, work6: Scratch, (:data:`N_WORK`, 3, 3) and (:data:`N_WORK6`, 6, 6).
     """
     if rows.shape[0] == 0 and h * h * pd_alone[0] <= SIGMA_MAX and h * pd_alone[1] <= 1.0:
         return
     R = work[0]
     quat_to_matrix_into(qpos[3:7], R)
     c = qpos[0:3]
-    u = np.empty(6)
-    u[0:3] = qvel[0:3]
-    u[3:6] = _apply(R, qvel[3:6])
     # [contact K, contact C, PD K, PD C]
-    KC = np.zeros((4, 6, 6))
+    KC, M, M_inv, K, C = work6[0:4], work6[4], work6[5], work6[6], work6[7]
+    u, F, d_contact, d_other = work6[8, 0], work6[8, 1], work6[8, 2], work6[8, 3]
+    u[0:3] = qvel[0:3]
+    _apply_into(R, qvel[3:6], u[3:6])
+    KC[:, :, :] = 0.0
     contact_gains(rows, materials, c, u, KC[0], KC[1])
     if not force_saturated:
-        r_m = T_w_MRF[0:3, 3] - c
+        r_m = work[4, 2]
+        for i in range(3):
+            r_m[i] = T_w_MRF[i, 3] - c[i]
         _add_point(r_m, r_m, 0.0, pd[KP_LIN], KC[2])
         _add_point(r_m, r_m, 0.0, pd[KD_LIN], KC[3])
     if not torque_saturated:
@@ -496,7 +509,6 @@ def implicit_wrench(
     _mul_t_into(X, R, I_w)
     mul3_into(R, inertia_inv_C, X)
     _mul_t_into(X, R, I_inv_w)
-    M, M_inv = np.empty((6, 6)), np.empty((6, 6))
     body_mass(mass, I_w, I_inv_w, M, M_inv)
     hk, hc = implicit_shares(h, KC, pd_alone, M, M_inv)
     if hk == 0.0 and hc == 0.0:
@@ -505,13 +517,19 @@ def implicit_wrench(
     gyro = work[4, 0]
     _apply_into(I_w, w, gyro)
     cross3_into(w, gyro, gyro)
-    F = np.empty(6)
     for i in range(3):
         F[i] = xfrc[i] + mass * gravity_w[i]
         F[3 + i] = xfrc[3 + i] - gyro[i]
-    acc = implicit_acceleration(h, hk, hc, KC[0] + KC[2], KC[1] + KC[3], M, u, F)
-    d_contact = -correction(hk, hc, KC[0], KC[1], u, h, acc)
-    xfrc += d_contact - correction(hk, hc, KC[2], KC[3], u, h, acc)
+    for i in range(6):
+        for j in range(6):
+            K[i, j] = KC[0, i, j] + KC[2, i, j]
+            C[i, j] = KC[1, i, j] + KC[3, i, j]
+    acc = implicit_acceleration(h, hk, hc, K, C, M, u, F)
+    correction_into(hk, hc, KC[0], KC[1], u, h, acc, d_contact)
+    correction_into(hk, hc, KC[2], KC[3], u, h, acc, d_other)
+    for i in range(6):
+        d_contact[i] = -d_contact[i]
+        xfrc[i] += d_contact[i] - d_other[i]
     if rows.shape[0] == 0:
         return
     R_w_MRF = T_w_MRF[0:3, 0:3]
@@ -522,7 +540,8 @@ def implicit_wrench(
     for i in range(3):
         p_w_S[i] = c[i] + p_w_S[i]
     shift_wrench(contact[0:6], d_contact, R_w_S, p_w_S, c)
-    contact[12:15] += d_contact[0:3]
+    for i in range(3):
+        contact[12 + i] += d_contact[i]
 
 
 @njit(cache=True)
@@ -671,7 +690,7 @@ def tool_substep(
     qvel: Array,
     qacc: Array,
     xfrc: Array,
-    work: Array,
+    scratch: Array,
     contact: Array,
     valid: bool,
     rows: Array,
@@ -701,7 +720,7 @@ def tool_substep(
         T_ref, V_ref_w: The reference pose (4, 4) and twist (6,), updated as ``reference`` says.
         qpos, qvel, qacc, xfrc: MuJoCo's free joint state (7,), (6,), (6,) and the body's
             ``xfrc_applied`` row (6,).
-        work: Scratch the stages write their intermediates to, (:data:`N_WORK`, 3, 3).
+        scratch: Where the stages write their intermediates, (:data:`N_SCRATCH`, 3, 3).
         contact: This substep's contact result ``w`` at ``T_w_MRF`` (15,), turned into the wrench
             the step applied (:func:`implicit_wrench`); ``valid`` its flag.
         rows, materials, h: Its contact rows (k, 9), the objects' materials (n, 3) and the
@@ -709,6 +728,8 @@ def tool_substep(
         reading: Output, the F/T reading ``[wrench_S (6); R_w_S (9, row-major); acc_w (6);
             omega_w (3)]`` at the substep's start with the accelerations it applied, (24,).
     """
+    work = scratch[0:N_WORK]
+    work6 = scratch[N_WORK:N_SCRATCH].reshape((N_WORK6, 6, 6))  # a view
     if reference == HOLD:
         V_ref_w[:] = 0.0
     elif reference == POSE:
@@ -753,6 +774,7 @@ def tool_substep(
         xfrc,
         params[PD_MODES:N_PARAMS],
         work,
+        work6,
     )
     call_model_data(mj[0], mj[1], mj[2])
     sensor_reading(

@@ -202,7 +202,7 @@ def rate_reference(
 
 
 @njit(cache=True)
-def _add_point(r: Array, n: Array, a: float, b: float, out: Array) -> None:
+def _add_point(r: Array | tuple[float, float, float], n: Array, a: float, b: float, out: Array) -> None:
     """Add to ``out`` (6, 6) the matrix ``J^T (a n n^T + b I) J`` of a point at ``r`` (m, from the
     centre of mass, {w}; (3,) or a 3-tuple): J maps the body's ``[v; w]`` to the point's velocity
     ``v + w x r``."""

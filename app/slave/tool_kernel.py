@@ -86,19 +86,11 @@ def _apply(R: Array, v: Array) -> Array:
 
 @njit(cache=True)
 def _apply_into(R: Array, v: Array, out: Array) -> None:
-    """:func:`_apply` of ``R`` and ``v`` written into ``out`` (3,) (which may be ``v``)."""
+    """:func:`_apply` of ``R`` and ``v`` written into ``out`` (3,) (which may be ``v``); ``R.T``
+    (a view) gives ``R.T @ v``."""
     a = R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2]
     b = R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2]
     c = R[2, 0] * v[0] + R[2, 1] * v[1] + R[2, 2] * v[2]
-    out[0], out[1], out[2] = a, b, c
-
-
-@njit(cache=True)
-def _apply_t_into(R: Array, v: Array, out: Array) -> None:
-    """``R.T @ v`` for a (3, 3) block and a 3-vector, into ``out`` (3,) (which may be ``v``)."""
-    a = R[0, 0] * v[0] + R[1, 0] * v[1] + R[2, 0] * v[2]
-    b = R[0, 1] * v[0] + R[1, 1] * v[1] + R[2, 1] * v[2]
-    c = R[0, 2] * v[0] + R[1, 2] * v[1] + R[2, 2] * v[2]
     out[0], out[1], out[2] = a, b, c
 
 
@@ -647,10 +639,10 @@ def sensor_reading(
     _apply_into(R_w_C, qacc[3:6], alpha_w)
     _apply_into(R_w_C, T_C_S[0:3, 3], r_com_S)  # centre of mass to the {S} origin, {w}
     # I_w x = R I_C R^T x, and the gyroscopic term w x I_w w.
-    _apply_t_into(R_w_C, alpha_w, x)
+    _apply_into(R_w_C.T, alpha_w, x)
     _apply_into(inertia_C, x, x)
     _apply_into(R_w_C, x, I_alpha)
-    _apply_t_into(R_w_C, w_w, x)
+    _apply_into(R_w_C.T, w_w, x)
     _apply_into(inertia_C, x, x)
     _apply_into(R_w_C, x, I_w)
     for i in range(3):
@@ -659,8 +651,8 @@ def sensor_reading(
     cross3_into(w_w, I_w, z)
     for i in range(3):
         m_body[i] = y[i] - (I_alpha[i] + z[i])  # about the {S} origin
-    _apply_t_into(R_w_S, f_body, x)
-    _apply_t_into(R_w_S, m_body, y)
+    _apply_into(R_w_S.T, f_body, x)
+    _apply_into(R_w_S.T, m_body, y)
     for i in range(3):
         reading[R_WRENCH + i] = contact_S[i] + x[i]
         reading[R_WRENCH + 3 + i] = contact_S[3 + i] + y[i]

@@ -151,12 +151,18 @@ def invert_pose(T_a_b: Array) -> Array:
 @njit(cache=True)
 def quat_to_matrix(q_wxyz: Array) -> Array:
     """Rotation (3, 3) of a unit quaternion ``[w, x, y, z]``."""
-    w, x, y, z = q_wxyz[0], q_wxyz[1], q_wxyz[2], q_wxyz[3]
     R = np.empty((3, 3))
+    quat_to_matrix_into(q_wxyz, R)
+    return R
+
+
+@njit(cache=True)
+def quat_to_matrix_into(q_wxyz: Array, R: Array) -> None:
+    """:func:`quat_to_matrix` of ``q_wxyz`` written into ``R`` (3, 3), allocating nothing."""
+    w, x, y, z = q_wxyz[0], q_wxyz[1], q_wxyz[2], q_wxyz[3]
     R[0, 0], R[0, 1], R[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
     R[1, 0], R[1, 1], R[1, 2] = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
     R[2, 0], R[2, 1], R[2, 2] = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
-    return R
 
 
 def matrix_to_quat(R: Array) -> Array:
@@ -192,7 +198,16 @@ def quat_into(R: Array, out: Array) -> None:
 @njit(cache=True)
 def cross3(a: Array, b: Array) -> Array:
     """``a x b`` for two vectors of shape (3,) (``numpy.cross`` costs microseconds on 3-vectors)."""
-    return np.array((a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]))
+    out = np.empty(3)
+    cross3_into(a, b, out)
+    return out
+
+
+@njit(cache=True)
+def cross3_into(a: Array, b: Array, out: Array) -> None:
+    """:func:`cross3` of ``a`` and ``b`` written into ``out`` (3,) (which may be either), allocating nothing."""
+    c0, c1, c2 = a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
+    out[0], out[1], out[2] = c0, c1, c2
 
 
 @njit(cache=True)

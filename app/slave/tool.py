@@ -50,6 +50,8 @@ from app.slave.tool_kernel import (
     MASS,
     N_PARAMS,
     N_READING,
+    N_SCRATCH,
+    N_WORK,
     POSE,
     R_ACC,
     R_OMEGA,
@@ -187,6 +189,10 @@ class SlaveBase:
         self._T_ref = np.eye(4)
         self._T = np.eye(4)
         self._V = np.zeros(6)
+        # The compiled kernels' scratch (:data:`~app.slave.tool_kernel.N_SCRATCH`; its first blocks for
+        # the stages called alone): nothing is allocated per tick.
+        self._scratch = np.zeros((N_SCRATCH, 3, 3))
+        self._work = self._scratch[0:N_WORK]
         # Stiffness, damping and friction per contact object id (static objects, then dynamic),
         # for the implicit substep (:func:`~app.slave.tool_kernel.implicit_shares`).
         self._materials = np.array(
@@ -204,7 +210,15 @@ class SlaveBase:
         else:
             F_acc = self._k_acc * self._contact.wrench_MRF if self.accommodation and self._contact.valid else _ZERO6
             rate_reference(
-                command.twist, F_acc, self._T, dt, self._max_lead_lin, self._max_lead_rot, self._T_ref, self._V_ref_w
+                command.twist,
+                F_acc,
+                self._T,
+                dt,
+                self._max_lead_lin,
+                self._max_lead_rot,
+                self._T_ref,
+                self._V_ref_w,
+                self._work,
             )
 
     @property
@@ -325,7 +339,7 @@ class VirtualSlave(SlaveBase):
         self.reset()
         # The substep's arguments that are the slave's own arrays, the same objects every call.
         own = (self._params, self._frames, self._T, self._V, self._T_ref, self._V_ref_w)
-        self._own = (*own, self._qpos, self._qvel, self._qacc, self._xfrc)
+        self._own = (*own, self._qpos, self._qvel, self._qacc, self._xfrc, self._scratch)
         # ``step`` checks the command's arrays, so the compiled substep is called without numba's typing.
         example_command = (RATE, np.zeros(6), np.eye(4), _ZERO15, period)
         self._substep = entry_point(
@@ -371,7 +385,7 @@ class VirtualSlave(SlaveBase):
     def _state(self) -> tuple[Array, Array]:
         """{MRF} pose (4, 4) and twist (6,) of the current state: the internal buffers, not copies."""
         if not self._fresh:
-            mrf_state(self._qpos, self._qvel, self._T_C_MRF, self._T, self._V)
+            mrf_state(self._qpos, self._qvel, self._T_C_MRF, self._T, self._V, self._work)
             self._fresh = True
         return self._T, self._V
 
@@ -461,6 +475,7 @@ class VirtualSlave(SlaveBase):
             contact.wrench_S,
             contact.valid,
             self._ft_buffer,
+            self._work,
         )
         self._reading.valid = contact.valid
         return self._reading

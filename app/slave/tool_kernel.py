@@ -21,7 +21,14 @@ from numba import njit
 
 from app.mjcall import call_model_data
 from app.slave.arm_ik import cholesky, cholesky_solve
-from app.spatial import Array, IntArray, cross3, quat_to_matrix, rotation_exp, rotation_log
+from app.spatial import (
+    Array,
+    IntArray,
+    cross3_into,
+    quat_to_matrix_into,
+    rotation_exp_into,
+    rotation_log_into,
+)
 from app.world.contact.force import V_SLIP
 
 # Slots of the PD gain vector handed to :func:`drive_wrench` (see ``SlaveGains``).
@@ -36,73 +43,86 @@ HOLD, RATE, POSE, KEEP = range(4)
 SIGMA_MAX = 1.0
 # Slots of the packed F/T reading (the fields of :class:`~app.controller.types.FTReading`).
 R_WRENCH, R_ROT, R_ACC, R_OMEGA, N_READING = 0, 6, 15, 21, 24
+# The scratch :func:`tool_substep` is handed (its ``work``): each stage writes its intermediates
+# there instead of allocating them (~55 ns an allocation, fifty a substep); the stages run one
+# after another, so each starts at block 0. N_WORK (3, 3) blocks, then N_WORK6 (6, 6) blocks (for
+# :func:`implicit_wrench`'s gains, mass matrices and 6-vectors) in the same array, N_SCRATCH
+# (3, 3) blocks in all: one array argument, unboxed once a call.
+N_WORK, N_WORK6 = 5, 9
+N_SCRATCH = N_WORK + 4 * N_WORK6
 
 
 @njit(cache=True)
 def mul3(A: Array, B: Array) -> Array:
     """``A @ B`` for (3, 3) blocks (any layout; numba's ``@`` would call BLAS)."""
     out = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+    mul3_into(A, B, out)
     return out
 
 
 @njit(cache=True)
-def _mul_t(A: Array, B: Array) -> Array:
-    """``A @ B.T`` for (3, 3) blocks."""
-    out = np.empty((3, 3))
+def mul3_into(A: Array, B: Array, out: Array) -> None:
+    """:func:`mul3` of ``A`` and ``B`` written into ``out`` (3, 3), which must be neither."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+
+
+@njit(cache=True)
+def _mul_t_into(A: Array, B: Array, out: Array) -> None:
+    """``A @ B.T`` for (3, 3) blocks, into ``out`` (3, 3), which must be neither."""
     for i in range(3):
         for j in range(3):
             out[i, j] = A[i, 0] * B[j, 0] + A[i, 1] * B[j, 1] + A[i, 2] * B[j, 2]
-    return out
 
 
 @njit(cache=True)
 def _apply(R: Array, v: Array) -> Array:
     """``R @ v`` for a (3, 3) block and a 3-vector."""
-    return np.array(
-        (
-            R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2],
-            R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2],
-            R[2, 0] * v[0] + R[2, 1] * v[1] + R[2, 2] * v[2],
-        )
-    )
+    out = np.empty(3)
+    _apply_into(R, v, out)
+    return out
 
 
 @njit(cache=True)
-def _apply_t(R: Array, v: Array) -> Array:
-    """``R.T @ v`` for a (3, 3) block and a 3-vector."""
-    return np.array(
-        (
-            R[0, 0] * v[0] + R[1, 0] * v[1] + R[2, 0] * v[2],
-            R[0, 1] * v[0] + R[1, 1] * v[1] + R[2, 1] * v[2],
-            R[0, 2] * v[0] + R[1, 2] * v[1] + R[2, 2] * v[2],
-        )
-    )
+def _apply_into(R: Array, v: Array, out: Array) -> None:
+    """:func:`_apply` of ``R`` and ``v`` written into ``out`` (3,) (which may be ``v``); ``R.T``
+    (a view) gives ``R.T @ v``."""
+    a = R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2]
+    b = R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2]
+    c = R[2, 0] * v[0] + R[2, 1] * v[1] + R[2, 2] * v[2]
+    out[0], out[1], out[2] = a, b, c
 
 
 @njit(cache=True)
-def _saturate(v: Array, limit: float) -> tuple[Array, bool]:
-    """``v`` scaled down to norm ``limit`` if longer (direction kept), and whether it was."""
+def _saturate(v: Array, limit: float) -> bool:
+    """Scale ``v`` (3,) in place down to norm ``limit`` if longer (direction kept); whether it was."""
     n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    return (v * (limit / n), True) if n > limit else (v, False)
+    if n > limit:
+        s = limit / n
+        for i in range(3):
+            v[i] *= s
+        return True
+    return False
 
 
 @njit(cache=True)
-def mrf_state(qpos: Array, qvel: Array, T_C_MRF: Array, T_w_MRF: Array, V_w_MRF: Array) -> None:
+def mrf_state(qpos: Array, qvel: Array, T_C_MRF: Array, T_w_MRF: Array, V_w_MRF: Array, work: Array) -> None:
     """Pose (4, 4) and twist ``[v; w]`` (m/s of the {MRF} origin, rad/s; {w}) of {MRF}, into the outputs.
 
     Args:
         qpos, qvel: The free joint's position (7,) and velocity (6,) (module docstring).
         T_C_MRF: Constant pose of {MRF} in {C}, (4, 4).
         T_w_MRF, V_w_MRF: Outputs, (4, 4) and (6,).
+        work: Scratch, (2, 3, 3) at least (:data:`N_WORK`).
     """
-    R_w_C = quat_to_matrix(qpos[3:7])
-    w_w = _apply(R_w_C, qvel[3:6])
-    r = _apply(R_w_C, T_C_MRF[0:3, 3])  # centre of mass to {MRF} origin, {w}
-    T_w_MRF[0:3, 0:3] = mul3(R_w_C, T_C_MRF[0:3, 0:3])
-    v = cross3(w_w, r)
+    R_w_C = work[0]
+    quat_to_matrix_into(qpos[3:7], R_w_C)
+    w_w, r, v = work[1, 0], work[1, 1], work[1, 2]
+    _apply_into(R_w_C, qvel[3:6], w_w)
+    _apply_into(R_w_C, T_C_MRF[0:3, 3], r)  # centre of mass to {MRF} origin, {w}
+    mul3_into(R_w_C, T_C_MRF[0:3, 0:3], T_w_MRF[0:3, 0:3])
+    cross3_into(w_w, r, v)
     for i in range(3):
         T_w_MRF[i, 3] = qpos[i] + r[i]
         T_w_MRF[3, i] = 0.0
@@ -121,6 +141,7 @@ def rate_reference(
     max_lead_rot: float,
     T_ref: Array,
     V_ref_w: Array,
+    work: Array,
 ) -> None:
     """Integrate the rate reference over ``dt`` (s) (module docstring of :mod:`app.slave.tool`, step 1).
 
@@ -131,34 +152,54 @@ def rate_reference(
         max_lead_lin, max_lead_rot: How far (m, rad) the reference may lead the tool.
         T_ref, V_ref_w: The reference pose (4, 4), updated in place, and its twist ``[v; w]``
             in {w} (6,), written.
+        work: Scratch, (4, 3, 3) at least (:data:`N_WORK`), not holding ``F_acc``.
     """
     R_w_MRF = T_w_MRF[0:3, 0:3]
-    v_w = twist[0:3] + _apply(R_w_MRF, F_acc[0:3])
-    w_w = _apply(R_w_MRF, twist[3:6] + F_acc[3:6])
-    V_ref_w[0:3] = v_w
-    V_ref_w[3:6] = w_w
-    p_ref = T_ref[0:3, 3] + v_w * dt
-    R_ref = mul3(rotation_exp(w_w * dt), T_ref[0:3, 0:3])
+    v_w, w_w, x = work[0, 0], work[0, 1], work[0, 2]
+    p_ref, e_p, e_r = work[1, 0], work[1, 1], work[1, 2]
+    R_step, R_ref = work[2], work[3]
+    _apply_into(R_w_MRF, F_acc[0:3], v_w)
+    for i in range(3):
+        v_w[i] = twist[i] + v_w[i]
+        x[i] = twist[3 + i] + F_acc[3 + i]
+    _apply_into(R_w_MRF, x, w_w)
+    for i in range(3):
+        V_ref_w[i] = v_w[i]
+        V_ref_w[3 + i] = w_w[i]
+        p_ref[i] = T_ref[i, 3] + v_w[i] * dt
+        x[i] = w_w[i] * dt
+    rotation_exp_into(x, R_step)
+    mul3_into(R_step, T_ref[0:3, 0:3], R_ref)
     # Following-error limit: never lead the tool by more than the PD can push against.
-    e_p = p_ref - T_w_MRF[0:3, 3]
+    for i in range(3):
+        e_p[i] = p_ref[i] - T_w_MRF[i, 3]
     n = math.sqrt(e_p[0] * e_p[0] + e_p[1] * e_p[1] + e_p[2] * e_p[2])
     if n > max_lead_lin:
-        p_ref = T_w_MRF[0:3, 3] + e_p * (max_lead_lin / n)
-    e_r = rotation_log(_mul_t(R_ref, R_w_MRF))
+        s = max_lead_lin / n
+        for i in range(3):
+            p_ref[i] = T_w_MRF[i, 3] + e_p[i] * s
+    _mul_t_into(R_ref, R_w_MRF, R_step)
+    rotation_log_into(R_step, e_r)
     n = math.sqrt(e_r[0] * e_r[0] + e_r[1] * e_r[1] + e_r[2] * e_r[2])
     if n > max_lead_rot:
-        R_ref = mul3(rotation_exp(e_r * (max_lead_rot / n)), R_w_MRF)
-    T_ref[0:3, 0:3] = R_ref
-    T_ref[0:3, 3] = p_ref
+        s = max_lead_rot / n
+        for i in range(3):
+            e_r[i] = e_r[i] * s
+        rotation_exp_into(e_r, R_step)
+        mul3_into(R_step, R_w_MRF, R_ref)
+    for i in range(3):
+        T_ref[i, 3] = p_ref[i]
+        for j in range(3):
+            T_ref[i, j] = R_ref[i, j]
 
 
 @njit(cache=True)
-def _add_point(r: Array, n: Array, a: float, b: float, out: Array) -> None:
+def _add_point(r: Array | tuple[float, float, float], n: Array, a: float, b: float, out: Array) -> None:
     """Add to ``out`` (6, 6) the matrix ``J^T (a n n^T + b I) J`` of a point at ``r`` (m, from the
-    centre of mass, {w}): J maps the body's ``[v; w]`` to the point's velocity ``v + w x r``."""
-    g = np.empty(6)
-    g[0:3] = n
-    g[3:6] = cross3(r, n)  # J^T n
+    centre of mass, {w}; (3,) or a 3-tuple): J maps the body's ``[v; w]`` to the point's velocity
+    ``v + w x r``."""
+    # J^T n = [n; r x n], a tuple: nothing allocated.
+    g = (n[0], n[1], n[2], r[1] * n[2] - r[2] * n[1], r[2] * n[0] - r[0] * n[2], r[0] * n[1] - r[1] * n[0])
     for i in range(6):
         for j in range(6):
             out[i, j] += a * g[i] * g[j]
@@ -245,24 +286,34 @@ def correction(hk: float, hc: float, K: Array, C: Array, u: Array, h: float, acc
     push over the substep ``h`` (s), implicit by ``hk = theta_k h`` and ``hc = theta_c h``
     (:func:`implicit_shares`), than at its start, the velocity ``u`` and acceleration ``acc``
     (n,) in the same coordinates."""
+    out = np.empty(u.shape[0])
+    correction_into(hk, hc, K, C, u, h, acc, out)
+    return out
+
+
+@njit(cache=True)
+def correction_into(hk: float, hc: float, K: Array, C: Array, u: Array, h: float, acc: Array, out: Array) -> None:
+    """:func:`correction` written into ``out`` (n,), which must be none of the others."""
     n = u.shape[0]
-    out = np.empty(n)
     for i in range(n):
         s = 0.0
         for j in range(n):
             s += hk * K[i, j] * (u[j] + h * acc[j]) + hc * C[i, j] * acc[j]
         out[i] = s
-    return out
 
 
 @njit(cache=True)
 def shift_wrench(w: Array, dF: Array, R: Array, p: Array, c: Array) -> None:
     """Add to the wrench ``w`` (6,), at the point ``p`` in the axes ``R`` (both {w}), the change
-    ``dF`` = ``[force; torque about c]`` ({w})."""
-    df = dF[0:3]
-    dm = dF[3:6] - cross3(p - c, df)
-    w[0:3] += _apply_t(R, df)
-    w[3:6] += _apply_t(R, dm)
+    ``dF`` = ``[force; torque about c]`` ({w}); allocates nothing (``w`` must not overlap the others)."""
+    r0, r1, r2 = p[0] - c[0], p[1] - c[1], p[2] - c[2]
+    f0, f1, f2 = dF[0], dF[1], dF[2]
+    m0 = dF[3] - (r1 * f2 - r2 * f1)
+    m1 = dF[4] - (r2 * f0 - r0 * f2)
+    m2 = dF[5] - (r0 * f1 - r1 * f0)
+    for i in range(3):
+        w[i] += R[0, i] * f0 + R[1, i] * f1 + R[2, i] * f2
+        w[3 + i] += R[0, i] * m0 + R[1, i] * m1 + R[2, i] * m2
 
 
 @njit(cache=True)
@@ -295,23 +346,24 @@ def contact_gains(rows: Array, materials: Array, c: Array, u: Array, K: Array, C
         materials: ``[stiffness, damping, friction]`` per object id (N/m, N s/m, -), (n, 3).
         c: The body's reference point (m, {w}), (3,). ``u``: its twist ``[v of c; w]``, (6,).
     """
-    r = np.empty(3)
     for i in range(rows.shape[0]):
         row = rows[i]
         k, b, mu = materials[int(row[8])]
         n = row[3:6]
-        for a in range(3):
-            r[a] = row[a] - c[a]
-        up = u[0:3] + cross3(u[3:6], r)
-        un = up[0] * n[0] + up[1] * n[1] + up[2] * n[2]
+        r = (row[0] - c[0], row[1] - c[1], row[2] - c[2])  # a tuple: nothing allocated
+        # The point's velocity u[0:3] + u[3:6] x r, in scalars (nothing allocated).
+        up0 = u[0] + (u[4] * r[2] - u[5] * r[1])
+        up1 = u[1] + (u[5] * r[0] - u[3] * r[2])
+        up2 = u[2] + (u[3] * r[1] - u[4] * r[0])
+        un = up0 * n[0] + up1 * n[1] + up2 * n[2]
         fn = k * row[6] - b * un
         if fn <= 0.0:
             continue  # separating: no force, nothing to linearise
         _add_point(r, n, k, 0.0, K)
         ct = 0.0
         if mu > 0.0:
-            ut = up - un * n
-            ct = mu * fn / max(math.sqrt(ut[0] * ut[0] + ut[1] * ut[1] + ut[2] * ut[2]), V_SLIP)
+            ut0, ut1, ut2 = up0 - un * n[0], up1 - un * n[1], up2 - un * n[2]
+            ct = mu * fn / max(math.sqrt(ut0 * ut0 + ut1 * ut1 + ut2 * ut2), V_SLIP)
         _add_point(r, n, b - ct, ct, C)
 
 
@@ -372,6 +424,8 @@ def implicit_wrench(
     contact: Array,
     xfrc: Array,
     pd_alone: Array,
+    work: Array,
+    work6: Array,
 ) -> None:
     """Make MuJoCo's (semi-implicit) Euler substep of ``h`` (s) implicit in the stiffnesses and
     dampings on the tool as far as its stability needs: correct the explicit wrench ``xfrc`` and
@@ -418,46 +472,68 @@ def implicit_wrench(
         xfrc: In: the explicit ``[force; torque about the centre of mass]`` (N, N m, {w}); out: the
             wrench to apply, (6,).
         pd_alone: :func:`pd_modes`, (2,): without contacts the step is explicit if they allow.
+        work, work6: Scratch, (:data:`N_WORK`, 3, 3) and (:data:`N_WORK6`, 6, 6).
     """
     if rows.shape[0] == 0 and h * h * pd_alone[0] <= SIGMA_MAX and h * pd_alone[1] <= 1.0:
         return
-    R = quat_to_matrix(qpos[3:7])
+    R = work[0]
+    quat_to_matrix_into(qpos[3:7], R)
     c = qpos[0:3]
-    u = np.empty(6)
-    u[0:3] = qvel[0:3]
-    u[3:6] = _apply(R, qvel[3:6])
     # [contact K, contact C, PD K, PD C]
-    KC = np.zeros((4, 6, 6))
+    KC, M, M_inv, K, C = work6[0:4], work6[4], work6[5], work6[6], work6[7]
+    u, F, d_contact, d_other = work6[8, 0], work6[8, 1], work6[8, 2], work6[8, 3]
+    u[0:3] = qvel[0:3]
+    _apply_into(R, qvel[3:6], u[3:6])
+    KC[:, :, :] = 0.0
     contact_gains(rows, materials, c, u, KC[0], KC[1])
     if not force_saturated:
-        r_m = T_w_MRF[0:3, 3] - c
+        r_m = work[4, 2]
+        for i in range(3):
+            r_m[i] = T_w_MRF[i, 3] - c[i]
         _add_point(r_m, r_m, 0.0, pd[KP_LIN], KC[2])
         _add_point(r_m, r_m, 0.0, pd[KD_LIN], KC[3])
     if not torque_saturated:
         for a in range(3, 6):
             KC[2, a, a] += pd[KP_ROT]
             KC[3, a, a] += pd[KD_ROT]
-    I_w = _mul_t(mul3(R, inertia_C), R)
-    M, M_inv = np.empty((6, 6)), np.empty((6, 6))
-    body_mass(mass, I_w, _mul_t(mul3(R, inertia_inv_C), R), M, M_inv)
+    I_w, I_inv_w, X = work[1], work[2], work[3]
+    mul3_into(R, inertia_C, X)
+    _mul_t_into(X, R, I_w)
+    mul3_into(R, inertia_inv_C, X)
+    _mul_t_into(X, R, I_inv_w)
+    body_mass(mass, I_w, I_inv_w, M, M_inv)
     hk, hc = implicit_shares(h, KC, pd_alone, M, M_inv)
     if hk == 0.0 and hc == 0.0:
         return  # the explicit step is stable with margin: keep it as it is
     w = u[3:6]
-    gyro = cross3(w, _apply(I_w, w))
-    F = np.empty(6)
+    gyro = work[4, 0]
+    _apply_into(I_w, w, gyro)
+    cross3_into(w, gyro, gyro)
     for i in range(3):
         F[i] = xfrc[i] + mass * gravity_w[i]
         F[3 + i] = xfrc[3 + i] - gyro[i]
-    acc = implicit_acceleration(h, hk, hc, KC[0] + KC[2], KC[1] + KC[3], M, u, F)
-    d_contact = -correction(hk, hc, KC[0], KC[1], u, h, acc)
-    xfrc += d_contact - correction(hk, hc, KC[2], KC[3], u, h, acc)
+    for i in range(6):
+        for j in range(6):
+            K[i, j] = KC[0, i, j] + KC[2, i, j]
+            C[i, j] = KC[1, i, j] + KC[3, i, j]
+    acc = implicit_acceleration(h, hk, hc, K, C, M, u, F)
+    correction_into(hk, hc, KC[0], KC[1], u, h, acc, d_contact)
+    correction_into(hk, hc, KC[2], KC[3], u, h, acc, d_other)
+    for i in range(6):
+        d_contact[i] = -d_contact[i]
+        xfrc[i] += d_contact[i] - d_other[i]
     if rows.shape[0] == 0:
         return
     R_w_MRF = T_w_MRF[0:3, 0:3]
     shift_wrench(contact[6:12], d_contact, R_w_MRF, T_w_MRF[0:3, 3], c)
-    shift_wrench(contact[0:6], d_contact, mul3(R, T_C_S[0:3, 0:3]), c + _apply(R, T_C_S[0:3, 3]), c)
-    contact[12:15] += d_contact[0:3]
+    R_w_S, p_w_S = work[1], work[4, 1]
+    mul3_into(R, T_C_S[0:3, 0:3], R_w_S)
+    _apply_into(R, T_C_S[0:3, 3], p_w_S)
+    for i in range(3):
+        p_w_S[i] = c[i] + p_w_S[i]
+    shift_wrench(contact[0:6], d_contact, R_w_S, p_w_S, c)
+    for i in range(3):
+        contact[12 + i] += d_contact[i]
 
 
 @njit(cache=True)
@@ -472,6 +548,7 @@ def drive_wrench(
     contact_MRF: Array,
     weight_w: Array,
     xfrc: Array,
+    work: Array,
 ) -> tuple[bool, bool]:
     """The wrench on the body for one substep: saturated PD at {MRF}, contact, and the robot's
     gravity feedforward for its known tool and payload, into ``xfrc``; returns whether the PD's
@@ -488,20 +565,29 @@ def drive_wrench(
             (applied at the centre of mass), so the PD's force limit is all for the task.
         xfrc: Output, MuJoCo's ``xfrc_applied`` row: ``[force; torque about the centre of
             mass]`` (N, N m) in {w}, (6,).
+        work: Scratch, (3, 3, 3) at least (:data:`N_WORK`).
     """
     R_w_MRF = T_w_MRF[0:3, 0:3]
-    p_w_MRF = T_w_MRF[0:3, 3]
-    e_R = rotation_log(_mul_t(T_ref[0:3, 0:3], R_w_MRF))
-    f_pd, f_sat = _saturate(
-        pd[KP_LIN] * (T_ref[0:3, 3] - p_w_MRF) + pd[KD_LIN] * (V_ref_w[0:3] - V_w_MRF[0:3]), pd[FORCE_LIMIT]
-    )
-    t_pd, t_sat = _saturate(pd[KP_ROT] * e_R + pd[KD_ROT] * (V_ref_w[3:6] - V_w_MRF[3:6]), pd[TORQUE_LIMIT])
-    f_total = f_pd + contact_force_w
+    E = work[0]
+    e_R, f_pd, t_pd = work[1, 0], work[1, 1], work[1, 2]
+    f_total, m_contact, r = work[2, 0], work[2, 1], work[2, 2]
+    _mul_t_into(T_ref[0:3, 0:3], R_w_MRF, E)
+    rotation_log_into(E, e_R)
+    for i in range(3):
+        f_pd[i] = pd[KP_LIN] * (T_ref[i, 3] - T_w_MRF[i, 3]) + pd[KD_LIN] * (V_ref_w[i] - V_w_MRF[i])
+        t_pd[i] = pd[KP_ROT] * e_R[i] + pd[KD_ROT] * (V_ref_w[3 + i] - V_w_MRF[3 + i])
+    f_sat = _saturate(f_pd, pd[FORCE_LIMIT])
+    t_sat = _saturate(t_pd, pd[TORQUE_LIMIT])
     # Both forces act at the {MRF} origin (the contact moment is already about it); MuJoCo wants
     # the moment about the centre of mass.
-    torque = t_pd + _apply(R_w_MRF, contact_MRF[3:6]) + cross3(p_w_MRF - qpos[0:3], f_total)
-    xfrc[0:3] = f_total - weight_w
-    xfrc[3:6] = torque
+    _apply_into(R_w_MRF, contact_MRF[3:6], m_contact)
+    for i in range(3):
+        f_total[i] = f_pd[i] + contact_force_w[i]
+        r[i] = T_w_MRF[i, 3] - qpos[i]
+    cross3_into(r, f_total, r)
+    for i in range(3):
+        xfrc[i] = f_total[i] - weight_w[i]
+        xfrc[3 + i] = t_pd[i] + m_contact[i] + r[i]
     return f_sat, t_sat
 
 
@@ -518,6 +604,7 @@ def sensor_reading(
     contact_S: Array,
     valid: bool,
     reading: Array,
+    work: Array,
 ) -> None:
     """F/T reading at {S}: contact + weight - inertial load of the body outboard of the sensor.
 
@@ -531,9 +618,11 @@ def sensor_reading(
         valid: False gives zero wrench and accelerations (the reading is not trustworthy).
         reading: Output, ``[wrench_S (6); R_w_S (9, row-major); acc_w (6); omega_w (3)]`` as
             :class:`~app.controller.types.FTReading` defines them, (24,).
+        work: Scratch, (5, 3, 3) at least (:data:`N_WORK`).
     """
-    R_w_C = _mul_t(T_w_MRF[0:3, 0:3], T_C_MRF[0:3, 0:3])
-    R_w_S = mul3(R_w_C, T_C_S[0:3, 0:3])
+    R_w_C, R_w_S = work[0], work[1]
+    _mul_t_into(T_w_MRF[0:3, 0:3], T_C_MRF[0:3, 0:3], R_w_C)
+    mul3_into(R_w_C, T_C_S[0:3, 0:3], R_w_S)
     w_w = V_w_MRF[3:6]
     for i in range(3):
         reading[R_OMEGA + i] = w_w[i]
@@ -544,17 +633,35 @@ def sensor_reading(
         reading[R_ACC : R_ACC + 6] = 0.0
         return
     a_com = qacc[0:3]
-    alpha_w = _apply(R_w_C, qacc[3:6])
-    r_com_S = _apply(R_w_C, T_C_S[0:3, 3])  # centre of mass to the {S} origin, {w}
+    alpha_w, r_com_S, x = work[2, 0], work[2, 1], work[2, 2]
+    I_alpha, I_w, f_body = work[3, 0], work[3, 1], work[3, 2]
+    m_body, y, z = work[4, 0], work[4, 1], work[4, 2]
+    _apply_into(R_w_C, qacc[3:6], alpha_w)
+    _apply_into(R_w_C, T_C_S[0:3, 3], r_com_S)  # centre of mass to the {S} origin, {w}
     # I_w x = R I_C R^T x, and the gyroscopic term w x I_w w.
-    I_alpha = _apply(R_w_C, _apply(inertia_C, _apply_t(R_w_C, alpha_w)))
-    I_w = _apply(R_w_C, _apply(inertia_C, _apply_t(R_w_C, w_w)))
-    f_body = mass * (gravity_w - a_com)  # weight minus inertial force, at the centre of mass
-    m_body = cross3(f_body, r_com_S) - (I_alpha + cross3(w_w, I_w))  # about the {S} origin
-    reading[R_WRENCH : R_WRENCH + 3] = contact_S[0:3] + _apply_t(R_w_S, f_body)
-    reading[R_WRENCH + 3 : R_WRENCH + 6] = contact_S[3:6] + _apply_t(R_w_S, m_body)
-    reading[R_ACC : R_ACC + 3] = a_com + cross3(alpha_w, r_com_S) + cross3(w_w, cross3(w_w, r_com_S))
-    reading[R_ACC + 3 : R_ACC + 6] = alpha_w
+    _apply_into(R_w_C.T, alpha_w, x)
+    _apply_into(inertia_C, x, x)
+    _apply_into(R_w_C, x, I_alpha)
+    _apply_into(R_w_C.T, w_w, x)
+    _apply_into(inertia_C, x, x)
+    _apply_into(R_w_C, x, I_w)
+    for i in range(3):
+        f_body[i] = mass * (gravity_w[i] - a_com[i])  # weight minus inertial force, at the centre of mass
+    cross3_into(f_body, r_com_S, y)
+    cross3_into(w_w, I_w, z)
+    for i in range(3):
+        m_body[i] = y[i] - (I_alpha[i] + z[i])  # about the {S} origin
+    _apply_into(R_w_S.T, f_body, x)
+    _apply_into(R_w_S.T, m_body, y)
+    for i in range(3):
+        reading[R_WRENCH + i] = contact_S[i] + x[i]
+        reading[R_WRENCH + 3 + i] = contact_S[3 + i] + y[i]
+    cross3_into(alpha_w, r_com_S, x)
+    cross3_into(w_w, r_com_S, y)
+    cross3_into(w_w, y, y)
+    for i in range(3):
+        reading[R_ACC + i] = a_com[i] + x[i] + y[i]
+        reading[R_ACC + 3 + i] = alpha_w[i]
 
 
 @njit(cache=True)
@@ -575,6 +682,7 @@ def tool_substep(
     qvel: Array,
     qacc: Array,
     xfrc: Array,
+    scratch: Array,
     contact: Array,
     valid: bool,
     rows: Array,
@@ -604,6 +712,7 @@ def tool_substep(
         T_ref, V_ref_w: The reference pose (4, 4) and twist (6,), updated as ``reference`` says.
         qpos, qvel, qacc, xfrc: MuJoCo's free joint state (7,), (6,), (6,) and the body's
             ``xfrc_applied`` row (6,).
+        scratch: Where the stages write their intermediates, (:data:`N_SCRATCH`, 3, 3).
         contact: This substep's contact result ``w`` at ``T_w_MRF`` (15,), turned into the wrench
             the step applied (:func:`implicit_wrench`); ``valid`` its flag.
         rows, materials, h: Its contact rows (k, 9), the objects' materials (n, 3) and the
@@ -611,14 +720,19 @@ def tool_substep(
         reading: Output, the F/T reading ``[wrench_S (6); R_w_S (9, row-major); acc_w (6);
             omega_w (3)]`` at the substep's start with the accelerations it applied, (24,).
     """
+    work = scratch[0:N_WORK]
+    work6 = scratch[N_WORK:N_SCRATCH].reshape((N_WORK6, 6, 6))  # a view
     if reference == HOLD:
         V_ref_w[:] = 0.0
     elif reference == POSE:
         T_ref[:, :] = T_cmd
         V_ref_w[:] = 0.0
     elif reference == RATE:
-        F_acc = params[K_ACC : K_ACC + 6] * prev_contact[6:12]
-        rate_reference(twist, F_acc, T_w_MRF, dt, params[MAX_LEAD_LIN], params[MAX_LEAD_ROT], T_ref, V_ref_w)
+        # The accommodation term in the last block, out of the way of rate_reference's scratch.
+        F_acc = work[N_WORK - 1].reshape(9)[0:6]
+        for i in range(6):
+            F_acc[i] = params[K_ACC + i] * prev_contact[6 + i]
+        rate_reference(twist, F_acc, T_w_MRF, dt, params[MAX_LEAD_LIN], params[MAX_LEAD_ROT], T_ref, V_ref_w, work)
     f_sat, t_sat = drive_wrench(
         T_w_MRF,
         V_w_MRF,
@@ -630,6 +744,7 @@ def tool_substep(
         contact[6:12],
         params[WEIGHT_W : WEIGHT_W + 3],
         xfrc,
+        work,
     )
     inertia_C = params[INERTIA_C : INERTIA_C + 9].reshape((3, 3))
     implicit_wrench(
@@ -650,6 +765,8 @@ def tool_substep(
         contact,
         xfrc,
         params[PD_MODES:N_PARAMS],
+        work,
+        work6,
     )
     call_model_data(mj[0], mj[1], mj[2])
     sensor_reading(
@@ -664,5 +781,6 @@ def tool_substep(
         contact[0:6],
         valid,
         reading,
+        work,
     )
-    mrf_state(qpos, qvel, frames[0], T_w_MRF, V_w_MRF)
+    mrf_state(qpos, qvel, frames[0], T_w_MRF, V_w_MRF, work)

@@ -82,6 +82,6 @@ def test_an_address_where_nothing_answers_is_refused_leaving_nothing_served() ->
 
     port = free_port()  # free: nothing listens there
     web_port = free_port()
-    with pytest.raises(DeviceUnreachable, match=f"no Inverse Service answers at ws://127.0.0.1:{port}"):
+    with pytest.raises(DeviceUnreachable, match=f"no usable Inverse Service at ws://127.0.0.1:{port}: cannot connect"):
         start_demo("probe", f"ws://127.0.0.1:{port}", port=web_port)
     assert nothing_listens(web_port)  # the demo's server was stopped

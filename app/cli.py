@@ -32,13 +32,23 @@ def _output_folder(folder: Path) -> Iterator[Path]:
     The one error path of every command that writes results: the folder is made first (a regular
     file in the way, a read-only file system or a too-long name fails here, before any work),
     and a disk that fills up later fails the same way. Entered after the input files are loaded,
-    so a bad input file leaves no folder behind.
+    so a bad input file leaves no folder behind; a command refused later (a device that does not
+    answer) removes the folders it made if they are still empty.
     """
+    made: list[Path] = []
     try:
+        made = [p for p in (folder, *folder.parents) if not p.exists()]  # the leaf first
         folder.mkdir(parents=True, exist_ok=True)
         yield folder
     except OSError as exc:
         raise OutputError(folder, exc) from None
+    except FrhcError:
+        for p in made:
+            try:
+                p.rmdir()
+            except OSError:  # not empty: it holds what the command kept
+                break
+        raise
 
 
 if TYPE_CHECKING:

@@ -37,6 +37,7 @@ def test_device_errors_are_one_line_exit_2(
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
     assert expected in err
+    assert list(tmp_path.iterdir()) == []  # no empty output folder left behind (runs/probe_rate was)
 
 
 @pytest.mark.parametrize(

@@ -41,12 +41,13 @@ HAND_SITE = "operator_hand_site"
 
 
 @njit(cache=True)
-def _rotate_wrench(T: Array, w: Array, out: Array) -> None:
-    """``out`` (6,) = the wrench ``w`` (6,) in the axes of pose ``T`` (4, 4), expressed in its base's
-    (a compiled product: numpy's on 3-vectors costs microseconds, and more through BLAS)."""
+def rotate_wrench(T: Array, w: Array, out: Array, at: int) -> None:
+    """``out[at : at + 6]`` = the wrench ``w`` (6,) in the axes of pose ``T`` (4, 4), expressed in
+    its base's (a compiled product: numpy's on 3-vectors costs microseconds, and more through
+    BLAS); ``at`` lets a caller write into a larger row without making a view of it."""
     for a in range(3):
-        out[a] = T[a, 0] * w[0] + T[a, 1] * w[1] + T[a, 2] * w[2]
-        out[3 + a] = T[a, 0] * w[3] + T[a, 1] * w[4] + T[a, 2] * w[5]
+        out[at + a] = T[a, 0] * w[0] + T[a, 1] * w[1] + T[a, 2] * w[2]
+        out[at + 3 + a] = T[a, 0] * w[3] + T[a, 1] * w[4] + T[a, 2] * w[5]
 
 
 @njit(cache=True)
@@ -161,7 +162,7 @@ class OperatorHand:
         # How the wrench is made (GripSources.how): held or not, for compiled readers.
         self._how = np.array([HAND_OFF], dtype=np.int64)
         # Read every tick by the state row: the compiled specialisation, without numba's typing.
-        self._rotate = entry_point(_rotate_wrench, self._T, self._force_H, self._wrench_G)
+        self._rotate = entry_point(rotate_wrench, self._T, self._force_H, self._wrench_G, 0)
         self._mocap_pos = data.mocap_pos[self._mocap]
         self._mocap_quat = data.mocap_quat[self._mocap]
         self._opt = model.opt
@@ -221,5 +222,5 @@ class OperatorHand:
         if self.T_0_H is None:
             self._wrench_G.fill(0.0)
         else:
-            self._rotate(self._T, self._force_H, self._wrench_G)
+            self._rotate(self._T, self._force_H, self._wrench_G, 0)
         return self._wrench_G

@@ -28,6 +28,7 @@ from numba.experimental import structref
 from app.compiled import F8, I8, Arrays, ArraysType, array_type, entry_point
 from app.controller.layout import SCALARS, TORQUE_ROWS, TWIST_AXES, VECTOR_ROWS, WRENCH_AXES
 from app.device.boundary import HAND_OFF, HAND_ROTATED
+from app.device.hand import rotate_wrench
 from app.session.tick import STAGES
 from app.spatial import Array, IntArray, quat_into
 
@@ -272,16 +273,13 @@ def _pose7(R: Array, p: Array, row: Array, at: int) -> None:
 @njit(cache=True)
 def _hand_wrench(how: int, T_H: Array, w_H: Array, row: Array, at: int) -> None:
     """The hand's wrench on the grip (:class:`~app.device.boundary.GripSources`) into ``row`` from
-    ``at``: zero, ``w_H`` in the axes of ``T_H`` (the sum
-    :meth:`~app.device.hand.OperatorHand.wrench_G` computes, in its order), or ``w_H``."""
-    for a in range(3):
-        if how == HAND_OFF:
-            row[at + a], row[at + 3 + a] = 0.0, 0.0
-        elif how == HAND_ROTATED:
-            row[at + a] = T_H[a, 0] * w_H[0] + T_H[a, 1] * w_H[1] + T_H[a, 2] * w_H[2]
-            row[at + 3 + a] = T_H[a, 0] * w_H[3] + T_H[a, 1] * w_H[4] + T_H[a, 2] * w_H[5]
-        else:
-            row[at + a], row[at + 3 + a] = w_H[a], w_H[3 + a]
+    ``at``: zero, ``w_H`` in the axes of ``T_H`` (:func:`~app.device.hand.rotate_wrench`, as
+    :meth:`~app.device.hand.OperatorHand.wrench_G` computes it), or ``w_H``."""
+    if how == HAND_ROTATED:
+        rotate_wrench(T_H, w_H, row, at)
+        return
+    for a in range(6):
+        row[at + a] = 0.0 if how == HAND_OFF else w_H[a]
 
 
 @njit(cache=True)

@@ -263,6 +263,7 @@ def check_device_url(url: str) -> str:
         InputError: not a device address, a ``ws://`` address without a host or with a port
             outside 1-65535, or ``fd:`` with something other than a device number.
     """
+    vendor_device(url)  # one of the address kinds, else "not a device address"
     if url.startswith(("ws://", "wss://")):
         try:
             parse_uri(url)
@@ -271,14 +272,9 @@ def check_device_url(url: str) -> str:
             raise InputError(f"bad device address {url!r}: {exc}") from None
         if port == 0:
             raise InputError(f"bad device address {url!r}: port 0 (ports are 1-65535)")
-        return url
-    if url.startswith("fd:"):
-        if not (url[3:] or "0").isdigit():
-            raise InputError(f"fd:N needs a device number, got {url!r}")
-        return url
-    if url.startswith("openhaptics:"):
-        return url
-    raise InputError(f"not a device address: {url!r} (ws://host:port, fd:N, openhaptics:NAME)")
+    elif url.startswith("fd:") and not (url[3:] or "0").isdigit():
+        raise InputError(f"fd:N needs a device number, got {url!r}")
+    return url
 
 
 def is_device_url(name: str) -> bool:

@@ -349,8 +349,7 @@ class DemoApp:
         try:
             session = self._at_rate(load_session(name))
         except ConfigError as exc:
-            self._notice, self._loading = f"**cannot load:** {exc}", False
-            self.panel.show_play_status(self._notice)
+            self.show_notice(f"**cannot load:** {exc}")
             return
         self.close_replay()
         wanted = LoopConfig.from_session(session)
@@ -375,6 +374,7 @@ class DemoApp:
         self.rt.pause(on)
 
     def show_notice(self, text: str) -> None:
+        """Say ``text`` (Markdown) in the player's status line until a session is played."""
         self._notice, self._loading = text, False
         self.panel.show_play_status(text)
 

@@ -259,7 +259,11 @@ class SessionMetrics:
     The work metric is the paper's Eq 13, ``W = sum_i |integral F_MRF,i d xi_i|``: the contact
     wrench at {MRF} in {MRF} axes times the {MRF} displacement in its own axes (translation,
     and the rotation increment as a rotation vector), integrated with the trapezoid rule per
-    axis; absolute values are taken per axis at the end.
+    axis; absolute values are taken per axis at the end. The paper integrates the F/T reading
+    with the payload's weight removed and its inertial load left in (Sec 3.2); that load's term
+    is the tool's kinetic-energy change (zero from rest to rest), while integrating the simulated
+    reading would add the integrator's residue ``~ m sum (h a)^2`` instead, so the contact wrench
+    is counted (docs/experiment.md, "What Eq 13 counts, against the paper").
 
     Settling (the oscillation criterion of ``frhc zwidth``): over the last :data:`SETTLE_WINDOW`
     seconds the contact force magnitude at {MRF} is settled when its peak-to-peak (ripple) is

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from app.session.metrics import work_increment
-from app.session.run import play
+from app.session.run import play, run_session
 from app.session.script import OperatorScript
 from app.session.spec import SessionFile, SwitchEvent, Waypoint, load_session
+from app.session.tick import TickRecord
 from app.spatial import make_pose, rotation_log, zyx_to_matrix
 
 
@@ -30,6 +31,38 @@ def test_work_integral_of_a_round_trip_cancels_per_axis() -> None:
     path = [make_pose(np.eye(3), np.array([0.0, 0.0, z])) for z in (0, 0.01, 0.02, 0.01, 0.0)]
     total = sum(work_increment(a, b, F, F) for a, b in itertools.pairwise(path))
     np.testing.assert_allclose(total, 0.0, atol=1e-15)
+
+
+class _SensedAndHeight:
+    """Largest task force the controller read at {MRF} (N: the F/T reading, weight removed) and
+    the range of heights of {MRF} (m)."""
+
+    def __init__(self) -> None:
+        self.peak = 0.0
+        self.z: list[float] = []
+
+    def on_tick(self, tick: TickRecord) -> None:
+        self.peak = max(self.peak, float(np.linalg.norm(tick.out.F_MRF[0:3])))
+        self.z.append(float(tick.T_w_MRF[2, 3]))
+
+
+def test_a_transport_in_free_space_does_no_eq13_work() -> None:
+    """Eq 13 counts the contact wrench at {MRF} (docs/experiment.md, "What Eq 13 counts"). The
+    paper's F_MRF is the F/T reading with the payload's weight removed and its inertial load left
+    in (Sec 3.2); over a transport from rest to rest that load's work is the kinetic energy
+    change, zero. Here the tool is carried up and stopped without touching anything: the
+    sensor reads the tool's inertial load, and the work is exactly zero."""
+    session = load_session("probe_rate").with_changes(
+        duration=2.0,
+        waypoints=(Waypoint(0.1), Waypoint(0.6, position=(0.0, 0.0, 0.03)), Waypoint(1.2)),
+    )
+    sensed = _SensedAndHeight()
+    summary = run_session(session, out_dir=None, plots=False, observers=[sensed]).summary
+    assert summary["peak_contact_force_N"] == 0.0
+    assert max(sensed.z) - sensed.z[0] > 0.01  # 13 mm up
+    assert sensed.z[-1] == sensed.z[-2]  # and at rest
+    assert sensed.peak > 0.05  # the tool's inertial load, ~0.1 N: the reading is not empty
+    assert summary["work_eq13"] == 0.0
 
 
 def script(**kw) -> SessionFile:

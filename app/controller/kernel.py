@@ -205,16 +205,15 @@ def controller_tick(
         po_energy,
         r.po_tau[:],
         q,
-        r.po_q_hat[:],
-        r.po_v_hat[:],
-        r.po_age[:],
+        r.po_angle[:],
+        r.po_chatter[:],
         qdot,
         dt if moved else 0.0,
         r.po_cap,
         r.po_friction[:],
         r.po_damping[:],
         r.po_count[:],
-        r.po_share,
+        r.po_leak[:],
     )
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]
@@ -242,6 +241,7 @@ def controller_tick(
     if r.pc_on:
         out.scalars[PC_CUT] = passivity_control(
             po_energy,
+            r.po_chatter[:],
             po_tau,
             pc_velocity,
             dt,

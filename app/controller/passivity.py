@@ -210,6 +210,7 @@ import math
 from dataclasses import dataclass
 from typing import Annotated
 
+import mujoco
 import numpy as np
 from numba import njit
 
@@ -254,8 +255,9 @@ class PassivitySettings(Checked):
         observe_device: The observer credits what the device's own hardware surely dissipated
             (friction and damping from its file, see "The observed port" in the module
             docstring): the port it watches is the one the hand holds, not the motors'.
-        quantization_share: Where between the encoder reading (0) and its own angle within the
-            count (1) the observer takes the work (see "Quantization" in the module docstring).
+        chatter_leak: The chatter detector (see "Quantization" in the module docstring): each
+            joint's reversal charge leaks with this multiple of the joint's own time constant
+            ``M_jj / (2 d_j)`` (:func:`chatter_leak_time`); 0 = no detector.
     """
 
     enabled: bool = False
@@ -269,7 +271,7 @@ class PassivitySettings(Checked):
     hold_slave: bool = True
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
-    quantization_share: Annotated[float, Range(0.0, 1.0)] = 0.0
+    chatter_leak: Annotated[float, Range(0.0, 100.0)] = 0.0
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -298,36 +300,55 @@ def bank_bounds(settings: PassivitySettings, limit: Array, step: Array) -> tuple
     return reserve, max(settings.energy_cap, reserve)
 
 
+def chatter_leak_time(device: DeviceSpec) -> Array:
+    """Each joint's own energy time constant ``M_jj / (2 d_j)`` (s), (n,): the time in which its
+    viscous damping ``d_j`` (:func:`~app.device.dissipation.joint_damping`) removes the kinetic
+    energy of that joint moving alone, ``M_jj`` its inertia at the home pose (the joint-space
+    mass matrix's diagonal, armature included); inf for a joint with no damping."""
+    model = device.model
+    data = mujoco.MjData(model)
+    data.qpos[list(device.qpos_ids)] = device.data.home
+    mujoco.mj_forward(model, data)
+    M = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, M)
+    dofs = list(device.dof_ids)
+    inertia = np.diag(M[np.ix_(dofs, dofs)])
+    damping = joint_damping(device)
+    with np.errstate(divide="ignore"):
+        return np.where(damping > 0.0, inertia / (2.0 * damping), math.inf)
+
+
 @njit(cache=True)
 def observe_energy(
     energy: Array,
     tau_prev: Array,
     q: Array,
-    q_hat: Array,
-    v_hat: Array,
-    age: Array,
+    angle: Array,
+    chatter: Array,
     qdot: Array,
     dt: float,
     cap: float,
     friction: Array,
     damping: Array,
     count: Array,
-    share: float,
+    leak: Array,
 ) -> float:
     """PO step: the port's work plus the device's own sure dissipation, capped; returns ``E``.
 
-    ``E += -sum_j tau_prev_j dq_hat_j + sum_j (friction_j |dq_hat_j| + damping_j
-    max(|dq_j| - count_j, 0)^2 / dt)`` with ``dq = qdot dt`` the encoder difference and
-    ``dq_hat`` the motion of the observer's angle (:func:`angle_within_count`, taken ``share`` of
-    the way from the reading), then ``E = min(E, cap)`` (see the module docstring, "The observed
-    port" and "Quantization").
+    ``E += -sum_j tau_prev_j dq_e,j + sum_j (friction_j |dq_e,j| + damping_j max(|dq_j| -
+    count_j, 0)^2 / dt)`` with ``dq = qdot dt`` the encoder difference and ``dq_e`` the motion
+    of the observed angle on the crossed edge (:func:`crossed_edge`), then ``E = min(E, cap)``
+    (see the module docstring, "The observed port" and "Quantization"). A joint with a leak time
+    also charges its chatter detector with what the encoder difference's work and friction credit
+    add beyond the edge's (the reversal charge, nonzero only on a count that reverses the last),
+    ``chatter_j = min(chatter_j exp(-dt / leak_j) + reversal_j, 0)``.
 
     Args:
         energy: Energy the port has absorbed (J), (1,), updated.
         tau_prev: Rendered joint torque held over the last period (N m or N), (n,).
         q: The encoder angles now (rad or m), (n,).
-        q_hat, v_hat, age: The observer's angles (rad or m), count-interval velocities (rad/s or
-            m/s) and time since each joint's count last changed (s), (n,) each, updated.
+        angle: The observer's angles on the crossed edges (rad or m), (n,), updated.
+        chatter: The chatter detector's charge of each joint (J, <= 0), (n,), updated.
         qdot: Joint velocity over that period, ``dq / dt`` (rad/s or m/s), (n,).
         dt: The period (s); 0 when there is no usable encoder difference (nothing is added, and
             the angles start over at ``q``).
@@ -335,63 +356,61 @@ def observe_energy(
         friction: Coulomb torque (N m or N) credited per unit of the observed angle's travel, (n,).
         damping: Each joint's viscous damping (N m s/rad or N s/m), (n,).
         count: One encoder count of each joint (rad or m; 0 for ideal encoders), (n,).
-        share: How far (0..1) the observed angle goes from the reading to ``q_hat``
-            (``quantization_share``).
+        leak: Each joint's chatter leak time (s), (n,); 0 = no detector.
     """
     if dt <= 0.0:
         for j in range(q.shape[0]):
-            q_hat[j], v_hat[j], age[j] = q[j], 0.0, 0.0
+            angle[j] = q[j]
         energy[0] = min(energy[0], cap)
         return energy[0]
     change = 0.0
     for j in range(tau_prev.shape[0]):
         dq = qdot[j] * dt
         sure = max(abs(dq) - count[j], 0.0)
-        moved_hat = angle_within_count(q[j], dq, dt, count[j], q_hat, v_hat, age, j)
-        moved = dq + share * (moved_hat - dq)
+        moved = crossed_edge(q[j], dq, count[j], angle, j)
         change += -tau_prev[j] * moved + friction[j] * abs(moved) + damping[j] * sure * sure / dt
+        if leak[j] > 0.0:
+            reversal = -tau_prev[j] * (dq - moved) + friction[j] * (abs(dq) - abs(moved))
+            chatter[j] = min(chatter[j] * math.exp(-dt / leak[j]) + reversal, 0.0)
     energy[0] = min(energy[0] + change, cap)
     return energy[0]
 
 
 @njit(cache=True)
-def angle_within_count(
-    reading: float, dq: float, dt: float, count: float, q_hat: Array, v_hat: Array, age: Array, j: int
-) -> float:
-    """Move joint ``j``'s observer angle ``q_hat[j]`` (rad or m) on one tick; returns how far it moved.
+def crossed_edge(reading: float, dq: float, count: float, angle: Array, j: int) -> float:
+    """Move joint ``j``'s observed angle ``angle[j]`` (rad or m) to the edge of its count it last
+    crossed; returns how far it moved.
 
-    The velocity is the count-interval one (the "1/T" estimate of low-speed encoder velocity):
-    when the count changes, the counts changed over the time since the last change; while it
-    does not, at most one count over the time since (a faster joint would have changed it). The
-    angle moves on by it and is kept within the count the encoder reports, ``reading +-
-    count / 2`` (see "Quantization" in the module docstring). Ideal encoders (``count`` 0) give
-    the reading itself.
+    A count that changed by ``n`` (``dq`` about ``n count``) was entered across its edge on the
+    side the joint came from, ``reading - sign(n) count / 2``; while no count changes the angle
+    stays where it is (inside the count the encoder reports, so it is as admissible as the
+    reading: see "Quantization" in the module docstring). A dither across one edge then moves
+    the observed angle by nothing, steady travel by a count per count. Ideal encoders (``count``
+    0) give the reading itself.
 
     Args:
         reading: The encoder angle now (rad or m). ``dq``: its change over the tick (rad or m).
-        dt: The period (s). ``count``: one encoder count (rad or m).
-        q_hat, v_hat, age: The observer's state (see :func:`observe_energy`), updated at ``j``.
+        count: One encoder count (rad or m).
+        angle: The observed angles (rad or m), (n,), updated at ``j``.
     """
-    if count <= 0.0:
-        moved = reading - q_hat[j]
-        q_hat[j] = reading
-        return moved
-    age[j] += dt
-    if abs(dq) >= 0.5 * count:
-        v_hat[j] = dq / age[j]
-        age[j] = 0.0
-    elif abs(v_hat[j]) * age[j] > count:
-        v_hat[j] = math.copysign(count / age[j], v_hat[j])
     half = 0.5 * count
-    target = min(max(q_hat[j] + v_hat[j] * dt, reading - half), reading + half)
-    moved = target - q_hat[j]
-    q_hat[j] = target
+    target = angle[j]
+    if count <= 0.0:
+        target = reading
+    elif dq >= half:
+        target = reading - half
+    elif dq <= -half:
+        target = reading + half
+    target = min(max(target, reading - half), reading + half)
+    moved = target - angle[j]
+    angle[j] = target
     return moved
 
 
 @njit(cache=True)
 def passivity_control(
     energy: Array,
+    chatter: Array,
     tau_r: Array,
     velocity: Array,
     dt: float,
@@ -406,6 +425,8 @@ def passivity_control(
 
     Args:
         energy: Observed energy (J), (1,).
+        chatter: The chatter detector's charge of each joint (J, <= 0), (n,): the PC's budget is
+            ``E + sum_j chatter_j + reserve``.
         tau_r: Rendered torque about to be applied (N m or N), (n,).
         velocity: Low-passed joint velocity (rad/s or m/s), (n,): predicts steps beyond one count.
         dt: Servo period (s). ``step``: smallest step predicted for each joint (rad or m), (n,).
@@ -419,7 +440,10 @@ def passivity_control(
         ``1 - s``: the share of the rendered torque the PC removed (0 when it does not act).
     """
     worst = 0.0
-    budget = max(energy[0] + reserve, 0.0)
+    budget = energy[0] + reserve
+    for j in range(tau_r.shape[0]):
+        budget += chatter[j]
+    budget = max(budget, 0.0)
     for j in range(tau_r.shape[0]):
         d = max(step[j], abs(velocity[j]) * dt)
         worst += abs(tau_r[j]) * d

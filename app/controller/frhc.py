@@ -277,7 +277,8 @@ class FRHCController:
         rec["po_friction"] = settings.friction_credit * self._friction if observed else 0.0
         rec["po_damping"] = self._damping if observed else 0.0
         rec["po_count"] = self.device.encoder_step
-        rec["po_leak"] = settings.chatter_leak * self._leak_time
+        rec["po_leak"] = settings.chatter_leak * (self._leak_time.max() if settings.chatter_port else self._leak_time)
+        rec["po_chatter_port"] = settings.chatter_port
         rec["pc_filter"] = settings.velocity_filter
         rec["pc_hold"] = settings.enabled and settings.hold_slave
         rec["pc_b_device"] = self._b_device

@@ -214,6 +214,7 @@ def controller_tick(
         r.po_damping[:],
         r.po_count[:],
         r.po_leak[:],
+        r.po_chatter_port,
     )
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]

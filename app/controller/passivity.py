@@ -272,6 +272,7 @@ class PassivitySettings(Checked):
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
     chatter_leak: Annotated[float, Range(0.0, 100.0)] = 0.0
+    chatter_port: bool = False
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -332,6 +333,7 @@ def observe_energy(
     damping: Array,
     count: Array,
     leak: Array,
+    port_level: bool,
 ) -> float:
     """PO step: the port's work plus the device's own sure dissipation, capped; returns ``E``.
 
@@ -364,14 +366,18 @@ def observe_energy(
         energy[0] = min(energy[0], cap)
         return energy[0]
     change = 0.0
+    port = 0.0
     for j in range(tau_prev.shape[0]):
         dq = qdot[j] * dt
         sure = max(abs(dq) - count[j], 0.0)
         moved = crossed_edge(q[j], dq, count[j], angle, j)
         change += -tau_prev[j] * moved + friction[j] * abs(moved) + damping[j] * sure * sure / dt
-        if leak[j] > 0.0:
-            reversal = -tau_prev[j] * (dq - moved) + friction[j] * (abs(dq) - abs(moved))
+        reversal = -tau_prev[j] * (dq - moved) + friction[j] * (abs(dq) - abs(moved))
+        port += reversal
+        if leak[j] > 0.0 and not port_level:
             chatter[j] = min(chatter[j] * math.exp(-dt / leak[j]) + reversal, 0.0)
+    if port_level and leak[0] > 0.0:
+        chatter[0] = min(chatter[0] * math.exp(-dt / leak[0]) + port, 0.0)
     energy[0] = min(energy[0] + change, cap)
     return energy[0]
 

@@ -167,6 +167,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("po_damping", f8, (n,)),
             ("po_count", f8, (n,)),
             ("po_leak", f8, (n,)),
+            ("po_chatter_port", b1),
             ("pc_reserve", f8),
             ("pc_step", f8, (n,)),
             ("pc_credit", f8, (n,)),

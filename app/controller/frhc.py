@@ -27,7 +27,7 @@ from app.controller.gains import ControllerGains
 from app.controller.inputs import SHAPE_3, SHAPE_6, SHAPE_33, checked_arrays, checked_float
 from app.controller.kinematics import DeviceKinematics, RecordArray, topology_fields
 from app.controller.layout import GAIN_ROWS, RTC_LAWS, TORQUE_ROWS, vector_row_names
-from app.controller.passivity import PassivitySettings, bank_bounds, chatter_leak_time, device_dissipation
+from app.controller.passivity import PassivitySettings, bank_bounds, device_dissipation
 from app.controller.record import (
     ASSIST_SCALE,
     PC_CUT,
@@ -226,7 +226,6 @@ class FRHCController:
         rec["R_W_G"] = R_0_W.T @ kin.R_0_G
         rec["p_W_G"] = R_0_W.T @ (kin.p_0_G - kin.p_0_W)
         self._friction, self._damping, self._b_device = device_dissipation(device)
-        self._leak_time = chatter_leak_time(device)
         # The compiled tick's arguments that stay the same objects for this controller's life.
         self._fixed_args: tuple[object, ...] = (*kin.fk_arrays, rec)
         # Eq 1 before the compiled tick, and what the device's coordinates are called in errors.
@@ -277,8 +276,6 @@ class FRHCController:
         rec["po_friction"] = settings.friction_credit * self._friction if observed else 0.0
         rec["po_damping"] = self._damping if observed else 0.0
         rec["po_count"] = self.device.encoder_step
-        rec["po_leak"] = settings.chatter_leak * (self._leak_time.max() if settings.chatter_port else self._leak_time)
-        rec["po_chatter_port"] = settings.chatter_port
         rec["pc_filter"] = settings.velocity_filter
         rec["pc_hold"] = settings.enabled and settings.hold_slave
         rec["pc_b_device"] = self._b_device
@@ -296,7 +293,7 @@ class FRHCController:
         for flag in ("prev_reference", "prev_deadman", "prev_reflecting", "have_q_prev", "braking"):
             self._rec[flag] = False
         self.out.scalars[RAMP] = 0.0
-        for name in ("po_energy", "po_chatter", "po_tau", "pc_velocity", "pc_offset", "pc_dx_prev"):
+        for name in ("po_energy", "po_tau", "pc_velocity", "pc_offset", "pc_dx_prev"):
             self._rec[name] = 0.0
         self.out.scalars[PO_ENERGY] = self.out.scalars[PC_CUT] = 0.0
 

@@ -206,15 +206,12 @@ def controller_tick(
         r.po_tau[:],
         q,
         r.po_angle[:],
-        r.po_chatter[:],
         qdot,
         dt if moved else 0.0,
         r.po_cap,
         r.po_friction[:],
         r.po_damping[:],
         r.po_count[:],
-        r.po_leak[:],
-        r.po_chatter_port,
     )
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]
@@ -242,7 +239,6 @@ def controller_tick(
     if r.pc_on:
         out.scalars[PC_CUT] = passivity_control(
             po_energy,
-            r.po_chatter[:],
             po_tau,
             pc_velocity,
             dt,

@@ -210,7 +210,6 @@ import math
 from dataclasses import dataclass
 from typing import Annotated
 
-import mujoco
 import numpy as np
 from numba import njit
 
@@ -255,9 +254,6 @@ class PassivitySettings(Checked):
         observe_device: The observer credits what the device's own hardware surely dissipated
             (friction and damping from its file, see "The observed port" in the module
             docstring): the port it watches is the one the hand holds, not the motors'.
-        chatter_leak: The chatter detector (see "Quantization" in the module docstring): each
-            joint's reversal charge leaks with this multiple of the joint's own time constant
-            ``M_jj / (2 d_j)`` (:func:`chatter_leak_time`); 0 = no detector.
     """
 
     enabled: bool = False
@@ -271,8 +267,6 @@ class PassivitySettings(Checked):
     hold_slave: bool = True
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
-    chatter_leak: Annotated[float, Range(0.0, 100.0)] = 0.0
-    chatter_port: bool = False
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -301,56 +295,31 @@ def bank_bounds(settings: PassivitySettings, limit: Array, step: Array) -> tuple
     return reserve, max(settings.energy_cap, reserve)
 
 
-def chatter_leak_time(device: DeviceSpec) -> Array:
-    """Each joint's own energy time constant ``M_jj / (2 d_j)`` (s), (n,): the time in which its
-    viscous damping ``d_j`` (:func:`~app.device.dissipation.joint_damping`) removes the kinetic
-    energy of that joint moving alone, ``M_jj`` its inertia at the home pose (the joint-space
-    mass matrix's diagonal, armature included); inf for a joint with no damping."""
-    model = device.model
-    data = mujoco.MjData(model)
-    data.qpos[list(device.qpos_ids)] = device.data.home
-    mujoco.mj_forward(model, data)
-    M = np.zeros((model.nv, model.nv))
-    mujoco.mj_fullM(model, data, M)
-    dofs = list(device.dof_ids)
-    inertia = np.diag(M[np.ix_(dofs, dofs)])
-    damping = joint_damping(device)
-    with np.errstate(divide="ignore"):
-        return np.where(damping > 0.0, inertia / (2.0 * damping), math.inf)
-
-
 @njit(cache=True)
 def observe_energy(
     energy: Array,
     tau_prev: Array,
     q: Array,
     angle: Array,
-    chatter: Array,
     qdot: Array,
     dt: float,
     cap: float,
     friction: Array,
     damping: Array,
     count: Array,
-    leak: Array,
-    port_level: bool,
 ) -> float:
     """PO step: the port's work plus the device's own sure dissipation, capped; returns ``E``.
 
     ``E += -sum_j tau_prev_j dq_e,j + sum_j (friction_j |dq_e,j| + damping_j max(|dq_j| -
     count_j, 0)^2 / dt)`` with ``dq = qdot dt`` the encoder difference and ``dq_e`` the motion
     of the observed angle on the crossed edge (:func:`crossed_edge`), then ``E = min(E, cap)``
-    (see the module docstring, "The observed port" and "Quantization"). A joint with a leak time
-    also charges its chatter detector with what the encoder difference's work and friction credit
-    add beyond the edge's (the reversal charge, nonzero only on a count that reverses the last),
-    ``chatter_j = min(chatter_j exp(-dt / leak_j) + reversal_j, 0)``.
+    (see the module docstring, "The observed port" and "Quantization").
 
     Args:
         energy: Energy the port has absorbed (J), (1,), updated.
         tau_prev: Rendered joint torque held over the last period (N m or N), (n,).
         q: The encoder angles now (rad or m), (n,).
         angle: The observer's angles on the crossed edges (rad or m), (n,), updated.
-        chatter: The chatter detector's charge of each joint (J, <= 0), (n,), updated.
         qdot: Joint velocity over that period, ``dq / dt`` (rad/s or m/s), (n,).
         dt: The period (s); 0 when there is no usable encoder difference (nothing is added, and
             the angles start over at ``q``).
@@ -358,7 +327,6 @@ def observe_energy(
         friction: Coulomb torque (N m or N) credited per unit of the observed angle's travel, (n,).
         damping: Each joint's viscous damping (N m s/rad or N s/m), (n,).
         count: One encoder count of each joint (rad or m; 0 for ideal encoders), (n,).
-        leak: Each joint's chatter leak time (s), (n,); 0 = no detector.
     """
     if dt <= 0.0:
         for j in range(q.shape[0]):
@@ -366,18 +334,11 @@ def observe_energy(
         energy[0] = min(energy[0], cap)
         return energy[0]
     change = 0.0
-    port = 0.0
     for j in range(tau_prev.shape[0]):
         dq = qdot[j] * dt
         sure = max(abs(dq) - count[j], 0.0)
         moved = crossed_edge(q[j], dq, count[j], angle, j)
         change += -tau_prev[j] * moved + friction[j] * abs(moved) + damping[j] * sure * sure / dt
-        reversal = -tau_prev[j] * (dq - moved) + friction[j] * (abs(dq) - abs(moved))
-        port += reversal
-        if leak[j] > 0.0 and not port_level:
-            chatter[j] = min(chatter[j] * math.exp(-dt / leak[j]) + reversal, 0.0)
-    if port_level and leak[0] > 0.0:
-        chatter[0] = min(chatter[0] * math.exp(-dt / leak[0]) + port, 0.0)
     energy[0] = min(energy[0] + change, cap)
     return energy[0]
 
@@ -416,7 +377,6 @@ def crossed_edge(reading: float, dq: float, count: float, angle: Array, j: int) 
 @njit(cache=True)
 def passivity_control(
     energy: Array,
-    chatter: Array,
     tau_r: Array,
     velocity: Array,
     dt: float,
@@ -431,8 +391,6 @@ def passivity_control(
 
     Args:
         energy: Observed energy (J), (1,).
-        chatter: The chatter detector's charge of each joint (J, <= 0), (n,): the PC's budget is
-            ``E + sum_j chatter_j + reserve``.
         tau_r: Rendered torque about to be applied (N m or N), (n,).
         velocity: Low-passed joint velocity (rad/s or m/s), (n,): predicts steps beyond one count.
         dt: Servo period (s). ``step``: smallest step predicted for each joint (rad or m), (n,).
@@ -446,10 +404,7 @@ def passivity_control(
         ``1 - s``: the share of the rendered torque the PC removed (0 when it does not act).
     """
     worst = 0.0
-    budget = energy[0] + reserve
-    for j in range(tau_r.shape[0]):
-        budget += chatter[j]
-    budget = max(budget, 0.0)
+    budget = max(energy[0] + reserve, 0.0)
     for j in range(tau_r.shape[0]):
         d = max(step[j], abs(velocity[j]) * dt)
         worst += abs(tau_r[j]) * d

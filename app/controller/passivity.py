@@ -39,7 +39,8 @@ hold, so without it the PC holds fewer of those (helper passivity8 found this; p
 measured two ways to keep a leaking share of it for that detection, below). Earlier angles
 (issue 26's history, rejected by measurement on the stability matrix): the encoder reading
 itself (shipped until issue 26's ninth stop; the figures below), a count-interval velocity
-estimate moved on within the count (as many walls vanished as stable walls were lost), and a
+estimate moved on within the count (passivity6, ``quantization_share``, under an earlier
+judge: it too traded stable walls for walls that do not vanish, and was left off), and a
 low-passed velocity (its lag reads an oscillation's generated energy as dissipation: the same
 press under plain rendering, true port work -65 mJ, low-passed +10 mJ). The friction credit is
 taken over the same observed motion (a dither across one edge is neither work nor travel); the

@@ -276,7 +276,6 @@ class FRHCController:
         rec["po_friction"] = settings.friction_credit * self._friction if observed else 0.0
         rec["po_damping"] = self._damping if observed else 0.0
         rec["po_count"] = self.device.encoder_step
-        rec["po_share"] = settings.quantization_share
         rec["pc_filter"] = settings.velocity_filter
         rec["pc_hold"] = settings.enabled and settings.hold_slave
         rec["pc_b_device"] = self._b_device

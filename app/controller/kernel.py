@@ -205,16 +205,13 @@ def controller_tick(
         po_energy,
         r.po_tau[:],
         q,
-        r.po_q_hat[:],
-        r.po_v_hat[:],
-        r.po_age[:],
+        r.po_angle[:],
         qdot,
         dt if moved else 0.0,
         r.po_cap,
         r.po_friction[:],
         r.po_damping[:],
         r.po_count[:],
-        r.po_share,
     )
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]

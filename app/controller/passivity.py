@@ -9,53 +9,48 @@ gives out more energy than it took in.
 the period (zero-order hold) while the joints moved by ``dq``, so that tick's work on the
 controller is exactly ``-tau_r . dq``;
 
-    E(n) = min(E(n-1) - sum_j tau_r,j(n-1) dq_hat_j + sum_j D_j(dq_j), energy_cap)      (J)
+    E(n) = min(E(n-1) - sum_j tau_r,j(n-1) dq_e,j + sum_j D_j(dq_j), energy_cap)      (J)
 
 is the energy the port has absorbed (>= 0 while it is passive). It runs always, so the trace
-shows how active plain rendering is. ``dq`` is the encoder difference; ``dq_hat``, the motion
-of the observed angle, is ``dq`` as shipped, or with ``quantization_share`` the motion of the
-observer's own joint angle within the encoder's count (*Quantization*, below).
+shows how active plain rendering is. ``dq`` is the encoder difference; ``dq_e`` the motion of
+the observed angle, which sits on the edge of its count the joint last crossed (*Quantization*,
+below).
 
 *Quantization.* The encoders tell the joint angle only to within a count ``c_j`` (the device
 file's ``encoder_counts_per_rev``: the true angle lies in ``q_j +- c_j / 2``), so the work
 taken over encoder differences errs by ``-sum_k tau(k-1) . (e(k) - e(k-1))``, ``e`` the reading's
 error, ``|e_j| <= c_j / 2``. Summed by parts this is a boundary term, at most ``sum_j |tau_j|
-c_j`` (one count's work at the torque now), plus ``sum_k (tau(k) - tau(k-1)) . e(k)``, and that
-sum does not average out: the torque changes *because* a count changed (the task wrench, the
-assists and the F/T's reading of the slave all answer the new reading within a tick), which is
-exactly when the reading has run ahead of the joint by up to half a count. Every count then
-reads as generated energy ``|Delta tau| c / 2`` whatever the joint did (Ryu, Kwon & Hannaford
-2004 note the PO's sensitivity to the velocity estimate; Abbott & Okamura 2005 show how
-position quantization alone makes a sampled wall look active). Measured on a 12-bit Kraft
-(the default hand, a wall at 1x its bound, the joints' true angles from the simulation): the
-encoder work drained 52 mJ in free space before the touch while the true port work was +2 mJ,
-and the PC then cut the wall to 0.2x the felt stiffness plain rendering holds. The observer
-therefore carries its own joint angle ``q_hat``: last tick's, moved on by the count-interval
-velocity (the counts that changed over the time since the count last changed; while none
-changes, at most one count over the time since: the "1/T" estimate for slow encoder motion),
-and kept inside the count the encoder reports (:func:`angle_within_count`). It is as much an
-admissible angle as the reading is (the same ``+- c / 2`` bound, so the worst-case error
-above is unchanged: the energy bookkeeping test checks it), but it spreads a count over the
-time the joint took to cross it instead of charging it all on the tick the count changed. A
-low-passed velocity in its place was measured and rejected: its lag reads an oscillation's
-generated energy as dissipation (the same press under plain rendering: true port work -65 mJ,
-encoder -272 mJ, low-passed +10 mJ, count-interval -44 mJ), and the PC then left every wall to
-oscillate as plain rendering does. The friction credit is taken over the same motion (a dither
-across one count's edge is neither work nor travel); the damping credit keeps the encoder
-difference, whose sure part it needs. ``quantization_share`` places the observed angle between the
-reading (0) and ``q_hat`` (1). It is 0 as shipped, by measurement: the stability matrix (0.6 s
-windows, pose mode, 0.25-4x the with-hand bound; the encoder variants 10-20 bits with every hand
-and released, the shipped devices, the held-out set; figures in docs/conventions.md, issue 26)
-shows a trade, not a gain: with ``q_hat`` the wall vanishes at far fewer points, but PO/PC is
-stable at far fewer too, near plain rendering's count: the observer that reads a coarse
-encoder's counts as generated energy is also what made the PC act on real limit cycles whose
-true energy stays within the bank's reserve. Ideal encoders
-(``c = 0``) leave ``q_hat`` equal to the reading.
+c_j``, plus ``sum_k (tau(k) - tau(k-1)) . e(k)``, which does not average out: the torque changes
+*because* a count changed. The observer therefore takes each joint's angle on the edge of its
+count the joint last crossed (:func:`crossed_edge`): a count entered from below puts it on the
+count's lower edge, ``q - c / 2``, one entered from above on its upper edge, and it stays there
+while no count changes. At the tick a count changes the joint is on that edge to within one
+tick's motion, so this angle is as admissible as the reading (within ``+- c / 2`` of it: the
+energy bookkeeping test checks the bound), and it differs from the reading's work *only* at a
+count that reverses the one before: a dither across one edge is no motion across it. That is
+where the encoder difference over-reads. Over a one-count dither cycle with a torque step
+``Delta tau`` across the edge, the encoder work with the friction credit is ``-(|Delta tau| - 2
+f_c) c``: the quantization energy of Abbott & Okamura 2005 (IEEE T-RO 21(5)) and Diolaiti,
+Niemeyer, Barbagli & Salisbury 2006 (IEEE T-RO 22(2), ``K < 2 f_c / Delta``), charged as if the
+joint had crossed a whole count each way (measured: an 11-bit JPL released at 0.25x, encoder
+work -0.32 J against a true -15 mJ). Charging it drained the bank and made walls vanish (below,
+figures); it was also how the PC found the one-count chatter of walls plain rendering cannot
+hold, so without it the PC holds fewer of those (helper passivity8 found this; passivity9
+measured two ways to keep a leaking share of it for that detection, below). Earlier angles
+(issue 26's history, rejected by measurement on the stability matrix): the encoder reading
+itself (shipped until issue 26's ninth stop; the figures below), a count-interval velocity
+estimate moved on within the count (passivity6, ``quantization_share``, under an earlier
+judge: it too traded stable walls for walls that do not vanish, and was left off), and a
+low-passed velocity (its lag reads an oscillation's generated energy as dissipation: the same
+press under plain rendering, true port work -65 mJ, low-passed +10 mJ). The friction credit is
+taken over the same observed motion (a dither across one edge is neither work nor travel); the
+damping credit keeps the encoder difference, whose sure part it needs. Ideal encoders (``c =
+0``) give the reading itself.
 
 *The observed port* is the one the hand holds, not the motors' (``observe_device``): what the
 controller gives out and the device's own hardware dissipates on the way never reaches the hand,
 so ``D_j`` credits what joint ``j`` surely dissipated, from the device file and the encoder
-alone: its Coulomb friction ``f_c,j |dq_hat_j|`` and its viscous damping's least dissipation over
+alone: its Coulomb friction ``f_c,j |dq_e,j|`` and its viscous damping's least dissipation over
 the counts it surely moved, ``d_j (|dq_j| - count_j)^2 / T`` (Cauchy-Schwarz: moving ``x``
 within ``T`` through damping ``d`` dissipates at least ``d x^2 / T``; the energy bounding
 algorithm of Kim & Ryu 2004 bounds the controller's output by the same ``b x^2 / T``; one count
@@ -164,9 +159,51 @@ task torque and only by scaling it down (``|tau| <= |tau_r|``, as the PC does) i
 plain: 35 / 84 and 19 / 81, worse than plain at 6 and 9 points (notes and patches: issue 26,
 helper eba26).
 
-Four more PC variants were measured against this one and rejected (issue 26, helper passivity8; the
-stability matrix's 444 tuned-on points, 0.6 s windows, the honest judge; stable / worse than
-plain / wall vanishes, this PC 258 / 4 / 33, plain stable at 180; patches in the notes):
+**Measured** (issue 26's stability matrix: pose mode, a 1e5 N/m surface, 0.25 / 1 / 2 / 4x the
+with-hand bound, the hand's six stiffness / damping pairs and the hand released, 0.6 s judged
+windows after the hold, the honest judge: settled, not saturated, not pushed, the grip within
+0.1 mm; scripts and rows in the notes, helpers passivity7-9). Stable / worse than plain (plain
+stable, this not) / the wall vanishes (felt below 0.5x the largest stable wall plain holds on the
+same device and hand at no larger multiple, or the grip going on into the surface). The tuned
+set (444 points: the shipped devices and their variants, chosen on) chose; held out (216: hands
+250/2 and 700/5 and other variants) and the encoder set (420: 10-20-bit copies of the shipped
+devices) were only reported; the 8 s holds are the 51 worst points of passivity7's sample:
+
+=====================================  =================  ================  ================  ================
+observer                               tuned (444)        held out (216)    encoders (420)    8 s, 51 worst
+=====================================  =================  ================  ================  ================
+plain rendering (stable only)          180                106               171               12
+encoder reading (until this stop)      258 / 4 / 33       122 / 3 / 9       292 / 3 / 71      37 / 5 / 35
+**crossed edge (shipped)**             204 / 1 / 14       108 / 1 / 0       218 / 2 / 36      20 / 0 / 14
+crossed edge + chatter, per joint      197 / 4 / 13       not run           not run           not run
+crossed edge + chatter, whole port     202 / 5 / 12       not run           not run           not run
+=====================================  =================  ================  ================  ================
+
+The rule (issue 26's lead): a wall that holds comes first, so the sum of worse and vanish on every
+set, then the stable count. The crossed edge is lower in worse + vanish on every set (15 / 1 / 38
+/ 14 against 37 / 12 / 74 / 40) and stable at fewer points (it holds 61 tuned walls fewer that
+the encoder reading held and plain does not; 58 of them oscillate, a one-count chatter at 1-4x
+the bound that the encoder reading's reversal charge drained the bank on). *The chatter
+detector* (helper passivity9, tried, not shipped): the reversal charge, ``-tau (dq - dq_e) + f_c
+(|dq| - |dq_e|)`` (nonzero only at a reversing count), kept out of the bank in a charge ``C =
+min(C exp(-T / tau_c) + charge, 0)`` that leaks with the device's own time constant, the time
+``M_jj / (2 d_j)`` in which joint ``j``'s damping removes its kinetic energy (``M_jj`` the
+joint-space inertia at home, armature included: 0.08-0.87 s on the Kraft, 0.1-4.1 s on the JPL),
+an isolated reversal fading and recurring ones adding up; the PC's budget is ``E + C +
+E_r``. Per joint (each joint its own ``tau_c``) 197 / 4 / 13, for the whole port (the sum of the
+joints' charges, the slowest ``tau_c``) 202 / 5 / 12: both above the crossed edge alone in worse +
+vanish on the tuned set (17 against 15) and below it in stable, so neither was run further. It
+changes only 19 tuned points: it cuts the chatter walls' ripple (JPL at 1x, 18.4 -> 3.4-4.4 N)
+without taking them down to the quantization limit (~7 kN/m) the encoder reading settled them
+at, and on coarse encoders (10-12 bits) it sets walls the crossed edge holds oscillating. A
+floor on the scale from Colgate & Schenkel's ``K <= 2 b / T`` with the device's own ``b`` (a wall
+below the device-only bound is passive, so the PC need not cut below it) was not tried: at the
+crossed edge's vanishing points the felt wall is already above the device-only bound (803 / 343
+/ 3,755 N/m: e.g. a 12-bit Kraft felt at 1.4-2.0 kN/m against plain's 7.2), so such a floor
+cannot lift them to half of plain's.
+
+Three more PC variants were measured against the encoder reading's and rejected (issue 26, helper
+passivity8; the same matrix's tuned set, its PC 258 / 4 / 33; patches in the notes):
 
 - *A damping PC* (impedance type: Hannaford & Ryu 2002; Ryu, Kwon & Hannaford 2004): once
   ``E < -E_r``, ``tau_PC = -alpha v`` with ``alpha = -(E + E_r) / (T |v|^2)`` on the low-passed
@@ -178,23 +215,6 @@ plain / wall vanishes, this PC 258 / 4 / 33, plain stable at 180; patches in the
   observed energy falling to -2 ... -31 J where it acted. Colgate & Schenkel's ``b > K T / 2 +
   |B|`` bounds a sampled damper ``B`` by the device's own damping (0.17-1.9 N s/m at the grip),
   far below the ~50 N s/m that would hold back that push.
-- *The observed angle on the crossed edge* of the count (the edge the joint last crossed, not
-  the count's middle), for the quantization over-read (an 11-bit JPL released at 0.25x: the
-  encoder work -0.32 J against a true -15 mJ). This angle and the reading differ only when a
-  count reverses the one before; there, over a one-count dither cycle, the encoder work with
-  the friction credit is ``-(|Delta tau| - 2 f_c) c``: exactly the quantization energy bound of
-  Abbott & Okamura 2005 and Diolaiti, Niemeyer, Barbagli & Salisbury 2006 (IEEE T-RO 22(2):
-  ``K < 2 f_c / Delta``), with ``Delta tau`` the torque step across the edge. So bounding the
-  over-read by that condition changes nothing: the over-read *is* the bound, read as if the
-  joint crossed a whole count each way. Without it: 204 / 1 / 14 (held out 108 / 1 / 0, encoder
-  variants 218 / 2 / 36 against 292 / 3 / 71; the 51 worst points held 8 s, 20 / 0 / 14 against
-  37 / 5 / 35): the walls no longer vanish, but none of the 61 tuned walls it lost is stable
-  under plain rendering: the reversal charge is what detects the one-count chatter this PC
-  stops. With one predicted count instead of three: 205 / 2 / 24.
-  It does settle both released presses issue 26 diagnosed (the 11-bit JPL at 0.25x and the JPL
-  with armature +0.002 at 1x: their grips rest as under plain rendering; the bank had been
-  drained by the reversal charge, not by the inertial reading), but over all 240 released
-  presses of the three sets it settles 107 against this PC's 104 (plain 100).
 - *A directed prediction* (a joint whose last two counts went the same way charges only the
   torque along its travel, so a braking force is not cut) and *a dither step* (a joint
   dithering across one edge held within ``2 f_c`` of the torque on the other side, Diolaiti's
@@ -254,8 +274,6 @@ class PassivitySettings(Checked):
         observe_device: The observer credits what the device's own hardware surely dissipated
             (friction and damping from its file, see "The observed port" in the module
             docstring): the port it watches is the one the hand holds, not the motors'.
-        quantization_share: Where between the encoder reading (0) and its own angle within the
-            count (1) the observer takes the work (see "Quantization" in the module docstring).
     """
 
     enabled: bool = False
@@ -269,7 +287,6 @@ class PassivitySettings(Checked):
     hold_slave: bool = True
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
-    quantization_share: Annotated[float, Range(0.0, 1.0)] = 0.0
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -303,31 +320,26 @@ def observe_energy(
     energy: Array,
     tau_prev: Array,
     q: Array,
-    q_hat: Array,
-    v_hat: Array,
-    age: Array,
+    angle: Array,
     qdot: Array,
     dt: float,
     cap: float,
     friction: Array,
     damping: Array,
     count: Array,
-    share: float,
 ) -> float:
     """PO step: the port's work plus the device's own sure dissipation, capped; returns ``E``.
 
-    ``E += -sum_j tau_prev_j dq_hat_j + sum_j (friction_j |dq_hat_j| + damping_j
-    max(|dq_j| - count_j, 0)^2 / dt)`` with ``dq = qdot dt`` the encoder difference and
-    ``dq_hat`` the motion of the observer's angle (:func:`angle_within_count`, taken ``share`` of
-    the way from the reading), then ``E = min(E, cap)`` (see the module docstring, "The observed
-    port" and "Quantization").
+    ``E += -sum_j tau_prev_j dq_e,j + sum_j (friction_j |dq_e,j| + damping_j max(|dq_j| -
+    count_j, 0)^2 / dt)`` with ``dq = qdot dt`` the encoder difference and ``dq_e`` the motion
+    of the observed angle on the crossed edge (:func:`crossed_edge`), then ``E = min(E, cap)``
+    (see the module docstring, "The observed port" and "Quantization").
 
     Args:
         energy: Energy the port has absorbed (J), (1,), updated.
         tau_prev: Rendered joint torque held over the last period (N m or N), (n,).
         q: The encoder angles now (rad or m), (n,).
-        q_hat, v_hat, age: The observer's angles (rad or m), count-interval velocities (rad/s or
-            m/s) and time since each joint's count last changed (s), (n,) each, updated.
+        angle: The observer's angles on the crossed edges (rad or m), (n,), updated.
         qdot: Joint velocity over that period, ``dq / dt`` (rad/s or m/s), (n,).
         dt: The period (s); 0 when there is no usable encoder difference (nothing is added, and
             the angles start over at ``q``).
@@ -335,57 +347,50 @@ def observe_energy(
         friction: Coulomb torque (N m or N) credited per unit of the observed angle's travel, (n,).
         damping: Each joint's viscous damping (N m s/rad or N s/m), (n,).
         count: One encoder count of each joint (rad or m; 0 for ideal encoders), (n,).
-        share: How far (0..1) the observed angle goes from the reading to ``q_hat``
-            (``quantization_share``).
     """
     if dt <= 0.0:
         for j in range(q.shape[0]):
-            q_hat[j], v_hat[j], age[j] = q[j], 0.0, 0.0
+            angle[j] = q[j]
         energy[0] = min(energy[0], cap)
         return energy[0]
     change = 0.0
     for j in range(tau_prev.shape[0]):
         dq = qdot[j] * dt
         sure = max(abs(dq) - count[j], 0.0)
-        moved_hat = angle_within_count(q[j], dq, dt, count[j], q_hat, v_hat, age, j)
-        moved = dq + share * (moved_hat - dq)
+        moved = crossed_edge(q[j], dq, count[j], angle, j)
         change += -tau_prev[j] * moved + friction[j] * abs(moved) + damping[j] * sure * sure / dt
     energy[0] = min(energy[0] + change, cap)
     return energy[0]
 
 
 @njit(cache=True)
-def angle_within_count(
-    reading: float, dq: float, dt: float, count: float, q_hat: Array, v_hat: Array, age: Array, j: int
-) -> float:
-    """Move joint ``j``'s observer angle ``q_hat[j]`` (rad or m) on one tick; returns how far it moved.
+def crossed_edge(reading: float, dq: float, count: float, angle: Array, j: int) -> float:
+    """Move joint ``j``'s observed angle ``angle[j]`` (rad or m) to the edge of its count it last
+    crossed; returns how far it moved.
 
-    The velocity is the count-interval one (the "1/T" estimate of low-speed encoder velocity):
-    when the count changes, the counts changed over the time since the last change; while it
-    does not, at most one count over the time since (a faster joint would have changed it). The
-    angle moves on by it and is kept within the count the encoder reports, ``reading +-
-    count / 2`` (see "Quantization" in the module docstring). Ideal encoders (``count`` 0) give
-    the reading itself.
+    A count that changed by ``n`` (``dq`` about ``n count``) was entered across its edge on the
+    side the joint came from, ``reading - sign(n) count / 2``; while no count changes the angle
+    stays where it is (inside the count the encoder reports, so it is as admissible as the
+    reading: see "Quantization" in the module docstring). A dither across one edge then moves
+    the observed angle by nothing, steady travel by a count per count. Ideal encoders (``count``
+    0) give the reading itself.
 
     Args:
         reading: The encoder angle now (rad or m). ``dq``: its change over the tick (rad or m).
-        dt: The period (s). ``count``: one encoder count (rad or m).
-        q_hat, v_hat, age: The observer's state (see :func:`observe_energy`), updated at ``j``.
+        count: One encoder count (rad or m).
+        angle: The observed angles (rad or m), (n,), updated at ``j``.
     """
-    if count <= 0.0:
-        moved = reading - q_hat[j]
-        q_hat[j] = reading
-        return moved
-    age[j] += dt
-    if abs(dq) >= 0.5 * count:
-        v_hat[j] = dq / age[j]
-        age[j] = 0.0
-    elif abs(v_hat[j]) * age[j] > count:
-        v_hat[j] = math.copysign(count / age[j], v_hat[j])
     half = 0.5 * count
-    target = min(max(q_hat[j] + v_hat[j] * dt, reading - half), reading + half)
-    moved = target - q_hat[j]
-    q_hat[j] = target
+    target = angle[j]
+    if count <= 0.0:
+        target = reading
+    elif dq >= half:
+        target = reading - half
+    elif dq <= -half:
+        target = reading + half
+    target = min(max(target, reading - half), reading + half)
+    moved = target - angle[j]
+    angle[j] = target
     return moved
 
 

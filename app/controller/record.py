@@ -116,7 +116,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         lock. gravity_compensation, remove_payload, remove_inertia: the options of the same
         names. min_period, max_period: accepted periods (s). ramp_rate (1/s), max_joint_speed and
         release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. pc_on, pc_limit
-        (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), po_count (rad, (n,)), po_share (-), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_filter (s),
+        (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), po_count (rad, (n,)), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_filter (s),
         pc_hold, pc_b_device (N s/m), pc_bleed (s): :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
         (n,) each (N m or N; -). horner_pos, horner_neg: (n, n_coeffs) torque curves, highest
         order first; counts_max: the amplifier's range. payload_mass (kg), payload_com_S (m, in
@@ -133,9 +133,8 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         the share of gravity compensation applied, in [0, 1] (0 after a joint-reading fault, ramping
         back at ``ramp_rate``). po_energy:
         the passivity observer's energy of the whole port (J), (1,); po_tau: the rendered torque
-        commanded last tick (N m or N), (n,); po_q_hat, po_v_hat, po_age: the observer's
-        estimate of the joint angles within the encoders' counts (rad or m), its count-interval
-        velocities (rad/s or m/s) and the time since each count last changed (s), (n,) each; pc_velocity: the low-passed joint velocity the
+        commanded last tick (N m or N), (n,); po_angle: the observer's joint angles, each on the
+        edge of its count the joint last crossed (rad or m), (n,); pc_velocity: the low-passed joint velocity the
         passivity controller uses (n,); pc_offset: the PC's hold on
         the slave's command (m, {0}, (3,)); pc_dx_prev: last tick's Delta X command translations
         before it (m, (3,)).
@@ -166,7 +165,6 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("po_friction", f8, (n,)),
             ("po_damping", f8, (n,)),
             ("po_count", f8, (n,)),
-            ("po_share", f8),
             ("pc_reserve", f8),
             ("pc_step", f8, (n,)),
             ("pc_credit", f8, (n,)),
@@ -202,9 +200,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("gravity_level", f8),
             ("po_energy", f8, (1,)),
             ("po_tau", f8, (n,)),
-            ("po_q_hat", f8, (n,)),
-            ("po_v_hat", f8, (n,)),
-            ("po_age", f8, (n,)),
+            ("po_angle", f8, (n,)),
             ("pc_velocity", f8, (n,)),
             ("J_W", f8, (6, n)),
             ("T_0_G", f8, (4, 4)),

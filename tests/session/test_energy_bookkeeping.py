@@ -50,22 +50,17 @@ def _ledger(passivity: PassivitySettings, k_t: float) -> _Ledger:
 
 
 def _angles(ledger: _Ledger) -> np.ndarray:
-    """The observer's joint angles (rad) each tick, rebuilt from the logged encoder angles and
-    times alone: the quantization allowance stated explicitly (app.controller.passivity,
-    "Quantization"). Each joint's velocity is the count-interval one (the counts changed over the
-    time since the count last changed; while none changes, at most one count over the time
-    since); the last angle moved on by it is kept within half a count of the reading; the
-    first tick starts at the reading."""
-    q, t = np.array(ledger.q), np.array(ledger.time)
-    count = load_device("kraft").encoder_step
-    q_hat, v, last = q.copy(), np.zeros(q.shape[1]), np.full(q.shape[1], t[0])
+    """The observer's joint angles (rad) each tick, rebuilt from the logged encoder angles alone
+    (app.controller.passivity, "Quantization"): the first tick starts at the reading; a count
+    that changed up puts the angle on the edge below the reading, one that changed down on the
+    edge above, ``q -+ count / 2``; while no count changes the angle stays."""
+    q = np.array(ledger.q)
+    half = 0.5 * load_device("kraft").encoder_step
+    edge = q.copy()
     for k in range(1, len(q)):
-        dq, age = q[k] - q[k - 1], t[k] - last
-        changed = np.abs(dq) >= 0.5 * count
-        v = np.where(changed, dq / age, np.where(np.abs(v) * age > count, np.sign(v) * count / age, v))
-        last = np.where(changed, t[k], last)
-        q_hat[k] = np.clip(q_hat[k - 1] + v * (t[k] - t[k - 1]), q[k] - 0.5 * count, q[k] + 0.5 * count)
-    return q_hat
+        dq = q[k] - q[k - 1]
+        edge[k] = np.where(dq >= half, q[k] - half, np.where(dq <= -half, q[k] + half, edge[k - 1]))
+    return edge
 
 
 def _credit(ledger: _Ledger, settings: PassivitySettings, q_obs: np.ndarray) -> np.ndarray:
@@ -80,35 +75,31 @@ def _credit(ledger: _Ledger, settings: PassivitySettings, q_obs: np.ndarray) -> 
     return np.abs(np.diff(q_obs, axis=0)) @ (settings.friction_credit * friction) + (sure**2 @ damping) / dt
 
 
-@pytest.mark.parametrize("share", [0.0, 1.0])
-def test_the_observer_equals_an_independent_sum_of_torque_times_encoder_motion(share: float) -> None:
-    """Kraft, a wall at 3x its bound (plain oscillates): E(n) = sum_k [-tau_r(k-1) . (q_obs(k) -
-    q_obs(k-1)) + the device's sure dissipation] from the logged torques and encoder angles and
-    the device file, to rounding, over the whole press (the bank uncapped). The observed angle
-    ``q_obs = q + share (q_hat - q)`` is the quantization allowance stated explicitly: ``share``
-    0 (as shipped) is the encoder angle itself, 1 the observer's angle within the count
+def test_the_observer_equals_an_independent_sum_of_torque_times_encoder_motion() -> None:
+    """Kraft, a wall at 3x its bound (plain oscillates): E(n) = sum_k [-tau_r(k-1) . (q_e(k) -
+    q_e(k-1)) + the device's sure dissipation] from the logged torques and encoder angles and
+    the device file, to rounding, over the whole press (the bank uncapped), ``q_e`` the angle on
+    the edge each joint last crossed, rebuilt from the logged encoder angles alone
     (:func:`_angles`). That angle's work differs from the work over the encoder differences by
     at most what the derivation allows, c/2 per joint times the torque's first and last values
     and every change of it: ``|sum_k tau(k-1) . (h(k) - h(k-1))| <= sum_j c_j/2 (|tau_j(0)| +
-    |tau_j(n-1)| + sum_k |tau_j(k) - tau_j(k-1)|)`` with ``h = q_hat - q``."""
-    settings = PassivitySettings(enabled=False, energy_cap=math.inf, quantization_share=share)
+    |tau_j(n-1)| + sum_k |tau_j(k) - tau_j(k-1)|)`` with ``h = q_e - q``."""
+    settings = PassivitySettings(enabled=False, energy_cap=math.inf)
     ledger = _ledger(settings, k_t=16.0)
     q, tau = np.array(ledger.q), np.array(ledger.rendered)
-    q_hat = _angles(ledger)
-    q_obs = q + share * (q_hat - q)
-    work = -np.einsum("ij,ij->i", tau[:-1], np.diff(q_obs, axis=0))
-    independent = np.cumsum(work + _credit(ledger, settings, q_obs))
+    q_edge = _angles(ledger)
+    work = -np.einsum("ij,ij->i", tau[:-1], np.diff(q_edge, axis=0))
+    independent = np.cumsum(work + _credit(ledger, settings, q_edge))
     observed = np.array(ledger.energy[1:]) - ledger.energy[0]
     assert np.abs(np.cumsum(work)).max() > 1e-3  # the rendering moved real energy
     assert ledger.faults > 0  # the velocity brake acted too (its torque is not the port's)
     np.testing.assert_allclose(observed, independent, rtol=1e-9, atol=1e-12)
-    hat_work = np.cumsum(-np.einsum("ij,ij->i", tau[:-1], np.diff(q_hat, axis=0)))
     encoder_work = np.cumsum(-np.einsum("ij,ij->i", tau[:-1], np.diff(q, axis=0)))
     half = 0.5 * load_device("kraft").encoder_step
     changes = np.cumsum(np.abs(np.diff(tau[:-1], axis=0, prepend=tau[:1])), axis=0)
     allowance = (np.abs(tau[:1]) + np.abs(tau[:-1]) + changes) @ half
-    difference = np.abs(hat_work - encoder_work)
-    assert difference.max() > 1e-4  # the observer's angle moved otherwise than the encoders
+    difference = np.abs(np.cumsum(work) - encoder_work)
+    assert difference.max() > 1e-4  # the observed angle moved otherwise than the encoders
     assert np.all(difference <= allowance + 1e-12)
 
 

@@ -87,18 +87,22 @@ def test_the_bound_counts_the_hand_damping_once_and_the_device_damping_at_the_gr
 
 
 @pytest.mark.parametrize("device", ["kraft", "jpl", "freflex"])
-def test_as_shipped_at_3x_the_bound_plain_oscillates_and_the_pc_settles(device: str) -> None:
+def test_as_shipped_at_3x_the_bound_plain_oscillates_and_the_pc_is_no_worse_and_keeps_the_wall(device: str) -> None:
     """The shipped 13/14-bit encoders, pose mode, a wall designed at 3x 2b/T: plain rendering
-    oscillates on every device; PO/PC settles, with the slave well inside its force limit, felt
-    at the quantisation limit rather than the bound (one count ~0.1 mm at the grip: 4-8 kN/m)."""
+    oscillates on every device. PO/PC (the crossed-edge observer) is never worse: its ripple is no
+    larger than plain's (kraft 1.7 against 34.7 N, jpl 7.0 against 7.4, freflex 7.6 against
+    11.4), the slave is not pushed through, and the wall does not vanish: felt above a quarter of
+    the bound (plain's stable wall at half the bound, halved; felt 6.8 / 27 / 12 kN/m). It no
+    longer settles these (issue 26: the observer that read a coarse count's reversal as generated
+    energy did, and made walls vanish elsewhere)."""
     bound = passivity_bound(device)
     gains = {"k_t": [3.0 * bound / design_stiffness(1.0, device=device)] * 3 + [1.0] * 3}
     plain = press(1e5, "pose", device=device, gains=gains)
     assert not plain.stable
     pc = press(1e5, "pose", device=device, gains=gains, passivity=PassivitySettings(enabled=True))
-    assert pc.stable, pc
-    assert 2.0 < pc.mean_force < 20.0
-    assert 0.15 * bound < pc.felt_stiffness < 0.5 * bound
+    assert pc.ripple <= plain.ripple, (pc, plain)
+    assert not pc.pushed_through
+    assert pc.felt_stiffness > 0.25 * bound, pc
 
 
 def test_at_3x_the_passivity_bound_plain_oscillates_and_the_pc_settles_at_the_bound(tmp_path: Path) -> None:
@@ -301,15 +305,16 @@ def test_a_stiff_hand_press_measures_the_wall_not_the_slave_limit() -> None:
     assert 2.0 < r.mean_force < 20.0
 
 
-def test_on_a_coarse_encoder_the_hold_keeps_the_hand_from_pushing_the_slave_through(tmp_path: Path) -> None:
+def test_on_a_coarse_encoder_the_hold_keeps_the_hand_from_pushing_the_slave_in(tmp_path: Path) -> None:
     """Kraft with 10-bit encoders, the default hand, a wall at the bound: with the PC as a
-    master-side force bound alone the hand pushes the slave to its 40 N limit (the wall vanishes);
-    with the hold on the slave's command the slave stays well inside it and the press settles."""
+    master-side force bound alone the hand pushes the slave in to 34 N of its 40 N limit (a felt
+    0.6 kN/m; before the crossed-edge observer, to the limit itself); with the hold on the
+    slave's command the slave stays well inside it and the press settles."""
     device = str(write_variant("kraft", DeviceVariant("enc10", encoder_bits=10), tmp_path))
     k_t = passivity_bound(device) / design_stiffness(1.0, device=device)
     gains = {"k_t": [k_t] * 3 + [1.0] * 3}
     alone = press(1e5, "pose", device=device, gains=gains, passivity=PassivitySettings(enabled=True, hold_slave=False))
-    assert alone.pushed_through
+    assert alone.mean_force > 0.75 * 40.0, alone
     held = press(1e5, "pose", device=device, gains=gains, passivity=PassivitySettings(enabled=True))
     assert held.stable, held
     assert held.mean_force < 0.5 * 40.0

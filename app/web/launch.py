@@ -64,6 +64,8 @@ def _demo(
     else:
         device_obj = load_device(device)
     loaded_replay = LogReplay(Path(replay)) if replay is not None else None
+    if loaded_replay is not None and loaded_replay.unchecked:
+        print(f"warning: {loaded_replay.unchecked}", file=sys.stderr)
     app = DemoApp(server, scene_obj, device_obj, loaded_session, servo_rate, device_url, panel, spin)
     if loaded_replay is not None:
         app.show_replay(loaded_replay)

@@ -407,7 +407,10 @@ class DemoApp:
             self._show_view(player.replay.loop, lambda _: None)
             self.player = player
             self._replay_shown = float("nan")
-        self.panel.show_replay(player.duration, f"replaying `{player.replay.directory}` ({len(player.replay)} ticks)")
+        text = f"replaying `{player.replay.directory}` ({len(player.replay)} ticks)"
+        if player.replay.unchecked:
+            text += f" · **device not checked:** {player.replay.unchecked}"
+        self.panel.show_replay(player.duration, text)
 
     def close_replay(self) -> None:
         """Back to the live loop."""

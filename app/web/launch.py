@@ -24,6 +24,7 @@ import viser
 from app.interrupts import signals_held
 from app.session.files import RUNS_DIR
 from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token, viser_on_unix_socket
+from app.web.casts import guard_page_casts
 from app.web.session_panel import SessionPanel
 
 if TYPE_CHECKING:
@@ -113,6 +114,7 @@ def start_demo(
                 server = viser.ViserServer(label="FRHC haptic demo", verbose=False)
         else:
             server = viser.ViserServer(host=host, port=port, label="FRHC haptic demo", verbose=False)
+    guard_page_casts(server)
     app: DemoApp | None = None
     try:
         with signals_held():

@@ -23,6 +23,15 @@ class QuietHandler(http.server.SimpleHTTPRequestHandler):
         """Nothing on stderr, where the test counts the command's lines."""
 
 
+@pytest.fixture(autouse=True)
+def ray_not_joined(monkeypatch: pytest.MonkeyPatch) -> None:
+    """As in a new ``frhc`` process: the engine joins only when Ray is not up in this process,
+    and an earlier test of the suite may have left a local instance running."""
+    import ray
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+
+
 @pytest.fixture
 def not_heads() -> Iterator[dict[str, str]]:
     """Addresses where something listens that is no Ray head: a web server, and a socket that

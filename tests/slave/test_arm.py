@@ -439,6 +439,7 @@ def test_an_arm_file_with_unusable_limits_is_refused_naming_the_field(
     (tmp_path / "bad" / "arm.xml").write_text(text.replace(was, now, 1))
     for module in ("app.world.scene_file", "app.slave.arm_model"):
         monkeypatch.setattr(f"{module}.SLAVES_DIR", tmp_path)
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes its NaN warning to MUJOCO_LOG.TXT in the working folder
     with pytest.raises(ConfigError, match=f"field '{re.escape(field)}'") as refused:
         ArmSlave(arm_scene("bad"))
     assert str(refused.value).startswith(str(tmp_path / "bad" / "arm.xml"))

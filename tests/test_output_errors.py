@@ -25,9 +25,11 @@ import pyarrow.parquet as pq
 import pytest
 
 from app.cli import main
+from app.device.spec import load_device
 from app.session.log import PART_SECONDS
 from app.session.run import run_session
 from app.session.spec import load_session
+from app.web.replay import LogReplay
 
 FRHC = [sys.executable, "-m", "app.cli"]
 
@@ -168,6 +170,16 @@ def _damage(log: Path, how: str) -> tuple[Path, str, str]:
         del data["device"]
         meta.write_text(json.dumps(data))
         return meta, "device", "missing"
+    if how == "meta names another device":  # a kraft log said to be jpl's (same 6 joints and columns)
+        data = json.loads(meta.read_text())
+        data["device"] = str(load_device("jpl").path)
+        meta.write_text(json.dumps(data))
+        return meta, "device", f"{load_device('jpl').path} is not the device this log was run on (its device_identity"
+    if how == "device identity not a string":
+        data = json.loads(meta.read_text())
+        data["device_identity"] = 7
+        meta.write_text(json.dumps(data))
+        return meta, "device_identity", "expected a string, got 7"
     if how == "meta not an object":
         meta.write_text("[1, 2]")
         return meta, "<file>", "expected a JSON object"
@@ -203,6 +215,8 @@ def _damage(log: Path, how: str) -> tuple[Path, str, str]:
         "random bytes",
         "0-byte part",
         "meta without device",
+        "meta names another device",
+        "device identity not a string",
         "meta not an object",
         "part with other columns",
         "middle part missing",
@@ -219,6 +233,19 @@ def test_replay_of_a_damaged_log_is_one_line(
     named, field, reason = _damage(log, how)
     line = main_fails(["web", "--replay", str(log), "--port", "0"], tmp_path, capsys, monkeypatch)
     assert line.startswith(f"error: {named}: field '{field}': {reason}"), line
+
+
+def test_a_log_from_before_device_identities_replays_with_a_note(tmp_path: Path, log_dir: Path) -> None:
+    log = tmp_path / "log"
+    shutil.copytree(log_dir, log)
+    meta = log / "_meta.json"
+    data = json.loads(meta.read_text())
+    assert data["device_identity"] == load_device("kraft").identity
+    del data["device_identity"]
+    meta.write_text(json.dumps(data))
+    replay = LogReplay(log)
+    assert replay.unchecked.startswith(f"{meta} has no device_identity (an older log)")
+    assert LogReplay(log_dir).unchecked == ""
 
 
 def test_a_toml_bomb_is_refused_in_one_line_with_bounded_memory(tmp_path: Path) -> None:

@@ -11,8 +11,12 @@ sees every error ``frhc run`` would. Every field has a physical range
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -277,6 +281,36 @@ class DeviceFile(Checked):
                 raise InvalidField(f"joints[{i}]", f"duplicate joint name {jname!r}")
 
 
+#: The MuJoCo model arrays that make a device's kinematics and dynamics, digested into its
+#: :attr:`DeviceSpec.identity` (what the model computes, not how its MJCF is written).
+MODEL_ARRAYS = (
+    "body_pos",
+    "body_quat",
+    "body_ipos",
+    "body_iquat",
+    "body_mass",
+    "body_inertia",
+    "jnt_type",
+    "jnt_pos",
+    "jnt_axis",
+    "jnt_range",
+    "dof_damping",
+    "dof_armature",
+    "dof_frictionloss",
+    "site_pos",
+    "site_quat",
+)
+#: Device-file fields left out of the identity: names, prose, file names (their contents count),
+#: and the default gains, which a session overrides (the log's ``mode`` and columns say what ran).
+NOT_IDENTITY = ("name", "description", "mjcf", "calibration", "gains")
+
+
+def _canonical(value: object) -> bytes:
+    """A dataclass's fields as canonical JSON (sorted keys, arrays as lists)."""
+    fields = dataclasses.asdict(value) if dataclasses.is_dataclass(value) and not isinstance(value, type) else value
+    return json.dumps(fields, sort_keys=True, default=lambda o: np.asarray(o).tolist()).encode()
+
+
 @dataclass(frozen=True)
 class DeviceSpec:
     """A loaded, cross-checked device: the file's data plus its compiled MuJoCo model.
@@ -302,6 +336,21 @@ class DeviceSpec:
     @property
     def name(self) -> str:
         return self.data.name
+
+    @cached_property
+    def identity(self) -> str:
+        """A digest of the device as simulated and controlled: its file's physical fields (joints,
+        home, motors, plant, interface, Cartesian limits; not :data:`NOT_IDENTITY`), its torque
+        calibration and its compiled model's :data:`MODEL_ARRAYS` (``"sha256:"`` + 16 hex digits).
+        A log keeps it (``device_identity``) so a replay can tell the device it names from the
+        one it was run on."""
+        fields = {k: v for k, v in dataclasses.asdict(self.data).items() if k not in NOT_IDENTITY}
+        digest = hashlib.sha256(_canonical(fields))
+        if self.calibration is not None:
+            digest.update(_canonical(self.calibration))
+        for name in MODEL_ARRAYS:
+            digest.update(np.ascontiguousarray(getattr(self.model, name), dtype=np.float64).tobytes())
+        return f"sha256:{digest.hexdigest()[:16]}"
 
     @property
     def n_joints(self) -> int:

@@ -309,6 +309,8 @@ def loop_meta(config: LoopConfig, session: Path | None = None) -> dict[str, Any]
     return {
         "scene": None if config.scene.path is None else str(config.scene.path),
         "device": str(config.device.path),
+        # What the device file held when the log was run: a replay refuses a file that differs.
+        "device_identity": config.device.identity,
         "session": None if session is None else str(session),
         "mode": config.gains.mode,
         # The q_* columns of a Cartesian device's log are its grip pose's coordinates.

@@ -252,6 +252,7 @@ class ArmSlave(SlaveBase):
         q = self._solve_ik(T) if finite(T) else None
         if q is None:
             self._fault = "reset to a non-finite or unreachable pose"
+            self._link_force = 0.0  # read by every tick's record, which this reset may precede
             self._contact = invalid_contact(self._fault)
             self._reading = self._make_reading(self._contact)
             return

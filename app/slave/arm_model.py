@@ -9,6 +9,8 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -166,6 +168,37 @@ def place_base(model: mujoco.MjModel, data: mujoco.MjData, scene: Scene) -> tupl
     return q_home, T_w_base
 
 
+def _check_limits(m: mujoco.MjModel, path: Path) -> None:
+    """The arm's limits must be usable: MuJoCo compiles a NaN (with a warning) and a zero, and the
+    arm then never moves, silently (measured: a PUMA whose velocity limits were NaN or 0 left the
+    probe session without a contact and without a fault; a NaN joint range failed its first IK).
+
+    Raises:
+        ConfigError: naming ``path`` and the joint's range, ``velocity_limit`` or the motor's
+            ``ctrlrange``.
+    """
+    name = partial(mujoco.mj_id2name, m)
+    for j in range(m.nu):
+        lo, hi = m.jnt_range[j]
+        if not (m.jnt_limited[j] and math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise ConfigError(
+                path, f"joint {name(mujoco.mjtObj.mjOBJ_JOINT, j)}.range", "needs finite limits, low < high"
+            )
+        tau = m.actuator_ctrlrange[j]
+        if not (np.isfinite(tau).all() and tau[1] > 0.0):
+            raise ConfigError(
+                path,
+                f"motor {name(mujoco.mjtObj.mjOBJ_ACTUATOR, j)}.ctrlrange",
+                "the torque limit must be finite and > 0",
+            )
+    try:
+        qd_max = m.numeric("velocity_limit").data
+    except KeyError:
+        raise ConfigError(path, "velocity_limit", "missing: a <numeric> with one speed (rad/s) per joint") from None
+    if len(qd_max) != m.nu or not (np.isfinite(qd_max).all() and (qd_max > 0.0).all()):
+        raise ConfigError(path, "velocity_limit", f"needs {m.nu} finite speeds > 0 (rad/s), got {qd_max.tolist()}")
+
+
 def arm_record(
     model: mujoco.MjModel,
     data: mujoco.MjData,
@@ -197,6 +230,7 @@ def arm_record(
             "<joints>",
             "every joint must be a hinge on the flange's chain, one motor each",
         )
+    _check_limits(m, SLAVES_DIR / scene.spec.slave.kind / "arm.xml")
     owner, centers, radii = spheres
     rec = np.zeros(1, dtype=arm_record_dtype(n, len(links), len(radii), m.nM))
     r = rec[0]

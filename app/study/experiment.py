@@ -37,6 +37,7 @@ import pyarrow.parquet as pq
 from matplotlib.ticker import MaxNLocator
 from tqdm import tqdm
 
+from app.errors import EngineError
 from app.session.log import write_json
 from app.session.operators import OperatorParams, ReactingOperator, sample_population
 from app.session.run import run_session
@@ -176,6 +177,9 @@ def run_experiment(
     except KeyboardInterrupt as exc:
         # The engine has ended its workers (and its Ray instance) on the way here.
         raise writer.interrupted(exc, len(done), len(points), "runs") from None
+    except EngineError:
+        writer.abandon()
+        raise
     results = writer.close()
     rows = pq.read_table(results).to_pylist()
     summary = _summary(rows)

@@ -175,14 +175,18 @@ def zwidth(
     process) and ``address`` (a Ray cluster; see :func:`app.sweep.engine.run_points`). An edge
     whose bisection fails is kept, with NaN numbers and its ``error``.
     """
-    from app.sweep.engine import run_points
+    from app.sweep.engine import Engine
 
     out_dir.mkdir(parents=True, exist_ok=True)
     pairs = [(renderer, damping) for renderer in renderers for damping in dampings]
     task = EdgeTask(device, servo_rate, delay_ms, iterations, hand)
     found: dict[int, ZWidthPoint] = {}
-    with tqdm(total=len(pairs), unit="edge", disable=not progress) as bar:
-        for index, row in run_points(task, enumerate(pairs), workers, address):
+    with (
+        # The bar starts once the engine is up: a cluster that does not answer is one line.
+        Engine(workers, address) as engine,
+        tqdm(total=len(pairs), unit="edge", disable=not progress) as bar,
+    ):
+        for index, row in engine.run(task, enumerate(pairs)):
             renderer, damping = pairs[index]
             if row["status"] == "ok":
                 found[index] = ZWidthPoint(**{k: row[k] for k in ZWidthPoint.__dataclass_fields__})

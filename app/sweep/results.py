@@ -16,6 +16,7 @@ points they hold.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -121,6 +122,8 @@ class ResultsWriter:
                 raise ConfigError(
                     source, field, f"{out_dir} holds the results of another {kind}; give another --out or remove it"
                 )
+        # What this writer adds to the folder, identity file first (:meth:`discard`).
+        self._made = [q for q in (meta, self.parts) if not q.exists()]
         self.parts.mkdir(parents=True, exist_ok=True)
         meta.write_text(json.dumps(identity, indent=1))
         self._rows: list[dict[str, Any]] = []
@@ -152,6 +155,18 @@ class ResultsWriter:
         os.replace(tmp, self.parts / name)
         self._n_parts += 1
         self._rows.clear()
+
+    def abandon(self) -> None:
+        """The run stops unfinished because its engine failed (a Ray cluster that does not answer,
+        workers that die while loading): the rows held are written (a re-run resumes from them),
+        and if the run kept none at all, the identity file and parts folder this writer made are
+        removed, so no folder is claimed by results that do not exist (what was there is kept)."""
+        self.flush()
+        if self._n_parts:
+            return
+        for made in self._made:
+            with contextlib.suppress(OSError):  # not empty, or gone: nothing of ours to remove
+                made.rmdir() if made.is_dir() else made.unlink()
 
     def interrupted(self, exc: KeyboardInterrupt, done: int, total: int, unit: str = "points") -> Interrupted:
         """Flush the rows held; the :class:`~app.errors.Interrupted` to raise for ``exc`` (SIGINT or

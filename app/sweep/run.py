@@ -17,7 +17,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from tqdm import tqdm
 
-from app.errors import ConfigError
+from app.errors import ConfigError, EngineError
 from app.session.run import run_session
 from app.sweep.engine import Engine
 from app.sweep.results import METRICS, ResultsWriter, arrow_schema, metrics_row
@@ -103,6 +103,9 @@ def run_sweep(
     except KeyboardInterrupt as exc:
         # The engine has ended its workers (and its Ray instance) on the way here.
         raise writer.interrupted(exc, len(points) - len(todo) + ran, len(points)) from None
+    except EngineError:
+        writer.abandon()
+        raise
     results = writer.close()
     table = pq.read_table(results)
     failed = sum(1 for s in table.column("status").to_pylist() if s != "ok")

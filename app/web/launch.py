@@ -24,6 +24,7 @@ import viser
 from app.interrupts import signals_held
 from app.session.files import RUNS_DIR
 from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token, viser_on_unix_socket
+from app.web.casts import guard_page_casts
 from app.web.session_panel import SessionPanel
 
 if TYPE_CHECKING:
@@ -64,6 +65,8 @@ def _demo(
     else:
         device_obj = load_device(device)
     loaded_replay = LogReplay(Path(replay)) if replay is not None else None
+    if loaded_replay is not None and loaded_replay.unchecked:
+        print(f"warning: {loaded_replay.unchecked}", file=sys.stderr)
     app = DemoApp(server, scene_obj, device_obj, loaded_session, servo_rate, device_url, panel, spin)
     if loaded_replay is not None:
         app.show_replay(loaded_replay)
@@ -111,6 +114,7 @@ def start_demo(
                 server = viser.ViserServer(label="FRHC haptic demo", verbose=False)
         else:
             server = viser.ViserServer(host=host, port=port, label="FRHC haptic demo", verbose=False)
+    guard_page_casts(server)
     app: DemoApp | None = None
     try:
         with signals_held():

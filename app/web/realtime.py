@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import multiprocessing as mp
 import os
+import signal
 import threading
 import time
 from pathlib import Path
@@ -136,6 +137,25 @@ class RealtimeLoop:
         """Whether the loop process is running."""
         return self._process is not None and self._process.is_alive()
 
+    @property
+    def pid(self) -> int | None:
+        """The loop process's id (None before :meth:`start`)."""
+        return None if self._process is None else int(self._process.pid)
+
+    def ended(self) -> str | None:
+        """Why the loop process ended although it was never stopped ("killed by SIGKILL", "exit
+        code 1"); None while it runs, before :meth:`start` and after :meth:`stop`."""
+        process = self._process
+        if process is None or process.is_alive():
+            return None
+        code = process.exitcode
+        if code is not None and code < 0:
+            try:
+                return f"killed by {signal.Signals(-code).name}"
+            except ValueError:  # a signal number Python does not name
+                return f"killed by signal {-code}"
+        return f"exit code {code}"
+
     def cpu_seconds(self) -> float | None:
         """CPU time (user + system, s) the loop process has used so far; None when it is not
         running or the system does not say (read from Linux's ``/proc``)."""
@@ -150,12 +170,16 @@ class RealtimeLoop:
     # -- commands (any thread) ------------------------------------------------------------------
 
     def send(self, command: LoopCommand) -> None:
-        """Send one command (applied before the loop's next tick).
+        """Send one command (applied before the loop's next tick); dropped if the loop process has
+        ended (:meth:`ended`).
 
         Raises:
             UnknownCommand: ``command`` is not one of :data:`~app.web.commands.COMMANDS`.
         """
         check_command(command)
+        if self.ended() is not None:
+            # Nobody reads the pipe any more: once its buffer is full a send would block forever.
+            return
         with self._send_lock:
             self._conn.send(command)
 

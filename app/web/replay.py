@@ -33,7 +33,7 @@ import numpy as np
 
 from app.controller.layout import DELTA_X_AXES, WRENCH_AXES
 from app.device.boundary import LinkStatus
-from app.device.spec import load_device
+from app.device.spec import DeviceSpec, load_device
 from app.errors import ConfigError
 from app.session.log import META_FILE, read_log
 from app.session.loop import LoopConfig, ServoLoop
@@ -94,6 +94,8 @@ class LogReplay:
             if not isinstance(meta.get(name), str) or not meta[name]:
                 raise ConfigError(meta_path, name, "missing: the log does not name the file it was run with")
         device, scene = load_device(meta["device"]), load_scene(meta["scene"])
+        #: Why the log's device could not be checked (a log from before ``device_identity``), or "".
+        self.unchecked = self._check_device(meta_path, meta.get("device_identity"), device)
         cartesian = meta.get("cartesian", device.data.interface == "cartesian")  # not in older logs
         if not isinstance(cartesian, bool):
             raise ConfigError(meta_path, "cartesian", f"expected true or false, got {cartesian!r}")
@@ -123,6 +125,28 @@ class LogReplay:
         for b, name in enumerate(self.objects):
             for k, axis in enumerate(POSE):
                 self._object_poses[:, b, k] = self._cols[f"object_{name}_{axis}"]
+
+    @staticmethod
+    def _check_device(meta_path: Path, identity: object, device: DeviceSpec) -> str:
+        """Hold the device file the log names to the one it was run on (its
+        :attr:`~app.device.spec.DeviceSpec.identity`); a log written before the identity was kept
+        is replayed with a note, not refused (the note is shown beside the replay).
+
+        Raises:
+            ConfigError: the identity is not a string, or differs from ``device``'s.
+        """
+        if identity is None:
+            return f"{meta_path} has no device_identity (an older log): {device.path} is taken as the device it ran"
+        if not isinstance(identity, str):
+            raise ConfigError(meta_path, "device_identity", f"expected a string, got {identity!r}")
+        if identity != device.identity:
+            raise ConfigError(
+                meta_path,
+                "device",
+                f"{device.path} is not the device this log was run on (its device_identity is {identity}, "
+                f"the file's is {device.identity}): the file was edited since, or the log names another device",
+            )
+        return ""
 
     def __len__(self) -> int:
         return len(self.t)

@@ -14,6 +14,7 @@ Three kinds of thread run the demo:
 from __future__ import annotations
 
 import dataclasses
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -121,6 +122,9 @@ class DemoApp:
         #: A line above the status: loading a session, or why one stopped ("" for none).
         self._notice = ""
         self._loading = False  # the notice is a loading one, cleared when the play shows up
+        #: The notice saying the running loop's process ended unasked (killed, crashed), once the
+        #: UI thread noticed; None while it runs.
+        self._loop_lost: str | None = None
         # The guide first: a browser that connects at once shows it while the loop is built (a
         # click on it in that time waits, with "starting..." shown, until :meth:`SessionPanel.ready`).
         self.panel = panel if panel is not None else SessionPanel(server, RUNS_DIR)
@@ -208,7 +212,10 @@ class DemoApp:
             self.rt.set_hand_target(None)
 
     def reset(self) -> None:
-        """Device and slave home, switches off, the hand back on the grip's home pose."""
+        """Device and slave home, switches off, the hand back on the grip's home pose (in a new
+        loop process if the last one ended unasked)."""
+        if self.rt.ended() is not None:
+            self._rebuild(dataclasses.replace(self.rt.config, gains=self.rt.gains))
         self.rt.reset()
         self.move_hand_target(self._home_T_0_G)
 
@@ -241,6 +248,9 @@ class DemoApp:
             self.controls.record.label = "Record"
             self._scene, self._device = config.scene, config.device
             self.rt = RealtimeLoop(config, spin=self._spin)
+            if self._notice == self._loop_lost:  # not a loading notice written over it
+                self._notice = ""
+            self._loop_lost = None
             if self.player is None:
                 self._show_view(self.rt.loop, self.rt.set_hand_target)
             self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
@@ -361,7 +371,7 @@ class DemoApp:
             have.accommodation,
             have.servo_rate,
         )
-        if not same:
+        if not same or self.rt.ended() is not None:
             self._rebuild(wanted)
             self.rt.wait_running()
         self.session = session
@@ -397,7 +407,10 @@ class DemoApp:
             self._show_view(player.replay.loop, lambda _: None)
             self.player = player
             self._replay_shown = float("nan")
-        self.panel.show_replay(player.duration, f"replaying `{player.replay.directory}` ({len(player.replay)} ticks)")
+        text = f"replaying `{player.replay.directory}` ({len(player.replay)} ticks)"
+        if player.replay.unchecked:
+            text += f" · **device not checked:** {player.replay.unchecked}"
+        self.panel.show_replay(player.duration, text)
 
     def close_replay(self) -> None:
         """Back to the live loop."""
@@ -481,6 +494,7 @@ class DemoApp:
     def _draw_panel(self, period: float) -> None:
         """Redraw the panel once, from the replay or the live loop, and keep the snapshot shown
         for the scene's redraw (``period``: wall seconds since the last call)."""
+        self._notice_lost_loop()
         player = self.player
         stats = self.rt.stats(last=round(1.0 / self.rt.loop.dt))
         servo_rate = 1.0 / self.rt.loop.dt
@@ -489,7 +503,7 @@ class DemoApp:
             if self._loading and snap.playing is not None:
                 self._loading, self._notice = False, ""
             self.controls.update(snap, stats, self.rt.scheduling, servo_rate, self._notice)
-            if snap.playing is not None:
+            if snap.playing is not None and self._loop_lost is None:  # a dead loop's last snapshot
                 left = f", {snap.play_left:.1f} s left at {snap.speed:g}x"
                 text = f"playing `{snap.playing.stem}`{left}" + (" (paused)" if snap.paused else "")
             else:
@@ -521,6 +535,25 @@ class DemoApp:
                 self.panel.show_experiment(job.done, job.total, job.report.table if job.report else None, job.chart())
                 if job.finished:
                     self.experiment = None
+
+    def _notice_lost_loop(self) -> None:
+        """Say once, on the page (status line and a notification) and on stderr, that the loop
+        process ended although nothing stopped it (killed, crashed): the page would otherwise go
+        on showing its last snapshot as if it ran."""
+        if self._loop_lost is not None:
+            return
+        why = self.rt.ended()
+        if why is None:
+            return
+        message = (
+            f"the servo loop process stopped ({why}): nothing is simulated; "
+            "Play, Try the peg task or Reset starts a new one"
+        )
+        print(f"frhc web: {message}", file=sys.stderr, flush=True)
+        self._loop_lost = f"**{message}**"
+        self._notice, self._loading = self._loop_lost, False
+        for client in self.server.get_clients().values():  # viser notifies per browser
+            client.add_notification("Servo loop stopped", message, color="red")
 
     def close(self) -> None:
         """Stop the UI thread, the servo loop (closing any log) and the token gate; the server is

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import re
 from pathlib import Path
 
 import mujoco
@@ -17,6 +18,7 @@ from world_helpers import sphere_tool
 
 from app.controller.payload import remove_weight
 from app.controller.types import FTReading, SlaveCommand
+from app.errors import ConfigError
 from app.session.log import read_log
 from app.session.operators import sample_population
 from app.session.run import run_session
@@ -26,7 +28,16 @@ from app.slave.arm import ArmSlave, ArmStatus
 from app.slave.tool import VirtualSlave
 from app.spatial import rotation_log, zyx_to_matrix
 from app.study.experiment import run_experiment
-from app.world.scene import ObjectSpec, Pose, Scene, SceneFile, SlaveGains, build_scene, load_scene, with_slave
+from app.world.scene import (
+    ObjectSpec,
+    Pose,
+    Scene,
+    SceneFile,
+    SlaveGains,
+    build_scene,
+    load_scene,
+    with_slave,
+)
 from app.world.scene_file import SLAVES_DIR
 
 ARMS = ("puma560", "redundant7")
@@ -406,3 +417,29 @@ def test_a_links_contact_model_is_handed_the_twist_of_the_links_frame() -> None:
         np.testing.assert_allclose(mine, np.r_[expected[3:6], expected[0:3]], rtol=0, atol=1e-15)
         offset = max(offset, float(np.linalg.norm(d.xipos[b] - d.xpos[b])))
     assert offset > 0.09  # the case this tells apart is there
+
+
+@pytest.mark.parametrize(
+    ("was", "now", "field"),
+    [
+        ('range="-160 160"', 'range="nan 160"', "joint j1.range"),
+        ('data="3 3 3 5 5 5"', 'data="0 3 3 5 5 5"', "velocity_limit"),
+        ('ctrlrange="-97.6 97.6"', 'ctrlrange="nan nan"', "motor m1.ctrlrange"),
+    ],
+)
+def test_an_arm_file_with_unusable_limits_is_refused_naming_the_field(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, was: str, now: str, field: str
+) -> None:
+    """Before harden9 MuJoCo compiled each (a NaN with a warning): with a zero or NaN speed limit
+    or torque limit the arm never moved and the probe session ended without contact or fault; a
+    NaN range failed the first IK and the run ended in an AttributeError."""
+    text = (SLAVES_DIR / "puma560" / "arm.xml").read_text()
+    assert was in text
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "arm.xml").write_text(text.replace(was, now, 1))
+    for module in ("app.world.scene_file", "app.slave.arm_model"):
+        monkeypatch.setattr(f"{module}.SLAVES_DIR", tmp_path)
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes its NaN warning to MUJOCO_LOG.TXT in the working folder
+    with pytest.raises(ConfigError, match=f"field '{re.escape(field)}'") as refused:
+        ArmSlave(arm_scene("bad"))
+    assert str(refused.value).startswith(str(tmp_path / "bad" / "arm.xml"))

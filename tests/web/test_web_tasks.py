@@ -332,3 +332,31 @@ def test_values_the_page_would_not_send_are_refused_on_the_page_not_raised(
     send(p.replay_speed, "nan")
     assert demo.player.speed == 1.0
     send(p.live, True)
+
+
+def test_values_viser_cannot_cast_are_refused_in_one_line(
+    demo: DemoApp, page: object, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """Sent the way a page's message is dispatched (every handler viser registered), the three
+    values viser's own cast raises on leave their widgets as they were and give one line each
+    (before harden9: a traceback from viser's event loop, "Task exception was never retrieved")."""
+    client = next(iter(demo.server.get_clients()))
+    interface = demo.server._websock_server
+    cases = (
+        (demo.controls.delay, "abc", "ValueError: could not convert string to float: 'abc'"),
+        (demo.panel.timeline, "x", "ValueError: could not convert string to float: 'x'"),
+        (demo.panel.operators, float("nan"), "ValueError: cannot convert float NaN to integer"),
+    )
+    capfd.readouterr()
+    for handle, value, _ in cases:
+        before = handle.value
+        message = GuiUpdateMessage(handle._impl.uuid, {"value": value})
+        dispatch = interface._handle_incoming_message(client, message)
+        asyncio.run_coroutine_threadsafe(dispatch, demo.server._event_loop).result(STEP_TIMEOUT)
+        assert handle.value == before
+    # Only the guard's lines: the demo's other threads may write to stderr meanwhile.
+    lines = [line for line in capfd.readouterr().err.splitlines() if line.startswith("frhc web: ")]
+    assert lines == [
+        f"frhc web: refused a page value for {handle.label!r}: {{'value': {value!r}}} ({error})"
+        for handle, value, error in cases
+    ]

@@ -15,10 +15,13 @@ tool's centre of mass and the axes of {T}. The free joint's ``qpos`` is ``[p_w_C
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
+from numba.experimental import structref
 
+from app.compiled import F8, I8, Arrays, ArraysType, array_type
 from app.mjcall import call_model_data
 from app.slave.arm_ik import cholesky, cholesky_solve
 from app.spatial import (
@@ -664,14 +667,17 @@ def sensor_reading(
         reading[R_ACC + 3 + i] = alpha_w[i]
 
 
+_F1, _F2, _F3 = (array_type(n, F8) for n in (1, 2, 3))
+#: The fields of :func:`tool_substep`'s ``own`` bundle: the slave's own arrays, the same every call
+#: (one compiled argument, where fourteen cost ~0.09 us each to unbox: :mod:`app.compiled`).
+_OWN_FIELDS = {"mj": array_type(1, I8), "params": _F1, "frames": _F3, "T_w_MRF": _F2, "V_w_MRF": _F1}
+_OWN_FIELDS |= {"T_ref": _F2, "V_ref_w": _F1, "qpos": _F1, "qvel": _F1, "qacc": _F1, "xfrc": _F1, "scratch": _F3}
+_OWN = ArraysType([*_OWN_FIELDS.items(), ("materials", _F2), ("reading", _F1)])
+
+
 @njit(cache=True)
-def tool_substep(
+def own_arrays(
     mj: IntArray,
-    reference: int,
-    twist: Array,
-    T_cmd: Array,
-    prev_contact: Array,
-    dt: float,
     params: Array,
     frames: Array,
     T_w_MRF: Array,
@@ -683,18 +689,63 @@ def tool_substep(
     qacc: Array,
     xfrc: Array,
     scratch: Array,
+    materials: Array,
+    reading: Array,
+) -> Arrays:
+    """:func:`tool_substep`'s ``own`` bundle of these arrays (C-contiguous: ``mj`` int64, the rest
+    float64; no copy): what each is, :func:`tool_substep`."""
+    own: Any = structref.new(_OWN)  # type: ignore[call-arg]  # an intrinsic, typed by numba
+    own.mj = mj
+    own.params = params
+    own.frames = frames
+    own.T_w_MRF = T_w_MRF
+    own.V_w_MRF = V_w_MRF
+    own.T_ref = T_ref
+    own.V_ref_w = V_ref_w
+    own.qpos = qpos
+    own.qvel = qvel
+    own.qacc = qacc
+    own.xfrc = xfrc
+    own.scratch = scratch
+    own.materials = materials
+    own.reading = reading
+    return own
+
+
+@njit(cache=True)
+def tool_substep(
+    own: Arrays,
+    reference: int,
+    twist: Array,
+    T_cmd: Array,
+    prev_contact: Array,
+    dt: float,
     contact: Array,
     valid: bool,
     rows: Array,
-    materials: Array,
     h: float,
-    reading: Array,
 ) -> None:
     """One substep of the ideal tool in one call: reference, PD drive, linearly implicit
     correction (:func:`implicit_wrench`), ``mj_step``, F/T sensor, new state.
 
     Args:
-        mj: ``[mj_step address, mjModel*, mjData*]`` (:mod:`app.mjcall`), (3,).
+        own: The slave's own arrays (:func:`own_arrays`):
+
+            - ``mj``: ``[mj_step address, mjModel*, mjData*]`` (:mod:`app.mjcall`), (3,);
+            - ``params``: ``[pd (6, see drive_wrench); K_acc (6); max_lead_lin; max_lead_rot;
+              m g in {w} (3); g in {w} (3); mass; inertia_C (9); its inverse (9); :func:`pd_modes`
+              (2)]``, (41,);
+            - ``frames``: ``[T_C_MRF, T_C_S]``, (2, 4, 4);
+            - ``T_w_MRF``, ``V_w_MRF``: the tool's {MRF} pose (4, 4) and twist (6,) at the
+              substep's start (in), then at its end (out);
+            - ``T_ref``, ``V_ref_w``: the reference pose (4, 4) and twist (6,), updated as
+              ``reference`` says;
+            - ``qpos``, ``qvel``, ``qacc``, ``xfrc``: MuJoCo's free joint state (7,), (6,), (6,)
+              and the body's ``xfrc_applied`` row (6,);
+            - ``scratch``: where the stages write their intermediates, (:data:`N_SCRATCH`, 3, 3);
+            - ``materials``: the objects' materials (n, 3), for :func:`implicit_wrench`;
+            - ``reading``: output, the F/T reading ``[wrench_S (6); R_w_S (9, row-major); acc_w
+              (6); omega_w (3)]`` at the substep's start with the accelerations it applied, (24,).
         reference: :data:`HOLD` (inactive command: the reference stops), :data:`RATE`
             (integrate ``twist`` plus the accommodation term), :data:`POSE` (the reference is
             ``T_cmd``) or :data:`KEEP` (a later substep of the same tick: unchanged).
@@ -704,22 +755,14 @@ def tool_substep(
             (15,): its {MRF} wrench drives the accommodation; all zero turns it off.
         dt: The servo period (s) the rate reference integrates over (the substep is MuJoCo's
             timestep).
-        params: ``[pd (6, see drive_wrench); K_acc (6); max_lead_lin; max_lead_rot; m g in {w}
-            (3); g in {w} (3); mass; inertia_C (9); its inverse (9); :func:`pd_modes` (2)]``, (41,).
-        frames: ``[T_C_MRF, T_C_S]``, (2, 4, 4).
-        T_w_MRF, V_w_MRF: The tool's {MRF} pose (4, 4) and twist (6,) at the substep's start (in),
-            then at its end (out).
-        T_ref, V_ref_w: The reference pose (4, 4) and twist (6,), updated as ``reference`` says.
-        qpos, qvel, qacc, xfrc: MuJoCo's free joint state (7,), (6,), (6,) and the body's
-            ``xfrc_applied`` row (6,).
-        scratch: Where the stages write their intermediates, (:data:`N_SCRATCH`, 3, 3).
         contact: This substep's contact result ``w`` at ``T_w_MRF`` (15,), turned into the wrench
             the step applied (:func:`implicit_wrench`); ``valid`` its flag.
-        rows, materials, h: Its contact rows (k, 9), the objects' materials (n, 3) and the
-            substep (s), for :func:`implicit_wrench`.
-        reading: Output, the F/T reading ``[wrench_S (6); R_w_S (9, row-major); acc_w (6);
-            omega_w (3)]`` at the substep's start with the accelerations it applied, (24,).
+        rows, h: Its contact rows (k, 9) and the substep (s), for :func:`implicit_wrench`.
     """
+    a: Any = own
+    mj, params, frames, T_w_MRF, V_w_MRF = a.mj, a.params, a.frames, a.T_w_MRF, a.V_w_MRF
+    T_ref, V_ref_w, qpos, qvel, qacc, xfrc = a.T_ref, a.V_ref_w, a.qpos, a.qvel, a.qacc, a.xfrc
+    scratch, materials, reading = a.scratch, a.materials, a.reading
     work = scratch[0:N_WORK]
     work6 = scratch[N_WORK:N_SCRATCH].reshape((N_WORK6, 6, 6))  # a view
     if reference == HOLD:

@@ -23,7 +23,7 @@ from numba.experimental import structref
 
 from app.compiled import F8, I8, Arrays, ArraysType, array_type
 from app.mjcall import call_model_data
-from app.slave.arm_ik import cholesky, cholesky_solve
+from app.slave.arm_ik import cholesky_into, cholesky_solve_into
 from app.spatial import (
     Array,
     IntArray,
@@ -51,7 +51,7 @@ R_WRENCH, R_ROT, R_ACC, R_OMEGA, N_READING = 0, 6, 15, 21, 24
 # after another, so each starts at block 0. N_WORK (3, 3) blocks, then N_WORK6 (6, 6) blocks (for
 # :func:`implicit_wrench`'s gains, mass matrices and 6-vectors) in the same array, N_SCRATCH
 # (3, 3) blocks in all: one array argument, unboxed once a call.
-N_WORK, N_WORK6 = 5, 9
+N_WORK, N_WORK6 = 5, 12
 N_SCRATCH = N_WORK + 4 * N_WORK6
 
 
@@ -255,10 +255,16 @@ def _largest_mode(X: Array, M: Array, M_inv: Array) -> float:
     iteration, then the Rayleigh quotient ``x^T X x / x^T M x`` (from below, within a few per
     cent after twelve steps; the callers' margins absorb that)."""
     n = X.shape[0]
-    x = np.empty(n)
+    x, y = np.empty(n), np.empty(n)
+    return _largest_mode_into(X, M, M_inv, x, y)
+
+
+@njit(cache=True)
+def _largest_mode_into(X: Array, M: Array, M_inv: Array, x: Array, y: Array) -> float:
+    """:func:`_largest_mode` with ``x`` and ``y`` (n,) as its scratch."""
+    n = X.shape[0]
     for i in range(n):
         x[i] = (10 - i) / 10.0  # 1, 0.9, 0.8, ...: not orthogonal to the modes that matter
-    y = np.empty(n)
     for _ in range(12):
         for i in range(n):
             s = 0.0
@@ -378,15 +384,34 @@ def implicit_shares(h: float, KC: Array, other_alone: Array, M: Array, M_inv: Ar
     :data:`SIGMA_MAX` and make the damping's decay monotone (:func:`implicit_wrench`); ``(0, 0)``
     where the explicit step is comfortably stable. ``other_alone``: the largest modes of
     ``M^-1 K_other`` (1/s^2) and ``M^-1 C_other`` (1/s), (2,), an upper bound is enough."""
+    n = M.shape[0]
+    return implicit_shares_into(h, KC, other_alone, M, M_inv, np.empty((n, n)), np.empty(n), np.empty(n))
+
+
+@njit(cache=True)
+def implicit_shares_into(
+    h: float, KC: Array, other_alone: Array, M: Array, M_inv: Array, S: Array, x: Array, y: Array
+) -> tuple[float, float]:
+    """:func:`implicit_shares` with ``S`` (n, n), ``x`` and ``y`` (n,) as its scratch."""
     # Weyl: the largest mode of the others + the contacts is at most the others' plus the contacts' trace.
     sigma_contacts, beta_contacts = h * h * _trace(KC[0], M_inv), h * _trace(KC[1], M_inv)
     if h * h * other_alone[0] + sigma_contacts <= SIGMA_MAX and h * other_alone[1] + beta_contacts <= 1.0:
         return 0.0, 0.0
-    sigma = h * h * _largest_mode(KC[0] + KC[2], M, M_inv)
-    beta = h * _largest_mode(KC[1] + KC[3], M, M_inv)
+    _sum_into(KC[0], KC[2], S)
+    sigma = h * h * _largest_mode_into(S, M, M_inv, x, y)
+    _sum_into(KC[1], KC[3], S)
+    beta = h * _largest_mode_into(S, M, M_inv, x, y)
     hk = h * (1.0 / SIGMA_MAX - 1.0 / sigma) if sigma > SIGMA_MAX else 0.0
     hc = h * (1.0 - 1.0 / beta) if beta > 1.0 else 0.0
     return hk, hc
+
+
+@njit(cache=True)
+def _sum_into(A: Array, B: Array, out: Array) -> None:
+    """``A + B`` (n, n) into ``out``."""
+    for i in range(A.shape[0]):
+        for j in range(A.shape[1]):
+            out[i, j] = A[i, j] + B[i, j]
 
 
 @njit(cache=True)
@@ -397,15 +422,38 @@ def implicit_acceleration(h: float, hk: float, hc: float, K: Array, C: Array, M:
     acceleration (every force of the substep's start), ``u`` the velocity (n,). The forces then
     change by ``-`` :func:`correction`."""
     n = u.shape[0]
-    A = np.empty((n, n))
-    rhs = np.empty(n)
+    acc = np.empty(n)
+    implicit_acceleration_into(h, hk, hc, K, C, M, u, F, np.empty((n, n)), np.zeros((n, n)), np.empty((2, n)), acc)
+    return acc
+
+
+@njit(cache=True)
+def implicit_acceleration_into(
+    h: float,
+    hk: float,
+    hc: float,
+    K: Array,
+    C: Array,
+    M: Array,
+    u: Array,
+    F: Array,
+    A: Array,
+    L: Array,
+    vectors: Array,
+    acc: Array,
+) -> None:
+    """:func:`implicit_acceleration` into ``acc`` (n,), with ``A``, ``L`` (n, n) and ``vectors``
+    (2, n) at least as its scratch."""
+    n = u.shape[0]
+    rhs = vectors[0]
     for i in range(n):
         hKu = 0.0
         for j in range(n):
             A[i, j] = M[i, j] + hc * C[i, j] + hk * h * K[i, j]
             hKu += hk * K[i, j] * u[j]
         rhs[i] = F[i] - hKu
-    return cholesky_solve(cholesky(A), rhs)
+    cholesky_into(A, L)
+    cholesky_solve_into(L, rhs, vectors[1], acc)
 
 
 @njit(cache=True)
@@ -505,7 +553,9 @@ def implicit_wrench(
     mul3_into(R, inertia_inv_C, X)
     _mul_t_into(X, R, I_inv_w)
     body_mass(mass, I_w, I_inv_w, M, M_inv)
-    hk, hc = implicit_shares(h, KC, pd_alone, M, M_inv)
+    # Blocks 9-11: the shares' and the solve's scratch (a matrix, a factor, their vectors).
+    S, L, vectors = work6[9], work6[10], work6[11]
+    hk, hc = implicit_shares_into(h, KC, pd_alone, M, M_inv, S, vectors[0], vectors[1])
     if hk == 0.0 and hc == 0.0:
         return  # the explicit step is stable with margin: keep it as it is
     w = u[3:6]
@@ -519,7 +569,8 @@ def implicit_wrench(
         for j in range(6):
             K[i, j] = KC[0, i, j] + KC[2, i, j]
             C[i, j] = KC[1, i, j] + KC[3, i, j]
-    acc = implicit_acceleration(h, hk, hc, K, C, M, u, F)
+    acc = work6[8, 4]
+    implicit_acceleration_into(h, hk, hc, K, C, M, u, F, S, L, vectors, acc)
     correction_into(hk, hc, KC[0], KC[1], u, h, acc, d_contact)
     correction_into(hk, hc, KC[2], KC[3], u, h, acc, d_other)
     for i in range(6):

@@ -28,16 +28,20 @@ IntArray = NDArray[np.int64]
 
 def zyx_to_matrix(gamma: float, beta: float, alpha: float) -> Array:
     """``Rz(alpha) @ Ry(beta) @ Rx(gamma)`` (angles in rad), shape (3, 3)."""
+    R = np.empty((3, 3))
+    zyx_to_matrix_into(gamma, beta, alpha, R)
+    return R
+
+
+@njit(cache=True)
+def zyx_to_matrix_into(gamma: float, beta: float, alpha: float, R: Array) -> None:
+    """:func:`zyx_to_matrix` written into ``R`` (3, 3), allocating nothing (a per-tick operator's)."""
     ca, sa = math.cos(alpha), math.sin(alpha)
     cb, sb = math.cos(beta), math.sin(beta)
     cg, sg = math.cos(gamma), math.sin(gamma)
-    return np.array(
-        [
-            [ca * cb, ca * sb * sg - sa * cg, ca * sb * cg + sa * sg],
-            [sa * cb, sa * sb * sg + ca * cg, sa * sb * cg - ca * sg],
-            [-sb, cb * sg, cb * cg],
-        ]
-    )
+    R[0, 0], R[0, 1], R[0, 2] = ca * cb, ca * sb * sg - sa * cg, ca * sb * cg + sa * sg
+    R[1, 0], R[1, 1], R[1, 2] = sa * cb, sa * sb * sg + ca * cg, sa * sb * cg - ca * sg
+    R[2, 0], R[2, 1], R[2, 2] = -sb, cb * sg, cb * cg
 
 
 @njit(cache=True)

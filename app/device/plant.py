@@ -36,7 +36,7 @@ import numpy.typing as npt
 from numba import njit
 
 from app.compiled import I8, entry_point
-from app.device.boundary import GripSources
+from app.device.boundary import GripSources, LinkStatus
 from app.device.hand import HandParams, OperatorHand, add_hand
 from app.device.plant_kernel import plant_period
 from app.device.spec import DeviceSpec, MotorSpec, PlantParams
@@ -92,7 +92,12 @@ class PlantReading:
             counts for longer than :attr:`DevicePlant.watchdog`).
         watchdog_trips: How many times since the reset the watchdog switched the motors off.
         time: Simulated time (s).
+        status: The link to the device, always :attr:`~app.device.boundary.LinkStatus.OK`: the
+            plant is simulated in this process (a :class:`~app.device.boundary.CartesianReading`'s
+            guard sets its own).
     """
+
+    status = LinkStatus.OK
 
     __slots__ = (
         "_T_0_G",

@@ -246,6 +246,8 @@ class ServoLoop:
         self.reading = self.plant.reset(home)
         self.slave.reset()
         self.controller.reset(self.reading.q)
+        # The counts the plant is sent next tick: none yet (zero); after a tick, the controller's
+        # output buffer itself, which only its step writes (no copy a tick).
         self.counts = np.zeros(self.config.device.n_joints, dtype=np.int64)
         self._restart()
 
@@ -369,7 +371,7 @@ class ServoLoop:
         t1 = time.perf_counter_ns()
         out = self.controller.step(self.reading.q, sw, self.ft, self.dt)
         t2 = time.perf_counter_ns()
-        self.counts[:] = out.counts
+        self.counts = out.counts
         return self._slave_tick(sw, out, t0, t1, t2)
 
     def _slave_tick(self, sw: Switches, out: ControllerOutput, t0: int, t1: int, t2: int) -> TickRecord:

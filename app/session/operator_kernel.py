@@ -18,11 +18,10 @@ from numba.experimental import structref
 
 from app.compiled import F8, I8, Arrays, ArraysType, array_type
 from app.controller.assist import constant_force_rtc, hooke_rtc
-from app.controller.kernel import _zyx_to_matrix
 from app.controller.record import RTC_CONSTANT, RTC_HOOKE
 from app.device.hand import copy_and_pull
-from app.slave.tool_kernel import _apply, mul3
-from app.spatial import Array, IntArray, rotation_exp, rotation_log
+from app.slave.tool_kernel import _apply_into, mul3_into
+from app.spatial import Array, IntArray, rotation_exp_into, rotation_log_into, zyx_to_matrix_into
 
 # The strategy's constants. Their class (docs/experiment.md, "Every parameter of the physical
 # model"): OVERSHOOT and CLEAR define the task (class b, reason given there); the others model the
@@ -57,6 +56,8 @@ INSERT, HOLD, WITHDRAW, DONE = range(4)
 # hand's stiffness per axis (6), and whether the return-to-centre acts now (set every tick).
 K_V, DB, RTC_A, WALL_START, K_WALL, K_R, HAND_K = 0, 6, 12, 18, 24, 30, 36
 GOAL, HOME, TOLERANCE, SPEED, THRESHOLD, RTC_KIND, RTC_ON, N_PRM = 42, 45, 48, 49, 50, 51, 52, 53
+# Blocks of :func:`react`'s scratch ``work`` (N_WORK, 3, 3): its vectors are rows of blocks 1-2.
+N_WORK = 9
 # Slots of the operator's changing scalars (``state``).
 SINCE, BEST_DEPTH, STALL_T, N_STATE = 0, 1, 2, 3
 
@@ -85,15 +86,26 @@ def low_pass(motor: Array, phi: Array, u: Array) -> None:
 
 
 @njit(cache=True)
-def _toward(e: Array, speed: float) -> Array:
-    """Velocity (m/s) toward error ``e`` (m): proportional within :data:`SLOW_DISTANCE`, capped at ``speed``."""
+def _toward_into(e: Array, speed: float, out: Array) -> None:
+    """Velocity (m/s) toward error ``e`` (m), into ``out`` (3,): proportional within
+    :data:`SLOW_DISTANCE`, capped at ``speed``."""
     n = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
     gain = speed / SLOW_DISTANCE
-    return e * gain if n * gain <= speed else e * (speed / n)
+    k = gain if n * gain <= speed else speed / n
+    for a in range(3):
+        out[a] = e[a] * k
 
 
 @njit(cache=True)
 def give_way(v: Array, felt: Array, f: float, threshold: float) -> Array:
+    """:func:`give_way_into` as a new array (3,)."""
+    out = np.empty(3)
+    give_way_into(v, felt, f, threshold, out)
+    return out
+
+
+@njit(cache=True)
+def give_way_into(v: Array, felt: Array, f: float, threshold: float, out: Array) -> None:
     """What the operator takes back (m/s, {w}) of their intended tool velocity ``v`` when they feel
     the force ``felt`` (N, {0} = {w} axes, magnitude ``f`` above ``threshold``): the part of ``v``
     that pushes against it, in proportion to the excess force, all of it from twice the threshold.
@@ -109,12 +121,14 @@ def give_way(v: Array, felt: Array, f: float, threshold: float) -> Array:
     the least damped hand of the population (223 N/m, 3.7 N s/m) grew to a +-35 mm swing of the
     hand target (+-58 mm of the grip) and tripped the velocity brake. Taken back, the velocity never points along ``felt`` more
     than it did, so the yield needs no speed bound of its own. Zero when ``v`` does not push
-    against the force."""
-    n = felt / f
-    push = -(v[0] * n[0] + v[1] * n[1] + v[2] * n[2])
+    against the force. Written into ``out`` (3,)."""
+    n0, n1, n2 = felt[0] / f, felt[1] / f, felt[2] / f
+    push = -(v[0] * n0 + v[1] * n1 + v[2] * n2)
     if push <= 0.0:
-        return np.zeros(3)
-    return n * (push * min(f / threshold - 1.0, 1.0))
+        out[0] = out[1] = out[2] = 0.0
+        return
+    s = push * min(f / threshold - 1.0, 1.0)
+    out[0], out[1], out[2] = n0 * s, n1 * s, n2 * s
 
 
 @njit(cache=True)
@@ -162,6 +176,7 @@ def react(
     tremor: Array,
     motor: Array,
     phi: Array,
+    work: Array,
     T_w_MRF: Array,
     T_0_G: Array,
     G_F_T: Array,
@@ -174,33 +189,37 @@ def react(
     ``phase[0]`` indexes :data:`PHASES`; ``aim`` and ``tilt`` (3,) are halved when the operator
     looks again. The senses are rings the operator reads ``len - 1`` ticks late (:func:`push`).
     The hand's six displacements pass through the motor low-pass ``motor``, ``phi`` (:func:`low_pass`).
+    ``work`` (:data:`N_WORK`, 3, 3) holds the intermediates: nothing is allocated.
     """
     speed, threshold = prm[SPEED], prm[THRESHOLD]
-    tool = np.array((T_w_MRF[0, 3], T_w_MRF[1, 3], T_w_MRF[2, 3]))
+    tool, felt_now, e = work[1, 0], work[1, 1], work[1, 2]
+    v, g, w = work[2, 0], work[2, 1], work[2, 2]
+    for a in range(3):
+        tool[a] = T_w_MRF[a, 3]
     seen = push(seen_ring, seen_i, tool)
-    R_now = np.empty(9)
+    R_now = work[0].reshape(9)
     for a in range(3):
         for b in range(3):
             R_now[3 * a + b] = T_w_MRF[a, b]
     seen_R = push(seen_R_ring, seen_R_i, R_now).reshape((3, 3))
-    felt = push(felt_ring, felt_i, _apply(T_0_G, G_F_T))
+    _apply_into(T_0_G, G_F_T, felt_now)
+    felt = push(felt_ring, felt_i, felt_now)
     f = math.sqrt(felt[0] * felt[0] + felt[1] * felt[1] + felt[2] * felt[2])
 
     # The intended tool velocity (m/s, {w}) and the phase it leads to.
-    v = np.zeros(3)
+    v[0] = v[1] = v[2] = 0.0
     goal_z = prm[GOAL + 2]
     if phase[0] == INSERT:
-        e = np.empty(3)
         for a in range(3):
             e[a] = prm[GOAL + a] + aim[a] - seen[a]
         e[2] -= OVERSHOOT
         deep = seen[2] <= goal_z + prm[TOLERANCE]
         if seen[2] < state[BEST_DEPTH] - STALL_DEPTH:
             state[BEST_DEPTH], state[STALL_T] = seen[2], t
-            v = _toward(e, speed)
+            _toward_into(e, speed, v)
         elif deep and (t - state[STALL_T] > BOTTOM_S or f > threshold):
             phase[0], state[SINCE] = HOLD, t
-            v = _toward(e, speed)
+            _toward_into(e, speed, v)
         elif not deep and t - state[STALL_T] > STALL_S:
             # Stuck above the holes: look again, misjudge by half as much, lift a little, push again.
             aim *= 0.5
@@ -208,26 +227,34 @@ def react(
             state[STALL_T], state[BEST_DEPTH] = t, seen[2] + STALL_DEPTH
             v[2] = speed
         else:
-            v = _toward(e, speed)
+            _toward_into(e, speed, v)
     elif phase[0] == HOLD:
         if t - state[SINCE] >= HOLD_S:
             phase[0] = WITHDRAW
     elif phase[0] == WITHDRAW:
-        up = np.array((0.0, 0.0, prm[HOME + 2] - seen[2]))
+        e[0], e[1], e[2] = 0.0, 0.0, prm[HOME + 2] - seen[2]
         if seen[2] >= goal_z + CLEAR:
             phase[0] = DONE
-        v = _toward(up, speed)
+        _toward_into(e, speed, v)
     if f > threshold:
-        v = v + give_way(v, felt, f, threshold)
+        give_way_into(v, felt, f, threshold, g)
+        for a in range(3):
+            v[a] = v[a] + g[a]
 
     # The tool angular velocity (rad/s, {MRF}): toward upright as misjudged, while inserting.
-    w = np.zeros(3)
+    w[0] = w[1] = w[2] = 0.0
     if phase[0] == INSERT:
-        w = rotation_log(mul3(mul3(seen_R.T, rotation_exp(tilt)), R_home)) * (speed / SLOW_DISTANCE)
+        rotation_exp_into(tilt, work[4])
+        mul3_into(seen_R.T, work[4], work[5])
+        mul3_into(work[5], R_home, work[6])
+        rotation_log_into(work[6], w)
+        k = speed / SLOW_DISTANCE
+        for a in range(3):
+            w[a] = w[a] * k
 
     # The learned rate-mode inverse, with the return-to-centre's force compensated as learned,
     # through the hand's motor bandwidth, plus tremor.
-    u = np.empty(6)
+    u = work[3].reshape(9)[0:6]
     for a in range(3):
         u[a] = v[a] / prm[K_V + a] + prm[DB + a] * math.tanh(v[a] / V_DB)
         u[3 + a] = w[a] / prm[K_V + 3 + a] + prm[DB + 3 + a] * math.tanh(w[a] / W_DB)
@@ -237,7 +264,9 @@ def react(
     k = min(tick, tremor.shape[0] - 1)
     for a in range(3):
         hand[a, 3] = T_start[a, 3] + motor[0, a] + tremor[k, a]
-    R = mul3(T_start, _zyx_to_matrix(motor[0, 3], motor[0, 4], motor[0, 5]))
+    zyx_to_matrix_into(motor[0, 3], motor[0, 4], motor[0, 5], work[7])
+    R = work[8]
+    mul3_into(T_start, work[7], R)
     for a in range(3):
         for b in range(3):
             hand[a, b] = R[a, b]
@@ -248,7 +277,8 @@ _F1, _F2, _I1 = array_type(1, F8), array_type(2, F8), array_type(1, I8)
 # and mocap pose (pull_target's arrays).
 _OWN = {"seen_ring": _F2, "seen_i": _I1, "seen_R_ring": _F2, "seen_R_i": _I1, "felt_ring": _F2, "felt_i": _I1}
 _OWN |= {"phase": _I1, "state": _F1, "aim": _F1, "tilt": _F1, "prm": _F1, "T_start": _F2, "R_home": _F2}
-_OWN |= {"tremor": _F2, "motor": _F2, "phi": _F1, "hand": _F2, "loop_hand": _F2, "T_hand": _F2}
+_OWN |= {"tremor": _F2, "motor": _F2, "phi": _F1, "work": array_type(3, F8), "hand": _F2, "loop_hand": _F2}
+_OWN |= {"T_hand": _F2}
 _OPERATOR_ARRAYS = ArraysType([*_OWN.items(), ("mocap_pos", _F1), ("mocap_quat", _F1)])
 
 
@@ -270,6 +300,7 @@ def operator_arrays(
     tremor: Array,
     motor: Array,
     phi: Array,
+    work: Array,
     hand: Array,
     loop_hand: Array,
     T_hand: Array,
@@ -295,6 +326,7 @@ def operator_arrays(
     a.tremor = tremor
     a.motor = motor
     a.phi = phi
+    a.work = work
     a.hand = hand
     a.loop_hand = loop_hand
     a.T_hand = T_hand
@@ -323,6 +355,7 @@ def react_and_pull(
     hand = a.hand
     react(
         a.seen_ring, a.seen_i, a.seen_R_ring, a.seen_R_i, a.felt_ring, a.felt_i, a.phase, a.state, a.aim,
-        a.tilt, a.prm, a.T_start, a.R_home, a.tremor, a.motor, a.phi, T_w_MRF, T_0_G, G_F_T, t, tick, hand,
+        a.tilt, a.prm, a.T_start, a.R_home, a.tremor, a.motor, a.phi, a.work, T_w_MRF, T_0_G, G_F_T, t, tick,
+        hand,
     )  # fmt: skip
     return copy_and_pull(hand, a.loop_hand, a.T_hand, a.mocap_pos, a.mocap_quat, kinematics, transmission, m, d)

@@ -313,6 +313,7 @@ class ReactingOperator:
         self._own = (
             seen.ring, seen.index, seen_R.ring, seen_R.index, felt.ring, felt.index, self._phase, state,
             self._aim, self._tilt, prm, self._T_start, R_home, tremor, motor.state, motor.phi,
+            np.zeros((kernel.N_WORK, 3, 3)),
         )  # fmt: skip
         # Where the record's arrays are copied when they are not C-contiguous float64 (a kernel
         # compiled for those would misread them).

@@ -49,15 +49,18 @@ def drive(loop: ServoLoop, operator: Operator, n_ticks: int, pacer: Pacer | None
 
     With a ``pacer`` the ticks are held to the wall clock.
     """
-    if pacer is not None:
-        pacer.restart()
+    act, tick = operator.before_tick, loop.tick
+    if pacer is None:
+        for _ in range(n_ticks):
+            act(loop)
+            yield tick()
+        return
+    pacer.restart()
     for _ in range(n_ticks):
-        if pacer is not None:
-            pacer.wait()
-        operator.before_tick(loop)
-        record = loop.tick()
-        if pacer is not None:
-            pacer.done()
+        pacer.wait()
+        act(loop)
+        record = tick()
+        pacer.done()
         yield record
 
 

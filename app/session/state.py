@@ -166,7 +166,7 @@ class StateBlock:
         kernel(
             sinks, i, j, self.sources, contact.w, tick.time, tick.hand_on, tick.deadman, tick.reference,
             tick.reflection, len(contact.contacts), out.faults, reading.watchdog_trips, tick.slave_status,
-            tick.device_link, tick.link_force, out.reflecting, full,
+            reading.status, tick.link_force, out.reflecting, full,
         )  # fmt: skip
         if full:
             self.serial = tick.serial

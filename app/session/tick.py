@@ -126,8 +126,7 @@ class TickRecord:
         """The link to the device as of this tick's sample: a Cartesian device's, as the boundary's
         guard set it (it decides the wrench sent next tick); OK for a joint-space plant, which is
         simulated in this process."""
-        reading = self.reading
-        return reading.status if isinstance(reading, CartesianReading) else LinkStatus.OK
+        return self.reading.status
 
     @property
     def T_w_MRF(self) -> Array:

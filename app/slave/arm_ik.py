@@ -95,8 +95,16 @@ def gram_cholesky(J: Array, w: Array, lam2: float) -> Array:
 def cholesky(A: Array) -> Array:
     """Lower Cholesky factor L (n, n) of a symmetric positive definite ``A`` (n, n) (its lower
     triangle is read; pivots floored at 1e-300 so a singular A gives a finite, huge solve)."""
+    L = np.zeros(A.shape)
+    cholesky_into(A, L)
+    return L
+
+
+@njit(cache=True)
+def cholesky_into(A: Array, L: Array) -> None:
+    """:func:`cholesky` of ``A`` written into the lower triangle and diagonal of ``L`` (n, n),
+    which :func:`cholesky_solve` alone reads (its upper triangle is left as it was)."""
     n = A.shape[0]
-    L = np.zeros((n, n))
     for j in range(n):
         d = A[j, j]
         for k in range(j):
@@ -107,7 +115,6 @@ def cholesky(A: Array) -> Array:
             for k in range(j):
                 acc -= L[i, k] * L[j, k]
             L[i, j] = acc / L[j, j]
-    return L
 
 
 @njit(cache=True)
@@ -115,18 +122,25 @@ def cholesky_solve(L: Array, b: Array) -> Array:
     """``x`` with ``L L^T x = b`` (n,), L from :func:`cholesky`."""
     n = L.shape[0]
     y = np.empty(n)
+    x = np.empty(n)
+    cholesky_solve_into(L, b, y, x)
+    return x
+
+
+@njit(cache=True)
+def cholesky_solve_into(L: Array, b: Array, y: Array, x: Array) -> None:
+    """:func:`cholesky_solve` into ``x`` (n,), with ``y`` (n,) as scratch (neither may be ``b``)."""
+    n = L.shape[0]
     for i in range(n):
         acc = b[i]
         for k in range(i):
             acc -= L[i, k] * y[k]
         y[i] = acc / L[i, i]
-    x = np.empty(n)
     for i in range(n - 1, -1, -1):
         acc = y[i]
         for k in range(i + 1, n):
             acc -= L[k, i] * x[k]
         x[i] = acc / L[i, i]
-    return x
 
 
 @njit(cache=True)

@@ -59,6 +59,7 @@ from app.slave.tool_kernel import (
     R_WRENCH,
     RATE,
     mrf_state,
+    own_arrays,
     pd_modes,
     rate_reference,
     sensor_reading,
@@ -338,22 +339,13 @@ class VirtualSlave(SlaveBase):
         self.link_force = 0.0  # it has no links for the world to touch
         self.reset()
         # The substep's arguments that are the slave's own arrays, the same objects every call.
-        own = (self._params, self._frames, self._T, self._V, self._T_ref, self._V_ref_w)
-        self._own = (*own, self._qpos, self._qvel, self._qacc, self._xfrc, self._scratch)
+        own = (self._mj, self._params, self._frames, self._T, self._V, self._T_ref, self._V_ref_w, self._qpos)
+        self._own = own_arrays(
+            *own, self._qvel, self._qacc, self._xfrc, self._scratch, self._materials, self._ft_buffer
+        )
         # ``step`` checks the command's arrays, so the compiled substep is called without numba's typing.
         example_command = (RATE, np.zeros(6), np.eye(4), _ZERO15, period)
-        self._substep = entry_point(
-            tool_substep,
-            self._mj,
-            *example_command,
-            *self._own,
-            self._contact.w,
-            True,
-            _NO_ROWS,
-            self._materials,
-            self._h,
-            self._ft_buffer,
-        )
+        self._substep = entry_point(tool_substep, self._own, *example_command, self._contact.w, True, _NO_ROWS, self._h)
 
     # --- state -----------------------------------------------------------------------------
     def reset(self, T_w_MRF: Array | None = None) -> None:
@@ -431,19 +423,7 @@ class VirtualSlave(SlaveBase):
             # The reading is taken at the substep's start, where the forces were computed; semi-
             # implicit Euler then applied exactly qacc over the substep. The state moves on after.
             self._substep(
-                self._mj,
-                reference,
-                twist,
-                T_cmd,
-                accommodate,
-                dt,
-                *self._own,
-                contact.w,
-                contact.valid,
-                contact_rows(contact),
-                self._materials,
-                h,
-                self._ft_buffer,
+                self._own, reference, twist, T_cmd, accommodate, dt, contact.w, contact.valid, contact_rows(contact), h
             )
             if self._moving is not None:
                 self._moving.step(h)

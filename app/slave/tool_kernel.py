@@ -15,12 +15,15 @@ tool's centre of mass and the axes of {T}. The free joint's ``qpos`` is ``[p_w_C
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
+from numba.experimental import structref
 
+from app.compiled import F8, I8, Arrays, ArraysType, array_type
 from app.mjcall import call_model_data
-from app.slave.arm_ik import cholesky, cholesky_solve
+from app.slave.arm_ik import cholesky_into, cholesky_solve_into
 from app.spatial import (
     Array,
     IntArray,
@@ -48,7 +51,7 @@ R_WRENCH, R_ROT, R_ACC, R_OMEGA, N_READING = 0, 6, 15, 21, 24
 # after another, so each starts at block 0. N_WORK (3, 3) blocks, then N_WORK6 (6, 6) blocks (for
 # :func:`implicit_wrench`'s gains, mass matrices and 6-vectors) in the same array, N_SCRATCH
 # (3, 3) blocks in all: one array argument, unboxed once a call.
-N_WORK, N_WORK6 = 5, 9
+N_WORK, N_WORK6 = 5, 12
 N_SCRATCH = N_WORK + 4 * N_WORK6
 
 
@@ -252,10 +255,16 @@ def _largest_mode(X: Array, M: Array, M_inv: Array) -> float:
     iteration, then the Rayleigh quotient ``x^T X x / x^T M x`` (from below, within a few per
     cent after twelve steps; the callers' margins absorb that)."""
     n = X.shape[0]
-    x = np.empty(n)
+    x, y = np.empty(n), np.empty(n)
+    return _largest_mode_into(X, M, M_inv, x, y)
+
+
+@njit(cache=True)
+def _largest_mode_into(X: Array, M: Array, M_inv: Array, x: Array, y: Array) -> float:
+    """:func:`_largest_mode` with ``x`` and ``y`` (n,) as its scratch."""
+    n = X.shape[0]
     for i in range(n):
         x[i] = (10 - i) / 10.0  # 1, 0.9, 0.8, ...: not orthogonal to the modes that matter
-    y = np.empty(n)
     for _ in range(12):
         for i in range(n):
             s = 0.0
@@ -375,15 +384,34 @@ def implicit_shares(h: float, KC: Array, other_alone: Array, M: Array, M_inv: Ar
     :data:`SIGMA_MAX` and make the damping's decay monotone (:func:`implicit_wrench`); ``(0, 0)``
     where the explicit step is comfortably stable. ``other_alone``: the largest modes of
     ``M^-1 K_other`` (1/s^2) and ``M^-1 C_other`` (1/s), (2,), an upper bound is enough."""
+    n = M.shape[0]
+    return implicit_shares_into(h, KC, other_alone, M, M_inv, np.empty((n, n)), np.empty(n), np.empty(n))
+
+
+@njit(cache=True)
+def implicit_shares_into(
+    h: float, KC: Array, other_alone: Array, M: Array, M_inv: Array, S: Array, x: Array, y: Array
+) -> tuple[float, float]:
+    """:func:`implicit_shares` with ``S`` (n, n), ``x`` and ``y`` (n,) as its scratch."""
     # Weyl: the largest mode of the others + the contacts is at most the others' plus the contacts' trace.
     sigma_contacts, beta_contacts = h * h * _trace(KC[0], M_inv), h * _trace(KC[1], M_inv)
     if h * h * other_alone[0] + sigma_contacts <= SIGMA_MAX and h * other_alone[1] + beta_contacts <= 1.0:
         return 0.0, 0.0
-    sigma = h * h * _largest_mode(KC[0] + KC[2], M, M_inv)
-    beta = h * _largest_mode(KC[1] + KC[3], M, M_inv)
+    _sum_into(KC[0], KC[2], S)
+    sigma = h * h * _largest_mode_into(S, M, M_inv, x, y)
+    _sum_into(KC[1], KC[3], S)
+    beta = h * _largest_mode_into(S, M, M_inv, x, y)
     hk = h * (1.0 / SIGMA_MAX - 1.0 / sigma) if sigma > SIGMA_MAX else 0.0
     hc = h * (1.0 - 1.0 / beta) if beta > 1.0 else 0.0
     return hk, hc
+
+
+@njit(cache=True)
+def _sum_into(A: Array, B: Array, out: Array) -> None:
+    """``A + B`` (n, n) into ``out``."""
+    for i in range(A.shape[0]):
+        for j in range(A.shape[1]):
+            out[i, j] = A[i, j] + B[i, j]
 
 
 @njit(cache=True)
@@ -394,15 +422,38 @@ def implicit_acceleration(h: float, hk: float, hc: float, K: Array, C: Array, M:
     acceleration (every force of the substep's start), ``u`` the velocity (n,). The forces then
     change by ``-`` :func:`correction`."""
     n = u.shape[0]
-    A = np.empty((n, n))
-    rhs = np.empty(n)
+    acc = np.empty(n)
+    implicit_acceleration_into(h, hk, hc, K, C, M, u, F, np.empty((n, n)), np.zeros((n, n)), np.empty((2, n)), acc)
+    return acc
+
+
+@njit(cache=True)
+def implicit_acceleration_into(
+    h: float,
+    hk: float,
+    hc: float,
+    K: Array,
+    C: Array,
+    M: Array,
+    u: Array,
+    F: Array,
+    A: Array,
+    L: Array,
+    vectors: Array,
+    acc: Array,
+) -> None:
+    """:func:`implicit_acceleration` into ``acc`` (n,), with ``A``, ``L`` (n, n) and ``vectors``
+    (2, n) at least as its scratch."""
+    n = u.shape[0]
+    rhs = vectors[0]
     for i in range(n):
         hKu = 0.0
         for j in range(n):
             A[i, j] = M[i, j] + hc * C[i, j] + hk * h * K[i, j]
             hKu += hk * K[i, j] * u[j]
         rhs[i] = F[i] - hKu
-    return cholesky_solve(cholesky(A), rhs)
+    cholesky_into(A, L)
+    cholesky_solve_into(L, rhs, vectors[1], acc)
 
 
 @njit(cache=True)
@@ -502,7 +553,9 @@ def implicit_wrench(
     mul3_into(R, inertia_inv_C, X)
     _mul_t_into(X, R, I_inv_w)
     body_mass(mass, I_w, I_inv_w, M, M_inv)
-    hk, hc = implicit_shares(h, KC, pd_alone, M, M_inv)
+    # Blocks 9-11: the shares' and the solve's scratch (a matrix, a factor, their vectors).
+    S, L, vectors = work6[9], work6[10], work6[11]
+    hk, hc = implicit_shares_into(h, KC, pd_alone, M, M_inv, S, vectors[0], vectors[1])
     if hk == 0.0 and hc == 0.0:
         return  # the explicit step is stable with margin: keep it as it is
     w = u[3:6]
@@ -516,7 +569,8 @@ def implicit_wrench(
         for j in range(6):
             K[i, j] = KC[0, i, j] + KC[2, i, j]
             C[i, j] = KC[1, i, j] + KC[3, i, j]
-    acc = implicit_acceleration(h, hk, hc, K, C, M, u, F)
+    acc = work6[8, 4]
+    implicit_acceleration_into(h, hk, hc, K, C, M, u, F, S, L, vectors, acc)
     correction_into(hk, hc, KC[0], KC[1], u, h, acc, d_contact)
     correction_into(hk, hc, KC[2], KC[3], u, h, acc, d_other)
     for i in range(6):
@@ -664,14 +718,17 @@ def sensor_reading(
         reading[R_ACC + 3 + i] = alpha_w[i]
 
 
+_F1, _F2, _F3 = (array_type(n, F8) for n in (1, 2, 3))
+#: The fields of :func:`tool_substep`'s ``own`` bundle: the slave's own arrays, the same every call
+#: (one compiled argument, where fourteen cost ~0.09 us each to unbox: :mod:`app.compiled`).
+_OWN_FIELDS = {"mj": array_type(1, I8), "params": _F1, "frames": _F3, "T_w_MRF": _F2, "V_w_MRF": _F1}
+_OWN_FIELDS |= {"T_ref": _F2, "V_ref_w": _F1, "qpos": _F1, "qvel": _F1, "qacc": _F1, "xfrc": _F1, "scratch": _F3}
+_OWN = ArraysType([*_OWN_FIELDS.items(), ("materials", _F2), ("reading", _F1)])
+
+
 @njit(cache=True)
-def tool_substep(
+def own_arrays(
     mj: IntArray,
-    reference: int,
-    twist: Array,
-    T_cmd: Array,
-    prev_contact: Array,
-    dt: float,
     params: Array,
     frames: Array,
     T_w_MRF: Array,
@@ -683,18 +740,63 @@ def tool_substep(
     qacc: Array,
     xfrc: Array,
     scratch: Array,
+    materials: Array,
+    reading: Array,
+) -> Arrays:
+    """:func:`tool_substep`'s ``own`` bundle of these arrays (C-contiguous: ``mj`` int64, the rest
+    float64; no copy): what each is, :func:`tool_substep`."""
+    own: Any = structref.new(_OWN)  # type: ignore[call-arg]  # an intrinsic, typed by numba
+    own.mj = mj
+    own.params = params
+    own.frames = frames
+    own.T_w_MRF = T_w_MRF
+    own.V_w_MRF = V_w_MRF
+    own.T_ref = T_ref
+    own.V_ref_w = V_ref_w
+    own.qpos = qpos
+    own.qvel = qvel
+    own.qacc = qacc
+    own.xfrc = xfrc
+    own.scratch = scratch
+    own.materials = materials
+    own.reading = reading
+    return own
+
+
+@njit(cache=True)
+def tool_substep(
+    own: Arrays,
+    reference: int,
+    twist: Array,
+    T_cmd: Array,
+    prev_contact: Array,
+    dt: float,
     contact: Array,
     valid: bool,
     rows: Array,
-    materials: Array,
     h: float,
-    reading: Array,
 ) -> None:
     """One substep of the ideal tool in one call: reference, PD drive, linearly implicit
     correction (:func:`implicit_wrench`), ``mj_step``, F/T sensor, new state.
 
     Args:
-        mj: ``[mj_step address, mjModel*, mjData*]`` (:mod:`app.mjcall`), (3,).
+        own: The slave's own arrays (:func:`own_arrays`):
+
+            - ``mj``: ``[mj_step address, mjModel*, mjData*]`` (:mod:`app.mjcall`), (3,);
+            - ``params``: ``[pd (6, see drive_wrench); K_acc (6); max_lead_lin; max_lead_rot;
+              m g in {w} (3); g in {w} (3); mass; inertia_C (9); its inverse (9); :func:`pd_modes`
+              (2)]``, (41,);
+            - ``frames``: ``[T_C_MRF, T_C_S]``, (2, 4, 4);
+            - ``T_w_MRF``, ``V_w_MRF``: the tool's {MRF} pose (4, 4) and twist (6,) at the
+              substep's start (in), then at its end (out);
+            - ``T_ref``, ``V_ref_w``: the reference pose (4, 4) and twist (6,), updated as
+              ``reference`` says;
+            - ``qpos``, ``qvel``, ``qacc``, ``xfrc``: MuJoCo's free joint state (7,), (6,), (6,)
+              and the body's ``xfrc_applied`` row (6,);
+            - ``scratch``: where the stages write their intermediates, (:data:`N_SCRATCH`, 3, 3);
+            - ``materials``: the objects' materials (n, 3), for :func:`implicit_wrench`;
+            - ``reading``: output, the F/T reading ``[wrench_S (6); R_w_S (9, row-major); acc_w
+              (6); omega_w (3)]`` at the substep's start with the accelerations it applied, (24,).
         reference: :data:`HOLD` (inactive command: the reference stops), :data:`RATE`
             (integrate ``twist`` plus the accommodation term), :data:`POSE` (the reference is
             ``T_cmd``) or :data:`KEEP` (a later substep of the same tick: unchanged).
@@ -704,22 +806,14 @@ def tool_substep(
             (15,): its {MRF} wrench drives the accommodation; all zero turns it off.
         dt: The servo period (s) the rate reference integrates over (the substep is MuJoCo's
             timestep).
-        params: ``[pd (6, see drive_wrench); K_acc (6); max_lead_lin; max_lead_rot; m g in {w}
-            (3); g in {w} (3); mass; inertia_C (9); its inverse (9); :func:`pd_modes` (2)]``, (41,).
-        frames: ``[T_C_MRF, T_C_S]``, (2, 4, 4).
-        T_w_MRF, V_w_MRF: The tool's {MRF} pose (4, 4) and twist (6,) at the substep's start (in),
-            then at its end (out).
-        T_ref, V_ref_w: The reference pose (4, 4) and twist (6,), updated as ``reference`` says.
-        qpos, qvel, qacc, xfrc: MuJoCo's free joint state (7,), (6,), (6,) and the body's
-            ``xfrc_applied`` row (6,).
-        scratch: Where the stages write their intermediates, (:data:`N_SCRATCH`, 3, 3).
         contact: This substep's contact result ``w`` at ``T_w_MRF`` (15,), turned into the wrench
             the step applied (:func:`implicit_wrench`); ``valid`` its flag.
-        rows, materials, h: Its contact rows (k, 9), the objects' materials (n, 3) and the
-            substep (s), for :func:`implicit_wrench`.
-        reading: Output, the F/T reading ``[wrench_S (6); R_w_S (9, row-major); acc_w (6);
-            omega_w (3)]`` at the substep's start with the accelerations it applied, (24,).
+        rows, h: Its contact rows (k, 9) and the substep (s), for :func:`implicit_wrench`.
     """
+    a: Any = own
+    mj, params, frames, T_w_MRF, V_w_MRF = a.mj, a.params, a.frames, a.T_w_MRF, a.V_w_MRF
+    T_ref, V_ref_w, qpos, qvel, qacc, xfrc = a.T_ref, a.V_ref_w, a.qpos, a.qvel, a.qacc, a.xfrc
+    scratch, materials, reading = a.scratch, a.materials, a.reading
     work = scratch[0:N_WORK]
     work6 = scratch[N_WORK:N_SCRATCH].reshape((N_WORK6, 6, 6))  # a view
     if reference == HOLD:

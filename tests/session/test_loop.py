@@ -71,3 +71,23 @@ def test_redundant_freflex_reflects_a_contact_through_seven_joints() -> None:
     assert out.G_F_T[2] > 1.0  # the surface pushes the tool (and the hand) up
     assert out.tau_T.shape == (7,)
     assert np.count_nonzero(np.abs(out.tau_T) > 1e-6) >= 5
+
+
+def test_after_a_reset_the_plant_is_sent_no_counts_and_the_ticks_repeat_a_fresh_loops() -> None:
+    """The loop hands the plant the controller's own counts buffer (no copy a tick): a reset must
+    still send zero counts on the next tick, although the controller's output keeps the last
+    tick's. With the hand let go, the reset loop's next 200 ticks equal a new loop's, bit for bit."""
+    loop = make_loop("kraft")
+    loop.set_hand_target(None)
+    for _ in range(300):
+        loop.tick()
+    assert np.any(loop.controller.out.counts != 0)  # gravity compensation drives the motors
+    loop.reset()
+    assert loop.counts.tolist() == [0] * loop.config.device.n_joints
+    assert np.any(loop.controller.out.counts != 0)
+    fresh = make_loop("kraft")
+    fresh.set_hand_target(None)
+    for _ in range(200):
+        a, b = loop.tick(), fresh.tick()
+        assert a.reading.q.tolist() == b.reading.q.tolist()
+        assert a.out.counts.tolist() == b.out.counts.tolist()

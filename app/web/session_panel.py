@@ -217,10 +217,13 @@ class SessionPanel:
             self.speed.value = shown  # type: ignore[misc]  # viser 1.1: setter exists
 
     def show_replay(self, duration: float | None, text: str) -> None:
-        """Enable the timeline for a log of ``duration`` seconds (None: live again)."""
+        """Enable the timeline for a log of ``duration`` seconds (None: live again, the timeline
+        back at 0: a value the page sent that the replay refused, such as NaN, is not left on it)."""
         self.timeline.disabled = duration is None
         if duration is not None:
             self.timeline.max = max(duration, 1e-3)
+        else:
+            self.timeline.value = 0.0  # type: ignore[misc]  # viser 1.1: the setter exists
         self.replay_status.content = text
 
     def show_experiment(self, done: int, total: int, table: str | None, chart: np.ndarray | None) -> None:

@@ -332,6 +332,7 @@ def test_values_the_page_would_not_send_are_refused_on_the_page_not_raised(
     send(p.replay_speed, "nan")
     assert demo.player.speed == 1.0
     send(p.live, True)
+    assert p.timeline.value == 0.0  # not the NaN sent above, which the replay refused
 
 
 def test_values_viser_cannot_cast_are_refused_in_one_line(

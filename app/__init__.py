@@ -10,7 +10,6 @@ import hashlib
 import os
 from pathlib import Path
 
-
 # What marks a module whose functions numba compiles: numba itself, or the contact package's
 # alias of ``njit`` (:data:`app.world.contact.bundle.tick_kernel`), which a module may use without
 # naming numba (``app/world/contact/track.py``: an edit to it once ran against the stale cached

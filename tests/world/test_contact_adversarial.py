@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from test_contact_depth import _box, _mesh_scene
 from world_helpers import make_scene, pose, sphere_tool
 
 from app.world import ContactModel
@@ -19,21 +20,6 @@ from app.world.scene import ObjectSpec, Pose, Scene
 K = 3000.0  # N/m, the shipped scenes' stiffness
 r = 0.005  # m, the shipped stylus tip
 LIMIT = 40.0  # N, the shipped slave force limit
-
-
-def _box(lo: tuple[float, float, float], hi: tuple[float, float, float]) -> trimesh.Trimesh:
-    box = trimesh.creation.box(extents=np.subtract(hi, lo))
-    box.apply_translation(np.add(lo, hi) / 2)
-    return box
-
-
-def _scene(tmp: Path, meshes: dict[str, trimesh.Trimesh]) -> Scene:
-    objects = []
-    for name, mesh in meshes.items():
-        path = tmp / f"{name}.ply"
-        mesh.export(path)
-        objects.append(ObjectSpec(name=name, mesh=str(path), stiffness=K))
-    return make_scene(objects, sphere_tool(r))
 
 
 def _push_down(scene: Scene, x: float, top: float, step: float, depth: float) -> tuple[np.ndarray, np.ndarray]:
@@ -64,7 +50,7 @@ def test_a_cube_scaled_0_01x_and_100x_holds(tmp_path: Path, half: float) -> None
     """A cube of half-width 0.2 mm (smaller than the sphere) and 2 m (a 4 m cube), pushed down at
     its top's centre to the force limit: k (r + half - z), the top face held."""
     cube = _box((-half, -half, -half), (half, half, half))
-    zs, forces = _push_down(_scene(tmp_path, {"cube": cube}), 0.0, half, 1e-4, LIMIT / K)
+    zs, forces = _push_down(_mesh_scene(tmp_path, {"cube": cube}), 0.0, half, 1e-4, LIMIT / K)
     touching = zs < half + r
     assert forces[touching, 2] == pytest.approx(K * (r + half - zs[touching]), rel=1e-7)
     assert np.abs(forces[:, 0:2]).max() < 1e-9
@@ -79,7 +65,7 @@ def test_a_box_with_a_zero_area_sliver_loads_and_holds(tmp_path: Path) -> None:
              [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7], [4, 5, 8]]  # fmt: skip
     mesh = trimesh.Trimesh(v, faces, process=False)
     assert mesh.area_faces.min() == 0.0
-    zs, forces = _push_down(_scene(tmp_path, {"sliver": mesh}), 0.0, 0.0, 1e-4, LIMIT / K)
+    zs, forces = _push_down(_mesh_scene(tmp_path, {"sliver": mesh}), 0.0, 0.0, 1e-4, LIMIT / K)
     touching = zs < r
     assert forces[touching, 2] == pytest.approx(K * (r - zs[touching]), rel=1e-9)
 
@@ -89,7 +75,7 @@ def test_a_sphere_grazing_past_a_convex_edge_feels_only_the_edge(tmp_path: Path,
     """A sphere swept at 0.01 and 3 m/s along x over a box's top edge (x = 0, z = 0) with its
     centre 4.9 mm above the top: k (r - d) along c - q, q the nearest point of the top face or the
     edge, never more, and nothing once past it."""
-    scene = _scene(tmp_path, {"box": _box((-0.02, -0.02, -0.02), (0.0, 0.02, 0.0))})
+    scene = _mesh_scene(tmp_path, {"box": _box((-0.02, -0.02, -0.02), (0.0, 0.02, 0.0))})
     model = ContactModel(scene)
     z = 0.0049
     for x in np.arange(-0.01, 0.01, speed * 1e-3):

@@ -411,6 +411,7 @@ class DemoApp:
         if player.replay.unchecked:
             text += f" · **device not checked:** {player.replay.unchecked}"
         self.panel.show_replay(player.duration, text)
+        self.panel.timeline.value = player.cursor  # type: ignore[misc]  # viser 1.1: setter exists
 
     def close_replay(self) -> None:
         """Back to the live loop."""
@@ -422,8 +423,12 @@ class DemoApp:
         self.panel.show_replay(None, "")
 
     def seek(self, t: float) -> None:
-        if self.player is not None:
-            self.player.seek(t)
+        """Show time ``t`` (s) of the replay; a refused ``t`` (NaN) puts the timeline back."""
+        player = self.player
+        if player is not None:
+            player.seek(t)
+            if not np.isfinite(t):
+                self.panel.timeline.value = player.cursor  # type: ignore[misc]  # viser 1.1: setter exists
 
     def set_replay_playing(self, on: bool) -> None:
         if self.player is not None:
@@ -511,6 +516,7 @@ class DemoApp:
             self.panel.show_play_status(text)
             self.panel.show_speed(snap.speed)
         else:
+            played_from = player.cursor
             player.advance(period)
             snap = player.snapshot()
             self.controls.update(snap, stats, "replay", servo_rate, "", live=False)
@@ -518,7 +524,10 @@ class DemoApp:
             if player.cursor != self._replay_shown and self.controls.plot_due():
                 self.controls.plot(player.window(PLOT_SECONDS))
                 self._replay_shown = player.cursor
-            self.panel.timeline.value = player.cursor  # type: ignore[misc]  # viser 1.1: setter exists
+            # Only a cursor that playing moved: paused, the timeline is the page's, and writing it
+            # back here could land between viser taking a scrub and its callback reading it.
+            if player.cursor != played_from:
+                self.panel.timeline.value = player.cursor  # type: ignore[misc]  # viser 1.1: setter exists
             p = snap.T_w_MRF[0:3, 3]
             self.panel.replay_status.content = (
                 f"replay t = {snap.time:.3f} s (tick {snap.ticks} of {len(player.replay)}) · tool at "

@@ -329,6 +329,7 @@ def test_values_the_page_would_not_send_are_refused_on_the_page_not_raised(
     send(p.timeline, 0.25)
     send(p.timeline, float("nan"))
     assert demo.player.cursor == pytest.approx(0.25)
+    assert p.timeline.value == pytest.approx(0.25)  # the slider put back, not left at NaN
     send(p.replay_speed, "nan")
     assert demo.player.speed == 1.0
     send(p.live, True)

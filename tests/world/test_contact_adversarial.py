@@ -6,7 +6,6 @@ held from behind pushes ``k (r - phi)`` along its normal, however deep.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -85,22 +84,3 @@ def test_a_sphere_grazing_past_a_convex_edge_feels_only_the_edge(tmp_path: Path,
         d = float(np.linalg.norm(np.array([x, 0.0, z]) - q))
         expected = K * max(r - d, 0.0) * (np.array([x, 0.0, z]) - q) / d
         assert f == pytest.approx(expected, abs=1e-9)
-
-
-def test_a_peg_on_a_bore_rim_is_one_contact_whatever_the_scan_order(tmp_path: Path) -> None:
-    """A 6 mm sphere (the peg's) pressed 0.1 mm onto the 256-segment crease where a 6.1 mm bore
-    meets its chamfer, from inside the bore, at 36 places round it with one model (its caches
-    kept from place to place): each nearby rim segment holds its own edge minimum, and the chain
-    of them along the crease is one contact, k 0.1 mm. Before the chains (wall9's round): two
-    at 11 of the 36 places, so twice the force (the pairwise merge missed every other segment)."""
-    from app.world.assets import CHAMFER, HOLE_RADIUS, PEG_RADIUS, peg_block
-
-    depth, tilt = 1e-4, math.radians(40.0)  # tilt: above the horizontal, the crease's edge region
-    model = ContactModel(_mesh_scene(tmp_path, {"block": peg_block()}, radius=PEG_RADIUS))
-    for angle in np.linspace(0.0, 2.0 * math.pi, 36, endpoint=False):
-        out = np.array([math.cos(angle), math.sin(angle), 0.0])
-        crease = np.array([0.03, 0.0, -CHAMFER]) + HOLE_RADIUS * out
-        centre = crease + (PEG_RADIUS - depth) * (-math.cos(tilt) * out + np.array([0.0, 0.0, math.sin(tilt)]))
-        result = model.wrench(pose(tuple(centre)))
-        assert len(result.contacts) == 1, f"at {math.degrees(angle):.0f} deg"
-        assert np.linalg.norm(result.force_w) == pytest.approx(K * depth, rel=0.01)

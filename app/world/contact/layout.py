@@ -110,9 +110,7 @@ PAIR = np.dtype(
         ("min_w", "f8", (MAX_PER_PAIR,)),  # weights (< 1 only in the band of a gentle concave crease)
         ("min_g", "f8", (MAX_PER_PAIR, 3)),  # gradients of the weights in the centre (1/m)
         ("min_t", "i8", (MAX_PER_PAIR,)),  # triangles,
-        ("min_f", "i8", (MAX_PER_PAIR,)),  # and features (FEAT_*);
-        # an edge or vertex minimum's chain along a gentle crease: the triangles at its two ends
-        ("min_end", "i8", (MAX_PER_PAIR, 2)),
+        ("min_f", "i8", (MAX_PER_PAIR,)),  # and features (FEAT_*)
     ],
     align=True,
 )

@@ -175,29 +175,10 @@ def _farthest(phi: np.ndarray) -> int:
 
 
 @njit(cache=True, inline="always")
-def _worst(phi: np.ndarray, feat: np.ndarray, n_min: int) -> float:
+def _worst(phi: np.ndarray, n_min: int) -> float:
     """The largest ``|phi|`` of ``n_min`` kept minima if the set is full (inf if one of them is
-    marked dropped), else inf; inf too while one is an edge or vertex minimum (``feat``): a
-    farther one may still join its chain to another (see the chains in :func:`local_minima`)."""
-    if n_min < MAX_PER_PAIR:
-        return math.inf
-    for e in range(MAX_PER_PAIR):
-        if feat[e] != FEAT_FACE:
-            return math.inf
-    return abs(phi[_farthest(phi)])
-
-
-@njit(cache=True, inline="always")
-def share_corner(verts: Records, tris: Records, a: int, b: int) -> bool:
-    """Whether triangles a and b have a corner at the same point, across a cut too (each side of a
-    cut has its own copy of a vertex, at the same coordinates)."""
-    for x in range(3):
-        p = verts[tris[a].v[x]].p
-        for y in range(3):
-            o = verts[tris[b].v[y]].p
-            if p[0] == o[0] and p[1] == o[1] and p[2] == o[2]:
-                return True
-    return False
+    marked dropped), else inf."""
+    return abs(phi[_farthest(phi)]) if n_min == MAX_PER_PAIR else math.inf
 
 
 @njit(cache=True, inline="always")
@@ -400,49 +381,28 @@ def local_minima(
                 phi, nx, ny, nz = d, ux, uy, uz
             else:
                 phi, nx, ny, nz = -d, -ux, -uy, -uz
-        # The same minimum reported twice (rounding at a shared edge) counts once. Edge or vertex
-        # minima on triangles with a common corner (a crease that is a cut included: its two sides
-        # report their own), with normals within the cut angle, lie along one
-        # gentle crease (a polygonal rim seen from inside: one minimum per segment, each a local
-        # minimum of the polygon's distance): a chain of them is one contact, its nearest. A kept
-        # one stands for its chain, whose end triangles it keeps (``min_end``), so a minimum
-        # joining either end joins the chain whatever the scan order (pairwise only, every other
-        # segment of a rim survived: 4 contacts where one is, issue 25's wall9 round).
+        # The same minimum reported twice (rounding at a shared edge) counts once; two edge or
+        # vertex minima on triangles sharing a vertex, with normals within the cut angle, are
+        # the two sides of a gentle crease (a polygonal rim seen from inside): the nearer counts.
         skip = False
-        best = -1  # the nearest kept chain this minimum joins
-        end_a = end_b = t  # the ends of the chain it makes
         for e in range(n_min):
             mq, mn = pair.min_q[e], pair.min_n[e]
             aligned = nx * mn[0] + ny * mn[1] + nz * mn[2]
             if (qx - mq[0]) ** 2 + (qy - mq[1]) ** 2 + (qz - mq[2]) ** 2 <= _SAME_POINT**2 and aligned > 0.999:
                 skip = True
-            elif feat != FEAT_FACE and pair.min_f[e] != FEAT_FACE and aligned > _PARTNER_COS:
-                at_a = share_corner(verts, tris, t, pair.min_end[e, 0])
-                if not (at_a or share_corner(verts, tris, t, pair.min_end[e, 1])):
-                    continue
-                # The chain's far end becomes an end of the joined chain.
-                far = pair.min_end[e, 1] if at_a else pair.min_end[e, 0]
-                if end_a == t:
-                    end_a = far
+            elif (
+                feat != FEAT_FACE
+                and pair.min_f[e] != FEAT_FACE
+                and aligned > _PARTNER_COS
+                and share_vertex(tris, t, pair.min_t[e])
+            ):
+                if abs(pair.min_phi[e]) <= d:
+                    skip = True
                 else:
-                    end_b = far
-                if best < 0 or abs(pair.min_phi[e]) < abs(pair.min_phi[best]):
-                    if best >= 0:
-                        pair.min_phi[best] = math.inf  # dropped below
-                        dropped = True
-                    best = e
-                else:
-                    pair.min_phi[e] = math.inf
+                    pair.min_phi[e] = math.inf  # dropped below
                     dropped = True
-        if best >= 0:
-            if abs(pair.min_phi[best]) <= d:
-                skip = True
-                pair.min_end[best, 0], pair.min_end[best, 1] = end_a, end_b
-            else:
-                pair.min_phi[best] = math.inf
-                dropped = True
         if skip:
-            worst = _worst(pair.min_phi, pair.min_f, n_min)
+            worst = _worst(pair.min_phi, n_min)
             continue
         if dropped:
             n_kept = 0
@@ -456,7 +416,6 @@ def local_minima(
                         pair.min_w[n_kept] = pair.min_w[e]
                         pair.min_t[n_kept] = pair.min_t[e]
                         pair.min_f[n_kept] = pair.min_f[e]
-                        pair.min_end[n_kept, 0], pair.min_end[n_kept, 1] = pair.min_end[e, 0], pair.min_end[e, 1]
                     n_kept += 1
             n_min = n_kept
             dropped = False
@@ -473,8 +432,7 @@ def local_minima(
         pair.min_phi[slot] = phi
         pair.min_t[slot] = t
         pair.min_f[slot] = feat
-        pair.min_end[slot, 0], pair.min_end[slot, 1] = end_a, end_b
-        worst = _worst(pair.min_phi, pair.min_f, n_min)
+        worst = _worst(pair.min_phi, n_min)
     # The weights of the minima kept (a face minimum near a gentle concave crease), only now: on
     # a hole's wall most minima found are displaced by nearer ones later in the scan.
     for e in range(n_min):

@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
+import json
 import math
 import re
 import tomllib
@@ -40,6 +42,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar, get_args, get_origin, get_type_hints
+
+import numpy as np
 
 from app.errors import ConfigError, InvalidField
 
@@ -230,6 +234,24 @@ def field_range(cls: type, name: str) -> Range | Count | None:
             ranges = [r for r in bounds if isinstance(r, Range)]
             return ranges[0] if ranges else bounds[0]
     return None
+
+
+def identity_digest(*parts: object) -> str:
+    """A short digest of what a loaded file makes (``"sha256:"`` + 16 hex digits), for a log to
+    tell the file it names from the one it was run with.
+
+    Args:
+        parts: Each a NumPy array (digested as contiguous float64 bytes) or a JSON-able value or
+            dataclass (digested as canonical JSON: sorted keys, arrays as lists).
+    """
+    digest = hashlib.sha256()
+    for part in parts:
+        if isinstance(part, np.ndarray):
+            digest.update(np.ascontiguousarray(part, dtype=np.float64).tobytes())
+            continue
+        fields = dataclasses.asdict(part) if dataclasses.is_dataclass(part) and not isinstance(part, type) else part
+        digest.update(json.dumps(fields, sort_keys=True, default=lambda o: np.asarray(o).tolist()).encode())
+    return f"sha256:{digest.hexdigest()[:16]}"
 
 
 def require_file(path: Path, source: str | Path, field: str, missing: str) -> Path:

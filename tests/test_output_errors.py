@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -26,10 +27,12 @@ import pytest
 
 from app.cli import main
 from app.device.spec import load_device
+from app.errors import ConfigError
 from app.session.log import PART_SECONDS
 from app.session.run import run_session
 from app.session.spec import load_session
 from app.web.replay import LogReplay
+from app.world.scene import load_scene
 
 FRHC = [sys.executable, "-m", "app.cli"]
 
@@ -180,6 +183,16 @@ def _damage(log: Path, how: str) -> tuple[Path, str, str]:
         data["device_identity"] = 7
         meta.write_text(json.dumps(data))
         return meta, "device_identity", "expected a string, got 7"
+    if how == "meta names another scene":  # a probe log said to be the bowl's (no moving objects in either)
+        data = json.loads(meta.read_text())
+        data["scene"] = str(load_scene("bowl").path)
+        meta.write_text(json.dumps(data))
+        return meta, "scene", f"{load_scene('bowl').path} is not the scene this log was run on (its scene_identity"
+    if how == "scene identity not a string":
+        data = json.loads(meta.read_text())
+        data["scene_identity"] = [1]
+        meta.write_text(json.dumps(data))
+        return meta, "scene_identity", "expected a string, got [1]"
     if how == "meta not an object":
         meta.write_text("[1, 2]")
         return meta, "<file>", "expected a JSON object"
@@ -217,6 +230,8 @@ def _damage(log: Path, how: str) -> tuple[Path, str, str]:
         "meta without device",
         "meta names another device",
         "device identity not a string",
+        "meta names another scene",
+        "scene identity not a string",
         "meta not an object",
         "part with other columns",
         "middle part missing",
@@ -235,17 +250,43 @@ def test_replay_of_a_damaged_log_is_one_line(
     assert line.startswith(f"error: {named}: field '{field}': {reason}"), line
 
 
-def test_a_log_from_before_device_identities_replays_with_a_note(tmp_path: Path, log_dir: Path) -> None:
+def test_a_log_from_before_identities_replays_with_a_note(tmp_path: Path, log_dir: Path) -> None:
     log = tmp_path / "log"
     shutil.copytree(log_dir, log)
     meta = log / "_meta.json"
     data = json.loads(meta.read_text())
     assert data["device_identity"] == load_device("kraft").identity
-    del data["device_identity"]
+    assert data["scene_identity"] == load_scene("probe").identity
+    del data["device_identity"], data["scene_identity"]
     meta.write_text(json.dumps(data))
     replay = LogReplay(log)
-    assert replay.unchecked.startswith(f"{meta} has no device_identity (an older log)")
+    assert replay.unchecked == (
+        f"{meta} has no device_identity (an older log): {load_device('kraft').path} is taken as the device it ran"
+        f" · {meta} has no scene_identity (an older log): {load_scene('probe').path} is taken as the scene it ran"
+    )
     assert LogReplay(log_dir).unchecked == ""
+
+
+def test_a_log_of_an_edited_scene_is_refused(tmp_path: Path, log_dir: Path) -> None:
+    """The scene file the log names is edited after the run: a wall made softer is another world,
+    a new name is not."""
+    scene = tmp_path / "probe.toml"
+    text = load_scene("probe").path.read_text()  # type: ignore[union-attr]
+    scene.write_text(text)
+    log = tmp_path / "log"
+    shutil.copytree(log_dir, log)
+    meta = log / "_meta.json"
+    data = json.loads(meta.read_text())
+    data["scene"] = str(scene)
+    meta.write_text(json.dumps(data))
+    assert LogReplay(log).unchecked == ""
+    scene.write_text(text.replace('name = "probe"', 'name = "renamed probe"', 1))
+    assert LogReplay(log).unchecked == ""
+    stiffness = re.search(r"^stiffness = .*$", text, re.MULTILINE)
+    assert stiffness is not None
+    scene.write_text(text.replace(stiffness.group(0), "stiffness = 123.0", 1))
+    with pytest.raises(ConfigError, match=f"{scene} is not the scene this log was run on"):
+        LogReplay(log)
 
 
 def test_a_toml_bomb_is_refused_in_one_line_with_bounded_memory(tmp_path: Path) -> None:

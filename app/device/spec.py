@@ -12,8 +12,6 @@ sees every error ``frhc run`` would. Every field has a physical range
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -24,7 +22,7 @@ import mujoco
 import numpy as np
 from numpy.polynomial import polynomial as npoly
 
-from app.config import Checked, Count, Range, deferred_warnings, from_dict, load_toml, require_file
+from app.config import Checked, Count, Range, deferred_warnings, from_dict, identity_digest, load_toml, require_file
 from app.controller.gains import ControllerGains
 from app.errors import ConfigError, InvalidField
 from app.spatial import Array
@@ -305,12 +303,6 @@ MODEL_ARRAYS = (
 NOT_IDENTITY = ("name", "description", "mjcf", "calibration", "gains")
 
 
-def _canonical(value: object) -> bytes:
-    """A dataclass's fields as canonical JSON (sorted keys, arrays as lists)."""
-    fields = dataclasses.asdict(value) if dataclasses.is_dataclass(value) and not isinstance(value, type) else value
-    return json.dumps(fields, sort_keys=True, default=lambda o: np.asarray(o).tolist()).encode()
-
-
 @dataclass(frozen=True)
 class DeviceSpec:
     """A loaded, cross-checked device: the file's data plus its compiled MuJoCo model.
@@ -345,12 +337,8 @@ class DeviceSpec:
         A log keeps it (``device_identity``) so a replay can tell the device it names from the
         one it was run on."""
         fields = {k: v for k, v in dataclasses.asdict(self.data).items() if k not in NOT_IDENTITY}
-        digest = hashlib.sha256(_canonical(fields))
-        if self.calibration is not None:
-            digest.update(_canonical(self.calibration))
-        for name in MODEL_ARRAYS:
-            digest.update(np.ascontiguousarray(getattr(self.model, name), dtype=np.float64).tobytes())
-        return f"sha256:{digest.hexdigest()[:16]}"
+        calibration = () if self.calibration is None else (self.calibration,)
+        return identity_digest(fields, *calibration, *(getattr(self.model, name) for name in MODEL_ARRAYS))
 
     @property
     def n_joints(self) -> int:

@@ -311,6 +311,8 @@ def loop_meta(config: LoopConfig, session: Path | None = None) -> dict[str, Any]
         "device": str(config.device.path),
         # What the device file held when the log was run: a replay refuses a file that differs.
         "device_identity": config.device.identity,
+        # And the scene file's world (meshes, contact parameters, tool): likewise.
+        "scene_identity": config.scene.identity,
         "session": None if session is None else str(session),
         "mode": config.gains.mode,
         # The q_* columns of a Cartesian device's log are its grip pose's coordinates.

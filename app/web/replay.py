@@ -27,13 +27,14 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
 
 from app.controller.layout import DELTA_X_AXES, WRENCH_AXES
 from app.device.boundary import LinkStatus
-from app.device.spec import DeviceSpec, load_device
+from app.device.spec import load_device
 from app.errors import ConfigError
 from app.session.log import META_FILE, read_log
 from app.session.loop import LoopConfig, ServoLoop
@@ -94,8 +95,16 @@ class LogReplay:
             if not isinstance(meta.get(name), str) or not meta[name]:
                 raise ConfigError(meta_path, name, "missing: the log does not name the file it was run with")
         device, scene = load_device(meta["device"]), load_scene(meta["scene"])
-        #: Why the log's device could not be checked (a log from before ``device_identity``), or "".
-        self.unchecked = self._check_device(meta_path, meta.get("device_identity"), device)
+        #: What of the log's files could not be checked (a log from before ``device_identity`` or
+        #: ``scene_identity``), or "".
+        self.unchecked = " · ".join(
+            note
+            for note in (
+                self._check_identity(meta_path, meta, "device", device.path, device.identity),
+                self._check_identity(meta_path, meta, "scene", scene.path, scene.identity),
+            )
+            if note
+        )
         cartesian = meta.get("cartesian", device.data.interface == "cartesian")  # not in older logs
         if not isinstance(cartesian, bool):
             raise ConfigError(meta_path, "cartesian", f"expected true or false, got {cartesian!r}")
@@ -127,24 +136,28 @@ class LogReplay:
                 self._object_poses[:, b, k] = self._cols[f"object_{name}_{axis}"]
 
     @staticmethod
-    def _check_device(meta_path: Path, identity: object, device: DeviceSpec) -> str:
-        """Hold the device file the log names to the one it was run on (its
-        :attr:`~app.device.spec.DeviceSpec.identity`); a log written before the identity was kept
-        is replayed with a note, not refused (the note is shown beside the replay).
+    def _check_identity(meta_path: Path, meta: dict[str, Any], kind: str, path: Path | None, identity: str) -> str:
+        """Hold the ``kind`` file (``"device"`` or ``"scene"``) the log names, at ``path``, to the
+        one it was run with: the log's ``<kind>_identity`` against the file's ``identity`` (see
+        :attr:`~app.device.spec.DeviceSpec.identity`, :attr:`~app.world.scene.Scene.identity`).
+        A log written before the identity was kept is replayed with the note returned (shown
+        beside the replay), not refused; "" when checked.
 
         Raises:
-            ConfigError: the identity is not a string, or differs from ``device``'s.
+            ConfigError: the logged identity is not a string, or differs from ``identity``.
         """
-        if identity is None:
-            return f"{meta_path} has no device_identity (an older log): {device.path} is taken as the device it ran"
-        if not isinstance(identity, str):
-            raise ConfigError(meta_path, "device_identity", f"expected a string, got {identity!r}")
-        if identity != device.identity:
+        field = f"{kind}_identity"
+        logged = meta.get(field)
+        if logged is None:
+            return f"{meta_path} has no {field} (an older log): {path} is taken as the {kind} it ran"
+        if not isinstance(logged, str):
+            raise ConfigError(meta_path, field, f"expected a string, got {logged!r}")
+        if logged != identity:
             raise ConfigError(
                 meta_path,
-                "device",
-                f"{device.path} is not the device this log was run on (its device_identity is {identity}, "
-                f"the file's is {device.identity}): the file was edited since, or the log names another device",
+                kind,
+                f"{path} is not the {kind} this log was run on (its {field} is {logged}, "
+                f"the file's is {identity}): the file was edited since, or the log names another {kind}",
             )
         return ""
 

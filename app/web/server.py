@@ -409,7 +409,7 @@ class DemoApp:
             self._replay_shown = float("nan")
         text = f"replaying `{player.replay.directory}` ({len(player.replay)} ticks)"
         if player.replay.unchecked:
-            text += f" · **device not checked:** {player.replay.unchecked}"
+            text += f" · **not checked:** {player.replay.unchecked}"
         self.panel.show_replay(player.duration, text)
         self.panel.timeline.value = player.cursor  # type: ignore[misc]  # viser 1.1: setter exists
 

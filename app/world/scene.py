@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from app.config import deferred_warnings, from_dict, load_toml, require_file
+from app.config import deferred_warnings, from_dict, identity_digest, load_toml, require_file
 from app.errors import ConfigError
 from app.spatial import Array, invert_pose
 from app.world.collision import CollisionMesh, PackedMeshes, pack_meshes
@@ -186,6 +186,23 @@ class Scene:
     @property
     def name(self) -> str:
         return self.spec.name
+
+    @cached_property
+    def identity(self) -> str:
+        """A digest of the world as simulated (:func:`~app.config.identity_digest`): every object's
+        name, contact parameters and mesh in {w} (its mesh in {B} and mass properties for a dynamic
+        one), the tool's spheres, frames and inertia, and gravity. Names, prose and file names are
+        left out (the meshes' contents count), and so is the tool's home, which a session or the
+        experiment moves. A log keeps it (``scene_identity``) so a replay can tell the scene file
+        it names from the one it was run with."""
+        parts: list[object] = []
+        for o in (*self.objects, *(b.object for b in self.bodies)):
+            parts += [[o.name, o.stiffness, o.damping, o.friction], o.mesh.vertices, o.mesh.faces]
+        for b in self.bodies:
+            parts += [[b.mass], b.com_B, b.inertia_B, b.T_w_B, b.twist]
+        tool = self.tool
+        parts += [tool.centers_T, tool.radii, tool.T_T_MRF, tool.T_T_S, [tool.mass], tool.com_T, tool.inertia_T]
+        return identity_digest(*parts, self.gravity_w)
 
     @cached_property
     def packed(self) -> PackedMeshes:

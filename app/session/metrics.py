@@ -13,6 +13,7 @@ from numba.experimental import structref
 from app.compiled import F8, I8, Arrays, ArraysType, array_type, entry_point
 from app.controller.layout import SCALARS
 from app.controller.types import Fault
+from app.device.boundary import LinkStatus
 from app.session.state import fill_row
 from app.session.tick import STAGES, TickRecord
 from app.slave.arm import ArmStatus
@@ -71,9 +72,11 @@ _CONTACT_TICKS, _SATURATED, _RAMPING, _WATCHDOG, _PEAK_LINK, _DONE_AT, _TIME = 1
 _TOL_P, _TOL_A, _N_ACC = 20, 21, 22
 # Where _reduce finds its values in the state row (SessionMetrics fills these from the block).
 _AT_T, _AT_TOOL, _AT_R, _AT_F, _AT_SCALARS, _AT_SWITCHES, _AT_LINK, _AT_REFLECTING, _N_AT = range(9)
-# Then, in the same int array, the ticks per bit of the controller's faults and the slave's status.
+# Then, in the same int array, the ticks per bit of the controller's faults and the slave's status,
+# and the ticks per state of a Cartesian device's link (LinkStatus).
 _N_BITS = 63
-_FAULT_BITS, _STATUS_BITS, _N_INTS = _N_AT, _N_AT + _N_BITS, _N_AT + 2 * _N_BITS
+_FAULT_BITS, _STATUS_BITS, _LINK_TICKS = _N_AT, _N_AT + _N_BITS, _N_AT + 2 * _N_BITS
+_N_INTS = _LINK_TICKS + len(LinkStatus)
 _SATURATION_SCALE, _RAMP, _PO_ENERGY, _PC_CUT = (
     SCALARS.index(name) for name in ("saturation_scale", "ramp", "po_energy", "pc_cut")
 )
@@ -176,6 +179,7 @@ def _reduce(sinks: Arrays, row: Array, tick: int, stage_ns: IntArray) -> None:
     if row[ints[_AT_REFLECTING]] > 0.0 and row[scalars + _RAMP] < 1.0:
         acc[_RAMPING] += 1.0
     acc[_WATCHDOG] = row[sw + 5]
+    ints[_LINK_TICKS + int(row[sw + 7])] += 1
     status = int(row[sw + 6])
     if status:
         _count_bits_into(status, ints, _STATUS_BITS)
@@ -384,6 +388,11 @@ class SessionMetrics:
             "saturated_ticks": int(self._acc[_SATURATED]),
             "ramping_ticks": int(self._acc[_RAMPING]),
             "watchdog_trips": int(self._acc[_WATCHDOG]),
+            # A Cartesian device's link: ticks per state other than OK (stalled: no sample that
+            # period, zero force sent), the states seen only.
+            "device_link_ticks": {
+                s.name: int(self._ints[_LINK_TICKS + s]) for s in LinkStatus if s and self._ints[_LINK_TICKS + s]
+            },
             "settling": self.settling(),
             "slave_status_ticks": _bit_counts(ArmStatus, self._ints[_STATUS_BITS : _STATUS_BITS + _N_BITS]),
             "peak_link_force_N": float(self._acc[_PEAK_LINK]),

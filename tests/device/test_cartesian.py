@@ -441,7 +441,7 @@ def test_link_state_is_logged_per_tick_through_a_stall_and_a_dropped_connection_
     stall_at, drop_at = 1400, 1600  # contact from 1.26 s on
     spec = load_device("touch3").data.cartesian
     assert spec is not None
-    run_session(
+    result = run_session(
         session,
         out_dir=tmp_path / "run",
         plots=False,
@@ -467,6 +467,12 @@ def test_link_state_is_logged_per_tick_through_a_stall_and_a_dropped_connection_
     assert got[6][2] in (connect_ramp - 1, connect_ramp)
     assert got[7][0] == ok
     assert len(got) == 8
+    # The summary counts the ticks of each state but OK, as the log has them (before: not at all).
+    assert result.summary["device_link_ticks"] == {
+        "RAMPING": got[0][2] + got[3][2] + got[6][2],
+        "STALLED": 3,
+        "DISCONNECTED": got[5][2],
+    }
     contacts = table["contacts"].to_numpy()
     assert contacts[stall_at - 1] > 0  # both happened mid-contact
     assert contacts[drop_at - 1] > 0

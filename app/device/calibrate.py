@@ -169,7 +169,11 @@ def measure_grip_wrench(plant: DevicePlant, curve: TorqueCurve, F_G: Array) -> A
     """Command wrench ``F_G`` (N, N m; at G, {0} axes, (6,)) on the braked stand; measure what the motors produce.
 
     The counts come from ``tau = J_G^T F_G`` on the nominal model at the home pose and ``curve``;
-    the produced wrench is the least-squares ``(J_G^T)^+ (tau_brake - tau_tare)``.
+    the produced wrench is the least-squares ``(J_G^T)^+ (tau_brake - tau_tare)``. A device with
+    fewer than six joints whose grip's linear Jacobian has full column rank (a 3-dof positional
+    device: Touch, Falcon) renders forces only, so its wrench is solved from that block with zero
+    moments: the minimum-norm solution over all six axes would spread the torques over forces and
+    moments that the device cannot tell apart (it read 1.6 N of error on 2 N on touch3).
     """
     spec = plant.spec
     q = np.asarray(spec.data.home)
@@ -182,6 +186,11 @@ def measure_grip_wrench(plant: DevicePlant, curve: TorqueCurve, F_G: Array) -> A
     tare = _settle(plant, np.zeros(spec.n_joints, dtype=np.int64))
     tau_measured = _settle(plant, counts) - tare
     plant.lock_joints(False)
+    n = spec.n_joints
+    if n < 6 and np.linalg.matrix_rank(J_G[:3]) == n:
+        wrench = np.zeros(6)
+        wrench[:3] = np.linalg.lstsq(J_G[:3].T, tau_measured, rcond=None)[0]
+        return wrench
     return np.asarray(np.linalg.lstsq(J_G.T, tau_measured, rcond=None)[0], dtype=float)
 
 

@@ -62,6 +62,14 @@ def test_two_newton_test_force_is_right_only_with_the_fitted_curves(
     assert report.error_fitted < 0.1 * report.error_linear
 
 
+def test_a_three_joint_device_reads_its_test_force_as_a_force() -> None:
+    """touch3 has three joints: the 2 N along x is read back from its brakes as 2 N along x and no
+    moment (before: a minimum-norm wrench over six axes from three torques, 1.6 N of error)."""
+    report = calibrate("touch3")
+    for measured in (report.force_linear, report.force_fitted):
+        np.testing.assert_allclose(measured, [2.0, 0, 0, 0, 0, 0], atol=0.01)
+
+
 def test_written_files_load_and_match_the_committed_calibration(
     kraft_calibrated: tuple[CalibrationReport, Path],
 ) -> None:

@@ -45,7 +45,7 @@ import threading
 import traceback
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager, nullcontext, suppress
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
@@ -250,6 +250,15 @@ def join_ray(address: str, source: str = "--address") -> None:
         raise EngineError(f"{where}: cannot join the Ray cluster: {reason[:300]}") from None
 
 
+def _host_port(address: str) -> tuple[str, str]:
+    """A cluster address's host (resolved, so ``localhost`` is ``127.0.0.1``) and port."""
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    host = host.strip("[]")
+    with suppress(OSError):  # a name that does not resolve is compared as written
+        host = socket.gethostbyname(host)
+    return host, port
+
+
 def _causes(exc: BaseException) -> list[BaseException]:
     """``exc`` and the exceptions it was raised from, outermost first."""
     chain = [exc]
@@ -332,6 +341,14 @@ class Engine:
                 except Exception as exc:
                     raise EngineError(f"cannot start a local Ray instance: {' '.join(str(exc).split())}") from None
             self._started = True
+        elif self.address not in (None, "auto"):
+            # Ray joins one cluster a process: the address asked for must be the one joined.
+            joined = ray.get_runtime_context().gcs_address
+            if _host_port(joined) != _host_port(self.address):
+                raise EngineError(
+                    f"{self._source} {self.address}: this process has already joined the Ray cluster at "
+                    f"{joined}, and Ray joins one cluster a process (ray.shutdown() first)"
+                )
         n = self._workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         self._worker_cls = ray.remote(num_cpus=1)(_Worker)
         self._actors = [self._worker_cls.remote() for _ in range(n)]

@@ -140,6 +140,25 @@ def test_the_engine_turns_exceptions_and_dead_workers_into_rows(local_ray: None)
         assert rows[k] == {"a": k, "status": "ok", "error": ""}
 
 
+def test_an_address_other_than_the_cluster_this_process_joined_is_refused(local_ray: None) -> None:
+    """A library user who already started Ray asks for another cluster: one line naming the
+    address and the cluster joined (before: the address was ignored and the points ran on the
+    local instance). The joined cluster's own address, written as ``localhost``, runs."""
+    import ray
+
+    joined = ray.get_runtime_context().gcs_address
+    other = "127.0.0.1:1" if not joined.endswith(":1") else "127.0.0.1:2"
+    with pytest.raises(EngineError) as refused:
+        list(run_points(operator.call, [(0, partial(dict, a=0))], workers=1, address=other))
+    assert str(refused.value) == (
+        f"--address {other}: this process has already joined the Ray cluster at {joined}, "
+        "and Ray joins one cluster a process (ray.shutdown() first)"
+    )
+    same = joined.replace("127.0.0.1", "localhost")
+    rows = dict(run_points(operator.call, [(0, partial(dict, a=0))], workers=1, address=same))
+    assert rows == {0: {"a": 0, "status": "ok", "error": ""}}
+
+
 def test_a_worker_that_dies_while_it_starts_charges_no_point(local_ray: None, tmp_path: Path) -> None:
     """The first three workers to load the task die doing so, before running anything, as a
     worker may while it starts on a loaded machine: both first workers, and the replacement of

@@ -27,7 +27,8 @@ from __future__ import annotations
 import ctypes
 import functools
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, cast
 
@@ -40,6 +41,30 @@ from numba.extending import intrinsic
 from app.errors import ConfigError
 
 _LIBRARY_PATTERNS = {"linux": "libmujoco.so*", "darwin": "libmujoco*.dylib", "win32": "mujoco*.dll"}
+
+
+@contextmanager
+def file_warnings() -> Iterator[list[str]]:
+    """MuJoCo's warnings while a model file is read (``XML contains a 'NaN'``), into the list
+    yielded, for the caller to refuse the file with (:func:`refuse_warned`).
+
+    MuJoCo's default warning handler prints to stdout and writes ``MUJOCO_LOG.TXT`` in the
+    working folder; this handler takes the messages instead, only while the block runs (kernels
+    call ``mj_step`` from compiled code, where a Python handler must not be entered).
+    """
+    warned: list[str] = []
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(warned.append)
+    try:
+        yield warned
+    finally:
+        mujoco.set_mju_user_warning(previous)
+
+
+def refuse_warned(warned: list[str], source: str | Path, field: str) -> None:
+    """Raise a :class:`ConfigError` naming ``source`` and ``field`` with MuJoCo's words, if it warned."""
+    if warned:
+        raise ConfigError(source, field, "MuJoCo warns: " + "; ".join(" ".join(w.split()) for w in warned))
 
 
 @functools.cache

@@ -25,6 +25,7 @@ from numpy.polynomial import polynomial as npoly
 from app.config import Checked, Count, Range, deferred_warnings, from_dict, identity_digest, load_toml, require_file
 from app.controller.gains import ControllerGains
 from app.errors import ConfigError, InvalidField
+from app.mjcall import file_warnings, refuse_warned
 from app.spatial import Array
 
 DEVICES_DIR = Path(__file__).resolve().parents[2] / "devices"
@@ -390,11 +391,13 @@ def load_mjcf(path: Path, source: Path, field_name: str = "mjcf") -> mujoco.MjMo
     """Compile an MJCF file, turning MuJoCo's errors into :class:`ConfigError`."""
     require_file(path, source, field_name, f"MJCF file not found: {path}")
     try:
-        with deferred_warnings():
-            return mujoco.MjModel.from_xml_path(str(path))
+        with deferred_warnings(), file_warnings() as warned:
+            model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
         reason = " ".join(str(exc).split())
         raise ConfigError(source, field_name, f"MuJoCo cannot load {path.name}: {reason}") from None
+    refuse_warned(warned, source, field_name)
+    return model
 
 
 def load_device(name_or_path: str | Path) -> DeviceSpec:

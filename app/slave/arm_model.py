@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from contextlib import suppress
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -16,6 +17,7 @@ import mujoco
 import numpy as np
 
 from app.errors import ConfigError
+from app.mjcall import file_warnings, refuse_warned
 from app.slave import arm_ik
 from app.slave.arm_kernel import arm_record_dtype
 from app.spatial import Array, IntArray, matrix_to_quat
@@ -73,9 +75,14 @@ def arm_spec(scene: Scene, name: str, timestep: float) -> mujoco.MjSpec:
     """The arm file with the scene's tool mounted on the flange, its sites and F/T sensors."""
     path = SLAVES_DIR / name / "arm.xml"
     try:
-        spec = mujoco.MjSpec.from_file(str(path))
+        with file_warnings() as warned:
+            spec = mujoco.MjSpec.from_file(str(path))
     except Exception as exc:  # MuJoCo raises ValueError with a multi-line parser message
         raise ConfigError(path, "<file>", " ".join(str(exc).split())[:200]) from None
+    if warned:  # a NaN: name the limit field it is in if it is in one, else the file
+        with file_warnings(), suppress(ValueError):
+            _check_limits(spec.copy().compile(), path)
+        refuse_warned(warned, path, "<file>")
     spec.option.timestep = timestep
     spec.option.gravity = scene.gravity_w
     flange = spec.site("flange")

@@ -342,6 +342,10 @@ CASES: dict[str, dict[str, Case]] = {
         ),
         "MJCF missing": D('mjcf = "kraft.xml"', 'mjcf = "nowhere.xml"', "mjcf", "not found"),
         "MJCF not XML": D('mjcf = "kraft.xml"', 'mjcf = "calibration.toml"', "mjcf", "MuJoCo cannot load"),
+        # Before, MuJoCo printed its warning on stdout and wrote MUJOCO_LOG.TXT in the working folder.
+        "MJCF with a NaN": D(
+            'mjcf = "kraft.xml"', 'mjcf = "{tmp}/nan.xml"', "mjcf", "MuJoCo warns: XML contains a 'NaN'"
+        ),
         "calibration file missing": D(
             'calibration = "calibration.toml"', 'calibration = "none.toml"', "calibration", "not found"
         ),
@@ -352,7 +356,7 @@ ALL = [(cls, name, case) for cls, cases in CASES.items() for name, case in cases
 
 
 def write_meshes(folder: Path) -> None:
-    """The bad meshes the table refers to as ``{tmp}/...``."""
+    """The bad meshes and model the table refers to as ``{tmp}/...``."""
     (folder / "junk.stl").write_bytes(b"\x00\x01 not a mesh")
     (folder / "empty.stl").write_bytes(b"")
     with (folder / "huge.stl").open("wb") as fh:  # sparse: 250 MB long, no disk used
@@ -364,6 +368,9 @@ def write_meshes(folder: Path) -> None:
     )
     flat = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]], process=False)
     flat.export(folder / "flat.ply")
+    (folder / "nan.xml").write_text(
+        '<mujoco><worldbody><body pos="0 0 NaN"><geom size="0.1"/></body></worldbody></mujoco>'
+    )
     (folder / "nan.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 nan 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
     box = trimesh.creation.box(extents=(0.2, 0.2, 0.02))
     trimesh.Trimesh(box.vertices, box.faces[box.face_normals[:, 2] > -0.9]).export(folder / "open.ply")
@@ -445,6 +452,7 @@ CLI_CASES = [
     ("inf, NaN, huge or tiny", "stiffness 1e300"),
     ("unknown key", "plant"),
     ("bad mesh or model", "open mesh refused before a later error"),
+    ("bad mesh or model", "MJCF with a NaN"),
 ]
 
 

@@ -428,18 +428,21 @@ def test_a_links_contact_model_is_handed_the_twist_of_the_links_frame() -> None:
     ],
 )
 def test_an_arm_file_with_unusable_limits_is_refused_naming_the_field(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, was: str, now: str, field: str
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str], was: str, now: str, field: str
 ) -> None:
     """Before harden9 MuJoCo compiled each (a NaN with a warning): with a zero or NaN speed limit
     or torque limit the arm never moved and the probe session ended without contact or fault; a
-    NaN range failed the first IK and the run ended in an AttributeError."""
+    NaN range failed the first IK and the run ended in an AttributeError. Before harden10 MuJoCo
+    also printed its NaN warning and wrote it to MUJOCO_LOG.TXT in the working folder."""
     text = (SLAVES_DIR / "puma560" / "arm.xml").read_text()
     assert was in text
     (tmp_path / "bad").mkdir()
     (tmp_path / "bad" / "arm.xml").write_text(text.replace(was, now, 1))
     for module in ("app.world.scene_file", "app.slave.arm_model"):
         monkeypatch.setattr(f"{module}.SLAVES_DIR", tmp_path)
-    monkeypatch.chdir(tmp_path)  # MuJoCo writes its NaN warning to MUJOCO_LOG.TXT in the working folder
+    monkeypatch.chdir(tmp_path)
     with pytest.raises(ConfigError, match=f"field '{re.escape(field)}'") as refused:
         ArmSlave(arm_scene("bad"))
     assert str(refused.value).startswith(str(tmp_path / "bad" / "arm.xml"))
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+    assert "WARNING" not in capfd.readouterr().out

@@ -139,8 +139,8 @@ class RealtimeLoop:
 
     @property
     def pid(self) -> int | None:
-        """The loop process's id (None before :meth:`start`)."""
-        return None if self._process is None else int(self._process.pid)
+        """The loop process's id (None before :meth:`start` has spawned it)."""
+        return None if self._process is None else self._process.pid
 
     def ended(self) -> str | None:
         """Why the loop process ended although it was never stopped ("killed by SIGKILL", "exit

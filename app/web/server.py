@@ -373,7 +373,13 @@ class DemoApp:
         )
         if not same or self.rt.ended() is not None:
             self._rebuild(wanted)
-            self.rt.wait_running()
+            try:
+                started = self.rt.wait_running()
+            except RuntimeError:  # it died while starting: the UI frame says so (_notice_lost_loop)
+                return
+            if not started:
+                self.show_notice(f"**cannot play `{name}`:** the servo loop process did not start")
+                return
         self.session = session
         self.rt.play(session)
         self.rt.set_speed(float(self.panel.speed.value))

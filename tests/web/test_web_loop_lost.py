@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
+import time
 
 import pytest
 from web_helpers import wait_until
@@ -42,6 +44,33 @@ def test_a_loop_process_killed_by_a_signal_is_said_and_play_starts_a_new_one(
         wait_until(lambda: app.rt.snapshot.playing is not None, "the new loop plays")
         wait_until(lambda: "playing `probe_rate`" in app.panel.play_status.content, "the page shows the play")
         assert "stopped" not in app.controls.status.content
+
+        # A loop that dies while it starts: Play returns (before: RuntimeError in viser's callback
+        # thread, a traceback) and the page says the loop stopped.
+        second = app.rt
+        assert second.pid is not None
+        os.kill(second.pid, signal.SIGKILL)
+        wait_until(lambda: "stopped (killed by SIGKILL)" in app.panel.play_status.content, "the second loss")
+        raised: list[BaseException] = []
+
+        def play() -> None:
+            try:
+                app.play_session("probe_rate")
+            except BaseException as exc:  # the test asserts there is none
+                raised.append(exc)
+
+        player = threading.Thread(target=play)
+        player.start()
+        end = time.monotonic() + 30
+        while app.rt is second or app.rt.pid is None:  # polled finely: killed while it builds its loop
+            assert time.monotonic() < end, "the third loop is spawned"
+            time.sleep(0.001)
+        os.kill(app.rt.pid, signal.SIGKILL)
+        player.join(60)
+        assert not player.is_alive()
+        assert raised == []
+        assert app.rt.snapshot.playing is None
+        wait_until(lambda: "stopped (killed by SIGKILL)" in app.panel.play_status.content, "the page's notice")
     finally:
         app.close()
         app.server.stop()

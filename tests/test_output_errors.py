@@ -155,6 +155,31 @@ def log_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out / "log"
 
 
+def _meta_edits() -> dict[str, tuple[str, object, str, str]]:
+    """Damage to ``_meta.json``: ``how`` -> (its key, the new value or None to remove it, the
+    field the error names, the start of its reason)."""
+    jpl, bowl = load_device("jpl").path, load_scene("bowl").path
+    return {
+        "meta without device": ("device", None, "device", "missing"),
+        # A kraft log said to be jpl's (same 6 joints and columns).
+        "meta names another device": (
+            "device",
+            str(jpl),
+            "device",
+            f"{jpl} is not the device this log was run on (its device_identity",
+        ),
+        "device identity not a string": ("device_identity", 7, "device_identity", "expected a string, got 7"),
+        # A probe log said to be the bowl's (no moving objects in either).
+        "meta names another scene": (
+            "scene",
+            str(bowl),
+            "scene",
+            f"{bowl} is not the scene this log was run on (its scene_identity",
+        ),
+        "scene identity not a string": ("scene_identity", [1], "scene_identity", "expected a string, got [1]"),
+    }
+
+
 def _damage(log: Path, how: str) -> tuple[Path, str, str]:
     """Damage the copy ``log`` as ``how`` says; return (the file named, the field, the reason)."""
     parts = sorted(log.glob("part-*.parquet"))
@@ -168,31 +193,16 @@ def _damage(log: Path, how: str) -> tuple[Path, str, str]:
     if how == "0-byte part":
         parts[0].write_bytes(b"")
         return parts[0], "<file>", "not a readable log part"
-    if how == "meta without device":
+    edits = _meta_edits()
+    if how in edits:
+        key, value, field, reason = edits[how]
         data = json.loads(meta.read_text())
-        del data["device"]
+        if value is None:
+            del data[key]
+        else:
+            data[key] = value
         meta.write_text(json.dumps(data))
-        return meta, "device", "missing"
-    if how == "meta names another device":  # a kraft log said to be jpl's (same 6 joints and columns)
-        data = json.loads(meta.read_text())
-        data["device"] = str(load_device("jpl").path)
-        meta.write_text(json.dumps(data))
-        return meta, "device", f"{load_device('jpl').path} is not the device this log was run on (its device_identity"
-    if how == "device identity not a string":
-        data = json.loads(meta.read_text())
-        data["device_identity"] = 7
-        meta.write_text(json.dumps(data))
-        return meta, "device_identity", "expected a string, got 7"
-    if how == "meta names another scene":  # a probe log said to be the bowl's (no moving objects in either)
-        data = json.loads(meta.read_text())
-        data["scene"] = str(load_scene("bowl").path)
-        meta.write_text(json.dumps(data))
-        return meta, "scene", f"{load_scene('bowl').path} is not the scene this log was run on (its scene_identity"
-    if how == "scene identity not a string":
-        data = json.loads(meta.read_text())
-        data["scene_identity"] = [1]
-        meta.write_text(json.dumps(data))
-        return meta, "scene_identity", "expected a string, got [1]"
+        return meta, field, reason
     if how == "meta not an object":
         meta.write_text("[1, 2]")
         return meta, "<file>", "expected a JSON object"

@@ -48,6 +48,9 @@ STALL_S = 1.0
 V_DB = 0.002
 #: Tool angular speed (rad/s) over which the learned rate inverse crosses the rotational deadband.
 W_DB = 0.02
+#: Felt force, in multiples of the operator's threshold, from which they take back all of their push
+#: against it (:func:`give_way_into`; between the threshold and this, in proportion to the excess).
+GIVE_WAY_FULL = 2.0
 
 #: Phases of an operator, in order; the kernel keeps the index into this.
 PHASES = ("insert", "hold", "withdraw", "done")
@@ -108,7 +111,8 @@ def give_way(v: Array, felt: Array, f: float, threshold: float) -> Array:
 def give_way_into(v: Array, felt: Array, f: float, threshold: float, out: Array) -> None:
     """What the operator takes back (m/s, {w}) of their intended tool velocity ``v`` when they feel
     the force ``felt`` (N, {0} = {w} axes, magnitude ``f`` above ``threshold``): the part of ``v``
-    that pushes against it, in proportion to the excess force, all of it from twice the threshold.
+    that pushes against it, in proportion to the excess force, all of it from :data:`GIVE_WAY_FULL`
+    times the threshold.
 
     Giving way is letting go of the push, not driving the tool the other way. In rate mode a
     velocity is a grip displacement (the learned inverse turns 44 mm/s into ~32 mm), and with
@@ -127,7 +131,7 @@ def give_way_into(v: Array, felt: Array, f: float, threshold: float, out: Array)
     if push <= 0.0:
         out[0] = out[1] = out[2] = 0.0
         return
-    s = push * min(f / threshold - 1.0, 1.0)
+    s = push * min((f / threshold - 1.0) / (GIVE_WAY_FULL - 1.0), 1.0)
     out[0], out[1], out[2] = n0 * s, n1 * s, n2 * s
 
 

@@ -423,3 +423,24 @@ def test_a_page_without_a_gpu_draws_its_view_at_the_software_pixel_ratio(demo: D
             time.sleep(0.2)
     finally:
         own.close()
+
+
+#: Whether viser's background-image quad is drawn (None while the page has not made it).
+BACKGROUND_SHOWN_JS = """() => {
+  const mutable = window.__viserMutable;
+  let shown = null;
+  mutable.scene.traverse((o) => { if (o.material && o.material === mutable.backgroundMaterial) shown = o.visible; });
+  return shown;
+}"""
+
+
+def test_the_page_draws_no_background_quad_without_a_background_image(demo: DemoApp, page: object) -> None:
+    """viser's full-canvas background quad (its shader discards every pixel with no image) is
+    hidden while the demo sets no background image, and shown again once one is set."""
+    wait_until(lambda: page.evaluate(BACKGROUND_SHOWN_JS) is False, "the empty background quad is drawn")  # type: ignore[attr-defined]
+    demo.server.scene.set_background_image(np.full((4, 4, 3), 200, dtype=np.uint8), format="png")
+    try:
+        wait_until(lambda: page.evaluate(BACKGROUND_SHOWN_JS) is True, "a background image set is not drawn")  # type: ignore[attr-defined]
+    finally:
+        demo.server.scene.set_background_image(None)
+    wait_until(lambda: page.evaluate(BACKGROUND_SHOWN_JS) is False, "the quad stays drawn after the image is gone")  # type: ignore[attr-defined]

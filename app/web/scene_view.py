@@ -54,6 +54,7 @@ T_0_V = invert_pose(T_V_0)
 H = TypeVar("H", bound=viser.SceneNodeHandle)
 #: The two spaces drawn side by side.
 Space = Literal["device", "world"]
+SPACES: tuple[Space, ...] = ("device", "world")
 
 
 @dataclass(frozen=True)
@@ -393,25 +394,35 @@ class SceneView:
             )
         )
 
-        self.arrows: dict[str, viser.ArrowsHandle] = {}
+        #: The wrench arrows, one node per space: its arrows (shafts and heads) are two instanced
+        #: draws whatever their number, where a node per arrow cost two draws each (software WebGL
+        #: spends about half a millisecond of the GPU process's CPU a draw). Arrows in a space
+        #: share its unit's radii, so nothing drawn changes.
+        self.arrows: dict[Space, viser.ArrowsHandle] = {}
+        #: The arrows each node draws, in its order (``task_MRF/force``, ``hand_G/moment``...).
+        self.arrow_keys: dict[Space, tuple[str, ...]] = {}
+        for space in SPACES:
+            unit = self.units[space]
+            self.arrows[space] = self._add(
+                scene.add_arrows(
+                    f"/wrenches/{space}",
+                    np.zeros((1, 2, 3)),
+                    colors=(0, 0, 0),
+                    shaft_radius=0.06 * unit,
+                    head_radius=0.15 * unit,
+                    head_length=0.3 * unit,
+                    visible=False,
+                )
+            )
+            self.arrow_keys[space] = ()
+        #: Each arrow's colour: the wrench's, darker for its moment.
+        self.arrow_colors: dict[str, tuple[int, int, int]] = {}
         self.labels: dict[str, viser.LabelHandle] = {}
         self._label_force: dict[str, float] = {}
         for arrow in WRENCH_ARROWS:
-            unit = self.units[arrow.space]
             for part, shade in (("force", 1.0), ("moment", 0.55)):
                 r, g, b = (int(c * shade) for c in arrow.color)
-                key = f"{arrow.key}/{part}"
-                self.arrows[key] = self._add(
-                    scene.add_arrows(
-                        f"/wrenches/{key}",
-                        np.zeros((1, 2, 3)),
-                        colors=(r, g, b),
-                        shaft_radius=0.06 * unit,
-                        head_radius=0.15 * unit,
-                        head_length=0.3 * unit,
-                        visible=False,
-                    )
-                )
+                self.arrow_colors[f"{arrow.key}/{part}"] = (r, g, b)
             self.labels[arrow.key] = self._add(
                 scene.add_label(f"/wrenches/{arrow.key}/label", "", visible=False, font_screen_scale=0.8)
             )
@@ -480,18 +491,27 @@ class SceneView:
         self._last_points[key] = points
         handle.points = points.astype(np.float32)
 
-    def _arrow(self, key: str, origin_v: Array, vector_v: Array, reference: float, space: Space) -> Array | None:
-        """Draw arrow ``key`` for ``vector_v`` (N or N m, viser axes) at ``origin_v``; its tip, or
-        None when it is too small to show."""
-        handle = self.arrows[key]
+    @staticmethod
+    def _arrow(origin_v: Array, vector_v: Array, reference: float, unit: float) -> Array | None:
+        """The start and tip (2, 3; viser frame, m) of the arrow for ``vector_v`` (N or N m, viser
+        axes) at ``origin_v`` in a space of arrow ``unit`` (m), or None when it is too small to show."""
         magnitude = float(np.linalg.norm(vector_v))
         if magnitude < MIN_SHOWN * reference:
-            handle.visible = False
             return None
-        tip = origin_v + vector_v * (arrow_length(magnitude, reference, self.units[space]) / magnitude)
-        self._points(key, handle, np.stack((origin_v, tip))[None], space)
-        handle.visible = True
-        return tip
+        return np.stack((origin_v, origin_v + vector_v * (arrow_length(magnitude, reference, unit) / magnitude)))
+
+    def _draw_arrows(self, space: Space, shown: dict[str, Array]) -> None:
+        """Draw the arrows ``shown`` (key -> start and tip, (2, 3)) in ``space``'s node: its colours
+        are sent when the set of arrows changes, its points as :meth:`_points` sends them."""
+        handle, keys = self.arrows[space], tuple(shown)
+        if keys != self.arrow_keys[space]:
+            self.arrow_keys[space] = keys
+            self._last_points.pop(f"arrows/{space}", None)  # other arrows: redrawn whatever moved
+            if keys:
+                handle.colors = np.array([self.arrow_colors[k] for k in keys], dtype=np.uint8)
+        if keys:
+            self._points(f"arrows/{space}", handle, np.stack(list(shown.values())), space)
+        handle.visible = bool(keys)
 
     def update(self, snap: Snapshot) -> None:
         """Move every node to the state in ``snap`` (call from the UI thread)."""
@@ -533,11 +553,18 @@ class SceneView:
             "assist_G": (p_G, R_v_G @ snap.G_F_RD[0:3], R_v_G @ snap.G_F_RD[3:6]),
             "hand_G": (p_G, snap.hand_wrench_0[0:3], snap.hand_wrench_0[3:6]),
         }
+        arrows: dict[Space, dict[str, Array]] = {space: {} for space in SPACES}
         for arrow in WRENCH_ARROWS:
             origin, force, moment = in_v[arrow.key]
-            tip = self._arrow(f"{arrow.key}/force", origin, force, FORCE_REF, arrow.space)
-            self._arrow(f"{arrow.key}/moment", origin, moment, MOMENT_REF, arrow.space)
-            self._label(arrow.key, tip, float(np.linalg.norm(force)), arrow.space)
+            unit, drawn = self.units[arrow.space], arrows[arrow.space]
+            for part, vector, reference in (("force", force, FORCE_REF), ("moment", moment, MOMENT_REF)):
+                ends = self._arrow(origin, vector, reference, unit)
+                if ends is not None:
+                    drawn[f"{arrow.key}/{part}"] = ends
+            tip = drawn.get(f"{arrow.key}/force")
+            self._label(arrow.key, None if tip is None else tip[1], float(np.linalg.norm(force)), arrow.space)
+        for space in SPACES:
+            self._draw_arrows(space, arrows[space])
 
     def _label(self, key: str, tip: Array | None, magnitude: float, space: Space) -> None:
         """The magnitude at a force arrow's tip, rewritten when it has changed by

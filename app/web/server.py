@@ -36,8 +36,8 @@ from app.teleop.channel import ChannelSettings
 from app.web.access import TokenGate
 from app.web.camera import (
     DOLLY_TO_CURSOR_JS,
-    NO_EMPTY_BACKGROUND_JS,
     FOV,
+    NO_EMPTY_BACKGROUND_JS,
     SOFTWARE_RESOLUTION_JS,
     CameraPose,
     fit_camera,

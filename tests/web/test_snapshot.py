@@ -94,8 +94,10 @@ def test_the_scene_view_sends_only_what_a_pixel_would_show() -> None:
             return replace(snap, F_MRF=np.array([0.0, 0.0, fz, 0.0, 0.0, 0.0]))
 
         view.update(pushed(8.0))
-        label, arrow = view.labels["task_MRF"], view.arrows["task_MRF/force"]
+        label, arrow = view.labels["task_MRF"], view.arrows["world"]
         assert label.text == "8.0 N"
+        assert view.arrow_keys["world"] == ("task_MRF/force",)  # no moment: one arrow in the world's node
+        np.testing.assert_array_equal(arrow.colors, [[230, 60, 40]])
         points = np.array(arrow.points)
         view.update(pushed(8.01))  # the tip moves 0.13e-3 of the space's size: under half a pixel
         np.testing.assert_array_equal(arrow.points, points)
@@ -104,6 +106,32 @@ def test_the_scene_view_sends_only_what_a_pixel_would_show() -> None:
         assert not np.array_equal(arrow.points, points)
         view.update(pushed(8.3))
         assert label.text == "8.3 N"
+    finally:
+        server.stop()
+
+
+def test_the_wrench_arrows_of_a_space_are_one_node_with_their_own_colours() -> None:
+    """The world's force and moment arrows are drawn by one node: two arrows, the task wrench's red
+    and its darker shade for the moment, each from {MRF}; with no wrench the node is hidden."""
+    loop = ServoLoop(LoopConfig.from_session(load_session("probe_rate")))
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        view = SceneView(server, loop, on_hand_moved=lambda _T: None)
+        snap = take_snapshot(loop.tick(), np.eye(4))
+        zero = np.zeros(6)
+        view.update(replace(snap, F_MRF=np.array([0.0, 0.0, 8.0, 0.5, 0.0, 0.0]), G_F_T=zero, G_F_RD=zero))
+        world = view.arrows["world"]
+        assert view.arrow_keys["world"] == ("task_MRF/force", "task_MRF/moment")
+        np.testing.assert_array_equal(world.colors, [[230, 60, 40], [126, 33, 22]])  # 0.55 of the red
+        points = np.asarray(world.points)
+        assert points.shape == (2, 2, 3)
+        assert world.visible
+        np.testing.assert_allclose(points[:, 0], np.tile(view.mrf.position, (2, 1)), atol=1e-6)
+        assert points[0, 1, 2] > points[0, 0, 2]
+        assert points[1, 1, 0] > points[1, 0, 0]
+        view.update(replace(snap, F_MRF=zero, G_F_T=zero, G_F_RD=zero))
+        assert view.arrow_keys["world"] == ()
+        assert not world.visible
     finally:
         server.stop()
 

@@ -46,7 +46,7 @@ def test_page_shows_controls_and_scene(demo: DemoApp, page: object) -> None:
         "/mrf",
         "/mrf/sensor",
         "/world/object_0",
-        "/links/geom_0",
+        "/links/cylinder",
         "/wrenches/device",
         "/wrenches/world",
     ]

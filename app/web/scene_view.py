@@ -267,7 +267,7 @@ def _linear_rgb(rgba: Array) -> tuple[int, int, int]:
     :func:`_rgb` does."""
     c = np.array(_rgb(rgba)) / 255.0
     linear = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-    r, g, b = (int(round(255.0 * x)) for x in linear)
+    r, g, b = (round(255.0 * float(x)) for x in linear)
     return (r, g, b)
 
 

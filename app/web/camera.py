@@ -14,7 +14,8 @@ centre (:meth:`app.web.scene_view.SceneView.pick` finds it with trimesh's ray te
 moves the camera onto it).
 
 A page whose WebGL runs in software draws its view at :data:`SOFTWARE_PIXEL_RATIO`
-(:data:`SOFTWARE_RESOLUTION_JS`).
+(:data:`SOFTWARE_RESOLUTION_JS`), and no page draws viser's background-image quad while it has
+no image (:data:`NO_EMPTY_BACKGROUND_JS`).
 """
 
 from __future__ import annotations
@@ -166,8 +167,29 @@ SOFTWARE_RESOLUTION_JS = """(() => {
 })();""".replace("SOFTWARE_PIXEL_RATIO", str(SOFTWARE_PIXEL_RATIO))
 
 
+#: Run in each page: hide viser's background-image quad while no background image is set. viser
+#: 1.1.1 draws that quad over the whole canvas every frame, and with no image its fragment shader
+#: discards every pixel: nothing shows, but in software WebGL it is a full-canvas shading pass
+#: (dragging, 1400x900, three alternated rounds at load 7-8: 31-33 against 25-26 ms of the GPU
+#: process's CPU a 3D frame). The page keeps the quad's material at
+#: ``window.__viserMutable.backgroundMaterial``; the quad is shown again, within half a second,
+#: if an image is set (the demo sets none). Checked every half second, as a remounted canvas
+#: makes a new quad.
+NO_EMPTY_BACKGROUND_JS = """(() => {
+  const apply = () => {
+    const mutable = window.__viserMutable;
+    const material = mutable && mutable.backgroundMaterial;
+    if (!material || !mutable.scene) return;
+    const shown = Boolean(material.uniforms.enabled.value);
+    mutable.scene.traverse((o) => { if (o.material === material && o.visible !== shown) o.visible = shown; });
+  };
+  apply();
+  setInterval(apply, 500);
+})();"""
+
+
 def run_in_page(client: viser.ClientHandle, source: str) -> None:
     """Run the script ``source`` in ``client``'s page (:data:`DOLLY_TO_CURSOR_JS`,
-    :data:`SOFTWARE_RESOLUTION_JS`), through the message viser itself uses to run script in a
+    :data:`SOFTWARE_RESOLUTION_JS`, :data:`NO_EMPTY_BACKGROUND_JS`), through the message viser itself uses to run script in a
     page (viser 1.1.1 has no public call for it)."""
     client._websock_connection.queue_message(RunJavascriptMessage(source=source))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Literal, TypeVar, cast
 
 import mujoco
@@ -54,6 +55,7 @@ T_0_V = invert_pose(T_V_0)
 H = TypeVar("H", bound=viser.SceneNodeHandle)
 #: The two spaces drawn side by side.
 Space = Literal["device", "world"]
+SPACES: tuple[Space, ...] = ("device", "world")
 
 
 @dataclass(frozen=True)
@@ -258,6 +260,166 @@ def _rgb(rgba: Array) -> tuple[int, int, int]:
     return (int(255 * rgba[0]), int(255 * rgba[1]), int(255 * rgba[2]))
 
 
+def _linear_rgb(rgba: Array) -> tuple[int, int, int]:
+    """:func:`_rgb` as a batched node's instance colour: viser's page takes a mesh's colour as
+    sRGB (three.js converts it to linear) but an instance's as linear already, so the same bytes
+    would draw a dark link grey. Converted here with the sRGB curve, it draws as a mesh of
+    :func:`_rgb` does."""
+    c = np.array(_rgb(rgba)) / 255.0
+    linear = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    r, g, b = (round(255.0 * float(x)) for x in linear)
+    return (r, g, b)
+
+
+def _unit_parts() -> dict[str, trimesh.Trimesh]:
+    """The unit meshes a geom is drawn from (:class:`GeomBatches`): a cylinder of radius 1 from
+    z = -1 to 1 (capped), a capsule's open shaft of the same span and its cap (a hemisphere of
+    radius 1 on z >= 0, both cut from trimesh's capsule of :data:`CAPSULE_SECTIONS`, so a capsule
+    is drawn with the triangles it had as one mesh), a box from -1 to 1 and an icosphere of radius 1."""
+    capsule = trimesh.creation.capsule(height=2.0, radius=1.0, count=list(CAPSULE_SECTIONS))
+    z = capsule.vertices[capsule.faces][:, :, 2]
+    shaft = cast(trimesh.Trimesh, capsule.submesh([np.flatnonzero((np.abs(z) <= 1.0 + 1e-9).all(axis=1))], append=True))
+    cap = cast(trimesh.Trimesh, capsule.submesh([np.flatnonzero((z >= 1.0 - 1e-9).all(axis=1))], append=True))
+    cap.apply_translation((0.0, 0.0, -1.0))
+    return {
+        "cylinder": trimesh.creation.cylinder(radius=1.0, height=2.0),
+        "shaft": shaft,
+        "cap": cap,
+        "box": trimesh.creation.box(extents=(2.0, 2.0, 2.0)),
+        "sphere": trimesh.creation.icosphere(subdivisions=2),
+    }
+
+
+#: A cap turned over (pi about x): the capsule's end at -z.
+_FLIP = make_pose(np.diag([1.0, -1.0, -1.0]), np.zeros(3))
+
+
+def _geom_parts(model: mujoco.MjModel, g: int) -> list[tuple[str, Array, Array]] | None:
+    """Geom ``g`` as unit parts (:func:`_unit_parts`): each its name, its pose in the geom's frame
+    (4, 4) and its scale along the part's axes (3,); None for a geom of another type (a mesh, a
+    plane, a height field)."""
+    r, h, c = (float(x) for x in model.geom_size[g])
+    geom = mujoco.mjtGeom
+    match int(model.geom_type[g]):
+        case geom.mjGEOM_SPHERE:
+            return [("sphere", np.eye(4), np.full(3, r))]
+        case geom.mjGEOM_ELLIPSOID:
+            return [("sphere", np.eye(4), np.array([r, h, c]))]
+        case geom.mjGEOM_CYLINDER:
+            return [("cylinder", np.eye(4), np.array([r, r, h]))]
+        case geom.mjGEOM_BOX:
+            return [("box", np.eye(4), np.array([r, h, c]))]
+        case geom.mjGEOM_CAPSULE:
+            end = make_pose(np.eye(3), np.array([0.0, 0.0, h]))
+            return [
+                ("shaft", np.eye(4), np.array([r, r, h])),
+                ("cap", end, np.full(3, r)),
+                ("cap", _FLIP @ end, np.full(3, r)),
+            ]
+    return None
+
+
+class GeomBatches:
+    """The geoms of a MuJoCo model (a device's links, a slave arm's) drawn as instances of a few
+    unit meshes: one batched node (one draw) per kind of part (:func:`_unit_parts`) instead of a
+    mesh node (a draw) per geom. In software WebGL a draw costs the browser's GPU process about
+    half a millisecond or more of CPU whatever its size; the Kraft's eight links are three draws.
+    A geom of another type (a mesh) keeps a mesh node of its own.
+
+    Args:
+        scene: The viser scene. name: The nodes' parent name (``/links``). model: The model.
+        parent: The pose (4, 4) in the viser frame of the frame the geom poses are given in.
+        opacity: The nodes' opacity (None: opaque).
+
+    Attributes:
+        meshes: Each drawn geom's mesh in its own frame, by geom index (what a click is tested on).
+        poses: Each drawn geom's pose in the viser frame as last sent (4, 4), by geom index.
+        nodes: The batched nodes by part name, and the mesh nodes of geoms drawn on their own.
+    """
+
+    def __init__(
+        self, scene: viser.SceneApi, name: str, model: mujoco.MjModel, parent: Array, opacity: float | None = None
+    ) -> None:
+        self.parent = parent
+        self.meshes: dict[int, trimesh.Trimesh] = {}
+        self.poses: dict[int, Array] = {}
+        #: Per part name: the geoms and their parts' poses in the geom's frame, in instance order.
+        self._instances: dict[str, list[tuple[int, Array]]] = {}
+        self._own: dict[int, viser.MeshHandle] = {}
+        parts: dict[str, viser.BatchedMeshHandle] = {}
+        scales: dict[str, list[Array]] = {}
+        colors: dict[str, list[tuple[int, int, int]]] = {}
+        units = _unit_parts()
+        for g in range(model.ngeom):
+            mesh = _geom_mesh(model, g)
+            if mesh is None:
+                continue
+            self.meshes[g] = mesh
+            self.poses[g] = np.eye(4)
+            found = _geom_parts(model, g)
+            if found is None:
+                self._own[g] = scene.add_mesh_simple(
+                    f"{name}/geom_{g}", mesh.vertices, mesh.faces, color=_rgb(model.geom_rgba[g]), opacity=opacity
+                )
+                continue
+            for part, T_geom_part, scale in found:
+                self._instances.setdefault(part, []).append((g, T_geom_part))
+                scales.setdefault(part, []).append(scale)
+                colors.setdefault(part, []).append(_linear_rgb(model.geom_rgba[g]))
+        for part, instances in self._instances.items():
+            n = len(instances)
+            parts[part] = scene.add_batched_meshes_simple(
+                f"{name}/{part}",
+                units[part].vertices,
+                units[part].faces,
+                batched_wxyzs=np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
+                batched_positions=np.zeros((n, 3)),
+                batched_scales=np.array(scales[part]),
+                batched_colors=np.array(colors[part], dtype=np.uint8),
+                lod="off",
+                opacity=opacity,
+            )
+        self.nodes: list[viser.SceneNodeHandle] = [*parts.values(), *self._own.values()]
+        self._parts = parts
+        self._shown = True
+
+    @property
+    def visible(self) -> bool:
+        """Whether the geoms are drawn."""
+        return self._shown
+
+    @visible.setter
+    def visible(self, shown: bool) -> None:
+        if shown != self._shown:
+            for node in self.nodes:
+                node.visible = shown
+            self._shown = shown
+
+    def pose(self, g: int) -> Array:
+        """Geom ``g``'s pose in the viser frame as last sent (4, 4)."""
+        return self.poses[g]
+
+    def update(self, xpos: Array, xmat: Array, resolution: float) -> None:
+        """Place every geom at its pose (``xpos`` (n, 3), ``xmat`` (n, 9), in the parent's frame):
+        all are sent when one has moved by ``resolution`` (m) or turned by :data:`SHOWN_TURN`
+        since last sent, else none."""
+        poses = {g: self.parent @ make_pose(xmat[g].reshape(3, 3), xpos[g]) for g in self.poses}
+        if not any(
+            np.max(np.abs(T[0:3, 3] - self.poses[g][0:3, 3])) >= resolution
+            or turn_between(matrix_to_quat(T[0:3, 0:3]), matrix_to_quat(self.poses[g][0:3, 0:3])) >= SHOWN_TURN
+            for g, T in poses.items()
+        ):
+            return
+        self.poses = poses
+        for part, instances in self._instances.items():
+            wxyzs, positions = zip(*(pose_to_wxyz_position(poses[g] @ T) for g, T in instances), strict=True)
+            batch = self._parts[part]
+            batch.batched_wxyzs = np.array(wxyzs, dtype=np.float32)
+            batch.batched_positions = np.array(positions, dtype=np.float32)
+        for g, own in self._own.items():
+            own.wxyz, own.position = pose_to_wxyz_position(poses[g])
+
+
 class SceneView:
     """The viser scene nodes of one servo loop (device + scene); rebuilt when either changes.
 
@@ -281,9 +443,9 @@ class SceneView:
         self._sent_wxyz: dict[str, Array] = {}
         self._sent_position: dict[str, Array] = {}
         self._last_points: dict[str, Array] = {}
-        #: The meshes a click can land on: handle, vertices (n, 3) and faces (m, 3) in its own frame,
-        #: and its parent frame's pose in the viser frame (4, 4; a function, as /mrf moves).
-        self._pickable: list[tuple[viser.MeshHandle, trimesh.Trimesh, Callable[[], Array]]] = []
+        #: The meshes a click can land on: whether it is shown, the mesh in its own frame and its
+        #: pose in the viser frame as last sent (4, 4): functions, as they change.
+        self._pickable: list[tuple[Callable[[], bool], trimesh.Trimesh, Callable[[], Array]]] = []
 
         self._add(_add_axes(scene, "/device", 0.08, 0.003, DEVICE_ORIGIN_V))
         self._add(scene.add_label("/device/label", "device base {0}", position=(0.0, 0.0, -0.03)))
@@ -292,17 +454,7 @@ class SceneView:
         self._add(_add_axes(scene, "/world", axes, 0.04 * axes, WORLD_ORIGIN_V))
         self._add(scene.add_label("/world/label", "slave world {w}", position=(0.0, 0.0, -0.05)))
 
-        model = loop.plant.model
-        self.geoms: dict[int, viser.MeshHandle] = {}
-        for g in range(model.ngeom):
-            mesh = _geom_mesh(model, g)
-            if mesh is None:
-                continue
-            handle = scene.add_mesh_simple(
-                f"/links/geom_{g}", mesh.vertices, mesh.faces, color=_rgb(model.geom_rgba[g]), flat_shading=False
-            )
-            self.geoms[g] = self._mesh(handle, mesh, _at_origin)
-        self._links_shown = True
+        self.links = self._geoms(GeomBatches(scene, "/links", loop.plant.model, T_V_0))
 
         self.grip = self._add(_add_axes(scene, "/grip", 0.05, 0.004))
         self._add(scene.add_label("/grip/label", "{G}", position=(0.0, 0.0, 0.02)))
@@ -334,15 +486,7 @@ class SceneView:
                 f"/world/body_{b}", mesh.vertices, mesh.faces, color=DYNAMIC_COLOR, wxyz=wxyz, position=position
             )
             self.bodies.append(self._mesh(handle, mesh, _at_world))
-        slave_model = loop.slave.model
-        self.slave_geoms: dict[int, viser.MeshHandle] = {}
-        for g in range(slave_model.ngeom):
-            mesh = _geom_mesh(slave_model, g)
-            if mesh is not None:
-                handle = scene.add_mesh_simple(
-                    f"/slave/geom_{g}", mesh.vertices, mesh.faces, color=_rgb(slave_model.geom_rgba[g]), opacity=0.85
-                )
-                self.slave_geoms[g] = self._mesh(handle, mesh, _at_origin)
+        self.slave_geoms = self._geoms(GeomBatches(scene, "/slave", loop.slave.model, T_V_W, opacity=0.85))
         # The tool and the F/T sensor are rigid on {MRF}: children of /mrf, so a moving tool costs
         # one pose update, not three.
         tool = loop.slave.scene.tool
@@ -393,25 +537,35 @@ class SceneView:
             )
         )
 
-        self.arrows: dict[str, viser.ArrowsHandle] = {}
+        #: The wrench arrows, one node per space: its arrows (shafts and heads) are two instanced
+        #: draws whatever their number, where a node per arrow cost two draws each (software WebGL
+        #: spends about half a millisecond of the GPU process's CPU a draw). Arrows in a space
+        #: share its unit's radii, so nothing drawn changes.
+        self.arrows: dict[Space, viser.ArrowsHandle] = {}
+        #: The arrows each node draws, in its order (``task_MRF/force``, ``hand_G/moment``...).
+        self.arrow_keys: dict[Space, tuple[str, ...]] = {}
+        for space in SPACES:
+            unit = self.units[space]
+            self.arrows[space] = self._add(
+                scene.add_arrows(
+                    f"/wrenches/{space}",
+                    np.zeros((1, 2, 3)),
+                    colors=(0, 0, 0),
+                    shaft_radius=0.06 * unit,
+                    head_radius=0.15 * unit,
+                    head_length=0.3 * unit,
+                    visible=False,
+                )
+            )
+            self.arrow_keys[space] = ()
+        #: Each arrow's colour: the wrench's, darker for its moment.
+        self.arrow_colors: dict[str, tuple[int, int, int]] = {}
         self.labels: dict[str, viser.LabelHandle] = {}
         self._label_force: dict[str, float] = {}
         for arrow in WRENCH_ARROWS:
-            unit = self.units[arrow.space]
             for part, shade in (("force", 1.0), ("moment", 0.55)):
                 r, g, b = (int(c * shade) for c in arrow.color)
-                key = f"{arrow.key}/{part}"
-                self.arrows[key] = self._add(
-                    scene.add_arrows(
-                        f"/wrenches/{key}",
-                        np.zeros((1, 2, 3)),
-                        colors=(r, g, b),
-                        shaft_radius=0.06 * unit,
-                        head_radius=0.15 * unit,
-                        head_length=0.3 * unit,
-                        visible=False,
-                    )
-                )
+                self.arrow_colors[f"{arrow.key}/{part}"] = (r, g, b)
             self.labels[arrow.key] = self._add(
                 scene.add_label(f"/wrenches/{arrow.key}/label", "", visible=False, font_screen_scale=0.8)
             )
@@ -422,18 +576,26 @@ class SceneView:
 
     def _mesh(self, handle: viser.MeshHandle, mesh: trimesh.Trimesh, parent: Callable[[], Array]) -> viser.MeshHandle:
         """Keep a mesh node (whose parent frame's pose in the viser frame ``parent`` gives) for :meth:`pick`."""
-        self._pickable.append((handle, mesh, parent))
+        self._pickable.append((lambda: bool(handle.visible), mesh, lambda: parent() @ _pose(handle)))
         return self._add(handle)
+
+    def _geoms(self, batches: GeomBatches) -> GeomBatches:
+        """Keep a model's geoms' nodes, and each geom for :meth:`pick`."""
+        for node in batches.nodes:
+            self._add(node)
+        for g, mesh in batches.meshes.items():
+            self._pickable.append((lambda: batches.visible, mesh, partial(batches.pose, g)))
+        return batches
 
     def pick(self, origin: Array, direction: Array) -> Array | None:
         """The nearest point (viser frame, m) where the ray ``origin + t * direction`` (viser
         frame) meets a shown mesh, at the pose last sent to the browsers; None if it meets none."""
         direction = direction / np.linalg.norm(direction)
         nearest: float | None = None
-        for handle, mesh, parent in self._pickable:
-            if not handle.visible:
+        for shown, mesh, pose in self._pickable:
+            if not shown():
                 continue
-            T_v_m = parent() @ _pose(handle)
+            T_v_m = pose()
             R = T_v_m[0:3, 0:3]
             # The ray in the mesh's frame.
             o_m, d_m = R.T @ (origin - T_v_m[0:3, 3]), R.T @ direction
@@ -480,34 +642,37 @@ class SceneView:
         self._last_points[key] = points
         handle.points = points.astype(np.float32)
 
-    def _arrow(self, key: str, origin_v: Array, vector_v: Array, reference: float, space: Space) -> Array | None:
-        """Draw arrow ``key`` for ``vector_v`` (N or N m, viser axes) at ``origin_v``; its tip, or
-        None when it is too small to show."""
-        handle = self.arrows[key]
+    @staticmethod
+    def _arrow(origin_v: Array, vector_v: Array, reference: float, unit: float) -> Array | None:
+        """The start and tip (2, 3; viser frame, m) of the arrow for ``vector_v`` (N or N m, viser
+        axes) at ``origin_v`` in a space of arrow ``unit`` (m), or None when it is too small to show."""
         magnitude = float(np.linalg.norm(vector_v))
         if magnitude < MIN_SHOWN * reference:
-            handle.visible = False
             return None
-        tip = origin_v + vector_v * (arrow_length(magnitude, reference, self.units[space]) / magnitude)
-        self._points(key, handle, np.stack((origin_v, tip))[None], space)
-        handle.visible = True
-        return tip
+        return np.stack((origin_v, origin_v + vector_v * (arrow_length(magnitude, reference, unit) / magnitude)))
+
+    def _draw_arrows(self, space: Space, shown: dict[str, Array]) -> None:
+        """Draw the arrows ``shown`` (key -> start and tip, (2, 3)) in ``space``'s node: its colours
+        are sent when the set of arrows changes, its points as :meth:`_points` sends them."""
+        handle, keys = self.arrows[space], tuple(shown)
+        if keys != self.arrow_keys[space]:
+            self.arrow_keys[space] = keys
+            self._last_points.pop(f"arrows/{space}", None)  # other arrows: redrawn whatever moved
+            if keys:
+                handle.colors = np.array([self.arrow_colors[k] for k in keys], dtype=np.uint8)
+        if keys:
+            self._points(f"arrows/{space}", handle, np.stack(list(shown.values())), space)
+        handle.visible = bool(keys)
 
     def update(self, snap: Snapshot) -> None:
         """Move every node to the state in ``snap`` (call from the UI thread)."""
         # A device not simulated here (a served or real one, or a Cartesian device's log) reports
         # its grip, not its links: they are hidden rather than left where the model put them.
-        links = len(snap.geom_xpos) > 0
-        if links != self._links_shown:
-            for handle in self.geoms.values():
-                handle.visible = links
-            self._links_shown = links
-        for g, handle in self.geoms.items() if links else ():
-            self._place(f"geom_{g}", handle, T_V_0 @ make_pose(snap.geom_xmat[g], snap.geom_xpos[g]), "device")
+        self.links.visible = len(snap.geom_xpos) > 0
+        if self.links.visible:
+            self.links.update(snap.geom_xpos, snap.geom_xmat, self.resolution["device"])
         if len(snap.slave_geom_xpos):
-            for g, handle in self.slave_geoms.items():
-                T_w_geom = make_pose(snap.slave_geom_xmat[g], snap.slave_geom_xpos[g])
-                self._place(f"slave_geom_{g}", handle, T_V_W @ T_w_geom, "world")
+            self.slave_geoms.update(snap.slave_geom_xpos, snap.slave_geom_xmat, self.resolution["world"])
         T_v_G = T_V_0 @ snap.T_0_G
         self._place("grip", self.grip, T_v_G, "device")
         self._place("reference", self.reference, T_V_0 @ snap.T_0_G0, "device")
@@ -533,11 +698,18 @@ class SceneView:
             "assist_G": (p_G, R_v_G @ snap.G_F_RD[0:3], R_v_G @ snap.G_F_RD[3:6]),
             "hand_G": (p_G, snap.hand_wrench_0[0:3], snap.hand_wrench_0[3:6]),
         }
+        arrows: dict[Space, dict[str, Array]] = {space: {} for space in SPACES}
         for arrow in WRENCH_ARROWS:
             origin, force, moment = in_v[arrow.key]
-            tip = self._arrow(f"{arrow.key}/force", origin, force, FORCE_REF, arrow.space)
-            self._arrow(f"{arrow.key}/moment", origin, moment, MOMENT_REF, arrow.space)
-            self._label(arrow.key, tip, float(np.linalg.norm(force)), arrow.space)
+            unit, drawn = self.units[arrow.space], arrows[arrow.space]
+            for part, vector, reference in (("force", force, FORCE_REF), ("moment", moment, MOMENT_REF)):
+                ends = self._arrow(origin, vector, reference, unit)
+                if ends is not None:
+                    drawn[f"{arrow.key}/{part}"] = ends
+            tip = drawn.get(f"{arrow.key}/force")
+            self._label(arrow.key, None if tip is None else tip[1], float(np.linalg.norm(force)), arrow.space)
+        for space in SPACES:
+            self._draw_arrows(space, arrows[space])
 
     def _label(self, key: str, tip: Array | None, magnitude: float, space: Space) -> None:
         """The magnitude at a force arrow's tip, rewritten when it has changed by

@@ -37,6 +37,7 @@ from app.web.access import TokenGate
 from app.web.camera import (
     DOLLY_TO_CURSOR_JS,
     FOV,
+    NO_EMPTY_BACKGROUND_JS,
     SOFTWARE_RESOLUTION_JS,
     CameraPose,
     fit_camera,
@@ -313,9 +314,11 @@ class DemoApp:
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
         """Zoom toward the cursor in the new browser, draw its view at a lower resolution if it has
-        no GPU, and fit its camera once it has reported its canvas size."""
+        no GPU and without viser's empty background quad, and fit its camera once it has reported
+        its canvas size."""
         run_in_page(client, DOLLY_TO_CURSOR_JS)
         run_in_page(client, SOFTWARE_RESOLUTION_JS)
+        run_in_page(client, NO_EMPTY_BACKGROUND_JS)
 
         @client.camera.on_update
         def _(camera: viser.CameraHandle) -> None:

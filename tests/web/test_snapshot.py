@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import fields, replace
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 import viser
@@ -14,7 +15,7 @@ from app.session.loop import LoopConfig, ServoLoop
 from app.session.script import OperatorScript
 from app.session.spec import load_session
 from app.slave.arm import ArmStatus
-from app.spatial import invert_pose, make_pose, quat_to_matrix
+from app.spatial import invert_pose, make_pose
 from app.web.headless import free_port
 from app.web.scene_view import (
     SHOWN_RESOLUTION,
@@ -42,20 +43,32 @@ def test_an_arm_out_of_reach_is_flagged_in_the_snapshot() -> None:
 
 
 def test_the_scene_view_draws_the_arm_links_where_the_arm_is() -> None:
-    """A real viser server (no browser): one mesh per arm geom, placed at the arm's own geom poses."""
+    """A real viser server (no browser): every arm geom placed at the arm's own geom pose, drawn as
+    instances of unit parts (a capsule: its shaft and a cap at each end, its axis through them)."""
     loop = ServoLoop(LoopConfig.from_session(load_session("probe_rate").with_changes(slave="puma560")))
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
         view = SceneView(server, loop, on_hand_moved=lambda _T: None)
-        assert len(view.slave_geoms) == loop.slave.model.ngeom == 11  # pedestal and link capsules
+        model = loop.slave.model
+        assert len(view.slave_geoms.meshes) == model.ngeom == 11  # pedestal and link capsules
         up = SlaveCommand(active=True, mode="rate", twist=np.array([0.05, 0.0, 0.05, 0.0, 0.0, 0.0]))
         for _ in range(300):
             loop.slave.step(up)
         view.update(take_snapshot(loop.tick(), np.eye(4)))
         xpos, xmat = loop.slave.geom_poses()
-        for g, handle in view.slave_geoms.items():
-            np.testing.assert_allclose(handle.position, xpos[g] + WORLD_ORIGIN_V, atol=1e-6)
-            np.testing.assert_allclose(quat_to_matrix(np.asarray(handle.wxyz)), xmat[g].reshape(3, 3), atol=1e-5)
+        for g, T_v_geom in view.slave_geoms.poses.items():
+            np.testing.assert_allclose(T_v_geom[0:3, 3], xpos[g] + WORLD_ORIGIN_V, atol=1e-6)
+            np.testing.assert_allclose(T_v_geom[0:3, 0:3], xmat[g].reshape(3, 3), atol=1e-5)
+        capsules = [g for g in range(model.ngeom) if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE]
+        caps = np.asarray(server.scene.get_handle_by_name("/slave/cap").batched_positions)  # type: ignore[union-attr]
+        shafts = np.asarray(server.scene.get_handle_by_name("/slave/shaft").batched_positions)  # type: ignore[union-attr]
+        assert len(shafts) == len(capsules) > 0
+        assert len(caps) == 2 * len(capsules)
+        for i, g in enumerate(capsules):
+            axis = xmat[g].reshape(3, 3)[:, 2] * model.geom_size[g][1]
+            centre = xpos[g] + WORLD_ORIGIN_V
+            np.testing.assert_allclose(shafts[i], centre, atol=1e-6)
+            np.testing.assert_allclose(caps[2 * i : 2 * i + 2], [centre + axis, centre - axis], atol=1e-6)
     finally:
         server.stop()
 
@@ -94,8 +107,10 @@ def test_the_scene_view_sends_only_what_a_pixel_would_show() -> None:
             return replace(snap, F_MRF=np.array([0.0, 0.0, fz, 0.0, 0.0, 0.0]))
 
         view.update(pushed(8.0))
-        label, arrow = view.labels["task_MRF"], view.arrows["task_MRF/force"]
+        label, arrow = view.labels["task_MRF"], view.arrows["world"]
         assert label.text == "8.0 N"
+        assert view.arrow_keys["world"] == ("task_MRF/force",)  # no moment: one arrow in the world's node
+        np.testing.assert_array_equal(arrow.colors, [[230, 60, 40]])
         points = np.array(arrow.points)
         view.update(pushed(8.01))  # the tip moves 0.13e-3 of the space's size: under half a pixel
         np.testing.assert_array_equal(arrow.points, points)
@@ -104,6 +119,32 @@ def test_the_scene_view_sends_only_what_a_pixel_would_show() -> None:
         assert not np.array_equal(arrow.points, points)
         view.update(pushed(8.3))
         assert label.text == "8.3 N"
+    finally:
+        server.stop()
+
+
+def test_the_wrench_arrows_of_a_space_are_one_node_with_their_own_colours() -> None:
+    """The world's force and moment arrows are drawn by one node: two arrows, the task wrench's red
+    and its darker shade for the moment, each from {MRF}; with no wrench the node is hidden."""
+    loop = ServoLoop(LoopConfig.from_session(load_session("probe_rate")))
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        view = SceneView(server, loop, on_hand_moved=lambda _T: None)
+        snap = take_snapshot(loop.tick(), np.eye(4))
+        zero = np.zeros(6)
+        view.update(replace(snap, F_MRF=np.array([0.0, 0.0, 8.0, 0.5, 0.0, 0.0]), G_F_T=zero, G_F_RD=zero))
+        world = view.arrows["world"]
+        assert view.arrow_keys["world"] == ("task_MRF/force", "task_MRF/moment")
+        np.testing.assert_array_equal(world.colors, [[230, 60, 40], [126, 33, 22]])  # 0.55 of the red
+        points = np.asarray(world.points)
+        assert points.shape == (2, 2, 3)
+        assert world.visible
+        np.testing.assert_allclose(points[:, 0], np.tile(view.mrf.position, (2, 1)), atol=1e-6)
+        assert points[0, 1, 2] > points[0, 0, 2]
+        assert points[1, 1, 0] > points[1, 0, 0]
+        view.update(replace(snap, F_MRF=zero, G_F_T=zero, G_F_RD=zero))
+        assert view.arrow_keys["world"] == ()
+        assert not world.visible
     finally:
         server.stop()
 

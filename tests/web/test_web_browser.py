@@ -46,11 +46,9 @@ def test_page_shows_controls_and_scene(demo: DemoApp, page: object) -> None:
         "/mrf",
         "/mrf/sensor",
         "/world/object_0",
-        "/links/geom_0",
-        "/wrenches/task_MRF/force",
-        "/wrenches/reflected_G/force",
-        "/wrenches/assist_G/force",
-        "/wrenches/hand_G/force",
+        "/links/cylinder",
+        "/wrenches/device",
+        "/wrenches/world",
     ]
     for name in names:
         assert scene.get_handle_by_name(name) is not None, name
@@ -97,8 +95,10 @@ def test_press_into_probe_shows_wrench(demo: DemoApp, page: object, tmp_path: Pa
     snap = demo.rt.snapshot
     assert snap.F_MRF[2] > 1.0  # the surface pushes the tool up
     assert len(snap.contact_points_w) > 0
-    assert demo.view.arrows["task_MRF/force"].visible
-    assert demo.view.arrows["reflected_G/force"].visible
+    assert demo.view.arrows["world"].visible
+    assert "task_MRF/force" in demo.view.arrow_keys["world"]
+    assert demo.view.arrows["device"].visible
+    assert "reflected_G/force" in demo.view.arrow_keys["device"]
     assert demo.rt.stats().ticks > 1000  # rate and jitter are measured by bench/web_realtime.py, not here
 
     shot = tmp_path / "web_probe_contact.png"
@@ -423,3 +423,24 @@ def test_a_page_without_a_gpu_draws_its_view_at_the_software_pixel_ratio(demo: D
             time.sleep(0.2)
     finally:
         own.close()
+
+
+#: Whether viser's background-image quad is drawn (None while the page has not made it).
+BACKGROUND_SHOWN_JS = """() => {
+  const mutable = window.__viserMutable;
+  let shown = null;
+  mutable.scene.traverse((o) => { if (o.material && o.material === mutable.backgroundMaterial) shown = o.visible; });
+  return shown;
+}"""
+
+
+def test_the_page_draws_no_background_quad_without_a_background_image(demo: DemoApp, page: object) -> None:
+    """viser's full-canvas background quad (its shader discards every pixel with no image) is
+    hidden while the demo sets no background image, and shown again once one is set."""
+    wait_until(lambda: page.evaluate(BACKGROUND_SHOWN_JS) is False, "the empty background quad is drawn")  # type: ignore[attr-defined]
+    demo.server.scene.set_background_image(np.full((4, 4, 3), 200, dtype=np.uint8), format="png")
+    try:
+        wait_until(lambda: page.evaluate(BACKGROUND_SHOWN_JS) is True, "a background image set is not drawn")  # type: ignore[attr-defined]
+    finally:
+        demo.server.scene.set_background_image(None)
+    wait_until(lambda: page.evaluate(BACKGROUND_SHOWN_JS) is False, "the quad stays drawn after the image is gone")  # type: ignore[attr-defined]

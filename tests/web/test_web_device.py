@@ -63,11 +63,11 @@ def test_demo_drives_a_served_device_shows_its_link_and_no_links_it_cannot_pose(
         assert moved.T_0_G[0, 3] - first.T_0_G[0, 3] > 0.01  # the served grip followed the hand
         assert moved.geom_xpos.shape == (0, 3)  # the device reports its grip, not its links
         for _ in range(int(WAIT_S / 0.02)):  # the page's next redraw hides them
-            if not any(h.visible for h in app.view.geoms.values()):
+            if not any(n.visible for n in app.view.links.nodes):
                 break
             time.sleep(0.02)
-        assert app.view.geoms
-        assert not any(h.visible for h in app.view.geoms.values())
+        assert app.view.links.nodes
+        assert not any(n.visible for n in app.view.links.nodes)
         process.terminate()  # the device goes away: the page says so
         gone = wait_for(app, lambda s: s.device_link == "DISCONNECTED")
         assert gone.device_link == "DISCONNECTED"

@@ -306,7 +306,7 @@ def _evaluate(
     g = ensure_cache(pair, k, o, r, verts, tris, cells, lists, stamp, tool, pool)
     if g < 0:
         return ERR_OVERFLOW, 0
-    bound = local_minima(pair, pool[k], r, verts, tris, edges, lists)
+    bound = local_minima(pair, tool, pool[k], r, verts, tris, edges, lists)
     box = box_distance2(o.box, pair.c[0], pair.c[1], pair.c[2])
     if pair.fresh:
         pair.fresh = 0

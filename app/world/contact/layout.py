@@ -160,9 +160,7 @@ CANDIDATE = np.dtype([("t", "i8"), ("mu", "f8"), ("ref", "f8", (3,))], align=Tru
 
 # One vertex: position, angle-weighted pseudonormal, its faces ``lists[f0:f1]``, and ``weld``:
 # the same for each copy of a vertex across a cut (each side of a cut has its own copy).
-VERTEX = np.dtype(
-    [("p", "f8", (3,)), ("pn", "f8", (3,)), ("f0", "i8"), ("f1", "i8"), ("weld", "i8")], align=True
-)
+VERTEX = np.dtype([("p", "f8", (3,)), ("pn", "f8", (3,)), ("f0", "i8"), ("f1", "i8"), ("weld", "i8")], align=True)
 
 # One edge: pseudonormal, its faces (-1: none, a boundary where the mesh was cut), ``tan`` > 0
 # for a gentle concave crease (tan of the angle between its faces' normals), and its two ends.

@@ -56,8 +56,8 @@ _SAME_POINT = 1e-10
 # lines) against the nearest point computed from the vertices (1e-16 relative at coordinates
 # under 1 km): a candidate is skipped only if it certainly is no nearer.
 _PLANE_SLACK = 1e-12
-# Edge or vertex minima on neighbouring triangles with normals closer than the cut angle are one
-# contact (cos of 30 degrees, app.world.collision.CUT_ANGLE_DEG).
+# Edge or vertex minima along one crease with normals closer than the cut angle are one contact
+# (cos of 30 degrees, app.world.collision.CUT_ANGLE_DEG).
 _PARTNER_COS = 0.8660254037844387
 # Bits of ``TRIANGLE.own`` for edge k and its two ends (vertex k and k + 1 mod 3).
 _EDGE_AND_ENDS = (0b011001, 0b110010, 0b101100)

@@ -116,3 +116,18 @@ def test_a_peg_on_a_bore_rim_is_one_contact_whatever_the_scan_order(
         f = result.force_w
         assert np.linalg.norm(f) == pytest.approx(K * depth, rel=0.005)
         assert np.degrees(np.arccos(min(1.0, f @ towards / np.linalg.norm(f)))) < 0.75
+
+
+@pytest.mark.parametrize("step", [1e-4, 3e-3])
+def test_two_touching_boxes_hold_a_push_exactly_down_their_seam(tmp_path: Path, step: float) -> None:
+    """Two 40 mm boxes side by side (two objects, touching at x = 0), the sphere's centre pushed
+    exactly down the shared plane from 2 mm above the tops to 20 mm below, at 0.1 and 3 mm a call:
+    each top face holds it, k (r - z) up from each box, whatever the depth. Before (wall9's round):
+    30 N at the tops, then 0 N for the whole 20 mm (the centre lies on both side faces, at distance
+    0, which was taken as in front: both top faces were dropped and the side faces' pushes
+    cancelled), then -40.6 N out of the bottom."""
+    meshes = {"a": _box((-0.02, -0.02, -0.02), (0.0, 0.02, 0.0)), "b": _box((0.0, -0.02, -0.02), (0.02, 0.02, 0.0))}
+    model = ContactModel(_mesh_scene(tmp_path, meshes))
+    for z in np.arange(r + 0.002, -0.02, -step):
+        f = model.wrench(pose((0.0, 0.0, float(z)))).force_w
+        assert f == pytest.approx([0.0, 0.0, 2.0 * K * max(r - z, 0.0)], abs=1e-9), f"at z = {z * 1e3:.2f} mm"

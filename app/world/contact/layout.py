@@ -25,7 +25,7 @@ MAX_PER_PAIR = 4
 
 # Edge and vertex minima a pair evaluation collects at most before merging those along one crease
 # (:func:`app.world.contact.minima.local_minima`); beyond, the farthest are forgotten. A 6 mm peg
-# sphere level with the 256-segment bore/chamfer crease of peg_block sees 30 of them.
+# sphere nearly level with the 256-segment bore/chamfer crease of peg_block sees some 30.
 MAX_EDGE_MINIMA = 64
 
 # Gentle concave creases listed per triangle at most (a vertex of valence 6 on a tessellated

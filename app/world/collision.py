@@ -45,6 +45,8 @@ class CollisionMesh:
 
     Attributes:
         vertices: Vertices (m), (V, 3); a vertex whose faces cuts separate appears once per fan.
+        vertex_origin: The input's vertex each one is a copy of (V,): the copies of a vertex across
+            a cut share it.
         faces: Vertex indices (F, 3), in the input's face order.
         face_normals: Outward unit normals (F, 3).
         face_edges: Edge k of face f joins ``faces[f, k]`` and ``faces[f, (k + 1) % 3]``, (F, 3).
@@ -86,6 +88,8 @@ class CollisionMesh:
         vertices = np.zeros((len(labels), 3))
         vertices[inverse] = np.asarray(mesh.vertices, dtype=float)[corner_vertex]
         self.vertices = vertices
+        self.vertex_origin = np.zeros(len(labels), dtype=np.int64)
+        self.vertex_origin[inverse] = corner_vertex
         self._edges(cut_pairs)
         self._pseudonormals()
         self.lo = self.vertices.min(axis=0)
@@ -214,6 +218,7 @@ def pack_meshes(meshes: Sequence[CollisionMesh]) -> PackedMeshes:
         vs = slice(v0[j], v0[j + 1])
         verts["p"][vs] = c.vertices
         verts["pn"][vs] = c.vertex_pn
+        verts["weld"][vs] = c.vertex_origin + v0[j]
         offset = sum(len(x) for x in vertex_faces)
         verts["f0"][vs] = c.vertex_face_start[:-1] + offset
         verts["f1"][vs] = c.vertex_face_start[1:] + offset

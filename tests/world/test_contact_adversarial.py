@@ -84,3 +84,50 @@ def test_a_sphere_grazing_past_a_convex_edge_feels_only_the_edge(tmp_path: Path,
         d = float(np.linalg.norm(np.array([x, 0.0, z]) - q))
         expected = K * max(r - d, 0.0) * (np.array([x, 0.0, z]) - q) / d
         assert f == pytest.approx(expected, abs=1e-9)
+
+
+@pytest.mark.parametrize("shuffled", [False, True])
+@pytest.mark.parametrize("tilt_deg", [40.0, 0.5])
+def test_a_peg_on_a_bore_rim_is_one_contact_whatever_the_scan_order(
+    tmp_path: Path, tilt_deg: float, shuffled: bool
+) -> None:
+    """A 6 mm sphere (the peg's) pressed 0.1 mm onto the 256-segment crease where the 6.1 mm bore
+    of peg_block meets its chamfer, from inside the bore, 40 deg above level and nearly level
+    (0.5 deg: the sphere almost conforms to the bore, some 30 segments hold an edge minimum), at
+    36 places round it with one model (its caches kept from place to place), with the mesh's
+    triangles as built and shuffled (the scan order): each nearby rim segment holds its own edge
+    minimum, and the crease is one contact, k 0.1 mm (to the polygon's 0.3 %), pushing from the
+    crease to the centre (within the 0.7 deg half-angle of a segment). Merged pairwise in scan
+    order (wall9's round): two contacts at 11 of the 36 places at 40 deg, up to four nearly level."""
+    from app.world.assets import CHAMFER, HOLE_RADIUS, PEG_RADIUS, peg_block
+
+    block = peg_block()
+    if shuffled:
+        faces = np.random.default_rng(25).permutation(np.asarray(block.faces))
+        block = trimesh.Trimesh(block.vertices, faces, process=False)
+    depth, tilt = 1e-4, np.radians(tilt_deg)
+    model = ContactModel(_mesh_scene(tmp_path, {"block": block}, radius=PEG_RADIUS))
+    for angle in np.linspace(0.0, 2.0 * np.pi, 36, endpoint=False):
+        out = np.array([np.cos(angle), np.sin(angle), 0.0])
+        crease = np.array([0.03, 0.0, -CHAMFER]) + HOLE_RADIUS * out
+        towards = -np.cos(tilt) * out + np.array([0.0, 0.0, np.sin(tilt)])
+        result = model.wrench(pose(tuple(crease + (PEG_RADIUS - depth) * towards)))
+        assert len(result.contacts) == 1, f"at {np.degrees(angle):.0f} deg"
+        f = result.force_w
+        assert np.linalg.norm(f) == pytest.approx(K * depth, rel=0.005)
+        assert np.degrees(np.arccos(min(1.0, f @ towards / np.linalg.norm(f)))) < 0.75
+
+
+@pytest.mark.parametrize("step", [1e-4, 3e-3])
+def test_two_touching_boxes_hold_a_push_exactly_down_their_seam(tmp_path: Path, step: float) -> None:
+    """Two 40 mm boxes side by side (two objects, touching at x = 0), the sphere's centre pushed
+    exactly down the shared plane from 2 mm above the tops to 20 mm below, at 0.1 and 3 mm a call:
+    each top face holds it, k (r - z) up from each box, whatever the depth. Before (wall9's round):
+    30 N at the tops, then 0 N for the whole 20 mm (the centre lies on both side faces, at distance
+    0, which was taken as in front: both top faces were dropped and the side faces' pushes
+    cancelled), then -40.6 N out of the bottom."""
+    meshes = {"a": _box((-0.02, -0.02, -0.02), (0.0, 0.02, 0.0)), "b": _box((0.0, -0.02, -0.02), (0.02, 0.02, 0.0))}
+    model = ContactModel(_mesh_scene(tmp_path, meshes))
+    for z in np.arange(r + 0.002, -0.02, -step):
+        f = model.wrench(pose((0.0, 0.0, float(z)))).force_w
+        assert f == pytest.approx([0.0, 0.0, 2.0 * K * max(r - z, 0.0)], abs=1e-9), f"at z = {z * 1e3:.2f} mm"

@@ -23,6 +23,11 @@ Records = Any
 # a box pocket touches three faces.
 MAX_PER_PAIR = 4
 
+# Edge and vertex minima a pair evaluation collects at most before merging those along one crease
+# (:func:`app.world.contact.minima.local_minima`); beyond, the farthest are forgotten. A 6 mm peg
+# sphere nearly level with the 256-segment bore/chamfer crease of peg_block sees some 30.
+MAX_EDGE_MINIMA = 64
+
 # Gentle concave creases listed per triangle at most (a vertex of valence 6 on a tessellated
 # surface gives a triangle 12 edges from its vertices); more are dropped, its own edges kept.
 MAX_CREASES = 16
@@ -58,6 +63,17 @@ TOOL = np.dtype(
         # how many of them refilled their candidate cache.
         ("out", "f8", (15,)),
         ("counts", "i8", (2,)),
+        # Scratch of a pair evaluation: its edge and vertex minima (as the pair's ``min_*``), nearest
+        # first through ``em_order``; the welded ends of each one's feature (an edge's two, a
+        # vertex's twice); and the minimum each merged into (its crease's nearest).
+        ("em_q", "f8", (MAX_EDGE_MINIMA, 3)),
+        ("em_n", "f8", (MAX_EDGE_MINIMA, 3)),
+        ("em_phi", "f8", (MAX_EDGE_MINIMA,)),
+        ("em_t", "i8", (MAX_EDGE_MINIMA,)),
+        ("em_f", "i8", (MAX_EDGE_MINIMA,)),
+        ("em_ends", "i8", (MAX_EDGE_MINIMA, 2)),
+        ("em_order", "i8", (MAX_EDGE_MINIMA,)),
+        ("em_rep", "i8", (MAX_EDGE_MINIMA,)),
     ],
     align=True,
 )
@@ -142,8 +158,9 @@ TRIANGLE = np.dtype(
 # scan skips it until then), or, mu <= 0, how far before it is worth asking again (-mu).
 CANDIDATE = np.dtype([("t", "i8"), ("mu", "f8"), ("ref", "f8", (3,))], align=True)
 
-# One vertex: position, angle-weighted pseudonormal, and its faces ``lists[f0:f1]``.
-VERTEX = np.dtype([("p", "f8", (3,)), ("pn", "f8", (3,)), ("f0", "i8"), ("f1", "i8")], align=True)
+# One vertex: position, angle-weighted pseudonormal, its faces ``lists[f0:f1]``, and ``weld``:
+# the same for each copy of a vertex across a cut (each side of a cut has its own copy).
+VERTEX = np.dtype([("p", "f8", (3,)), ("pn", "f8", (3,)), ("f0", "i8"), ("f1", "i8"), ("weld", "i8")], align=True)
 
 # One edge: pseudonormal, its faces (-1: none, a boundary where the mesh was cut), ``tan`` > 0
 # for a gentle concave crease (tan of the angle between its faces' normals), and its two ends.

@@ -36,7 +36,16 @@ from app.world.contact.geometry import (
     spread_retry,
 )
 from app.world.contact.grid import gather
-from app.world.contact.layout import FEAT_EDGE, FEAT_FACE, MAX_CREASES, MAX_PER_PAIR, Record, Records
+from app.world.contact.layout import (
+    FEAT_EDGE,
+    FEAT_FACE,
+    FEAT_VERTEX,
+    MAX_CREASES,
+    MAX_EDGE_MINIMA,
+    MAX_PER_PAIR,
+    Record,
+    Records,
+)
 
 # Below this distance (m) the direction c - q is meaningless: the centre is on the surface and
 # the feature's pseudonormal gives the direction.
@@ -47,8 +56,8 @@ _SAME_POINT = 1e-10
 # lines) against the nearest point computed from the vertices (1e-16 relative at coordinates
 # under 1 km): a candidate is skipped only if it certainly is no nearer.
 _PLANE_SLACK = 1e-12
-# Edge or vertex minima on neighbouring triangles with normals closer than the cut angle are one
-# contact (cos of 30 degrees, app.world.collision.CUT_ANGLE_DEG).
+# Edge or vertex minima along one crease with normals closer than the cut angle are one contact
+# (cos of 30 degrees, app.world.collision.CUT_ANGLE_DEG).
 _PARTNER_COS = 0.8660254037844387
 # Bits of ``TRIANGLE.own`` for edge k and its two ends (vertex k and k + 1 mod 3).
 _EDGE_AND_ENDS = (0b011001, 0b110010, 0b101100)
@@ -176,9 +185,94 @@ def _farthest(phi: np.ndarray) -> int:
 
 @njit(cache=True, inline="always")
 def _worst(phi: np.ndarray, n_min: int) -> float:
-    """The largest ``|phi|`` of ``n_min`` kept minima if the set is full (inf if one of them is
-    marked dropped), else inf."""
+    """The largest ``|phi|`` of ``n_min`` kept minima if the set is full, else inf."""
     return abs(phi[_farthest(phi)]) if n_min == MAX_PER_PAIR else math.inf
+
+
+@njit(cache=True, inline="always")
+def _keep(
+    pair: Record,
+    n_min: int,
+    qx: float,
+    qy: float,
+    qz: float,
+    nx: float,
+    ny: float,
+    nz: float,
+    phi: float,
+    t: int,
+    feat: int,
+) -> int:
+    """Keep a minimum among the pair's ``n_min`` (the nearest MAX_PER_PAIR); returns the new count.
+    The same minimum reported twice (rounding at a shared edge) counts once."""
+    for e in range(n_min):
+        mq, mn = pair.min_q[e], pair.min_n[e]
+        if (qx - mq[0]) ** 2 + (qy - mq[1]) ** 2 + (qz - mq[2]) ** 2 <= _SAME_POINT**2 and (
+            nx * mn[0] + ny * mn[1] + nz * mn[2] > 0.999
+        ):
+            return n_min
+    slot = n_min
+    if n_min == MAX_PER_PAIR:
+        # Full: replace the farthest if this one is nearer.
+        slot = _farthest(pair.min_phi)
+        if abs(pair.min_phi[slot]) <= abs(phi):
+            return n_min
+    else:
+        n_min += 1
+    pair.min_q[slot, 0], pair.min_q[slot, 1], pair.min_q[slot, 2] = qx, qy, qz
+    pair.min_n[slot, 0], pair.min_n[slot, 1], pair.min_n[slot, 2] = nx, ny, nz
+    pair.min_phi[slot] = phi
+    pair.min_t[slot] = t
+    pair.min_f[slot] = feat
+    return n_min
+
+
+@njit(cache=True, inline="always")
+def _collect(
+    tool: Record,
+    verts: Records,
+    tris: Records,
+    n_em: int,
+    qx: float,
+    qy: float,
+    qz: float,
+    nx: float,
+    ny: float,
+    nz: float,
+    phi: float,
+    t: int,
+    feat: int,
+) -> int:
+    """Add an edge or vertex minimum to the tool's scratch (``em_*``, nearest first through
+    ``em_order``; when full, it replaces the farthest if nearer); returns the new count."""
+    d = abs(phi)
+    order = tool.em_order
+    if n_em == MAX_EDGE_MINIMA:
+        slot = order[n_em - 1]
+        if abs(tool.em_phi[slot]) <= d:
+            return n_em
+        n_em -= 1
+    else:
+        slot = n_em
+    # Insert by distance (few at a time: they arrive as the scan finds them).
+    a = n_em
+    while a > 0 and abs(tool.em_phi[order[a - 1]]) > d:
+        order[a] = order[a - 1]
+        a -= 1
+    order[a] = slot
+    tool.em_q[slot, 0], tool.em_q[slot, 1], tool.em_q[slot, 2] = qx, qy, qz
+    tool.em_n[slot, 0], tool.em_n[slot, 1], tool.em_n[slot, 2] = nx, ny, nz
+    tool.em_phi[slot] = phi
+    tool.em_t[slot] = t
+    tool.em_f[slot] = feat
+    v = tris[t].v
+    if feat >= FEAT_EDGE:
+        k = feat - FEAT_EDGE
+        tool.em_ends[slot, 0], tool.em_ends[slot, 1] = verts[v[k]].weld, verts[v[(k + 1) % 3]].weld
+    else:
+        w = verts[v[feat - FEAT_VERTEX]].weld
+        tool.em_ends[slot, 0], tool.em_ends[slot, 1] = w, w
+    return n_em + 1
 
 
 @njit(cache=True, inline="always")
@@ -228,6 +322,7 @@ def ensure_cache(
 @tick_kernel
 def local_minima(
     pair: Record,
+    tool: Record,
     pool_k: np.ndarray,
     r: float,
     verts: Records,
@@ -236,7 +331,8 @@ def local_minima(
     lists: np.ndarray,
 ) -> float:
     """Fill ``pair.min_*`` with the local minima of the distance within r of ``pair.c`` (the
-    nearest :data:`MAX_PER_PAIR`); return a lower bound (m) of the distance to the mesh."""
+    nearest :data:`MAX_PER_PAIR`); return a lower bound (m) of the distance to the mesh. ``tool``
+    lends its scratch (``em_*``) to the edge and vertex minima."""
     cx, cy, cz = pair.c[0], pair.c[1], pair.c[2]
     r2 = r * r
     n_min = 0
@@ -250,18 +346,18 @@ def local_minima(
     near_t = pair.near_t
     if near_t >= 0:
         nearest2 = min(nearest2, closest_on_triangle(verts, tris, near_t, cx, cy, cz)[0])
-    # |phi| of the farthest kept minimum once MAX_PER_PAIR are kept (inf before, or while one
-    # is marked dropped): a candidate no nearer changes nothing (a face minimum displaces no
-    # one, an edge or vertex one only a farther partner), so it is skipped unprocessed. On a
-    # finely tessellated concave surface (a hole's wall) every facet under the sphere holds a
-    # minimum, and most end at this test or at the plane test below.
+    # |phi| of the farthest face minimum kept once MAX_PER_PAIR are kept (inf before): a candidate
+    # no nearer changes nothing (it would not be kept, nor, along a crease, lie between two nearer
+    # minima), so it is skipped unprocessed. On a finely tessellated concave surface (a hole's
+    # wall) every facet under the sphere holds a minimum, and most end at this test or at the
+    # plane test below.
     worst = math.inf
     # Least lower bound of the distance of the candidates skipped as no nearer than r or than
     # ``worst``: they cannot hold a kept minimum, so their exact distance is not worth a
     # nearest-point search (above a hole's rim, every rim triangle is a little beyond r), and
     # the bound returned is the lesser of this and the nearest distance found.
     floor2 = math.inf
-    dropped = False  # whether a kept minimum is marked dropped (|phi| = inf)
+    n_em = 0  # edge and vertex minima collected in the tool's scratch, merged after the scan
     # A candidate is dormant while the centre is within ``mu`` of its ``ref``: it then holds no
     # local minimum within the cap (nor is nearer than that), so skipping it changes nothing;
     # the order of the others is kept. A candidate found idle after it woke (or after the centre
@@ -381,58 +477,39 @@ def local_minima(
                 phi, nx, ny, nz = d, ux, uy, uz
             else:
                 phi, nx, ny, nz = -d, -ux, -uy, -uz
-        # The same minimum reported twice (rounding at a shared edge) counts once; two edge or
-        # vertex minima on triangles sharing a vertex, with normals within the cut angle, are
-        # the two sides of a gentle crease (a polygonal rim seen from inside): the nearer counts.
-        skip = False
-        for e in range(n_min):
-            mq, mn = pair.min_q[e], pair.min_n[e]
-            aligned = nx * mn[0] + ny * mn[1] + nz * mn[2]
-            if (qx - mq[0]) ** 2 + (qy - mq[1]) ** 2 + (qz - mq[2]) ** 2 <= _SAME_POINT**2 and aligned > 0.999:
-                skip = True
-            elif (
-                feat != FEAT_FACE
-                and pair.min_f[e] != FEAT_FACE
-                and aligned > _PARTNER_COS
-                and share_vertex(tris, t, pair.min_t[e])
-            ):
-                if abs(pair.min_phi[e]) <= d:
-                    skip = True
-                else:
-                    pair.min_phi[e] = math.inf  # dropped below
-                    dropped = True
-        if skip:
+        if feat == FEAT_FACE:
+            n_min = _keep(pair, n_min, qx, qy, qz, nx, ny, nz, phi, t, feat)
             worst = _worst(pair.min_phi, n_min)
-            continue
-        if dropped:
-            n_kept = 0
-            for e in range(n_min):
-                if pair.min_phi[e] < math.inf:
-                    if e != n_kept:
-                        for a in range(3):
-                            pair.min_q[n_kept, a] = pair.min_q[e, a]
-                            pair.min_n[n_kept, a] = pair.min_n[e, a]
-                        pair.min_phi[n_kept] = pair.min_phi[e]
-                        pair.min_w[n_kept] = pair.min_w[e]
-                        pair.min_t[n_kept] = pair.min_t[e]
-                        pair.min_f[n_kept] = pair.min_f[e]
-                    n_kept += 1
-            n_min = n_kept
-            dropped = False
-        slot = n_min
-        if n_min == MAX_PER_PAIR:
-            # Full: replace the farthest if this one is nearer.
-            slot = _farthest(pair.min_phi)
-            if abs(pair.min_phi[slot]) <= d:
-                continue
         else:
-            n_min += 1
-        pair.min_q[slot, 0], pair.min_q[slot, 1], pair.min_q[slot, 2] = qx, qy, qz
-        pair.min_n[slot, 0], pair.min_n[slot, 1], pair.min_n[slot, 2] = nx, ny, nz
-        pair.min_phi[slot] = phi
-        pair.min_t[slot] = t
-        pair.min_f[slot] = feat
-        worst = _worst(pair.min_phi, n_min)
+            n_em = _collect(tool, verts, tris, n_em, qx, qy, qz, nx, ny, nz, phi, t, feat)
+    # Edge and vertex minima along one gentle crease are one contact, the nearest: a polygonal rim
+    # seen from inside holds one minimum per segment near the sphere (each a local minimum of the
+    # polygon's distance, the vertices between local maxima), all at nearly one depth. Nearest
+    # first, each joins the crease of a nearer one it shares a (welded) end with, if its normal is
+    # within the cut angle of that crease's nearest; else it is a contact of its own. Along a
+    # crease the distance falls to its nearest point and rises beyond (a polygon inscribed in a
+    # smooth one), so the nearer ones are joined before the farther, whatever the scan order
+    # (merged pairwise in scan order, every other segment of a rim survived: up to 4 contacts of
+    # one depth, 4 times the force, issue 25's wall9 round).
+    order = tool.em_order
+    for a in range(n_em):
+        e = order[a]
+        tool.em_rep[e] = e
+        ends = tool.em_ends[e]
+        for b in range(a):
+            f = order[b]
+            o = tool.em_ends[f]
+            if not (ends[0] == o[0] or ends[0] == o[1] or ends[1] == o[0] or ends[1] == o[1]):
+                continue
+            rep = tool.em_rep[f]
+            mn = tool.em_n[rep]
+            if tool.em_n[e, 0] * mn[0] + tool.em_n[e, 1] * mn[1] + tool.em_n[e, 2] * mn[2] > _PARTNER_COS:
+                tool.em_rep[e] = rep
+                break
+        if tool.em_rep[e] == e:
+            q, m = tool.em_q[e], tool.em_n[e]
+            phi = tool.em_phi[e]
+            n_min = _keep(pair, n_min, q[0], q[1], q[2], m[0], m[1], m[2], phi, tool.em_t[e], tool.em_f[e])
     # The weights of the minima kept (a face minimum near a gentle concave crease), only now: on
     # a hole's wall most minima found are displaced by nearer ones later in the scan.
     for e in range(n_min):

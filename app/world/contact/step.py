@@ -30,7 +30,7 @@ from app.world.contact.layout import (
     Record,
     Records,
 )
-from app.world.contact.minima import NEAR_FRAC, ensure_cache, local_minima, share_vertex
+from app.world.contact.minima import NEAR_FRAC, TOUCH, ensure_cache, local_minima, share_vertex
 from app.world.contact.track import follow
 
 # Largest deviation of R^T R from the identity (and of the last row from [0 0 0 1]) accepted as a
@@ -146,6 +146,17 @@ def _pair_contacts(
             pair.mem_t = t
             pair.mem_q[0], pair.mem_q[1], pair.mem_q[2] = qx, qy, qz
             pair.mem_n[0], pair.mem_n[1], pair.mem_n[2] = nx, ny, nz
+        elif phi == 0.0:
+            # The followed point is the centre itself (closer than TOUCH): the geometry does not
+            # tell the side there, the remembered contact plane does (two boxes side by side
+            # pushed exactly down their seam: the centre runs down both side faces, and taking
+            # that as "in front" dropped both top faces, 30 N then 0 N to the bottom).
+            mq, mn = pair.mem_q, pair.mem_n
+            s = (c[0] - mq[0]) * mn[0] + (c[1] - mq[1]) * mn[1] + (c[2] - mq[2]) * mn[2]
+            if s < -TOUCH:
+                behind = True
+                phi, nx, ny, nz = s, mn[0], mn[1], mn[2]
+                qx, qy, qz = c[0] - s * nx, c[1] - s * ny, c[2] - s * nz
     if not behind:
         if n_min == 0:
             pair.mem = 0
@@ -159,7 +170,9 @@ def _pair_contacts(
         qx, qy, qz = pair.min_q[prim, 0], pair.min_q[prim, 1], pair.min_q[prim, 2]
         if r - phi <= 0.0:
             pair.mem = 0
-        else:
+        elif not (phi == 0.0 and pair.mem == 1):
+            # A touch (the centre on the surface) keeps the remembered plane: its normal would be
+            # only the touched feature's (at the seam above, a side face's).
             pair.mem = 1
             pair.mem_q[0], pair.mem_q[1], pair.mem_q[2] = qx, qy, qz
             pair.mem_n[0], pair.mem_n[1], pair.mem_n[2] = nx, ny, nz
@@ -306,7 +319,7 @@ def _evaluate(
     g = ensure_cache(pair, k, o, r, verts, tris, cells, lists, stamp, tool, pool)
     if g < 0:
         return ERR_OVERFLOW, 0
-    bound = local_minima(pair, pool[k], r, verts, tris, edges, lists)
+    bound = local_minima(pair, tool, pool[k], r, verts, tris, edges, lists)
     box = box_distance2(o.box, pair.c[0], pair.c[1], pair.c[2])
     if pair.fresh:
         pair.fresh = 0

@@ -61,7 +61,9 @@ def test_cli_run_writes_log_summary_and_plot(tmp_path: Path) -> None:
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_a_killed_run_leaves_a_readable_log(tmp_path: Path, seed: int) -> None:
     """kill -9 at a random moment of a paced run: every completed part reads back, none is torn,
-    and the tail gathered since the last part is recovered in whole flushes of 0.1 s."""
+    and the tail gathered since the last part is recovered in whole ticks, one after the other.
+    (Not in whole flushes: Linux stops a write to a file between pages when the process is
+    killed, so a flush of 0.1 s cut by the kill keeps the rows it wrote; seen once, 78 of 100.)"""
     session = tmp_path / "long.toml"
     session.write_text((SESSIONS_DIR / "probe_rate.toml").read_text().replace("duration = 5.0", "duration = 120.0"))
     out = tmp_path / "out"
@@ -78,8 +80,7 @@ def test_a_killed_run_leaves_a_readable_log(tmp_path: Path, seed: int) -> None:
     parts = sorted((out / "log").glob("part-*.parquet"))
     table = read_log(out / "log")
     assert len(parts) >= 1
-    # Every finished part (PART_SECONDS of ticks each), then the tail's flushes of 0.1 s.
-    assert table.num_rows % 100 == 0
+    # Every finished part (PART_SECONDS of ticks each), then the tail's rows.
     assert table.num_rows > round(PART_SECONDS / 1e-3) * len(parts)
     t = np.sort(table.column("t").to_numpy())
     np.testing.assert_allclose(t[0], 1e-3, rtol=1e-9)

@@ -420,7 +420,7 @@ class DemoApp:
         if player.replay.unchecked:
             text += f" · **not checked:** {player.replay.unchecked}"
         self.panel.show_replay(player.duration, text)
-        self.panel.timeline.value = player.cursor  # type: ignore[misc]  # viser 1.1: setter exists
+        self.panel.show_cursor(player.cursor)
 
     def close_replay(self) -> None:
         """Back to the live loop."""
@@ -437,7 +437,7 @@ class DemoApp:
         if player is not None:
             player.seek(t)
             if not np.isfinite(t):
-                self.panel.timeline.value = player.cursor  # type: ignore[misc]  # viser 1.1: setter exists
+                self.panel.show_cursor(player.cursor)
 
     def set_replay_playing(self, on: bool) -> None:
         if self.player is not None:
@@ -536,7 +536,7 @@ class DemoApp:
             # Only a cursor that playing moved: paused, the timeline is the page's, and writing it
             # back here could land between viser taking a scrub and its callback reading it.
             if player.cursor != played_from:
-                self.panel.timeline.value = player.cursor  # type: ignore[misc]  # viser 1.1: setter exists
+                self.panel.show_cursor(player.cursor)
             p = snap.T_w_MRF[0:3, 3]
             self.panel.replay_status.content = (
                 f"replay t = {snap.time:.3f} s (tick {snap.ticks} of {len(player.replay)}) · tool at "

@@ -223,8 +223,12 @@ class SessionPanel:
         if duration is not None:
             self.timeline.max = max(duration, 1e-3)
         else:
-            self.timeline.value = 0.0  # type: ignore[misc]  # viser 1.1: the setter exists
+            self.show_cursor(0.0)
         self.replay_status.content = text
+
+    def show_cursor(self, t: float) -> None:
+        """Put the timeline at ``t`` (s). viser runs the timeline's callback (a seek) for it."""
+        self.timeline.value = t  # type: ignore[misc]  # viser 1.1: the setter exists
 
     def show_experiment(self, done: int, total: int, table: str | None, chart: np.ndarray | None) -> None:
         """Progress (``done`` of ``total`` runs), then the table and the bar chart (RGB image)."""

@@ -191,9 +191,9 @@ class Scene:
     def identity(self) -> str:
         """A digest of the world as simulated (:func:`~app.config.identity_digest`): every object's
         name, contact parameters and mesh in {w} (its mesh in {B} and mass properties for a dynamic
-        one), the tool's spheres, frames and inertia, and gravity. Names, prose and file names are
-        left out (the meshes' contents count), and so is the tool's home, which a session or the
-        experiment moves. A log keeps it (``scene_identity``) so a replay can tell the scene file
+        one), the tool's spheres, frames and inertia, and gravity. The scene's name and description
+        and the mesh file names are left out (the meshes' contents count), and so is the tool's
+        home, which a session or the experiment moves. A log keeps it (``scene_identity``) so a replay can tell the scene file
         it names from the one it was run with."""
         parts: list[object] = []
         for o in (*self.objects, *(b.object for b in self.bodies)):

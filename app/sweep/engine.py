@@ -51,6 +51,7 @@ from types import TracebackType
 from typing import Any
 
 from app.errors import EngineError, FrhcError
+from app.sweep.probe import answers_grpc
 
 Task = Callable[[Any], dict[str, Any]]
 Point = tuple[int, Any]
@@ -165,41 +166,13 @@ def init_local_ray(cpus: int) -> None:
         )
 
 
-#: An HTTP/2 client's connection preface and an empty SETTINGS frame (RFC 9113, 3.4 and 6.5).
-HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes((0, 0, 0, 4, 0, 0, 0, 0, 0))
-#: The type of an HTTP/2 SETTINGS frame, the first a server sends (byte 3 of its 9-byte header).
-SETTINGS_FRAME = 4
-
-
-def speaks_http2(host: str, port: int, timeout: float) -> bool:
-    """Whether the server at ``host:port`` answers an HTTP/2 preface with its SETTINGS frame
-    within ``timeout`` s, as the gRPC server of a Ray head (its GCS, or a Ray Client server) does;
-    an HTTP/1 server, anything else, or a process that accepts and never replies (stopped) does not.
-
-    Raises:
-        OSError: no TCP connection within ``timeout``.
-    """
-    with socket.create_connection((host, port), timeout) as conn:
-        try:
-            conn.sendall(HTTP2_PREFACE)
-            head = b""
-            while len(head) < 9:
-                chunk = conn.recv(9 - len(head))
-                if not chunk:
-                    break
-                head += chunk
-        except OSError:  # reset or timed out after the connection was made: not a head that answers
-            return False
-    return len(head) == 9 and head[3] == SETTINGS_FRAME
-
-
 def join_ray(address: str, source: str = "--address") -> None:
     """Join the Ray cluster at ``address`` (its GCS ``host:port``, ``"auto"`` or ``ray://host:port``).
 
     The address must answer as a gRPC server within :data:`CONNECT_TIMEOUT` first
-    (:func:`speaks_http2`), so a wrong one (nothing there, a web server, a stopped head) fails at
-    once instead of after Ray's retries (~20 s to minutes, a warning line a second). A head on a loopback address is
-    joined on loopback (:func:`loopback_ray`; Ray would look for it on the routable address).
+    (:func:`~app.sweep.probe.answers_grpc`), so a wrong one (nothing there, a web server, an HTTP/2
+    proxy, a stopped head) fails at once instead of after Ray's retries (~20 s to minutes, a
+    warning line a second). A head on a loopback address is joined on loopback (:func:`loopback_ray`; Ray would look for it on the routable address).
 
     Args:
         source: Where the address came from (``--address`` or ``RAY_ADDRESS``), named in errors.
@@ -215,10 +188,10 @@ def join_ray(address: str, source: str = "--address") -> None:
     loopback = False
     if address != "auto":
         host, _, port = address.removeprefix("ray://").rpartition(":")
-        if not host or not port.isdigit():
+        if not host or not port.isdigit() or "/" in host:  # another scheme, or a path
             raise EngineError(f"{where}: not a Ray cluster address (host:port of its head, or 'auto')")
         try:
-            grpc = speaks_http2(host.strip("[]"), int(port), CONNECT_TIMEOUT)
+            grpc = answers_grpc(host.strip("[]"), int(port), CONNECT_TIMEOUT)
         except OSError as exc:
             reason = exc.strerror or str(exc) or type(exc).__name__
             raise EngineError(
@@ -228,7 +201,7 @@ def join_ray(address: str, source: str = "--address") -> None:
             # Ray would retry for minutes, printing a warning every second, before giving up.
             raise EngineError(
                 f"{where}: something listens there, but it is not a Ray cluster's head (it does not "
-                f"answer gRPC within {CONNECT_TIMEOUT:g} s); start one with 'ray start --head' (sweeps/README.md)"
+                f"answer a gRPC call within {CONNECT_TIMEOUT:g} s); start one with 'ray start --head' (sweeps/README.md)"
             )
         loopback = host.startswith("127.") or host in LOOPBACK_HOSTS
     try:

@@ -238,3 +238,41 @@ def test_the_rows_scalars_keep_their_declared_types_whatever_the_first_tick_pass
     assert loop.tick().state()[at] == 0.0
     loop.slave.link_force = 2.75  # type: ignore[misc]
     assert loop.tick().state()[at] == 2.75
+
+
+class ReadsEverything:
+    """An observer that reads every value a tick record offers, the ones computed on access too."""
+
+    def __init__(self) -> None:
+        self.ticks = 0
+
+    def on_tick(self, record: TickRecord) -> None:
+        self.ticks += 1
+        record.state()
+        record.reading.T_0_G.copy()
+        record.reading.wrench_G.copy()
+        record.T_w_MRF.copy()
+        record.contact_wrench_MRF.copy()
+        float(record.link_force)
+
+
+@pytest.mark.parametrize("slave", [None, "redundant7"])
+def test_an_observer_does_not_change_the_run(tmp_path: Path, slave: str | None) -> None:
+    """The logs of one session run with and without an observer that reads everything are equal in
+    every column but the wall-clock timings (the 7-dof arm: a run once looked different under two
+    logging scripts; traced to the scripts, this pins that observing is passive)."""
+    session = load_session("probe_rate").with_changes(duration=1.0)
+    if slave is not None:
+        session = session.with_changes(slave=slave)
+    logs = []
+    reader = ReadsEverything()
+    for name, observers in (("bare", ()), ("observed", (reader,))):
+        result = run_session(session, out_dir=tmp_path / name, plots=False, observers=observers)
+        assert result.log_dir is not None
+        logs.append(read_log(result.log_dir))
+    bare, observed = logs
+    assert bare.num_rows == observed.num_rows == reader.ticks == 1000
+    timings = {c for c in bare.column_names if c.endswith("_us")}
+    assert timings  # the columns left out are there
+    for column in sorted(set(bare.column_names) - timings):
+        assert bare[column].equals(observed[column]), column

@@ -233,8 +233,8 @@ small push, plain's secant reads stiffer than the wall was designed (Kraft, 120/
 at 1.2 N on a 13.6 kN/m design); with each felt stiffness capped at the design ``K_T K_P k_s``, for plain and
 PO/PC alike, this PC's vanish counts are 9 / 1 / 33 instead of 14 / 1 / 43.
 
-Why not a stiffness scale instead of a force cap (helper passivity11; measured, not shipped,
-patch ``/work/notes/passivity11/stiffness_scale.patch``): once the bank is spent this PC caps the
+Why not a stiffness scale instead of a force cap (helper passivity11; measured, not
+shipped, its patch not kept in the repository): once the bank is spent this PC caps the
 *force*, ``|F| ~ (E + E_r) / d``, and a device at rest never refills the bank, so the force stops
 rising with penetration: that is how a wall vanishes (12-bit Kraft, default hand, 1x: cut 0.75,
 felt 1,955 N/m against plain's 7,193). Tried: the wall scaled by ``kappa`` (the energy bound then

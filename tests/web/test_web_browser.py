@@ -87,9 +87,7 @@ def test_press_into_probe_shows_wrench(demo: DemoApp, page: object, tmp_path: Pa
     T_0_H[2, 3] -= 0.03  # rate mode: 2 cm past the deadband -> 4 cm/s down; 2.5 cm to the surface
     demo.move_hand_target(T_0_H)
     # The gizmo goes out with the next scene redraw (in the scene's websocket window).
-    wait_until(
-        lambda: np.allclose(demo.view.hand_target.position[2], T_0_H[2, 3], atol=1e-9), "the gizmo did not move"
-    )
+    wait_until(lambda: np.allclose(demo.view.hand_target.position[2], T_0_H[2, 3], atol=1e-9), "the gizmo did not move")
 
     end = time.monotonic() + STEP_TIMEOUT
     while _task_force_shown(page) < 1.0:

@@ -55,7 +55,6 @@ from PIL import Image
 from viser.infra._messages import Message
 
 from app.errors import ConfigError
-from app.web.camera import SOFTWARE_PIXEL_RATIO
 from app.web.headless import open_page, press_probe, running_demo
 from app.web.replay import LogReplay
 from app.web.server import UI_RATE, DemoApp
@@ -278,26 +277,33 @@ def drag_circle(app: DemoApp, stop: threading.Event, radius: float = 0.02, perio
         app.move_hand_target(T_0_H)
 
 
-#: Sets the page's 3D view to ``ratio`` device px per CSS px (viser's ``fixedDpr``).
-PIXEL_RATIO_JS = "(ratio) => window.__viserTestpoints.devSettings.set({ fixedDpr: ratio })"
-
-
-def screenshot(page: Any, name: str) -> Path:
-    """A palette PNG of the page in ``assets/web/<name>.png`` (the README's; well under 300 KB),
-    its 3D view at full resolution as a browser with a GPU draws it (headless chromium renders in
-    software, where the page draws at :data:`~app.web.camera.SOFTWARE_PIXEL_RATIO`)."""
-    close = page.locator(".mantine-Notification-closeButton")  # viser's "software WebGL" notice
-    for i in range(close.count()):
-        close.nth(i).dispatch_event("click")
-    page.evaluate(PIXEL_RATIO_JS, 1.0)
-    page.wait_for_timeout(1000)
-    SHOT_DIR.mkdir(parents=True, exist_ok=True)
-    raw = SHOT_DIR / f"{name}.raw.png"
-    page.screenshot(path=str(raw))
+def screenshot(app: DemoApp, page: Any, name: str, preset: str = "both") -> Path:
+    """A palette PNG in ``assets/web/<name>.png`` (the README's; well under 300 KB) of the demo in a
+    second page like ``page``, opened with ``?fixedDpr=1``: its 3D view at full resolution and
+    antialiased, as a browser with a GPU draws it (headless chromium renders in software, where
+    the page draws at :data:`~app.web.camera.SOFTWARE_PIXEL_RATIO` without antialiasing, fixed
+    when the page makes its WebGL context); its camera on ``preset``."""
+    before = set(app.server.get_clients())
+    shot = page.context.new_page(viewport=page.viewport_size)
+    try:
+        shot.goto(f"http://127.0.0.1:{app.server.get_port()}/?fixedDpr=1")
+        shot.get_by_text("Hz simulated").first.wait_for(timeout=60_000)
+        shot.wait_for_timeout(2000)  # the camera fitted to the page's canvas, the notice shown
+        close = shot.locator(".mantine-Notification-closeButton")  # viser's "software WebGL" notice
+        for i in range(close.count()):
+            close.nth(i).dispatch_event("click")
+        for client_id, client in app.server.get_clients().items():
+            if client_id not in before:
+                app.frame_camera(client, preset)
+        shot.wait_for_timeout(3000)
+        SHOT_DIR.mkdir(parents=True, exist_ok=True)
+        raw = SHOT_DIR / f"{name}.raw.png"
+        shot.screenshot(path=str(raw))
+    finally:
+        shot.close()
     out = SHOT_DIR / f"{name}.png"
     Image.open(raw).convert("RGB").quantize(colors=128).save(out, optimize=True)
     raw.unlink()
-    page.evaluate(PIXEL_RATIO_JS, SOFTWARE_PIXEL_RATIO)
     return out
 
 
@@ -337,7 +343,7 @@ def main(seconds: float, shots: bool, trace: bool) -> None:
             with sent.paused():
                 update_hz, pressed_frames, _ = page.evaluate(COUNT_STATUS_JS, seconds)
             if shots:
-                print("wrote", screenshot(page, "probe_contact"))
+                print("wrote", screenshot(app, page, "probe_contact"))
             stop = threading.Event()
             dragger = threading.Thread(target=drag_circle, args=(app, stop), daemon=True)
             dragger.start()
@@ -373,17 +379,14 @@ def main(seconds: float, shots: bool, trace: bool) -> None:
             if shots:
                 player.seek(pressed_at + 1.0)
                 time.sleep(1.0)
-                print("wrote", screenshot(page, "replay"))
+                print("wrote", screenshot(app, page, "replay"))
                 app.close_replay()
                 app.play_session("peg_ntrfc")
                 end = time.monotonic() + 120.0
                 while app.rt.snapshot.F_MRF[2] < 2.0 and time.monotonic() < end:
                     time.sleep(0.01)
                 app.pause(True)
-                client = next(iter(app.server.get_clients().values()))
-                app.frame_camera(client, "world")
-                time.sleep(4.0)
-                print("wrote", screenshot(page, "peg_contact"))
+                print("wrote", screenshot(app, page, "peg_contact", "world"))
         shutil.rmtree(log_dir.parent)
         print(f"first panel visible  {first_panel:6.2f} s after a reload (goal <= 3 s on a quiet machine)")
         print(f"messages received    {live_messages:6.1f} /s (websocket messages to the page, live)")

@@ -130,11 +130,12 @@ def test_the_gizmo_moved_by_the_server_goes_out_with_the_scenes_redraw() -> None
     loop = ServoLoop(LoopConfig.from_session(load_session("probe_rate")))
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
-        view = SceneView(server, loop, on_hand_moved=lambda _T: None)
-        snap = take_snapshot(loop.tick(), np.eye(4))
-        at_grip = T_V_0 @ loop.reading.T_0_G
+        T_0_G = loop.reading.T_0_G.copy()
+        view = SceneView(server, loop, on_hand_moved=lambda _T: None)  # the gizmo on the grip
+        at_grip = T_V_0 @ T_0_G
         np.testing.assert_allclose(view.hand_target.position, at_grip[0:3, 3])
-        T_0_H = loop.reading.T_0_G.copy()
+        snap = take_snapshot(loop.tick(), np.eye(4))
+        T_0_H = T_0_G.copy()
         T_0_H[0, 3] += 0.02
         view.set_hand_target(T_0_H)
         np.testing.assert_allclose(view.hand_target.position, at_grip[0:3, 3])  # not yet

@@ -284,7 +284,7 @@ def screenshot(app: DemoApp, page: Any, name: str, preset: str = "both") -> Path
     the page draws at :data:`~app.web.camera.SOFTWARE_PIXEL_RATIO` without antialiasing, fixed
     when the page makes its WebGL context); its camera on ``preset``."""
     before = set(app.server.get_clients())
-    shot = page.context.new_page(viewport=page.viewport_size)
+    shot = page.context.browser.new_page(viewport=page.viewport_size)
     try:
         shot.goto(f"http://127.0.0.1:{app.server.get_port()}/?fixedDpr=1")
         shot.get_by_text("Hz simulated").first.wait_for(timeout=60_000)

@@ -177,9 +177,10 @@ SOFTWARE_RESOLUTION_JS = """(() => {
 #: Run first in each page, before viser's script makes its WebGL context: a page whose WebGL runs
 #: in software makes that context without antialiasing (multisampling). In software each sample
 #: is rasterized and resolved on the CPU: while dragging (1400x900 page at
-#: :data:`SOFTWARE_PIXEL_RATIO`, load 6-8, three pairs of pages) the GPU process spent 22.7-24.8
-#: against 26.5-33.8 ms of CPU a 3D frame. The view's edges are then stair-stepped, which at
-#: half resolution a visitor without a GPU would rather have than fewer frames. As with
+#: :data:`SOFTWARE_PIXEL_RATIO`, load 6-9, pages alternated, two 4 s windows each) the GPU
+#: process spent 17.9-24.8 ms of CPU a 3D frame in two pages against 26.5-37.1 in three with
+#: antialiasing (and the bench's five pairs: ``README.md``). The view's edges are then
+#: stair-stepped; the labels read as before (screenshots of both at this ratio). As with
 #: :data:`SOFTWARE_RESOLUTION_JS`, a page opened with ``?fixedDpr=`` is left as viser makes it.
 #: Served in the page's ``<head>`` (:func:`app.web.launch.script_in_page_head`): a context's
 #: antialiasing is fixed when it is made, before any message reaches the page.

@@ -8,7 +8,11 @@ Starts the demo on a free port and opens it in headless chromium (1400x900), the
    ``seconds``, counts the status block's changes the page painted (the page's update rate), the
    3D frames it drew, and the bytes the page's websocket receives;
 3. the same while the hand drags the grip round a 2 cm circle once every 2 s (everything in the
-   3D view moves every frame, so each frame costs the page a 3D render);
+   3D view moves every frame, so each frame costs the page a 3D render), with why: the server's
+   panel redraws a second, its status updates that reached the page a second, and chromium's CPU
+   per 3D frame (GPU process, renderer, browser; from ``/proc``). The hand is moved by the server
+   (as :meth:`DemoApp.move_hand_target`, at the UI rate), not by pointer events: the gizmo's pose
+   then reaches the page with the scene's other nodes, where a drag in the page moves it there;
 4. records the live page's loop during 2 and 3, replays the same stretches of that log at 1x and
    counts the same bytes (same run, side by side); for each, what the server sent by kind of
    message (:class:`SentByKind`);
@@ -21,19 +25,26 @@ Starts the demo on a free port and opens it in headless chromium (1400x900), the
 Run from the repository root:
     .venv/bin/python bench/web_page.py [seconds] [--screenshots] [--trace]
 Goals: first panel <= 3 s on a quiet machine, update rate >= 30 Hz (the UI's rate), replay bytes/s
-within 2x of the live page's.
+within 2x of the live page's. The update rate is the status block's changes the page painted a
+second: each is a state of the loop the visitor saw. It is at most the 3D frames drawn a second
+while the view moves (viser's page takes in a window with a scene update only in a 3D frame) and
+at most the status updates that reached it (the server's panel redraws, less those viser's
+message buffer dropped as superseded before it sent them); all three are printed.
 """
 
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import math
 import os
+import re
 import shutil
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +55,6 @@ from PIL import Image
 from viser.infra._messages import Message
 
 from app.errors import ConfigError
-from app.web.camera import SOFTWARE_PIXEL_RATIO
 from app.web.headless import open_page, press_probe, running_demo
 from app.web.replay import LogReplay
 from app.web.server import UI_RATE, DemoApp
@@ -60,10 +70,12 @@ DRAIN_MS = 300
 
 #: Counts, over ``seconds``, the status block's text changes the page painted (checked once per
 #: painted frame, in ``requestAnimationFrame``: a change is counted once however many updates came
-#: between two paints) and the 3D frames viser's renderer drew (three.js's frame counter, through
-#: viser's own test hook ``__viserTestpoints``). A 4 ms ``setInterval`` poll counted fewer: while
-#: the view moves the page paints back to back and the poll's timer task often got no turn between
-#: two paints (dragging: 7.7 against 10.3 painted changes/s in the same window; pressed: the same).
+#: between two paints), the 3D frames viser's renderer drew (three.js's frame counter, through
+#: viser's own test hook ``__viserTestpoints``) and the status updates that reached the page
+#: (pushed on viser's message queue, ``window.__viserMutable.messageQueue``, after its websocket
+#: worker). A 4 ms ``setInterval`` poll counted fewer changes: while the view moves the page
+#: paints back to back and the poll's timer task often got no turn between two paints (dragging:
+#: 7.7 against 10.3 painted changes/s in the same window; pressed: the same).
 COUNT_STATUS_JS = """(seconds) => new Promise((done) => {
   const text = () => {
     const block = [...document.querySelectorAll('pre, code')].find(e => e.innerText.includes('Hz simulated'));
@@ -77,9 +89,66 @@ COUNT_STATUS_JS = """(seconds) => new Promise((done) => {
     if (now !== last) { changes += 1; last = now; }
     if (!stop) requestAnimationFrame(paint);
   };
+  const queue = window.__viserMutable.messageQueue;
+  let arrived = 0;
+  queue.push = function (...messages) {
+    for (const m of messages) {
+      const text = m.type === 'GuiUpdateMessage' && m.updates ? m.updates._markdown : undefined;
+      if (typeof text === 'string' && text.includes('Hz simulated')) arrived += 1;
+    }
+    return Array.prototype.push.apply(this, messages);
+  };
   requestAnimationFrame(paint);
-  setTimeout(() => { stop = true; done([changes / seconds, (renderer.frame - frames) / seconds]); }, seconds * 1000);
+  setTimeout(() => {
+    stop = true;
+    delete queue.push;
+    done([changes / seconds, (renderer.frame - frames) / seconds, arrived / seconds]);
+  }, seconds * 1000);
 })"""
+
+#: Clock ticks per second of ``/proc/<pid>/stat``'s CPU times.
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def chromium_processes() -> dict[int, str]:
+    """This process's chromium descendants by pid: ``gpu`` (the GPU process, where software WebGL
+    runs), ``renderer`` (the page's), ``browser`` and the rest by chromium's ``--type``."""
+    children: dict[int, list[int]] = collections.defaultdict(list)
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        children[int(stat.rsplit(")", 1)[1].split()[1])].append(int(entry.name))
+    found: dict[int, str] = {}
+    todo = [os.getpid()]
+    while todo:
+        for pid in children.get(todo.pop(), []):
+            try:
+                command = Path(f"/proc/{pid}/cmdline").read_bytes()  # chromium rewrites its own as one line
+            except OSError:
+                continue
+            if b"chromium" in command.split(b"\0")[0].split(b" ")[0]:
+                kind = re.search(rb"--type=([\w-]+)", command)
+                found[pid] = (
+                    "browser" if kind is None else {"gpu-process": "gpu"}.get(kind[1].decode(), kind[1].decode())
+                )
+            todo.append(pid)
+    return found
+
+
+def cpu_seconds(processes: dict[int, str]) -> collections.Counter[str]:
+    """CPU seconds (user + system) used so far by ``processes``, summed by kind."""
+    total: collections.Counter[str] = collections.Counter()
+    for pid, kind in processes.items():
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total[kind] += (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+    return total
 
 
 class ByteCounter:
@@ -140,6 +209,18 @@ class SentByKind:
             return out
 
         Message.as_serializable_dict = counted  # type: ignore[method-assign,assignment]
+        self._original, self._counted = original, counted
+
+    @contextlib.contextmanager
+    def paused(self) -> Iterator[None]:
+        """Count nothing in the block: the counting encodes every message a second time in viser's
+        event loop, which sends the page its windows (windows sent later merge updates, and the
+        page then paints fewer of them)."""
+        Message.as_serializable_dict = self._original  # type: ignore[method-assign]
+        try:
+            yield
+        finally:
+            Message.as_serializable_dict = self._counted  # type: ignore[method-assign,assignment]
 
     def snapshot(self) -> tuple[collections.Counter[str], collections.Counter[str]]:
         with self._lock:
@@ -196,26 +277,33 @@ def drag_circle(app: DemoApp, stop: threading.Event, radius: float = 0.02, perio
         app.move_hand_target(T_0_H)
 
 
-#: Sets the page's 3D view to ``ratio`` device px per CSS px (viser's ``fixedDpr``).
-PIXEL_RATIO_JS = "(ratio) => window.__viserTestpoints.devSettings.set({ fixedDpr: ratio })"
-
-
-def screenshot(page: Any, name: str) -> Path:
-    """A palette PNG of the page in ``assets/web/<name>.png`` (the README's; well under 300 KB),
-    its 3D view at full resolution as a browser with a GPU draws it (headless chromium renders in
-    software, where the page draws at :data:`~app.web.camera.SOFTWARE_PIXEL_RATIO`)."""
-    close = page.locator(".mantine-Notification-closeButton")  # viser's "software WebGL" notice
-    for i in range(close.count()):
-        close.nth(i).dispatch_event("click")
-    page.evaluate(PIXEL_RATIO_JS, 1.0)
-    page.wait_for_timeout(1000)
-    SHOT_DIR.mkdir(parents=True, exist_ok=True)
-    raw = SHOT_DIR / f"{name}.raw.png"
-    page.screenshot(path=str(raw))
+def screenshot(app: DemoApp, page: Any, name: str, preset: str = "both") -> Path:
+    """A palette PNG in ``assets/web/<name>.png`` (the README's; well under 300 KB) of the demo in a
+    second page like ``page``, opened with ``?fixedDpr=1``: its 3D view at full resolution and
+    antialiased, as a browser with a GPU draws it (headless chromium renders in software, where
+    the page draws at :data:`~app.web.camera.SOFTWARE_PIXEL_RATIO` without antialiasing, fixed
+    when the page makes its WebGL context); its camera on ``preset``."""
+    before = set(app.server.get_clients())
+    shot = page.context.browser.new_page(viewport=page.viewport_size)
+    try:
+        shot.goto(f"http://127.0.0.1:{app.server.get_port()}/?fixedDpr=1")
+        shot.get_by_text("Hz simulated").first.wait_for(timeout=60_000)
+        shot.wait_for_timeout(2000)  # the camera fitted to the page's canvas, the notice shown
+        close = shot.locator(".mantine-Notification-closeButton")  # viser's "software WebGL" notice
+        for i in range(close.count()):
+            close.nth(i).dispatch_event("click")
+        for client_id, client in app.server.get_clients().items():
+            if client_id not in before:
+                app.frame_camera(client, preset)
+        shot.wait_for_timeout(3000)
+        SHOT_DIR.mkdir(parents=True, exist_ok=True)
+        raw = SHOT_DIR / f"{name}.raw.png"
+        shot.screenshot(path=str(raw))
+    finally:
+        shot.close()
     out = SHOT_DIR / f"{name}.png"
     Image.open(raw).convert("RGB").quantize(colors=128).save(out, optimize=True)
     raw.unlink()
-    page.evaluate(PIXEL_RATIO_JS, SOFTWARE_PIXEL_RATIO)
     return out
 
 
@@ -252,9 +340,10 @@ def main(seconds: float, shots: bool, trace: bool) -> None:
             mark = sent.snapshot()
             live, live_messages = counter.rate(seconds)
             live_kinds = sent.since(mark, seconds)
-            update_hz, pressed_frames = page.evaluate(COUNT_STATUS_JS, seconds)
+            with sent.paused():
+                update_hz, pressed_frames, _ = page.evaluate(COUNT_STATUS_JS, seconds)
             if shots:
-                print("wrote", screenshot(page, "probe_contact"))
+                print("wrote", screenshot(app, page, "probe_contact"))
             stop = threading.Event()
             dragger = threading.Thread(target=drag_circle, args=(app, stop), daemon=True)
             dragger.start()
@@ -266,7 +355,12 @@ def main(seconds: float, shots: bool, trace: bool) -> None:
             browser = page.context.browser
             if trace:
                 browser.start_tracing(page=page, categories=TRACE_CATEGORIES)
-            moving_hz, moving_frames = page.evaluate(COUNT_STATUS_JS, seconds)
+            chromium = chromium_processes()
+            cpu_before, redraws_before = cpu_seconds(chromium), app.controls.redraws
+            with sent.paused():
+                moving_hz, moving_frames, moving_arrived = page.evaluate(COUNT_STATUS_JS, seconds)
+            panel_hz = (app.controls.redraws - redraws_before) / seconds
+            cpu_used = cpu_seconds(chromium) - cpu_before
             split = trace_split(browser.stop_tracing()) if trace else ""
             stop.set()
             dragger.join()
@@ -285,17 +379,14 @@ def main(seconds: float, shots: bool, trace: bool) -> None:
             if shots:
                 player.seek(pressed_at + 1.0)
                 time.sleep(1.0)
-                print("wrote", screenshot(page, "replay"))
+                print("wrote", screenshot(app, page, "replay"))
                 app.close_replay()
                 app.play_session("peg_ntrfc")
                 end = time.monotonic() + 120.0
                 while app.rt.snapshot.F_MRF[2] < 2.0 and time.monotonic() < end:
                     time.sleep(0.01)
                 app.pause(True)
-                client = next(iter(app.server.get_clients().values()))
-                app.frame_camera(client, "world")
-                time.sleep(4.0)
-                print("wrote", screenshot(page, "peg_contact"))
+                print("wrote", screenshot(app, page, "peg_contact", "world"))
         shutil.rmtree(log_dir.parent)
         print(f"first panel visible  {first_panel:6.2f} s after a reload (goal <= 3 s on a quiet machine)")
         print(f"messages received    {live_messages:6.1f} /s (websocket messages to the page, live)")
@@ -304,6 +395,13 @@ def main(seconds: float, shots: bool, trace: bool) -> None:
         print(
             f"3D frames drawn      {pressed_frames:6.1f} /s pressed, {moving_frames:.1f} /s dragging (with viser's "
             "settle frames, drawn for 250 ms after any scene message whether or not another came)"
+        )
+        per_frame = 1000.0 / max(moving_frames * seconds, 1.0)
+        print(
+            f"  dragging, why     the server redrew the panel {panel_hz:.1f} /s, its status updates reached "
+            f"the page {moving_arrived:.1f} /s; chromium's CPU a 3D frame: GPU process "
+            f"{per_frame * cpu_used['gpu']:.1f} ms, renderer {per_frame * cpu_used['renderer']:.1f} ms, "
+            f"browser {per_frame * cpu_used['browser']:.1f} ms"
         )
         if trace:
             print(f"  where the page's time went while dragging (chromium's trace):\n{split}")

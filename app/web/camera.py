@@ -142,6 +142,19 @@ DOLLY_TO_CURSOR_JS = """(() => {
 #: 0.25; the view then drew 17-23 frames/s against 11-16. 0.5 keeps the labels legible.
 SOFTWARE_PIXEL_RATIO = 0.5
 
+#: A JavaScript function of ``HTMLCanvasElement.prototype.getContext`` (passed in, so that a
+#: script wrapping it can call the original): whether the page's WebGL renderer is a software
+#: one, by the names viser's own "software WebGL" notice looks for (a throwaway context is made,
+#: asked and let go).
+SOFTWARE_WEBGL = """(getContext) => {
+  const probe = getContext.call(document.createElement('canvas'), 'webgl');
+  const info = probe && probe.getExtension('WEBGL_debug_renderer_info');
+  const renderer = info ? String(probe.getParameter(info.UNMASKED_RENDERER_WEBGL)).toLowerCase() : '';
+  const lose = probe && probe.getExtension('WEBGL_lose_context');
+  if (lose) lose.loseContext();
+  return ['swiftshader', 'llvmpipe', 'software'].some((name) => renderer.includes(name));
+}"""
+
 #: Run in each page: if its WebGL renderer is a software one (the names viser's own "software
 #: WebGL" notice looks for), draw the view at :data:`SOFTWARE_PIXEL_RATIO`, through viser's
 #: ``fixedDpr`` setting (its URL parameter; set here through ``window.__viserTestpoints``, viser's
@@ -149,12 +162,7 @@ SOFTWARE_PIXEL_RATIO = 0.5
 #: with a GPU, viser's adaptive pixel ratio stays in charge.
 SOFTWARE_RESOLUTION_JS = """(() => {
   if (new URLSearchParams(window.location.search).has('fixedDpr')) return;
-  const probe = document.createElement('canvas').getContext('webgl');
-  const info = probe && probe.getExtension('WEBGL_debug_renderer_info');
-  const renderer = info ? String(probe.getParameter(info.UNMASKED_RENDERER_WEBGL)).toLowerCase() : '';
-  const lose = probe && probe.getExtension('WEBGL_lose_context');
-  if (lose) lose.loseContext();
-  if (!['swiftshader', 'llvmpipe', 'software'].some((name) => renderer.includes(name))) return;
+  if (!(SOFTWARE_WEBGL)(HTMLCanvasElement.prototype.getContext)) return;
   const apply = () => {
     const points = window.__viserTestpoints;
     if (!points || !points.devSettings) return false;
@@ -164,7 +172,30 @@ SOFTWARE_RESOLUTION_JS = """(() => {
   if (!apply()) {
     const timer = setInterval(() => { if (apply()) clearInterval(timer); }, 200);
   }
-})();""".replace("SOFTWARE_PIXEL_RATIO", str(SOFTWARE_PIXEL_RATIO))
+})();""".replace("SOFTWARE_PIXEL_RATIO", str(SOFTWARE_PIXEL_RATIO)).replace("SOFTWARE_WEBGL", SOFTWARE_WEBGL)
+
+#: Run first in each page, before viser's script makes its WebGL context: a page whose WebGL runs
+#: in software makes that context without antialiasing (multisampling). In software each sample
+#: is rasterized and resolved on the CPU: while dragging (1400x900 page at
+#: :data:`SOFTWARE_PIXEL_RATIO`, load 6-9, pages alternated, two 4 s windows each) the GPU
+#: process spent 17.9-24.8 ms of CPU a 3D frame in two pages against 26.5-37.1 in three with
+#: antialiasing (and the bench's five pairs: ``README.md``). The view's edges are then
+#: stair-stepped; the labels read as before (screenshots of both at this ratio). As with
+#: :data:`SOFTWARE_RESOLUTION_JS`, a page opened with ``?fixedDpr=`` is left as viser makes it.
+#: Served in the page's ``<head>`` (:func:`app.web.launch.script_in_page_head`): a context's
+#: antialiasing is fixed when it is made, before any message reaches the page.
+SOFTWARE_NO_ANTIALIAS_JS = """(() => {
+  if (new URLSearchParams(window.location.search).has('fixedDpr')) return;
+  const getContext = HTMLCanvasElement.prototype.getContext;
+  let software = null;
+  HTMLCanvasElement.prototype.getContext = function (kind, attributes) {
+    if (kind === 'webgl2' || kind === 'webgl') {
+      if (software === null) software = (SOFTWARE_WEBGL)(getContext);
+      if (software) attributes = Object.assign({}, attributes, { antialias: false });
+    }
+    return getContext.call(this, kind, attributes);
+  };
+})();""".replace("SOFTWARE_WEBGL", SOFTWARE_WEBGL)
 
 
 #: Run in each page: hide viser's background-image quad while no background image is set. viser

@@ -463,6 +463,11 @@ class Controls:
         if self.plot_due() and len(history) > 1:
             self.plot(np.array(history).T)
 
+    @property
+    def redraws(self) -> int:
+        """The panel redraws (:meth:`update` calls) so far."""
+        return self._frames
+
     def plot_due(self) -> bool:
         """Whether this frame refreshes the plots (every :data:`PLOT_EVERY` frames)."""
         return self._frames % PLOT_EVERY == 0

@@ -11,24 +11,73 @@ panel's light modules; :mod:`app.web.server` (the demo itself) is imported in :f
 
 from __future__ import annotations
 
+import gzip
 import io
 import sys
 import tempfile
 import time
-from contextlib import redirect_stdout
+from collections.abc import Iterator
+from contextlib import contextmanager, redirect_stdout
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import viser
+import websockets.asyncio.server
+from websockets.datastructures import Headers
+from websockets.http11 import Request, Response
 
 from app.interrupts import signals_held
 from app.session.files import RUNS_DIR
 from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token, viser_on_unix_socket
+from app.web.camera import SOFTWARE_NO_ANTIALIAS_JS
 from app.web.casts import guard_page_casts
 from app.web.session_panel import SessionPanel
 
 if TYPE_CHECKING:
     from app.web.server import DemoApp
+
+#: viser's page (one file: its whole script is inlined).
+VISER_PAGE = Path(viser.__file__).parent / "client" / "build" / "index.html"
+
+
+@contextmanager
+def script_in_page_head(source: str) -> Iterator[None]:
+    """A viser server constructed inside the block serves its page with the script ``source``
+    first in its ``<head>``, so that it runs before viser's own (which makes the WebGL context as
+    it boots, before the websocket brings any message that could run a script).
+
+    viser has no option for it: like :func:`~app.web.access.viser_on_unix_socket`, the block
+    wraps the ``websockets.asyncio.server.serve`` call viser's constructor makes, here to wrap the
+    HTTP handler viser passes it (``process_request``). The page's other files, and any response
+    but a 200, are viser's own. Only that constructor may run inside the block.
+    """
+    original = websockets.asyncio.server.serve
+    page = VISER_PAGE.read_bytes().replace(b"<head>", b"<head><script>" + source.encode() + b"</script>", 1)
+    zipped = gzip.compress(page)
+
+    def on_serve(handler: Any, *args: Any, **options: Any) -> Any:
+        viser_http = options.get("process_request")
+        if viser_http is not None:
+
+            def process_request(connection: Any, request: Request) -> Response | None:
+                response: Response | None = viser_http(connection, request)
+                path = request.path.partition("?")[0]
+                if response is None or response.status_code != 200 or path not in ("/", "/index.html"):
+                    return response
+                body = zipped if response.headers.get("Content-Encoding") == "gzip" else page
+                headers = Headers(response.headers)
+                del headers["Content-Length"]  # setting a header adds a value
+                headers["Content-Length"] = str(len(body))
+                return Response(response.status_code, response.reason_phrase, headers, body)
+
+            options["process_request"] = process_request
+        return original(handler, *args, **options)
+
+    websockets.asyncio.server.serve = on_serve  # type: ignore[assignment, misc]
+    try:
+        yield
+    finally:
+        websockets.asyncio.server.serve = original  # type: ignore[misc]
 
 
 def _demo(
@@ -107,7 +156,7 @@ def start_demo(
     inner: Path | None = None
     # viser prints its own address box (without the token; :func:`serve` prints the address to
     # open) and "Server stopped": not on stdout, where a refused input must leave nothing.
-    with redirect_stdout(io.StringIO()):
+    with redirect_stdout(io.StringIO()), script_in_page_head(SOFTWARE_NO_ANTIALIAS_JS):
         if gated:
             inner = Path(tempfile.mkdtemp(prefix="frhc-viser-")) / "viser.sock"  # the folder is 0700
             with viser_on_unix_socket(inner):

@@ -460,11 +460,15 @@ class SceneView:
         self._add(scene.add_label("/grip/label", "{G}", position=(0.0, 0.0, 0.02)))
         self.reference = self._add(_add_axes(scene, "/reference", 0.04, 0.0015))
         self._add(scene.add_label("/reference/label", "{G0}", position=(0.0, 0.0, -0.02)))
+        T_0_G = loop.reading.T_0_G.copy()
+        wxyz, position = pose_to_wxyz_position(T_V_0 @ T_0_G)
         self.hand_target = self._add(
-            scene.add_transform_controls("/hand_target", scale=0.12, depth_test=False, opacity=0.8)
+            scene.add_transform_controls(
+                "/hand_target", scale=0.12, depth_test=False, opacity=0.8, wxyz=wxyz, position=position
+            )
         )
-        T_0_G = loop.reading.T_0_G
-        self.set_hand_target(T_0_G)
+        #: The gizmo's pose ``T_0_H`` (4, 4, {0}) last asked for and last sent (:meth:`set_hand_target`).
+        self._hand_target = self._hand_target_sent = T_0_G
 
         @self.hand_target.on_update
         def _(event: viser.TransformControlsEvent) -> None:
@@ -613,8 +617,12 @@ class SceneView:
         self._handles.clear()
 
     def set_hand_target(self, T_0_H: Array) -> None:
-        """Put the gizmo at ``T_0_H`` (4, 4, device base); browsers see it move."""
-        self.hand_target.wxyz, self.hand_target.position = pose_to_wxyz_position(T_V_0 @ T_0_H)
+        """Put the gizmo at ``T_0_H`` (4, 4, device base) with the next :meth:`update`: sent in the
+        scene's own websocket window, not in one of its own. A pose sent on its own lands in a
+        window between the UI thread's, which the page applies only in a 3D frame, and holds the
+        panel's next window behind it (a hand moved at the UI rate, 40 Hz, made every window a
+        scene window)."""
+        self._hand_target = T_0_H.copy()
 
     def _place(self, key: str, handle: viser.SceneNodeHandle, T_v: Array, space: Space) -> None:
         """Move ``handle`` to pose ``T_v`` (in its parent's frame): its orientation is sent when it
@@ -665,7 +673,12 @@ class SceneView:
         handle.visible = bool(keys)
 
     def update(self, snap: Snapshot) -> None:
-        """Move every node to the state in ``snap`` (call from the UI thread)."""
+        """Move every node to the state in ``snap``, and the gizmo where it was last put (call from
+        the UI thread)."""
+        target = self._hand_target  # read once: a browser's callback may put it again meanwhile
+        if target is not self._hand_target_sent:
+            self._hand_target_sent = target
+            self.hand_target.wxyz, self.hand_target.position = pose_to_wxyz_position(T_V_0 @ target)
         # A device not simulated here (a served or real one, or a Cartesian device's log) reports
         # its grip, not its links: they are hidden rather than left where the model put them.
         self.links.visible = len(snap.geom_xpos) > 0

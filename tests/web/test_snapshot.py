@@ -20,6 +20,7 @@ from app.web.headless import free_port
 from app.web.scene_view import (
     SHOWN_RESOLUTION,
     SHOWN_TURN,
+    T_V_0,
     T_V_W,
     WORLD_ORIGIN_V,
     SceneView,
@@ -119,6 +120,27 @@ def test_the_scene_view_sends_only_what_a_pixel_would_show() -> None:
         assert not np.array_equal(arrow.points, points)
         view.update(pushed(8.3))
         assert label.text == "8.3 N"
+    finally:
+        server.stop()
+
+
+def test_the_gizmo_moved_by_the_server_goes_out_with_the_scenes_redraw() -> None:
+    """The hand-target gizmo put somewhere by the server (Reset, a script, the bench's drag) is sent
+    with the next scene redraw, in the scene's websocket window, not at once in a window of its own."""
+    loop = ServoLoop(LoopConfig.from_session(load_session("probe_rate")))
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        T_0_G = loop.reading.T_0_G.copy()
+        view = SceneView(server, loop, on_hand_moved=lambda _T: None)  # the gizmo on the grip
+        at_grip = T_V_0 @ T_0_G
+        np.testing.assert_allclose(view.hand_target.position, at_grip[0:3, 3])
+        snap = take_snapshot(loop.tick(), np.eye(4))
+        T_0_H = T_0_G.copy()
+        T_0_H[0, 3] += 0.02
+        view.set_hand_target(T_0_H)
+        np.testing.assert_allclose(view.hand_target.position, at_grip[0:3, 3])  # not yet
+        view.update(snap)
+        np.testing.assert_allclose(view.hand_target.position, (T_V_0 @ T_0_H)[0:3, 3])
     finally:
         server.stop()
 

@@ -86,7 +86,8 @@ def test_press_into_probe_shows_wrench(demo: DemoApp, page: object, tmp_path: Pa
     T_0_H = demo.rt.snapshot.T_0_G.copy()
     T_0_H[2, 3] -= 0.03  # rate mode: 2 cm past the deadband -> 4 cm/s down; 2.5 cm to the surface
     demo.move_hand_target(T_0_H)
-    assert np.allclose(demo.view.hand_target.position[2], T_0_H[2, 3], atol=1e-9)
+    # The gizmo goes out with the next scene redraw (in the scene's websocket window).
+    wait_until(lambda: np.allclose(demo.view.hand_target.position[2], T_0_H[2, 3], atol=1e-9), "the gizmo did not move")
 
     end = time.monotonic() + STEP_TIMEOUT
     while _task_force_shown(page) < 1.0:
@@ -401,16 +402,21 @@ def test_the_hand_checkbox_lets_go_and_follows_the_loops_hand(demo: DemoApp, pag
 
 #: The share of the 3D canvas' CSS width its backing store has (device px per CSS px).
 CANVAS_RATIO_JS = "() => { const c = window.__viserMutable.canvas; return c.width / c.clientWidth; }"
+#: Whether the 3D canvas' WebGL context was made with antialiasing (the context viser made: a
+#: canvas returns the one it has).
+ANTIALIAS_JS = "() => window.__viserMutable.canvas.getContext('webgl2').getContextAttributes().antialias"
 
 
 def test_a_page_without_a_gpu_draws_its_view_at_the_software_pixel_ratio(demo: DemoApp, page: object) -> None:
     """Headless chromium renders WebGL in software (SwiftShader): the page draws its 3D view at
-    :data:`SOFTWARE_PIXEL_RATIO` (viser's own floor would be 0.75); a page opened with
-    ``?fixedDpr=1`` keeps the resolution its visitor asked for."""
+    :data:`SOFTWARE_PIXEL_RATIO` (viser's own floor would be 0.75) without antialiasing (viser's
+    canvas asks for it); a page opened with ``?fixedDpr=1`` keeps the resolution its visitor asked
+    for and viser's antialiasing."""
     wait_until(
         lambda: abs(page.evaluate(CANVAS_RATIO_JS) - SOFTWARE_PIXEL_RATIO) < 0.01,  # type: ignore[attr-defined]
         "the page without a GPU does not draw at the software pixel ratio",
     )
+    assert page.evaluate(ANTIALIAS_JS) is False  # type: ignore[attr-defined]
     own = page.context.browser.new_page(viewport=page.viewport_size)  # type: ignore[attr-defined]
     try:
         own.goto(f"http://127.0.0.1:{demo.server.get_port()}/?fixedDpr=1")
@@ -421,6 +427,7 @@ def test_a_page_without_a_gpu_draws_its_view_at_the_software_pixel_ratio(demo: D
         for _ in range(10):  # the script came with the panel; two seconds for it to act (it must not)
             assert own.evaluate(CANVAS_RATIO_JS) == 1.0
             time.sleep(0.2)
+        assert own.evaluate(ANTIALIAS_JS) is True
     finally:
         own.close()
 

@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import gzip
 import os
 import signal
 import time
+import urllib.error
+import urllib.request
 
 import pytest
+import viser
+import websockets.asyncio.server
 from web_helpers import nothing_listens
 
 from app.errors import ConfigError, InvalidField
@@ -105,3 +110,31 @@ def test_a_signal_during_the_demos_build_is_delivered_after_it() -> None:
         assert seen == [signal.SIGTERM]
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def test_the_page_is_served_with_the_head_script_first() -> None:
+    """A viser server built inside :func:`script_in_page_head` serves viser's page with the script
+    first in its ``<head>``, gzipped or not as asked, with the right length; other paths are
+    viser's own answers, and servers built after the block are untouched."""
+    original_serve = websockets.asyncio.server.serve
+    with server.script_in_page_head("window.frhcProbe = 1;"):
+        viser_server = viser.ViserServer(port=free_port(), verbose=False)
+    assert websockets.asyncio.server.serve is original_serve
+    page = server.VISER_PAGE.read_bytes()
+    head = page.index(b"<head>") + len(b"<head>")
+    expected = page[:head] + b"<script>window.frhcProbe = 1;</script>" + page[head:]
+    base = f"http://127.0.0.1:{viser_server.get_port()}"
+    try:
+        for path in ("/", "/index.html", "/?fixedDpr=1"):
+            for encoding in ("gzip", "identity"):
+                request = urllib.request.Request(base + path, headers={"Accept-Encoding": encoding})
+                with urllib.request.urlopen(request, timeout=10) as response:
+                    raw = response.read()
+                    assert int(response.headers["Content-Length"]) == len(raw)
+                    body = gzip.decompress(raw) if response.headers["Content-Encoding"] == "gzip" else raw
+                    assert response.headers["Content-Encoding"] == encoding
+                assert body == expected
+        with pytest.raises(urllib.error.HTTPError, match="404"):
+            urllib.request.urlopen(base + "/no-such-file.js", timeout=10)
+    finally:
+        viser_server.stop()

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -408,6 +409,24 @@ def load_device(name_or_path: str | Path) -> DeviceSpec:
     """
     path = resolve_device_path(name_or_path)
     require_file(path, path, "<file>", f"no such device (shipped devices: {', '.join(available_devices())})")
+    return _load_device(path, _folder_stamp(path.parent))
+
+
+def _folder_stamp(folder: Path) -> tuple[tuple[str, int, int], ...]:
+    """Name, modification time (ns) and size of every file in ``folder``: what a device loaded
+    from there is kept under (its file, MJCF and calibration sit beside each other; one of them
+    elsewhere is not looked at)."""
+    with os.scandir(folder) as entries:
+        files = [(e.name, e.stat()) for e in entries if e.is_file()]
+    return tuple(sorted((name, st.st_mtime_ns, st.st_size) for name, st in files))
+
+
+@lru_cache(maxsize=16)
+def _load_device(path: Path, stamp: tuple[tuple[str, int, int], ...]) -> DeviceSpec:
+    """:func:`load_device` of ``path`` with its folder as ``stamp`` describes it: a device is
+    loaded once per process while its files are unchanged (~10 ms each time, and every session a
+    sweep or an experiment runs loads its device). Shared: nothing changes a loaded device (each
+    plant compiles its own model; the nominal model is only read)."""
     data = from_dict(DeviceFile, load_toml(path), path)
     model = load_mjcf(path.parent / data.mjcf, path)
     n = len(data.joints)

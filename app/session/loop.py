@@ -209,6 +209,9 @@ class ServoLoop:
         self.record = TickRecord(
             self.reading, self.controller.out, self.slave, self._hand, np.zeros(len(STAGES), dtype=np.int64)
         )
+        # The record's stage durations written through a memoryview: ~half the cost of numpy's
+        # item assignment, four times a tick.
+        self._stage_ns = self.record.stage_ns.data
         self.objects = tuple(b.name for b in self.slave.scene.bodies)
         self.record.block = StateBlock(self.controller.out.n, self.objects)
         self.reset()
@@ -387,7 +390,7 @@ class ServoLoop:
         self.time += self.dt
         self.ticks += 1
         rec = self.record
-        ns = rec.stage_ns
+        ns = self._stage_ns
         ns[0] = t1 - t0
         ns[1] = t2 - t1
         ns[2] = t3 - t2

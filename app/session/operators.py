@@ -318,7 +318,11 @@ class ReactingOperator:
         # Where the record's arrays are copied when they are not C-contiguous float64 (a kernel
         # compiled for those would misread them).
         self._copies = (np.empty((4, 4)), np.empty((4, 4)), np.empty(6))
+        # The record's arrays of the last tick when all three passed that check: the same objects
+        # every tick (the rooms' buffers), so the check is an identity test after the first.
+        self._checked: tuple[object, ...] = ()
         self._prm = prm
+        self._rtc_on = 0.0
         self._react = entry_point(kernel.react, *self._own, *self._copies, 0.0, 0, self._hand)
         # The loop whose held hand before_tick moves in one compiled call with the strategy
         # (kernel.react_and_pull), that call and its last arguments; set on the first tick the
@@ -339,22 +343,17 @@ class ReactingOperator:
 
     def before_tick(self, loop: ServoLoop) -> None:
         """Perceive (delayed), decide the intended tool velocity, set the hand target."""
-        self._switches.apply_events(loop)
+        self._switches.apply_due_events(loop)
         sw = self._switches.switches
-        self._prm[kernel.RTC_ON] = 1.0 if sw.deadman and sw.reflection else 0.0
+        rtc_on = 1.0 if sw.deadman and sw.reflection else 0.0
+        if rtc_on != self._rtc_on:
+            self._prm[kernel.RTC_ON] = self._rtc_on = rtc_on
         rec = loop.record
         T_w_MRF, T_0_G, G_F_T = rec.T_w_MRF, rec.reading.T_0_G, rec.out.G_F_T
-        copies = self._copies
-        if not is_f8(T_w_MRF, (4, 4)):
-            copies[0][:] = T_w_MRF
-            T_w_MRF = copies[0]
-        if not is_f8(T_0_G, (4, 4)):
-            copies[1][:] = T_0_G
-            T_0_G = copies[1]
-        if not is_f8(G_F_T, (6,)):
-            copies[2][:] = G_F_T
-            G_F_T = copies[2]
-        t, tick = float(loop.time), int(loop.ticks)
+        checked = self._checked
+        if not checked or T_w_MRF is not checked[0] or T_0_G is not checked[1] or G_F_T is not checked[2]:
+            T_w_MRF, T_0_G, G_F_T = self._check(T_w_MRF, T_0_G, G_F_T)
+        t, tick = loop.time, loop.ticks  # a float and an int, as the kernels were compiled for
         if loop is self._pulled and rec.hand_on:
             assert self._react_and_pull is not None
             if not self._react_and_pull(T_w_MRF, T_0_G, G_F_T, t, tick, *self._pull_args):
@@ -368,3 +367,26 @@ class ReactingOperator:
             arrays = kernel.operator_arrays(*self._own, self._hand, loop_hand, T_hand, mocap_pos, mocap_quat)
             self._pulled, self._pull_args = loop, (arrays, *functions)
             self._react_and_pull = entry_point(kernel.react_and_pull, T_w_MRF, T_0_G, G_F_T, t, tick, *self._pull_args)
+
+    def _check(self, T_w_MRF: Array, T_0_G: Array, G_F_T: Array) -> tuple[Array, Array, Array]:
+        """The record's arrays as the kernels take them: each that is not a C-contiguous float64
+        array of its shape copied into one that is; remembered when all three are."""
+        copies = self._copies
+        passed = 0
+        if is_f8(T_w_MRF, (4, 4)):
+            passed += 1
+        else:
+            copies[0][:] = T_w_MRF
+            T_w_MRF = copies[0]
+        if is_f8(T_0_G, (4, 4)):
+            passed += 1
+        else:
+            copies[1][:] = T_0_G
+            T_0_G = copies[1]
+        if is_f8(G_F_T, (6,)):
+            passed += 1
+        else:
+            copies[2][:] = G_F_T
+            G_F_T = copies[2]
+        self._checked = (T_w_MRF, T_0_G, G_F_T) if passed == 3 else ()
+        return T_w_MRF, T_0_G, G_F_T

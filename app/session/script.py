@@ -100,8 +100,7 @@ class OperatorScript:
         less than :meth:`hand_target` and ``set_hand_target``, the same values.
         """
         t, tick = loop.time, loop.ticks
-        if self._next_time <= t or self._grip is not None:
-            self.apply_events(loop)
+        self.apply_due_events(loop)
         if not self.hand_on:
             loop.set_hand_target(None)
         elif loop is self._pulled and loop.record.hand_on:
@@ -117,6 +116,12 @@ class OperatorScript:
                 self._arrays = _script_arrays(*self._path, self._T, hand, T_hand, mocap_pos, mocap_quat, model)
                 self._pulled = loop
                 self._pose_and_pull = entry_point(_pose_and_pull, types.float64, types.int64, self._arrays)
+
+    def apply_due_events(self, loop: ServoLoop) -> None:
+        """:meth:`apply_events` if an event is due by ``loop.time`` or a grip event waits; else
+        nothing (two comparisons: called every tick)."""
+        if self._next_time <= loop.time or self._grip is not None:
+            self.apply_events(loop)
 
     def apply_events(self, loop: ServoLoop) -> None:
         """Apply the events due by ``loop.time``: the switches, and the last grip event due to

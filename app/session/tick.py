@@ -58,6 +58,7 @@ class TickRecord:
 
     __slots__ = (
         "_hand",
+        "_pose",
         "_slave",
         "block",
         "command",
@@ -90,6 +91,9 @@ class TickRecord:
         self.out = out
         self.command: SlaveCommand = out.command
         self._slave = slave
+        # The slave's pose buffer, refreshed when stale (Slave.pose_view): read every tick by the
+        # state row and the operators, bound once.
+        self._pose = slave.pose_view
         self._hand = hand
         self.hand_on = False
         self.deadman = self.reference = self.reflection = False
@@ -131,7 +135,7 @@ class TickRecord:
     @property
     def T_w_MRF(self) -> Array:
         """Pose of the tool's {MRF} in the slave world {w} at the end of the tick, (4, 4)."""
-        return self._slave.pose_view()
+        return self._pose()
 
     @property
     def link_force(self) -> float:

@@ -389,7 +389,9 @@ class VirtualSlave(SlaveBase):
     def pose_view(self) -> Array:
         """Current pose of {MRF} in {w}, (4, 4): the slave's own buffer, overwritten by the next
         step (read it, do not modify it). For per-tick observers that must not allocate."""
-        return self._state()[0]
+        if not self._fresh:  # fresh after every step: read each tick, without _state's tuple
+            self._state()
+        return self._T
 
     @property
     def V_w_MRF(self) -> Array:

@@ -74,7 +74,7 @@ class LoopHost:
 
     def __init__(self, loop: ServoLoop, shared: SharedSnapshot, publish_every: int) -> None:
         self.loop = loop
-        self.publisher = loop.observe(SnapshotPublisher(shared, loop.controller.slave.T_MRF_S, publish_every))
+        self.publisher = loop.observe(SnapshotPublisher(shared, loop.controller.slave.T_MRF_S, publish_every, loop.dt))
         self.log: TickLog | None = None
         self.operator: OperatorScript | None = None
         self.ticks_left = 0
@@ -143,7 +143,6 @@ class LoopHost:
         self.loop.tick()
         if operator is not None:
             self.ticks_left -= 1
-            self.publisher.play_left = self.ticks_left * self.loop.dt
             if self.ticks_left == 0:
                 self._end_play()
                 return True
@@ -171,7 +170,7 @@ class LoopHost:
         loop.set_gains(gains)
         loop.reset()
         self.operator = OperatorScript.for_loop(script, loop)
-        self.ticks_left = script.n_ticks
+        self.ticks_left = self.publisher.play_end = script.n_ticks  # from the reset: tick index 0
         self.publisher.playing = source
         if record is not None:
             self._record(record)
@@ -182,7 +181,7 @@ class LoopHost:
             self._record(None)
         self.operator = None
         self.publisher.playing = None
-        self.publisher.play_left = 0.0
+        self.publisher.play_end = 0
         self._set_speed(1.0)
 
     def _set_speed(self, factor: float) -> None:

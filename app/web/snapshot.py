@@ -261,18 +261,25 @@ class SharedSnapshot:
 class SnapshotPublisher:
     """Tick observer: writes a :class:`Snapshot` of every ``every``-th tick into ``shared``.
 
+    Args:
+        shared: Where to write. T_MRF_S: The F/T sensor on the tool (4, 4). every: Ticks between
+        snapshots. dt: The loop's servo period (s).
+
     Attributes:
         recording, playing: Shown in the snapshot (set by the loop process's command handler).
-        play_left: Seconds of the playing script still to run. paused, speed: The loop's state.
+        play_end: The tick index at which the playing script ends (0 when none plays): the
+            snapshot's ``play_left`` is worked out from it when one is taken, not every tick.
+        paused, speed: The loop's state.
     """
 
-    def __init__(self, shared: SharedSnapshot, T_MRF_S: Array, every: int) -> None:
+    def __init__(self, shared: SharedSnapshot, T_MRF_S: Array, every: int, dt: float) -> None:
         self.shared = shared
         self.T_MRF_S = T_MRF_S
         self.every = every
+        self.dt = dt
         self.recording: Path | None = None
         self.playing: Path | None = None
-        self.play_left = 0.0
+        self.play_end = 0
         self.paused = False
         self.speed = 1.0
 
@@ -283,7 +290,8 @@ class SnapshotPublisher:
     def publish(self, tick: TickRecord) -> None:
         """Write ``tick`` now, whatever its index."""
         # Built once with the loop's state (a dataclasses.replace after cost ~9 us a snapshot).
+        play_left = max(self.play_end - tick.index, 0) * self.dt
         snap = take_snapshot(
-            tick, self.T_MRF_S, self.recording, self.playing, self.play_left, self.paused, self.speed, copy=False
+            tick, self.T_MRF_S, self.recording, self.playing, play_left, self.paused, self.speed, copy=False
         )
         self.shared.write(snap)

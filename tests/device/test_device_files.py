@@ -123,3 +123,19 @@ def test_a_device_outside_the_process_gets_the_sessions_cartesian_file_else_its_
     assert served_device("openhaptics:", kraft).name == "touch3"
     assert served_device("fd:", touch3) is touch3
     assert vendor_device("ws://192.0.2.1:10001") == "inverse3"
+
+
+def test_a_device_is_loaded_once_while_its_files_are_unchanged(tmp_path: Path) -> None:
+    path = copy_device(tmp_path, "kraft")
+    first = load_device(path)
+    assert load_device(path) is first
+    # An edit of the MJCF beside the file (its size changes) is a new device.
+    replace_in(path.parent / "kraft.xml", "<worldbody>", "<worldbody>\n  ")
+    second = load_device(path)
+    assert second is not first
+    assert load_device(path) is second
+    # A broken file is refused every time, not kept.
+    replace_in(path, 'mjcf = "kraft.xml"', 'mjcf = "nowhere.xml"')
+    for _ in range(2):
+        with pytest.raises(ConfigError):
+            load_device(path)

@@ -35,6 +35,8 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
+from world.test_contact_depth import _gear as gear
+from world.test_contact_depth import _prism as prism
 from world_helpers import make_scene, sphere_tool
 
 from app.world import ContactModel
@@ -58,40 +60,12 @@ class Ramp:
     u: np.ndarray
 
 
-def prism(beta_deg: float, length: float = 0.03, width: float = 0.12) -> trimesh.Trimesh:
-    """A prism along y whose top edge (the y axis) has interior dihedral angle beta: faces going
-    down from it at +-beta/2 from -z, closed by vertical sides and a flat bottom."""
-    h = math.radians(beta_deg) / 2
-    sx, cz = math.sin(h), math.cos(h)
-    bottom = -(length * cz + 0.03)
-    ring = [(0.0, 0.0), (length * sx, -length * cz), (length * sx, bottom), (-length * sx, bottom), (-length * sx, -length * cz)]
-    n = len(ring)
-    verts = [(x, -width / 2, z) for x, z in ring] + [(x, width / 2, z) for x, z in ring]
-    faces = []
-    for i in range(1, n - 1):  # the convex polygon fanned from vertex 0, both caps
-        faces += [[0, i + 1, i], [n, n + i, n + i + 1]]
-    for i in range(n):
-        j = (i + 1) % n
-        faces += [[i, j, n + j], [i, n + j, n + i]]
-    mesh = trimesh.Trimesh(np.array(verts), np.array(faces), process=True)
-    mesh.fix_normals()
-    assert mesh.is_watertight and mesh.volume > 0
-    return mesh
-
-
 def box(size: float) -> trimesh.Trimesh:
     """A bar of square section ``size`` and 12 cm long along y, its top-front edge on the y axis
     (x < 0, z < 0 inside): long enough for a push tilted 45 degrees along the edge."""
     b = trimesh.creation.box(extents=(size, 0.12, size))
     b.apply_translation((-size / 2, 0.0, -size / 2))
     return b
-
-
-def gear() -> trimesh.Trimesh:
-    """The gear prism of tests/world/test_contact_depth.py (24 teeth, root 30 mm, tip 36 mm)."""
-    from world.test_contact_depth import _gear
-
-    return _gear()
 
 
 def _edge_sweep(family: str, mesh: trimesh.Trimesh, n1: np.ndarray, n2: np.ndarray) -> Iterator[Ramp]:
@@ -158,12 +132,12 @@ def run_ramp(model: ContactModel, through: np.ndarray, u: np.ndarray, step: floa
     return np.array(pushed), back
 
 
-def drop(forces: np.ndarray) -> tuple[float, float, float]:
-    """Largest fall below the running maximum (N), that maximum (N), and the depth index."""
+def drop(forces: np.ndarray) -> tuple[float, float, int]:
+    """Largest fall below the running maximum (N), that maximum (N), and the call it is met at."""
     peak = np.maximum.accumulate(forces)
     fall = peak - forces
     i = int(np.argmax(fall))
-    return float(fall[i]), float(peak[i]), float(i)
+    return float(fall[i]), float(peak[i]), i
 
 
 def main() -> None:
@@ -199,6 +173,7 @@ def main() -> None:
                         if args.verbose:
                             print(f"{ramp.family:10s} {ramp.label:24s} v={speed:<5g} off={sign * off:+.0e} "
                                   f"drop {fall:6.3f} N of {peak:6.2f} ({fall / max(peak, 1e-12):5.1%}) "
+                                  f"at {(at * speed * 1e-3 - R - 0.002) * 1e3:+6.2f} mm "
                                   f"back {back:6.3f} N {'' if reached else 'NOT REACHED'}")  # fmt: skip
                         k = (ramp.family, speed, off)
                         # A line that misses the solid (beside a face) never reaches the limit:
@@ -211,7 +186,9 @@ def main() -> None:
                             rows[k] = (rel, fall, ramp.label, max(back, old[3]), n)
                         else:
                             rows[k] = (old[0], old[1], old[2], max(back, old[3]), n)
-    print(f"{'family':10s} {'speed':>6s} {'offset':>7s} {'worst drop':>10s} {'(N)':>7s}  {'where':24s} {'back (N)':>8s} unreached")
+    print(
+        f"{'family':10s} {'speed':>6s} {'offset':>7s} {'worst drop':>10s} {'(N)':>7s}  {'where':24s} {'back (N)':>8s} unreached"
+    )
     for (fam, speed, off), (rel, fall, label, back, n) in rows.items():
         print(f"{fam:10s} {speed:6g} {off:7.0e} {rel:10.1%} {fall:7.3f}  {label:24s} {back:8.3f} {n}")
 

@@ -112,6 +112,43 @@ def _emit(
 
 
 @njit(cache=True, inline="always")
+def _entry_span(pair: Record, verts: Records, tris: Records) -> tuple[int, int]:
+    """The range of s for :func:`_entry_face`: the faces around the pair's entry edge or vertex."""
+    if pair.ent_f >= FEAT_EDGE:
+        return 0, 2
+    v = verts[tris[pair.ent_t].v[pair.ent_f - FEAT_VERTEX]]
+    return v.f0, v.f1
+
+
+@njit(cache=True, inline="always")
+def _entry_face(pair: Record, tris: Records, edges: Records, lists: np.ndarray, s: int) -> int:
+    """Face s of the pair's entry edge (s = 0, 1; -1 across a cut) or vertex (``lists[s]``)."""
+    if pair.ent_f >= FEAT_EDGE:
+        return edges[tris[pair.ent_t].e[pair.ent_f - FEAT_EDGE]].faces[s]
+    return lists[s]
+
+
+@njit(cache=True, inline="always")
+def _beyond_entry(
+    pair: Record, verts: Records, tris: Records, edges: Records, lists: np.ndarray, p: np.ndarray
+) -> bool:
+    """Whether point p (m, {w}) is behind the plane of every face around the pair's entry edge or
+    vertex: in the material's side of the entry, as the far side of a plate entered at its rim
+    is (the surface round a convex entry falls away below its tangent plane, so that plane alone
+    would cut off the faces beside it: a gear notch's root corners, 64 um below the plane of the
+    crease at the middle of its root, 5 mm to the side)."""
+    q = pair.ent_q
+    s0, s1 = _entry_span(pair, verts, tris)
+    for s in range(s0, s1):
+        f = _entry_face(pair, tris, edges, lists, s)
+        if f >= 0:
+            n = tris[f].n
+            if (p[0] - q[0]) * n[0] + (p[1] - q[1]) * n[1] + (p[2] - q[2]) * n[2] >= -_BEYOND:
+                return False
+    return True
+
+
+@njit(cache=True, inline="always")
 def _hand_over(
     n: np.ndarray,
     e: np.ndarray,
@@ -186,16 +223,11 @@ def _held(
     w = 1.0
     gx = gy = gz = 0.0
     if he > TOUCH:
-        t = pair.ent_t
-        if pair.ent_f >= FEAT_EDGE:
-            fs = edges[tris[t].e[pair.ent_f - FEAT_EDGE]].faces
-            for f in (fs[0], fs[1]):
-                if f >= 0:
-                    w, gx, gy, gz = _hand_over(tris[f].n, e, vx, vy, vz, he, w, gx, gy, gz)
-        else:
-            v = verts[tris[t].v[pair.ent_f - FEAT_VERTEX]]
-            for s in range(v.f0, v.f1):
-                w, gx, gy, gz = _hand_over(tris[lists[s]].n, e, vx, vy, vz, he, w, gx, gy, gz)
+        s0, s1 = _entry_span(pair, verts, tris)
+        for s in range(s0, s1):
+            f = _entry_face(pair, tris, edges, lists, s)
+            if f >= 0:
+                w, gx, gy, gz = _hand_over(tris[f].n, e, vx, vy, vz, he, w, gx, gy, gz)
     he = max(he, 0.0)
     de, df = r + he, r + hf
     dU = 0.5 * (de * de - df * df)
@@ -242,6 +274,7 @@ def _pair_contacts(
     n_min = pair.n_min
     c = pair.c
     behind = held = False
+    ex = ey = ez = 0.0  # the held contact's normal
     if pair.mem == 1:
         t, phi, qx, qy, qz, nx, ny, nz = follow(verts, tris, edges, lists, pair.mem_t, c[0], c[1], c[2])
         if phi < 0.0:
@@ -294,8 +327,8 @@ def _pair_contacts(
         prim = -1
         held = pair.ent == 1
         if held:
-            depth, px, py, pz, mx, my, mz = _held(pair, r, verts, tris, edges, lists, phi, qx, qy, qz, nx, ny, nz)
-            n_c = _emit(out, n_c, i, j, obj, depth, px, py, pz, mx, my, mz, T, has_twist, V, FM)
+            depth, px, py, pz, ex, ey, ez = _held(pair, r, verts, tris, edges, lists, phi, qx, qy, qz, nx, ny, nz)
+            n_c = _emit(out, n_c, i, j, obj, depth, px, py, pz, ex, ey, ez, T, has_twist, V, FM)
         else:
             n_c = _emit(out, n_c, i, j, obj, r - phi, qx, qy, qz, nx, ny, nz, T, has_twist, V, FM)
     # Which minima push (bit e of ``pushes``), and which of them are in a crease band (``soft``,
@@ -313,10 +346,11 @@ def _pair_contacts(
             mq = pair.min_q[e]
             if pair.min_phi[e] < 0.0 or r - pair.min_phi[e] <= 0.0:
                 continue
-            if behind and (mq[0] - qx) * nx + (mq[1] - qy) * ny + (mq[2] - qz) * nz < -_BEYOND:
+            if held:
+                if pair.min_phi[e] <= TOUCH or _beyond_entry(pair, verts, tris, edges, lists, mq):
+                    continue  # (touching: the centre on the entry, whose faces it touches there)
+            elif behind and (mq[0] - qx) * nx + (mq[1] - qy) * ny + (mq[2] - qz) * nz < -_BEYOND:
                 continue
-            if held and pair.min_phi[e] <= TOUCH:
-                continue  # the centre on the held entry: the faces it touches there are the entry
         elif r - phi <= 0.0:
             continue
         pushes |= 1 << e
@@ -342,6 +376,19 @@ def _pair_contacts(
             mx, my, mz = pair.min_n[e, 0], pair.min_n[e, 1], pair.min_n[e, 2]
         back = r - depth  # the contact point: the centre moved back along n to the surface
         px, py, pz = c[0] - back * mx, c[1] - back * my, c[2] - back * mz
+        if held and not blend & (1 << e):
+            # Beside a held entry, material never pushes the tool further in: the part of its
+            # force against the held contact's normal is dropped (continuously: a gear notch's
+            # root corners, passed by a centre held on the crease at the root's middle, turn
+            # from pushing out to pushing in, 9 N/mm along the push).
+            along = mx * ex + my * ey + mz * ez
+            if along < 0.0:
+                mx, my, mz = mx - along * ex, my - along * ey, mz - along * ez
+                scale = math.sqrt(mx * mx + my * my + mz * mz)
+                if scale <= 0.0:
+                    continue
+                depth *= scale
+                mx, my, mz = mx / scale, my / scale, mz / scale
         if not blend & (1 << e):
             n_c = _emit(out, n_c, i, j, obj, depth, px, py, pz, mx, my, mz, T, has_twist, V, FM)
             continue

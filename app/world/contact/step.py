@@ -266,7 +266,9 @@ def _pair_contacts(
     the centre is behind it (phi < 0) it is the primary contact, with depth ``r - phi`` however
     deep, and the other minima push only from in front and from in front of its plane (a face
     beyond it is the far side of the material: the underside of a plate pushed through).
-    Otherwise the nearest minimum is the primary: it pushes from in front (phi >= 0) or from
+    A surface entered through a convex edge or vertex is held as that entry (:func:`_held`), and
+    then the other minima push only if not behind every plane of the entry's faces, and never
+    further in. Otherwise the nearest minimum is the primary: it pushes from in front (phi >= 0) or from
     behind (phi < 0, a centre found inside the solid with nothing remembered); every other
     minimum pushes only from in front, and the primary becomes the memory. Weighted minima
     (crease bands) are merged into one contact.

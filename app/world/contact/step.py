@@ -325,6 +325,20 @@ def _pair_contacts(
             pair.ent_n[0], pair.ent_n[1], pair.ent_n[2] = nx, ny, nz
             pair.ent_t = pair.min_t[prim]
             pair.ent_f = pair.min_f[prim]
+            if pair.ent == 1:
+                # Followed from the entry's face most nearly facing the centre: past the edge the
+                # followed face is the one the push goes in through, not one it grazes (from a
+                # box's top face, walked round its far edge onto its far side, a push through a
+                # 10 mm box 7 degrees off its side's normal went out of the far side at 32 N).
+                best = -2.0
+                s0, s1 = _entry_span(pair, verts, tris)
+                for sf in range(s0, s1):
+                    f = _entry_face(pair, tris, edges, lists, sf)
+                    if f >= 0:
+                        fn = tris[f].n
+                        a = fn[0] * nx + fn[1] * ny + fn[2] * nz
+                        if a > best:
+                            best, pair.mem_t = a, f
     else:
         prim = -1
         held = pair.ent == 1

@@ -78,10 +78,12 @@ triangles per sphere, even on a million-triangle mesh; the scan starts from the 
 nearest triangle and skips, on lower bounds of their distance (plane, edge lines, box), the
 triangles that cannot change the result.
 
-Limits: a push passing beside a convex edge at a distance under r still loses force along it
-before it enters (up to 29 % at a right angle, 28 % at a cube's corner, near 0 for a line through
-the edge): the perpendicular from the edge turns from the push towards the face's normal as the
-sphere rolls over it, which is the geometry and is kept (a field exact outside cannot avoid it).
+Limits: a push passing beside a convex edge or vertex at a distance under r still loses force
+along it just before it enters, as the perpendicular from the edge turns from the push to the
+normal of the face it goes in through (the sphere rolls over the edge): as the line nears the
+edge, up to 1 - cos of the angle between that normal and the push (29 % on a box edge's bisector,
+47 % 14 degrees off it entering the far face, 0 for the line through the edge). That is the
+geometry outside the solid, kept: no field exact there can avoid it.
 Across the hand-over from a held entry to the face the gradient of the weight can make the force
 larger than either part (61 N 0.7 mm under a box's top entered 15 degrees off its edge's bisector,
 on a loop 4 mm past the edge, where the face alone gives 17 N and the entry 27 N).

@@ -242,6 +242,20 @@ def test_a_push_through_a_convex_edge_holds_k_r_plus_depth_along_the_entry(
         np.testing.assert_allclose(f, K * max(0.0, r - sigma) * m, atol=1e-6 * K * r)
 
 
+def test_a_push_through_a_small_box_edge_holds_past_its_far_side(tmp_path: Path) -> None:
+    """A 10 mm bar's edge pushed through 7 degrees off its side's normal, tilted 45 degrees along
+    the edge: the centre goes out of the far side (10.6 mm past the edge in the normal plane) and
+    still feels ``k (r - sigma)`` along the entry normal m, in and back. (Followed from the top
+    face, the point was walked round the far edge onto the far side: 32 N along the push, then
+    -10 N.)"""
+    scene = _mesh_scene(tmp_path, {"bar": _box((-0.01, -0.06, -0.01), (0.0, 0.06, 0.0))})
+    m = np.array([math.cos(math.radians(7.0)), 0.0, math.sin(math.radians(7.0))])
+    t = math.radians(45.0)
+    u = -(math.cos(t) * m + math.sin(t) * Y)
+    for sigma, f in _push_through(scene, np.zeros(3), m, u, 1e-4):
+        np.testing.assert_allclose(f, K * max(0.0, r - sigma) * m, atol=1e-6 * K * r)
+
+
 @pytest.mark.parametrize("d", [(1.0, -1.0, 1.0), (1.0, -0.5, 0.8), (0.3, -1.0, 0.6)])
 def test_a_push_through_a_box_corner_holds_k_r_plus_depth_along_the_entry(tmp_path: Path, d: tuple) -> None:
     """A cube's vertex pushed through along -m, m in the vertex's normal cone (the diagonal and off

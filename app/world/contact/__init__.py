@@ -44,6 +44,15 @@ The model, per (sphere of radius r, object) pair, with c the sphere centre:
    entered (a search over the object's triangles, once per reset): a tool teleported inside is
    pushed out by the nearest way, and a stateless deep pose is read past the middle of a part
    as pushed in from the far side (only a sequence of poses knows better).
+   **Through a convex edge or vertex the entry is held** (:func:`.step._held`): outside, near
+   an edge, the force is ``k (r - d)`` along the perpendicular from the edge; the face followed
+   past it pushed ``k r`` along its own normal, 29 % less along a box edge's bisector, and could
+   be the face the push grazes. So the pair keeps the tangent plane of the sphere-swept edge at
+   the entry (the direction from the edge to the centre at its last evaluation in front) and
+   blends its potential ``k/2 (r + h_e)^2`` with the followed face's, weight 1 on the line
+   through the entry point along that direction and 0 on every face's plane: a push straight
+   through an edge or vertex, at any angle, feels ``k (r + s)`` along its entry direction,
+   continuous with the outside and never falling; the field stays a gradient.
 6. **Degenerate positions** (a centre exactly on a face, an edge, a vertex, the corner of a
    pocket) push along the pseudonormal of each feature touched with depth r.
 7. **Force law** (:mod:`.force`): ``k depth - b u_n`` clamped at 0, and regularised Coulomb
@@ -69,7 +78,16 @@ triangles per sphere, even on a million-triangle mesh; the scan starts from the 
 nearest triangle and skips, on lower bounds of their distance (plane, edge lines, box), the
 triangles that cannot change the result.
 
-Limits: a sharp-cornered part hidden behind less than r of material still pushes (as a second
+Limits: a push passing beside a convex edge or vertex at a distance under r still loses force
+along it just before it enters, as the perpendicular from the edge turns from the push to the
+normal of the face it goes in through (the sphere rolls over the edge): as the line nears the
+edge, up to 1 - cos of the angle between that normal and the push (29 % on a box edge's bisector,
+47 % 14 degrees off it entering the far face, 0 for the line through the edge). That is the
+geometry outside the solid, kept: no field exact there can avoid it.
+Across the hand-over from a held entry to the face the gradient of the weight can make the force
+larger than either part (61 N 0.7 mm under a box's top entered 15 degrees off its edge's bisector,
+on a loop 4 mm past the edge, where the face alone gives 17 N and the entry 27 N).
+A sharp-cornered part hidden behind less than r of material still pushes (as a second
 object would); with the centre inside the solid, a secondary contact can switch on or off where
 the plane of a cut face extends into the material (the force is continuous outside the solid,
 away from the medial axis); one surface per pair is held behind (deep in an inside corner, the

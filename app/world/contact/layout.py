@@ -119,6 +119,14 @@ PAIR = np.dtype(
         ("mem_q", "f8", (3,)),  # its point and outward normal
         ("mem_n", "f8", (3,)),
         ("mem_t", "i8"),  # its triangle, from which the next evaluation follows the surface
+        # The entry: the primary contact at the last evaluation in front of the surface, when it
+        # was an edge or vertex (``ent`` = 1; app.world.contact.step._held): its point, normal
+        # (the direction from that point to the centre), triangle and feature (FEAT_*).
+        ("ent", "i8"),
+        ("ent_q", "f8", (3,)),
+        ("ent_n", "f8", (3,)),
+        ("ent_t", "i8"),
+        ("ent_f", "i8"),
         ("n_min", "i8"),  # local minima of the distance within reach, this evaluation
         ("min_q", "f8", (MAX_PER_PAIR, 3)),  # their points,
         ("min_n", "f8", (MAX_PER_PAIR, 3)),  # outward normals,

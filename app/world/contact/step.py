@@ -26,7 +26,9 @@ from app.world.contact.layout import (
     ERR_ROTATION,
     ERR_TWIST,
     ERR_WRENCH,
+    FEAT_EDGE,
     FEAT_FACE,
+    FEAT_VERTEX,
     Record,
     Records,
 )
@@ -45,6 +47,9 @@ PREFETCH_TICKS = 4.0
 # A secondary minimum whose point is this far (m) behind the plane of a remembered surface the
 # centre is behind is beyond that surface (rounding allowance of points on a shared edge).
 _BEYOND = 1e-9
+# An entry feature's face whose normal is this near a right angle to the entry normal (cosine)
+# takes no part in the hand-over (:func:`_held`): the entry line lies in its plane.
+_GRAZE = 1e-6
 
 
 @tick_kernel
@@ -106,6 +111,136 @@ def _emit(
     return n_c + 1
 
 
+@njit(cache=True, inline="always")
+def _entry_span(pair: Record, verts: Records, tris: Records) -> tuple[int, int]:
+    """The range of s for :func:`_entry_face`: the faces around the pair's entry edge or vertex."""
+    if pair.ent_f >= FEAT_EDGE:
+        return 0, 2
+    v = verts[tris[pair.ent_t].v[pair.ent_f - FEAT_VERTEX]]
+    return v.f0, v.f1
+
+
+@njit(cache=True, inline="always")
+def _entry_face(pair: Record, tris: Records, edges: Records, lists: np.ndarray, s: int) -> int:
+    """Face s of the pair's entry edge (s = 0, 1; -1 across a cut) or vertex (``lists[s]``)."""
+    if pair.ent_f >= FEAT_EDGE:
+        return edges[tris[pair.ent_t].e[pair.ent_f - FEAT_EDGE]].faces[s]
+    return lists[s]
+
+
+@njit(cache=True, inline="always")
+def _beyond_entry(
+    pair: Record, verts: Records, tris: Records, edges: Records, lists: np.ndarray, p: np.ndarray
+) -> bool:
+    """Whether point p (m, {w}) is behind the plane of every face around the pair's entry edge or
+    vertex: in the material's side of the entry, as the far side of a plate entered at its rim
+    is (the surface round a convex entry falls away below its tangent plane, so that plane alone
+    would cut off the faces beside it: a gear notch's root corners, 64 um below the plane of the
+    crease at the middle of its root, 5 mm to the side)."""
+    q = pair.ent_q
+    s0, s1 = _entry_span(pair, verts, tris)
+    for s in range(s0, s1):
+        f = _entry_face(pair, tris, edges, lists, s)
+        if f >= 0:
+            n = tris[f].n
+            if (p[0] - q[0]) * n[0] + (p[1] - q[1]) * n[1] + (p[2] - q[2]) * n[2] >= -_BEYOND:
+                return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def _hand_over(
+    n: np.ndarray,
+    e: np.ndarray,
+    vx: float,
+    vy: float,
+    vz: float,
+    he: float,
+    w: float,
+    gx: float,
+    gy: float,
+    gz: float,
+) -> tuple[float, float, float, float]:
+    """The weight w of the held entry (:func:`_held`) and its gradient g (1/m) times one face's
+    factor ``S(tau) = x^2 (3 - 2x)``, x = tau clamped to [0, 1], ``tau = h_i / (a h_e)``, for the
+    face of outward normal n, the entry normal e (``a = e . n``), the centre at v from the entry
+    point, ``h_i = -v . n`` and ``h_e = -v . e`` > 0 its depths below the two planes;
+    ``grad tau = (h_i e - h_e n) / (a h_e^2)``. A face at right angles or more to e (a <= _GRAZE)
+    takes no part: the entry line lies in its plane."""
+    a = e[0] * n[0] + e[1] * n[1] + e[2] * n[2]
+    if a <= _GRAZE:
+        return w, gx, gy, gz
+    hi = -(vx * n[0] + vy * n[1] + vz * n[2])
+    tau = hi / (a * he)
+    if tau >= 1.0:
+        return w, gx, gy, gz
+    if tau <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    si = tau * tau * (3.0 - 2.0 * tau)
+    ds = 6.0 * tau * (1.0 - tau) / (a * he * he)
+    sx, sy, sz = ds * (hi * e[0] - he * n[0]), ds * (hi * e[1] - he * n[1]), ds * (hi * e[2] - he * n[2])
+    return w * si, gx * si + w * sx, gy * si + w * sy, gz * si + w * sz
+
+
+@tick_kernel
+def _held(
+    pair: Record,
+    r: float,
+    verts: Records,
+    tris: Records,
+    edges: Records,
+    lists: np.ndarray,
+    phi: float,
+    qx: float,
+    qy: float,
+    qz: float,
+    nx: float,
+    ny: float,
+    nz: float,
+) -> tuple[float, float, float, float, float, float, float]:
+    """The contact of a centre behind the surface it entered through a convex edge or vertex:
+    ``(depth, p, n)``, with the followed surface's ``(phi, q, n)`` given.
+
+    Outside, near an edge, the force is ``k (r - d)`` along the direction from the edge to the
+    centre; the followed face's force just inside is ``k r`` along the face's normal, so a push
+    through the edge lost ``1 - cos`` of the angle between them (29 % on a box's edge pushed
+    along the bisector), and the face picked there could be the one the push grazes (87 % on a
+    right-angled prism's edge pushed 11 degrees off one face's normal). Instead the entry is held
+    as a plane, the tangent plane of the entry point's sphere-swept edge (Zilles & Salisbury's
+    god-object held at an edge by both of its faces): its potential ``U_e = k/2 (r + h_e)^2``, h_e
+    the depth below the plane, is blended with the followed face's ``U_f = k/2 (r + h_f)^2`` as
+    ``U = w U_e + (1 - w) U_f``, w the product over the entry feature's faces i of
+    ``S(h_i / (a_i h_e))``, ``a_i = e . n_i``: 1 on the line through the entry point along its
+    normal, where ``h_i = a_i h_e``, and 0 on each face's plane, where U meets the outside field.
+    The force ``-grad U`` is that of a potential (no work round a closed path), continuous, and
+    along a push through the entry point ``k (r + s)``, s the distance past it: it never falls.
+    """
+    e, eq = pair.ent_n, pair.ent_q
+    c = pair.c
+    vx, vy, vz = c[0] - eq[0], c[1] - eq[1], c[2] - eq[2]
+    he = -(vx * e[0] + vy * e[1] + vz * e[2])
+    hf = -phi
+    w = 1.0
+    gx = gy = gz = 0.0
+    if he > TOUCH:
+        s0, s1 = _entry_span(pair, verts, tris)
+        for s in range(s0, s1):
+            f = _entry_face(pair, tris, edges, lists, s)
+            if f >= 0:
+                w, gx, gy, gz = _hand_over(tris[f].n, e, vx, vy, vz, he, w, gx, gy, gz)
+    he = max(he, 0.0)
+    de, df = r + he, r + hf
+    dU = 0.5 * (de * de - df * df)
+    fx = w * de * e[0] + (1.0 - w) * df * nx - dU * gx
+    fy = w * de * e[1] + (1.0 - w) * df * ny - dU * gy
+    fz = w * de * e[2] + (1.0 - w) * df * nz - dU * gz
+    depth = math.sqrt(fx * fx + fy * fy + fz * fz)
+    px, py, pz = w * eq[0] + (1.0 - w) * qx, w * eq[1] + (1.0 - w) * qy, w * eq[2] + (1.0 - w) * qz
+    if depth <= 0.0:
+        return 0.0, px, py, pz, nx, ny, nz
+    return depth, px, py, pz, fx / depth, fy / depth, fz / depth
+
+
 @tick_kernel
 def _pair_contacts(
     pair: Record,
@@ -131,14 +266,17 @@ def _pair_contacts(
     the centre is behind it (phi < 0) it is the primary contact, with depth ``r - phi`` however
     deep, and the other minima push only from in front and from in front of its plane (a face
     beyond it is the far side of the material: the underside of a plate pushed through).
-    Otherwise the nearest minimum is the primary: it pushes from in front (phi >= 0) or from
+    A surface entered through a convex edge or vertex is held as that entry (:func:`_held`), and
+    then the other minima push only if not behind every plane of the entry's faces, and never
+    further in. Otherwise the nearest minimum is the primary: it pushes from in front (phi >= 0) or from
     behind (phi < 0, a centre found inside the solid with nothing remembered); every other
     minimum pushes only from in front, and the primary becomes the memory. Weighted minima
     (crease bands) are merged into one contact.
     """
     n_min = pair.n_min
     c = pair.c
-    behind = False
+    behind = held = False
+    ex = ey = ez = 0.0  # the held contact's normal
     if pair.mem == 1:
         t, phi, qx, qy, qz, nx, ny, nz = follow(verts, tris, edges, lists, pair.mem_t, c[0], c[1], c[2])
         if phi < 0.0:
@@ -153,7 +291,10 @@ def _pair_contacts(
             # that as "in front" dropped both top faces, 30 N then 0 N to the bottom).
             mq, mn = pair.mem_q, pair.mem_n
             s = (c[0] - mq[0]) * mn[0] + (c[1] - mq[1]) * mn[1] + (c[2] - mq[2]) * mn[2]
-            if s < -TOUCH:
+            # Entered through an edge or vertex, the centre on it is on its entry line: held
+            # (both faces touched there pushed k r each, along their own normals).
+            if s < -TOUCH or (pair.ent == 1 and s <= TOUCH):
+                s = min(s, 0.0)
                 behind = True
                 phi, nx, ny, nz = s, mn[0], mn[1], mn[2]
                 qx, qy, qz = c[0] - s * nx, c[1] - s * ny, c[2] - s * nz
@@ -177,9 +318,35 @@ def _pair_contacts(
             pair.mem_q[0], pair.mem_q[1], pair.mem_q[2] = qx, qy, qz
             pair.mem_n[0], pair.mem_n[1], pair.mem_n[2] = nx, ny, nz
             pair.mem_t = pair.min_t[prim]
+            # An edge or vertex seen from in front (its normal the direction to the centre)
+            # is held as the entry if the centre passes it (:func:`_held`).
+            pair.ent = 1 if pair.min_f[prim] != FEAT_FACE and phi > TOUCH else 0
+            pair.ent_q[0], pair.ent_q[1], pair.ent_q[2] = qx, qy, qz
+            pair.ent_n[0], pair.ent_n[1], pair.ent_n[2] = nx, ny, nz
+            pair.ent_t = pair.min_t[prim]
+            pair.ent_f = pair.min_f[prim]
+            if pair.ent == 1:
+                # Followed from the entry's face most nearly facing the centre: past the edge the
+                # followed face is the one the push goes in through, not one it grazes (from a
+                # box's top face, walked round its far edge onto its far side, a push through a
+                # 10 mm box 7 degrees off its side's normal went out of the far side at 32 N).
+                best = -2.0
+                s0, s1 = _entry_span(pair, verts, tris)
+                for sf in range(s0, s1):
+                    f = _entry_face(pair, tris, edges, lists, sf)
+                    if f >= 0:
+                        fn = tris[f].n
+                        a = fn[0] * nx + fn[1] * ny + fn[2] * nz
+                        if a > best:
+                            best, pair.mem_t = a, f
     else:
         prim = -1
-        n_c = _emit(out, n_c, i, j, obj, r - phi, qx, qy, qz, nx, ny, nz, T, has_twist, V, FM)
+        held = pair.ent == 1
+        if held:
+            depth, px, py, pz, ex, ey, ez = _held(pair, r, verts, tris, edges, lists, phi, qx, qy, qz, nx, ny, nz)
+            n_c = _emit(out, n_c, i, j, obj, depth, px, py, pz, ex, ey, ez, T, has_twist, V, FM)
+        else:
+            n_c = _emit(out, n_c, i, j, obj, r - phi, qx, qy, qz, nx, ny, nz, T, has_twist, V, FM)
     # Which minima push (bit e of ``pushes``), and which of them are in a crease band (``soft``,
     # 0 < w < 1). A band's minima, with every other face minimum sharing a vertex with one of them
     # (a partner past its band's far edge, w = 1), are one contact: the force of the potential
@@ -195,7 +362,10 @@ def _pair_contacts(
             mq = pair.min_q[e]
             if pair.min_phi[e] < 0.0 or r - pair.min_phi[e] <= 0.0:
                 continue
-            if behind and (mq[0] - qx) * nx + (mq[1] - qy) * ny + (mq[2] - qz) * nz < -_BEYOND:
+            if held:
+                if pair.min_phi[e] <= TOUCH or _beyond_entry(pair, verts, tris, edges, lists, mq):
+                    continue  # (touching: the centre on the entry, whose faces it touches there)
+            elif behind and (mq[0] - qx) * nx + (mq[1] - qy) * ny + (mq[2] - qz) * nz < -_BEYOND:
                 continue
         elif r - phi <= 0.0:
             continue
@@ -222,6 +392,19 @@ def _pair_contacts(
             mx, my, mz = pair.min_n[e, 0], pair.min_n[e, 1], pair.min_n[e, 2]
         back = r - depth  # the contact point: the centre moved back along n to the surface
         px, py, pz = c[0] - back * mx, c[1] - back * my, c[2] - back * mz
+        if held and not blend & (1 << e):
+            # Beside a held entry, material never pushes the tool further in: the part of its
+            # force against the held contact's normal is dropped (continuously: a gear notch's
+            # root corners, passed by a centre held on the crease at the root's middle, turn
+            # from pushing out to pushing in, 9 N/mm along the push).
+            along = mx * ex + my * ey + mz * ez
+            if along < 0.0:
+                mx, my, mz = mx - along * ex, my - along * ey, mz - along * ez
+                scale = math.sqrt(mx * mx + my * my + mz * mz)
+                if scale <= 0.0:
+                    continue
+                depth *= scale
+                mx, my, mz = mx / scale, my / scale, mz / scale
         if not blend & (1 << e):
             n_c = _emit(out, n_c, i, j, obj, depth, px, py, pz, mx, my, mz, T, has_twist, V, FM)
             continue
@@ -276,6 +459,7 @@ def _enter_from_nearest(
     t, phi, qx, qy, qz, nx, ny, nz = follow(verts, tris, edges, lists, best, c[0], c[1], c[2])
     if phi < 0.0:
         pair.mem = 1
+        pair.ent = 0
         pair.mem_t = t
         pair.mem_q[0], pair.mem_q[1], pair.mem_q[2] = qx, qy, qz
         pair.mem_n[0], pair.mem_n[1], pair.mem_n[2] = nx, ny, nz

@@ -56,7 +56,7 @@ from app.controller.types import FTReading, SlaveCommand
 from app.mjcall import address, pointers
 from app.slave import arm_ik
 from app.slave import arm_kernel as ak
-from app.slave.arm_model import ArmGeom, ArmParams, arm_record, arm_spec, link_contact_models, place_base
+from app.slave.arm_model import ArmGeom, ArmParams, arm_model, arm_record, link_contact_models, place_base
 from app.slave.tool import DEFAULT_PERIOD, SlaveBase, command_error, contact_rows, finite, invalid_contact
 from app.spatial import Array
 from app.world.contact import ContactResult
@@ -113,7 +113,7 @@ class ArmSlave(SlaveBase):
         self.name = g.kind
         self._substeps = g.substeps
         self._h = period / g.substeps
-        self.model = m = arm_spec(scene, g.kind, self._h).compile()
+        self.model = m = arm_model(scene, g.kind, self._h)
         self.data = d = mujoco.MjData(m)
         self.n = m.nu
         self.contact_model = world_contact(scene, self._h)

@@ -425,6 +425,17 @@ def test_a_links_contact_model_is_handed_the_twist_of_the_links_frame() -> None:
         ('range="-160 160"', 'range="nan 160"', "joint j1.range"),
         ('data="3 3 3 5 5 5"', 'data="0 3 3 5 5 5"', "velocity_limit"),
         ('ctrlrange="-97.6 97.6"', 'ctrlrange="nan nan"', "motor m1.ctrlrange"),
+        # harden11: each of these raised an AttributeError, IndexError or MuJoCo's ValueError, or
+        # (no base body) moved the last link instead and refused every reset; a short or
+        # out-of-range home keyframe and a negative damping were run.
+        ('<site name="flange"', '<site name="wrist"', "site flange"),
+        ('<key name="home"', '<key name="rest"', "key home"),
+        ('<body name="base">', '<body name="stand">', "body base"),
+        ('qpos="0 0.785398 -3.14159 0 -0.785398 0"', 'qpos="0 0.785398"', "key home.qpos"),
+        ('qpos="0 0.785398 -3.14159 0 -0.785398 0"', 'qpos="0 0.785398 -3.14159 0 -2.5 0"', "key home.qpos"),
+        ('damping="5.802"', 'damping="-5"', "joint j1.damping"),
+        ('mass="17.4"', 'mass="0"', "<file>"),
+        ('ctrlrange="-97.6 97.6"', 'ctrlrange="97.6 -97.6"', "<file>"),
     ],
 )
 def test_an_arm_file_with_unusable_limits_is_refused_naming_the_field(
@@ -444,5 +455,6 @@ def test_an_arm_file_with_unusable_limits_is_refused_naming_the_field(
     with pytest.raises(ConfigError, match=f"field '{re.escape(field)}'") as refused:
         ArmSlave(arm_scene("bad"))
     assert str(refused.value).startswith(str(tmp_path / "bad" / "arm.xml"))
+    assert "\n" not in str(refused.value)  # one line (MuJoCo's compiler message is several)
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
     assert "WARNING" not in capfd.readouterr().out

@@ -53,6 +53,7 @@ import numpy as np
 
 from app.compiled import entry_point
 from app.controller.types import FTReading, SlaveCommand
+from app.errors import ConfigError
 from app.mjcall import address, pointers
 from app.slave import arm_ik
 from app.slave import arm_kernel as ak
@@ -102,6 +103,10 @@ class ArmSlave(SlaveBase):
         status: :class:`ArmStatus` of the last step.
         link_contacts: The last contact results of the links near the world (empty when none is):
             they load the arm, not the sensor; :attr:`contact` is the tool's.
+
+    Raises:
+        ConfigError: The arm file is malformed (:mod:`app.slave.arm_model`), or the arm cannot
+            reach the scene's tool home (field ``tool.home``).
     """
 
     def __init__(
@@ -239,6 +244,15 @@ class ArmSlave(SlaveBase):
         self.status = ArmStatus.NONE
         self._fault: str | None = None
         self.reset()
+        if self._fault is not None:
+            # Every tick of a run would be FT_INVALID, and nothing would say why (measured: the
+            # probe scene with its home turned 90 deg about y ran 500 such ticks and exited 0).
+            raise ConfigError(
+                scene.path or f"<scene {scene.name}>",
+                "tool.home",
+                f"the {g.kind} arm cannot reach this pose: its inverse kinematics from the home keyframe "
+                f"of slaves/{g.kind}/arm.xml (where the tool points down -z) does not converge",
+            )
 
     # --- state ---------------------------------------------------------------------------------
     def reset(self, T_w_MRF: Array | None = None) -> None:

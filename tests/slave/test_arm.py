@@ -458,3 +458,31 @@ def test_an_arm_file_with_unusable_limits_is_refused_naming_the_field(
     assert "\n" not in str(refused.value)  # one line (MuJoCo's compiler message is several)
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
     assert "WARNING" not in capfd.readouterr().out
+
+
+@pytest.mark.parametrize(("zyx_deg", "reachable"), [((0.0, 20.0, 10.0), True), ((0.0, 90.0, 0.0), False)])
+def test_a_tool_home_the_arm_cannot_reach_is_refused_naming_the_field(
+    tmp_path: Path, zyx_deg: tuple[float, float, float], reachable: bool
+) -> None:
+    """A home turned 20 deg about y and 10 about x is reached exactly (the reset's inverse
+    kinematics against the forward kinematics); turned 90 deg the PUMA's wrist cannot, and before
+    harden11 every tick of the run was FT_INVALID with nothing saying why (exit 0)."""
+    text = (SLAVES_DIR.parent / "scenes" / "probe.toml").read_text()
+    was = "home = { position = [0.0, 0.0, 0.03] }"
+    assert was in text
+    path = tmp_path / "turned.toml"
+    path.write_text(text.replace(was, f"home = {{ position = [0.0, 0.0, 0.03], zyx_deg = {list(zyx_deg)} }}"))
+    scene = with_slave(load_scene(path), "puma560")
+    if not reachable:
+        with pytest.raises(ConfigError, match=re.escape(f"{path}: field 'tool.home': the puma560 arm cannot reach")):
+            ArmSlave(scene)
+        return
+    arm = ArmSlave(scene)
+    T_home = scene.tool.T_w_MRF_home
+    assert angle_between(T_home[0:3, 0:3], np.eye(3)) > math.radians(20.0)  # the home is turned
+    m, d = arm.model, arm.data
+    d.qpos[:] = arm.q
+    mujoco.mj_kinematics(m, d)
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "mrf")
+    np.testing.assert_allclose(d.site_xpos[site], T_home[0:3, 3], rtol=0, atol=1e-8)
+    assert angle_between(d.site_xmat[site].reshape(3, 3), T_home[0:3, 0:3]) < 1e-7

@@ -154,6 +154,10 @@ class ArmSlave(SlaveBase):
             d.xipos,
         )
         self._cvel, self._cacc, self._subtree_com = d.cvel, d.cacc, d.subtree_com
+        # MuJoCo's counts of bad joint positions, velocities and accelerations: on one it resets
+        # the arm to the model's zero angles and steps on, silently to its caller.
+        w = mujoco.mjtWarning
+        self._unstable = d.warning.number[w.mjWARN_BADQPOS : w.mjWARN_BADQACC + 1]
         self._qacc, self._M = d.qacc, d.M
         # The F/T reading every step returns (one buffer, overwritten): no allocation per tick.
         b = self._ft_buffer = np.zeros(24)
@@ -368,7 +372,9 @@ class ArmSlave(SlaveBase):
         """Advance one servo period ``dt`` (s) under ``command``; return the F/T sensor reading.
 
         A faulted slave (see :meth:`reset`), or a non-finite command or period, returns an
-        invalid reading and leaves the state as it was.
+        invalid reading and leaves the state as it was. A step in which MuJoCo finds a non-finite
+        or huge joint position, velocity or acceleration (and resets the arm) faults the slave:
+        every reading is invalid until :meth:`reset`.
         """
         error = self._fault or command_error(command, dt)
         if error is not None:
@@ -413,6 +419,12 @@ class ArmSlave(SlaveBase):
                         self._link_models[i].reset()
             if self._moving is not None:
                 self._moving.step(h)
+        if self._unstable.any():
+            # Before harden11 the arm went on from its zero angles, tool elsewhere, readings valid.
+            self._fault = "the arm's simulation went unstable (MuJoCo reset it); reset the slave"
+            self._link_force = 0.0
+            self._reading = self._make_reading(invalid_contact(self._fault))
+            return self._reading
         self._contact = contact
         self.status = _STATUS[status]
         self._link_force = 0.0

@@ -500,3 +500,24 @@ def test_at_a_slow_servo_rate_the_arm_stays_on_its_commanded_plane(dt: float) ->
         arm.step(rate((vx, 0.0, -0.1, 0.0, 0.0, 0.0)), dt)
         y_max = max(y_max, abs(arm.T_w_MRF[1, 3] - y0))
     assert y_max < 0.015
+
+
+@pytest.mark.parametrize("kind", ARMS)
+def test_an_arm_whose_simulation_goes_unstable_faults_until_reset(
+    kind: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A NaN joint speed mid-run: MuJoCo resets the arm to its zero angles and steps on. Before
+    harden11 the slave went on from there, tool elsewhere, every reading valid; now each reading
+    is invalid (the controller's FT_INVALID: its safe output) until a reset, which restores it."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo's own handler writes MUJOCO_LOG.TXT in the working folder
+    arm = ArmSlave(arm_scene(kind))
+    command = rate((0.01, 0.0, 0.0, 0.0, 0.0, 0.0))
+    for _ in range(10):
+        assert arm.step(command).valid
+    arm.data.qvel[1] = math.nan
+    readings = [arm.step(command) for _ in range(3)]
+    assert not any(r.valid for r in readings)
+    assert np.all(readings[-1].wrench_S == 0.0)
+    arm.reset()
+    assert arm.step(command).valid
+    np.testing.assert_allclose(arm.T_w_MRF[0:3, 3], arm.scene.tool.T_w_MRF_home[0:3, 3], rtol=0, atol=1e-4)

@@ -24,6 +24,7 @@ from app.session.operators import sample_population
 from app.session.run import run_session
 from app.session.spec import load_session
 from app.slave import arm_kernel as ak
+from app.slave.api import Slave, make_slave
 from app.slave.arm import ArmSlave, ArmStatus
 from app.slave.tool import VirtualSlave
 from app.spatial import rotation_log, zyx_to_matrix
@@ -521,3 +522,32 @@ def test_an_arm_whose_simulation_goes_unstable_faults_until_reset(
     arm.reset()
     assert arm.step(command).valid
     np.testing.assert_allclose(arm.T_w_MRF[0:3, 3], arm.scene.tool.T_w_MRF_home[0:3, 3], rtol=0, atol=1e-4)
+
+
+def test_a_run_whose_arm_goes_unstable_counts_ft_invalid_and_says_why(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The arm's joint speed turned NaN after tick 100 of 300: every later tick is the controller's
+    FT_INVALID (its safe output), and the summary's ``slave_fault`` says why; a clean run's is None."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo's own handler writes MUJOCO_LOG.TXT in the working folder
+    session = load_session("probe_rate").with_changes(slave="puma560", duration=0.3)
+    built: list[Slave] = []
+    monkeypatch.setattr(
+        "app.session.loop.make_slave", lambda *args, **kw: built.append(make_slave(*args, **kw)) or built[-1]
+    )
+
+    class Spoil:
+        def __init__(self) -> None:
+            self.ticks = 0
+
+        def on_tick(self, record: object) -> None:
+            self.ticks += 1
+            if self.ticks == 100:
+                assert isinstance(built[-1], ArmSlave)
+                built[-1].data.qvel[0] = math.nan
+
+    result = run_session(session, out_dir=None, plots=False, observers=[Spoil()])
+    # The slave's 200 steps after tick 100 are invalid; the controller reads each a tick later.
+    assert result.summary["faults"] == {"FT_INVALID": 199}
+    assert "went unstable" in result.summary["slave_fault"]
+    assert run_session(session, out_dir=None, plots=False).summary["slave_fault"] is None

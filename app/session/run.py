@@ -194,6 +194,8 @@ def _run(
     summary["mode"] = d.mode
     summary["accommodation"] = d.accommodation
     summary["grips"] = [g.as_dict() for g in loop.grips]
+    # Why the slave's readings were invalid at the end (its FT_INVALID ticks), or None.
+    summary["slave_fault"] = loop.slave.fault
     if pacer is not None:
         summary["pacing"] = pacer.stats().as_dict()
         summary["scheduling"] = scheduling

@@ -75,6 +75,10 @@ class Slave(Protocol):
         """Why the slave did not follow the command exactly (bits of :class:`~app.slave.arm.ArmStatus`; 0 for the tool)."""
 
     @property
+    def fault(self) -> str | None:
+        """Why every reading is invalid until a reset, or None."""
+
+    @property
     def link_force(self) -> float:
         """The world's force on the slave's links (not its tool) at the last step (N); 0 for the tool.
 

@@ -53,10 +53,11 @@ import numpy as np
 
 from app.compiled import entry_point
 from app.controller.types import FTReading, SlaveCommand
+from app.errors import ConfigError
 from app.mjcall import address, pointers
 from app.slave import arm_ik
 from app.slave import arm_kernel as ak
-from app.slave.arm_model import ArmGeom, ArmParams, arm_record, arm_spec, link_contact_models, place_base
+from app.slave.arm_model import ArmGeom, ArmParams, arm_model, arm_record, link_contact_models, place_base
 from app.slave.tool import DEFAULT_PERIOD, SlaveBase, command_error, contact_rows, finite, invalid_contact
 from app.spatial import Array
 from app.world.contact import ContactResult
@@ -102,6 +103,10 @@ class ArmSlave(SlaveBase):
         status: :class:`ArmStatus` of the last step.
         link_contacts: The last contact results of the links near the world (empty when none is):
             they load the arm, not the sensor; :attr:`contact` is the tool's.
+
+    Raises:
+        ConfigError: The arm file is malformed (:mod:`app.slave.arm_model`), or the arm cannot
+            reach the scene's tool home (field ``tool.home``).
     """
 
     def __init__(
@@ -113,7 +118,7 @@ class ArmSlave(SlaveBase):
         self.name = g.kind
         self._substeps = g.substeps
         self._h = period / g.substeps
-        self.model = m = arm_spec(scene, g.kind, self._h).compile()
+        self.model = m = arm_model(scene, g.kind, self._h)
         self.data = d = mujoco.MjData(m)
         self.n = m.nu
         self.contact_model = world_contact(scene, self._h)
@@ -149,6 +154,10 @@ class ArmSlave(SlaveBase):
             d.xipos,
         )
         self._cvel, self._cacc, self._subtree_com = d.cvel, d.cacc, d.subtree_com
+        # MuJoCo's counts of bad joint positions, velocities and accelerations: on one it resets
+        # the arm to the model's zero angles and steps on, silently to its caller.
+        w = mujoco.mjtWarning
+        self._unstable = d.warning.number[w.mjWARN_BADQPOS : w.mjWARN_BADQACC + 1]
         self._qacc, self._M = d.qacc, d.M
         # The F/T reading every step returns (one buffer, overwritten): no allocation per tick.
         b = self._ft_buffer = np.zeros(24)
@@ -239,6 +248,15 @@ class ArmSlave(SlaveBase):
         self.status = ArmStatus.NONE
         self._fault: str | None = None
         self.reset()
+        if self._fault is not None:
+            # Every tick of a run would be FT_INVALID, and nothing would say why (measured: the
+            # probe scene with its home turned 90 deg about y ran 500 such ticks and exited 0).
+            raise ConfigError(
+                scene.path or f"<scene {scene.name}>",
+                "tool.home",
+                f"the {g.kind} arm cannot reach this pose: its inverse kinematics from the home keyframe "
+                f"of slaves/{g.kind}/arm.xml (where the tool points down -z) does not converge",
+            )
 
     # --- state ---------------------------------------------------------------------------------
     def reset(self, T_w_MRF: Array | None = None) -> None:
@@ -354,7 +372,9 @@ class ArmSlave(SlaveBase):
         """Advance one servo period ``dt`` (s) under ``command``; return the F/T sensor reading.
 
         A faulted slave (see :meth:`reset`), or a non-finite command or period, returns an
-        invalid reading and leaves the state as it was.
+        invalid reading and leaves the state as it was. A step in which MuJoCo finds a non-finite
+        or huge joint position, velocity or acceleration (and resets the arm) faults the slave:
+        every reading is invalid until :meth:`reset`.
         """
         error = self._fault or command_error(command, dt)
         if error is not None:
@@ -399,6 +419,12 @@ class ArmSlave(SlaveBase):
                         self._link_models[i].reset()
             if self._moving is not None:
                 self._moving.step(h)
+        if self._unstable.any():
+            # Before harden11 the arm went on from its zero angles, tool elsewhere, readings valid.
+            self._fault = "the arm's simulation went unstable (MuJoCo reset it); reset the slave"
+            self._link_force = 0.0
+            self._reading = self._make_reading(invalid_contact(self._fault))
+            return self._reading
         self._contact = contact
         self.status = _STATUS[status]
         self._link_force = 0.0

@@ -71,8 +71,28 @@ class ArmGeom:
     T_w_geom: Array
 
 
+def arm_model(scene: Scene, name: str, timestep: float) -> mujoco.MjModel:
+    """The arm file ``slaves/<name>/arm.xml`` compiled with the scene's tool on its flange
+    (:func:`arm_spec`).
+
+    Raises:
+        ConfigError: naming the file and MuJoCo's reason when it does not compile (a link with
+            zero or negative mass, an inverted ``ctrlrange``, a zero-sized geom).
+    """
+    spec = arm_spec(scene, name, timestep)
+    try:
+        return spec.compile()
+    except ValueError as exc:  # MuJoCo's multi-line compiler message, naming the element and line
+        raise ConfigError(SLAVES_DIR / name / "arm.xml", "<file>", " ".join(str(exc).split())[:200]) from None
+
+
 def arm_spec(scene: Scene, name: str, timestep: float) -> mujoco.MjSpec:
-    """The arm file with the scene's tool mounted on the flange, its sites and F/T sensors."""
+    """The arm file with the scene's tool mounted on the flange, its sites and F/T sensors.
+
+    Raises:
+        ConfigError: naming the file and the element the arm needs and the file lacks (the
+            ``flange`` site, the ``base`` body, the ``home`` keyframe with one angle per joint).
+    """
     path = SLAVES_DIR / name / "arm.xml"
     try:
         with file_warnings() as warned:
@@ -83,6 +103,7 @@ def arm_spec(scene: Scene, name: str, timestep: float) -> mujoco.MjSpec:
         with file_warnings(), suppress(ValueError):
             _check_limits(spec.copy().compile(), path)
         refuse_warned(warned, path, "<file>")
+    _check_elements(spec, path)
     spec.option.timestep = timestep
     spec.option.gravity = scene.gravity_w
     flange = spec.site("flange")
@@ -164,7 +185,7 @@ def place_base(model: mujoco.MjModel, data: mujoco.MjData, scene: Scene) -> tupl
     Returns the home joint angles (n,) (rad) and the base pose ``T_w_base`` (4, 4).
     """
     m, d = model, data
-    q_home = m.key_qpos[0].copy()
+    q_home = m.key_qpos[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")].copy()
     d.qpos[:] = q_home
     mujoco.mj_kinematics(m, d)
     base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "base")
@@ -173,6 +194,27 @@ def place_base(model: mujoco.MjModel, data: mujoco.MjData, scene: Scene) -> tupl
     T_w_base[0:3, 3] = scene.tool.T_w_MRF_home[0:3, 3] - d.site_xpos[mrf]
     m.body_pos[base] = T_w_base[0:3, 3]
     return q_home, T_w_base
+
+
+def _check_elements(spec: mujoco.MjSpec, path: Path) -> None:
+    """The elements the arm is built from are there: without them the build failed in an
+    AttributeError (no ``flange``), an IndexError (no ``home``) or moved the wrong body (no ``base``:
+    ``mj_name2id`` gives -1, and ``body_pos[-1]`` is the last link's) and refused every reset.
+
+    Raises:
+        ConfigError: naming ``path`` and the missing element.
+    """
+    if spec.site("flange") is None:
+        raise ConfigError(path, "site flange", "missing: the tool is mounted on a site named 'flange' on the last link")
+    if spec.body("base") is None:
+        raise ConfigError(
+            path, "body base", "missing: the arm's root body must be named 'base' (it is moved to reach home)"
+        )
+    key, n = spec.key("home"), len(spec.joints)
+    if key is None:
+        raise ConfigError(path, "key home", "missing: a <key name='home'> with one angle per joint")
+    if len(key.qpos) != n:
+        raise ConfigError(path, "key home.qpos", f"needs {n} joint angles (rad), got {len(key.qpos)}")
 
 
 def _check_limits(m: mujoco.MjModel, path: Path) -> None:
@@ -185,12 +227,23 @@ def _check_limits(m: mujoco.MjModel, path: Path) -> None:
             ``ctrlrange``.
     """
     name = partial(mujoco.mj_id2name, m)
+    home = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
     for j in range(m.nu):
         lo, hi = m.jnt_range[j]
         if not (m.jnt_limited[j] and math.isfinite(lo) and math.isfinite(hi) and lo < hi):
             raise ConfigError(
                 path, f"joint {name(mujoco.mjtObj.mjOBJ_JOINT, j)}.range", "needs finite limits, low < high"
             )
+        joint = name(mujoco.mjtObj.mjOBJ_JOINT, j)
+        if home >= 0 and not lo <= m.key_qpos[home, j] <= hi:
+            raise ConfigError(
+                path,
+                "key home.qpos",
+                f"joint {joint} at {m.key_qpos[home, j]:.4g} rad is outside its range [{lo:.4g}, {hi:.4g}]",
+            )
+        for field, value in (("damping", m.dof_damping[j]), ("armature", m.dof_armature[j])):
+            if not value >= 0.0:  # a negative damping feeds the joint energy
+                raise ConfigError(path, f"joint {joint}.{field}", f"must be >= 0, got {value:.4g}")
         tau = m.actuator_ctrlrange[j]
         if not (np.isfinite(tau).all() and tau[1] > 0.0):
             raise ConfigError(

@@ -175,6 +175,7 @@ class SlaveBase:
     _contact: ContactResult
     _reading: FTReading
     _moving: MovingWorld | None
+    _fault: str | None
     model: mujoco.MjModel
     data: mujoco.MjData
 
@@ -200,6 +201,12 @@ class SlaveBase:
             [(o.stiffness, o.damping, o.friction) for o in (*scene.objects, *(b.object for b in scene.bodies))],
             dtype=float,
         ).reshape(-1, 3)
+
+    @property
+    def fault(self) -> str | None:
+        """Why every reading is invalid until a reset (an unreachable reset pose, an arm whose
+        simulation went unstable), or None."""
+        return self._fault
 
     def _update_reference(self, command: SlaveCommand, dt: float) -> None:
         """Step 1: the reference for this tick of ``dt`` (s) under ``command``."""

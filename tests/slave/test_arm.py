@@ -24,6 +24,7 @@ from app.session.operators import sample_population
 from app.session.run import run_session
 from app.session.spec import load_session
 from app.slave import arm_kernel as ak
+from app.slave.api import Slave, make_slave
 from app.slave.arm import ArmSlave, ArmStatus
 from app.slave.tool import VirtualSlave
 from app.spatial import rotation_log, zyx_to_matrix
@@ -425,6 +426,17 @@ def test_a_links_contact_model_is_handed_the_twist_of_the_links_frame() -> None:
         ('range="-160 160"', 'range="nan 160"', "joint j1.range"),
         ('data="3 3 3 5 5 5"', 'data="0 3 3 5 5 5"', "velocity_limit"),
         ('ctrlrange="-97.6 97.6"', 'ctrlrange="nan nan"', "motor m1.ctrlrange"),
+        # harden11: each of these raised an AttributeError, IndexError or MuJoCo's ValueError, or
+        # (no base body) moved the last link instead and refused every reset; a short or
+        # out-of-range home keyframe and a negative damping were run.
+        ('<site name="flange"', '<site name="wrist"', "site flange"),
+        ('<key name="home"', '<key name="rest"', "key home"),
+        ('<body name="base">', '<body name="stand">', "body base"),
+        ('qpos="0 0.785398 -3.14159 0 -0.785398 0"', 'qpos="0 0.785398"', "key home.qpos"),
+        ('qpos="0 0.785398 -3.14159 0 -0.785398 0"', 'qpos="0 0.785398 -3.14159 0 -2.5 0"', "key home.qpos"),
+        ('damping="5.802"', 'damping="-5"', "joint j1.damping"),
+        ('mass="17.4"', 'mass="0"', "<file>"),
+        ('ctrlrange="-97.6 97.6"', 'ctrlrange="97.6 -97.6"', "<file>"),
     ],
 )
 def test_an_arm_file_with_unusable_limits_is_refused_naming_the_field(
@@ -444,5 +456,98 @@ def test_an_arm_file_with_unusable_limits_is_refused_naming_the_field(
     with pytest.raises(ConfigError, match=f"field '{re.escape(field)}'") as refused:
         ArmSlave(arm_scene("bad"))
     assert str(refused.value).startswith(str(tmp_path / "bad" / "arm.xml"))
+    assert "\n" not in str(refused.value)  # one line (MuJoCo's compiler message is several)
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
     assert "WARNING" not in capfd.readouterr().out
+
+
+@pytest.mark.parametrize(("zyx_deg", "reachable"), [((0.0, 20.0, 10.0), True), ((0.0, 90.0, 0.0), False)])
+def test_a_tool_home_the_arm_cannot_reach_is_refused_naming_the_field(
+    tmp_path: Path, zyx_deg: tuple[float, float, float], reachable: bool
+) -> None:
+    """A home turned 20 deg about y and 10 about x is reached exactly (the reset's inverse
+    kinematics against the forward kinematics); turned 90 deg the PUMA's wrist cannot, and before
+    harden11 every tick of the run was FT_INVALID with nothing saying why (exit 0)."""
+    text = (SLAVES_DIR.parent / "scenes" / "probe.toml").read_text()
+    was = "home = { position = [0.0, 0.0, 0.03] }"
+    assert was in text
+    path = tmp_path / "turned.toml"
+    path.write_text(text.replace(was, f"home = {{ position = [0.0, 0.0, 0.03], zyx_deg = {list(zyx_deg)} }}"))
+    scene = with_slave(load_scene(path), "puma560")
+    if not reachable:
+        with pytest.raises(ConfigError, match=re.escape(f"{path}: field 'tool.home': the puma560 arm cannot reach")):
+            ArmSlave(scene)
+        return
+    arm = ArmSlave(scene)
+    T_home = scene.tool.T_w_MRF_home
+    assert angle_between(T_home[0:3, 0:3], np.eye(3)) > math.radians(20.0)  # the home is turned
+    m, d = arm.model, arm.data
+    d.qpos[:] = arm.q
+    mujoco.mj_kinematics(m, d)
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "mrf")
+    np.testing.assert_allclose(d.site_xpos[site], T_home[0:3, 3], rtol=0, atol=1e-8)
+    assert angle_between(d.site_xmat[site].reshape(3, 3), T_home[0:3, 0:3]) < 1e-7
+
+
+@pytest.mark.parametrize("dt", [5e-3, 1e-2])
+def test_at_a_slow_servo_rate_the_arm_stays_on_its_commanded_plane(dt: float) -> None:
+    """A 200 or 100 Hz servo (the session's lowest rate is 100 Hz): the PUMA asked to move along x
+    and down only keeps off y within 15 mm (1 kHz: 6.2 mm). Before harden11 the IK's gain
+    (500/s, 2.5 and 5 errors a tick) overshot each tick: 47 and 69 mm sideways."""
+    arm = ArmSlave(arm_scene("puma560"))
+    y0, y_max = arm.T_w_MRF[1, 3], 0.0
+    for i in range(round(1.0 / dt)):
+        vx = 0.3 if (i * dt) % 0.5 < 0.25 else -0.3
+        arm.step(rate((vx, 0.0, -0.1, 0.0, 0.0, 0.0)), dt)
+        y_max = max(y_max, abs(arm.T_w_MRF[1, 3] - y0))
+    assert y_max < 0.015
+
+
+@pytest.mark.parametrize("kind", ARMS)
+def test_an_arm_whose_simulation_goes_unstable_faults_until_reset(
+    kind: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A NaN joint speed mid-run: MuJoCo resets the arm to its zero angles and steps on. Before
+    harden11 the slave went on from there, tool elsewhere, every reading valid; now each reading
+    is invalid (the controller's FT_INVALID: its safe output) until a reset, which restores it."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo's own handler writes MUJOCO_LOG.TXT in the working folder
+    arm = ArmSlave(arm_scene(kind))
+    command = rate((0.01, 0.0, 0.0, 0.0, 0.0, 0.0))
+    for _ in range(10):
+        assert arm.step(command).valid
+    arm.data.qvel[1] = math.nan
+    readings = [arm.step(command) for _ in range(3)]
+    assert not any(r.valid for r in readings)
+    assert np.all(readings[-1].wrench_S == 0.0)
+    arm.reset()
+    assert arm.step(command).valid
+    np.testing.assert_allclose(arm.T_w_MRF[0:3, 3], arm.scene.tool.T_w_MRF_home[0:3, 3], rtol=0, atol=1e-4)
+
+
+def test_a_run_whose_arm_goes_unstable_counts_ft_invalid_and_says_why(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The arm's joint speed turned NaN after tick 100 of 300: every later tick is the controller's
+    FT_INVALID (its safe output), and the summary's ``slave_fault`` says why; a clean run's is None."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo's own handler writes MUJOCO_LOG.TXT in the working folder
+    session = load_session("probe_rate").with_changes(slave="puma560", duration=0.3)
+    built: list[Slave] = []
+    monkeypatch.setattr(
+        "app.session.loop.make_slave", lambda *args, **kw: built.append(make_slave(*args, **kw)) or built[-1]
+    )
+
+    class Spoil:
+        def __init__(self) -> None:
+            self.ticks = 0
+
+        def on_tick(self, record: object) -> None:
+            self.ticks += 1
+            if self.ticks == 100:
+                assert isinstance(built[-1], ArmSlave)
+                built[-1].data.qvel[0] = math.nan
+
+    result = run_session(session, out_dir=None, plots=False, observers=[Spoil()])
+    # The slave's 200 steps after tick 100 are invalid; the controller reads each a tick later.
+    assert result.summary["faults"] == {"FT_INVALID": 199}
+    assert "went unstable" in result.summary["slave_fault"]
+    assert run_session(session, out_dir=None, plots=False).summary["slave_fault"] is None

@@ -370,23 +370,16 @@ class ReactingOperator:
 
     def _check(self, T_w_MRF: Array, T_0_G: Array, G_F_T: Array) -> tuple[Array, Array, Array]:
         """The record's arrays as the kernels take them: each that is not a C-contiguous float64
-        array of its shape copied into one that is; remembered when all three are."""
-        copies = self._copies
-        passed = 0
-        if is_f8(T_w_MRF, (4, 4)):
-            passed += 1
-        else:
-            copies[0][:] = T_w_MRF
-            T_w_MRF = copies[0]
-        if is_f8(T_0_G, (4, 4)):
-            passed += 1
-        else:
-            copies[1][:] = T_0_G
-            T_0_G = copies[1]
-        if is_f8(G_F_T, (6,)):
-            passed += 1
-        else:
-            copies[2][:] = G_F_T
-            G_F_T = copies[2]
-        self._checked = (T_w_MRF, T_0_G, G_F_T) if passed == 3 else ()
-        return T_w_MRF, T_0_G, G_F_T
+        array of its shape copied into one that is; remembered when none had to be."""
+        given = (T_w_MRF, T_0_G, G_F_T)
+        taken = tuple(
+            a if is_f8(a, copy.shape) else _filled(copy, a) for a, copy in zip(given, self._copies, strict=True)
+        )
+        self._checked = given if all(t is a for t, a in zip(taken, given, strict=True)) else ()
+        return taken[0], taken[1], taken[2]
+
+
+def _filled(copy: Array, a: Array) -> Array:
+    """``copy`` holding ``a``'s values."""
+    copy[:] = a
+    return copy

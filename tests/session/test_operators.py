@@ -276,3 +276,27 @@ def test_failed_runs_are_reported_not_averaged_and_ray_gives_the_serial_rows(tmp
     assert serial.table.count("failed") == 8  # 4 runs in the paper's layout, and in the per-operator lines
     on_ray = run_experiment(tmp_path / "r", operators=ops, time_limit=0.3, workers=2)
     assert on_ray.rows == serial.rows
+
+
+def test_record_arrays_the_kernels_cannot_take_are_copied_and_not_remembered() -> None:
+    """A C-contiguous float64 array of its shape is passed as it is, and the three are remembered
+    (later ticks test identity only); one of another layout is copied, values equal, and then
+    nothing is remembered, so the next tick checks (and copies) again."""
+    session = load_session("peg_ntrfc")
+    loop = ServoLoop(LoopConfig.from_session(session))
+    op = ReactingOperator(sample_population(1, 0)[0], session, loop)
+    T_w_MRF, T_0_G, G_F_T = np.eye(4), np.eye(4) * 2.0, np.arange(6.0)
+    taken = op._check(T_w_MRF, T_0_G, G_F_T)
+    assert all(t is a for t, a in zip(taken, (T_w_MRF, T_0_G, G_F_T), strict=True))
+    assert op._checked == (T_w_MRF, T_0_G, G_F_T)
+    fortran = np.asfortranarray(np.arange(16.0).reshape(4, 4))
+    strided = np.arange(12.0)[::2]
+    taken = op._check(T_w_MRF, fortran, strided)
+    assert taken[0] is T_w_MRF
+    assert taken[1] is not fortran
+    assert taken[1].flags.c_contiguous
+    assert taken[2] is not strided
+    assert taken[2].flags.c_contiguous
+    np.testing.assert_array_equal(taken[1], fortran)
+    np.testing.assert_array_equal(taken[2], strided)
+    assert op._checked == ()

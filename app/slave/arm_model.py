@@ -230,11 +230,9 @@ def _check_limits(m: mujoco.MjModel, path: Path) -> None:
     home = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
     for j in range(m.nu):
         lo, hi = m.jnt_range[j]
-        if not (m.jnt_limited[j] and math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-            raise ConfigError(
-                path, f"joint {name(mujoco.mjtObj.mjOBJ_JOINT, j)}.range", "needs finite limits, low < high"
-            )
         joint = name(mujoco.mjtObj.mjOBJ_JOINT, j)
+        if not (m.jnt_limited[j] and math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise ConfigError(path, f"joint {joint}.range", "needs finite limits, low < high")
         if home >= 0 and not lo <= m.key_qpos[home, j] <= hi:
             raise ConfigError(
                 path,

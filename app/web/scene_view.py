@@ -327,7 +327,9 @@ class GeomBatches:
     A geom of another type (a mesh) keeps a mesh node of its own.
 
     Args:
-        scene: The viser scene. name: The nodes' parent name (``/links``). model: The model.
+        scene: The viser scene.
+        name: The nodes' parent name (``/links``).
+        model: The model.
         parent: The pose (4, 4) in the viser frame of the frame the geom poses are given in.
         opacity: The nodes' opacity (None: opaque).
 

@@ -262,8 +262,10 @@ class SnapshotPublisher:
     """Tick observer: writes a :class:`Snapshot` of every ``every``-th tick into ``shared``.
 
     Args:
-        shared: Where to write. T_MRF_S: The F/T sensor on the tool (4, 4). every: Ticks between
-        snapshots. dt: The loop's servo period (s).
+        shared: Where to write.
+        T_MRF_S: The F/T sensor on the tool (4, 4).
+        every: Ticks between snapshots.
+        dt: The loop's servo period (s).
 
     Attributes:
         recording, playing: Shown in the snapshot (set by the loop process's command handler).

@@ -90,8 +90,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     print(
         f"work (Eq 13): {s['work_eq13']:.3g} J   peak force: {s['peak_contact_force_N']:.2f} N   faults: {s['faults'] or 'none'}"
     )
-    if s["slave_fault"]:
-        print(f"slave fault: {s['slave_fault']}")
+    for room in ("slave", "device"):
+        if s[f"{room}_fault"]:
+            print(f"{room} fault: {s[f'{room}_fault']}")
     if s["device_link_ticks"]:
         link = ", ".join(f"{state.lower()} {n} ticks" for state, n in s["device_link_ticks"].items())
         print(f"device link: {link} (stalled and disconnected: no force sent)")

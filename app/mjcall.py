@@ -19,7 +19,11 @@ call to type, and a ctypes function object referenced as a global cannot be cach
 
 Keep the calls to functions that cannot fail on valid models: ``mj_step``, ``mj_step1``,
 ``mj_step2``, ``mj_kinematics``. MuJoCo reports instability through ``mjData.warning`` (which
-the bindings' readers still see), not by raising.
+the bindings' readers still see), not by raising. Its default warning handler would also print
+the warning on stdout (into ``frhc run --json``'s output) and append it to ``MUJOCO_LOG.TXT`` in
+the working folder; :func:`pointers`, which every caller of compiled MuJoCo steps goes through,
+puts a native handler in its place that does neither (:func:`quiet_warnings`): the counters stay
+the record, and the rooms that step MuJoCo read them and say what went wrong in their own words.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ from typing import Any, cast
 
 import mujoco
 from llvmlite import ir
-from numba import types
+from numba import cfunc, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
@@ -83,8 +87,28 @@ def address(name: str) -> int:
     return int(ctypes.cast(getattr(_library(), name), ctypes.c_void_p).value or 0)
 
 
+@cfunc(types.void(types.voidptr), cache=True)
+def _ignore_warning(message: int) -> None:
+    """MuJoCo's ``void mju_user_warning(const char*)``, native: enters no Python (kernels call MuJoCo
+    from compiled code) and drops the text; the count is in ``mjData.warning``."""
+
+
+@functools.cache
+def quiet_warnings() -> None:
+    """Install :func:`_ignore_warning` as MuJoCo's warning handler, once per process.
+
+    :func:`file_warnings` swaps its own handler in and this one back while a file is read.
+    """
+    mujoco.set_mju_user_warning(_ignore_warning.ctypes)
+
+
 def pointers(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[int, int]:
-    """``(mjModel*, mjData*)`` of the bindings' objects, as integers for a kernel's arguments."""
+    """``(mjModel*, mjData*)`` of the bindings' objects, as integers for a kernel's arguments.
+
+    MuJoCo stepped from a kernel warns through ``mjData.warning`` alone from now on
+    (:func:`quiet_warnings`).
+    """
+    quiet_warnings()
     return int(model._address), int(data._address)
 
 

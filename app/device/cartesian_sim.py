@@ -109,7 +109,9 @@ class SimCartesianDevice:
         r.set_pose(self.kin.R_0_G, self.kin.p_0_G)
         r.wrench_G[:] = p.wrench_G
         r.time = p.time
-        r.fresh = True
+        # A plant that went unstable has stopped (DevicePlant.fault): no new sample, as from a
+        # device whose amplifier faulted, so the guard's watchdog zeroes the force.
+        r.fresh = self.plant.fault is None
         if r.status == LinkStatus.DISCONNECTED:
             r.status = LinkStatus.RAMPING
 

@@ -228,7 +228,23 @@ class DevicePlant:
         self.reading = PlantReading(self)
         # The period's arguments after the counts: the plant's own arrays, the same every call.
         r = self.reading
-        self._own = (self._counts_max, self._table, self._row_offset, self._tau_out, self._encoders, r.q_true, r.q)
+        # MuJoCo's counts of bad joint positions, velocities and accelerations (plant_period).
+        w = mujoco.mjtWarning
+        unstable = self.data.warning.number[w.mjWARN_BADQPOS : w.mjWARN_BADQACC + 1]
+        self._own = (
+            self._counts_max,
+            self._table,
+            self._row_offset,
+            self._tau_out,
+            self._encoders,
+            r.q_true,
+            r.q,
+            unstable,
+        )
+        #: Why the simulated device stopped (None while it runs): its physics went unstable, as a
+        #: real amplifier's fault would stop it. The motors stay off and the encoders hold their
+        #: last reading until :meth:`reset`.
+        self.fault: str | None = None
         # ``step`` checks the counts, so the compiled period is called without numba's typing.
         self._period = entry_point(plant_period, self._mj, 1, self._no_counts, *self._own)
         self._qfrc_constraint = self.data.qfrc_constraint[dof_slice]
@@ -274,7 +290,8 @@ class DevicePlant:
         The hand target and the brakes keep their state.
         """
         d = self.data
-        mujoco.mj_resetData(self.model, d)
+        mujoco.mj_resetData(self.model, d)  # its warning counts too
+        self.fault = None
         self._since_counts = 0.0
         self.reading.motors_off = False
         self.reading.watchdog_trips = 0
@@ -306,7 +323,8 @@ class DevicePlant:
             dt: Servo period (s); the physics takes ``substeps`` steps of ``dt / substeps``.
 
         Returns:
-            The reading at the end of the period (the same object every call, overwritten).
+            The reading at the end of the period (the same object every call, overwritten). Once
+            the physics went unstable (:attr:`fault`), the reading of that moment, motors off.
         """
         m = self.model
         d = self.data
@@ -316,6 +334,8 @@ class DevicePlant:
             m.opt.timestep = dt / self.params.substeps
             self._dt = dt
         r = self.reading
+        if self.fault is not None:
+            return r
         commands = self._no_counts
         if counts is None:
             self._since_counts += dt
@@ -334,9 +354,21 @@ class DevicePlant:
             commands = counts if ok else self._checked_counts(counts)  # type: ignore[assignment]
             self._since_counts = 0.0
             r.motors_off = False
-        self._period(self._mj, self.params.substeps, commands, *self._own)
-        r.time = d.time
+        if self._period(self._mj, self.params.substeps, commands, *self._own):
+            r.time = d.time
+            return r
+        # MuJoCo reset the state, its clock included: the time is the period's end as it would have been.
+        r.time += dt
+        self.fault = (
+            f"the device's simulation went unstable by t = {r.time:.4f} s (MuJoCo: {self._warned()}); "
+            "motors off until reset"
+        )
+        r.motors_off = True
         return r
+
+    def _warned(self) -> str:
+        """MuJoCo's warnings so far, as ``name x count`` (for :attr:`fault`)."""
+        return ", ".join(f"{name} x {count}" for name, count in self.warnings().items())
 
     def _checked_counts(self, counts: object) -> IntArray:
         """``counts`` as int64 of shape (n,), or ValueError (a wrong type would compile a new kernel)."""

@@ -26,8 +26,9 @@ def plant_period(
     encoders: Array,
     q_true: Array,
     q: Array,
-) -> None:
-    """Advance the device one servo period and read its encoders.
+    unstable: IntArray,
+) -> bool:
+    """Advance the device one servo period and read its encoders; False if the physics went unstable.
 
     Args:
         mj: ``[mj_step1 address, mj_step2 address, mjModel*, mjData*]`` (:mod:`app.mjcall`), (4,).
@@ -44,7 +45,12 @@ def plant_period(
         encoders: ``[scale (n,); inverse (n,)]`` counts per rad (or per m) and its inverse; all
             zero scales mean no quantisation, (2 n,).
         q_true: The joints' ``qpos`` (rad; m for slides), (n,).
-        q: Output, encoder angles ``round(q_true * scale) / scale``, (n,).
+        q: Output, encoder angles ``round(q_true * scale) / scale``, (n,); left as it was when
+            the period went unstable.
+        unstable: MuJoCo's counts of bad joint positions, velocities and accelerations (a view
+            of ``mjData.warning``), (3,). On one, MuJoCo resets the device to the model's zero
+            angles and steps on: the encoders would read a jump that no joint made, so they are
+            not read, and the torques are zeroed.
     """
     n = q.shape[0]
     for j in range(counts.shape[0]):
@@ -54,6 +60,11 @@ def plant_period(
     for _ in range(substeps):
         call_model_data(mj[1], mj[2], mj[3])
         call_model_data(mj[0], mj[2], mj[3])
+    if unstable[0] + unstable[1] + unstable[2] > 0:
+        for j in range(tau_joint.shape[0]):
+            tau_joint[j] = 0.0
+        return False
     for j in range(n):
         scale = encoders[j]
         q[j] = np.rint(q_true[j] * scale) * encoders[n + j] if scale > 0.0 else q_true[j]
+    return True

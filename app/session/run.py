@@ -196,6 +196,9 @@ def _run(
     summary["grips"] = [g.as_dict() for g in loop.grips]
     # Why the slave's readings were invalid at the end (its FT_INVALID ticks), or None.
     summary["slave_fault"] = loop.slave.fault
+    # Why the simulated device stopped (its motors off since), or None; a real device reports
+    # its own faults through the link's status.
+    summary["device_fault"] = None if loop.plant is None else loop.plant.fault
     if pacer is not None:
         summary["pacing"] = pacer.stats().as_dict()
         summary["scheduling"] = scheduling

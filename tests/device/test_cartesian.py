@@ -4,6 +4,7 @@ device in process and served over loopback (``frhc device serve``), drops and st
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -164,6 +165,31 @@ def test_simulated_sdk_renders_the_wrench_as_a_force_on_the_grip() -> None:
     for _ in range(100):
         device.step(np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0]), DT)
     assert device.reading.T_0_G[2, 3] - z0 > 5e-3
+
+
+def test_a_simulated_sdk_whose_plant_goes_unstable_sends_no_fresh_sample(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The plant's joint speed turned NaN: its simulation stops (``DevicePlant.fault``) and the SDK
+    reports no new sample from then on, so the guard zeroes the force (STALLED), as for a device
+    whose amplifier faulted. Before, the SDK went on reporting the pose of MuJoCo's reset."""
+    monkeypatch.chdir(tmp_path)
+    device = SimCartesianDevice(load_device("touch3"))
+    spec = load_device("touch3").data.cartesian
+    assert spec is not None
+    guard = ForceGuard(spec, device.torque_capable)
+    push = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+    for _ in range(5):
+        reading = device.step(guard.apply(push, device.reading, DT), DT)
+    assert reading.fresh
+    plant = device.plant
+    plant.data.qvel[plant.dof_slice.start] = math.nan
+    reading = device.step(guard.apply(push, reading, DT), DT)
+    assert plant.fault is not None
+    assert not reading.fresh
+    np.testing.assert_array_equal(guard.apply(push, reading, DT), 0.0)
+    assert reading.status == LinkStatus.STALLED
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
 
 
 def session_file(tmp_path: Path, duration: float) -> Path:

@@ -231,3 +231,38 @@ def test_counts_of_other_integer_types_and_layouts_step_like_int64() -> None:
         other.step(np.zeros(6), 1e-3)
     with pytest.raises(ValueError, match="counts must be integers"):
         other.step(np.zeros(5, dtype=np.int64), 1e-3)
+
+
+@pytest.mark.parametrize("name", ["kraft", "jpl", "freflex"])
+def test_a_plant_whose_simulation_goes_unstable_stops_until_reset(
+    name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """A NaN joint speed mid-run: MuJoCo resets the device to its zero angles and steps on. Before,
+    the encoders then read that jump (no joint made it) under the motors' full torque, and MuJoCo
+    printed its warning on stdout and wrote MUJOCO_LOG.TXT. Now the plant stops as a faulted
+    amplifier does: motors off, encoders held at the last reading, the reason in ``fault``, nothing
+    printed or written; a reset restores it."""
+    monkeypatch.chdir(tmp_path)
+    plant = DevicePlant(load_device(name))
+    counts = np.full(plant.n_joints, 500, dtype=np.int64)  # above the motors' deadband
+    for _ in range(10):
+        reading = plant.step(counts, DT)
+    assert plant.fault is None
+    held = reading.q.copy()
+    plant.data.qvel[plant.dof_slice.start] = math.nan
+    for _ in range(3):
+        reading = plant.step(counts, DT)
+        assert reading.motors_off
+        np.testing.assert_array_equal(reading.q, held)
+        assert np.all(reading.tau_joint == 0.0)
+    assert plant.fault is not None
+    assert "went unstable by t = 0.0110 s" in plant.fault
+    assert "mjWARN_BADQ" in plant.fault
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+    assert "WARNING" not in capfd.readouterr().out
+    plant.reset()
+    reading = plant.step(counts, DT)
+    assert plant.fault is None
+    assert not reading.motors_off
+    assert np.all(np.isfinite(reading.q))
+    assert np.any(reading.tau_joint != 0.0)

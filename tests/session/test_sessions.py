@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -16,6 +17,8 @@ import pytest
 
 from app.session import load_session, run_session
 from app.session.log import PART_SECONDS, read_log
+from app.session.loop import ServoLoop
+from app.session.script import Operator, OperatorScript
 from app.session.spec import SESSIONS_DIR
 
 FRHC = [sys.executable, "-m", "app.cli"]
@@ -130,3 +133,34 @@ def test_every_subcommand_has_help() -> None:
         res = frhc(sub, "--help")
         assert res.returncode == 0
         assert "usage: frhc" in res.stdout
+
+
+def test_a_run_whose_device_goes_unstable_stops_it_and_says_why(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The device plant's joint speed turned NaN at 0.1 s of a 0.3 s run: the plant stops (motors
+    off, encoders held) and the summary's ``device_fault`` says why, with nothing printed or
+    written by MuJoCo; a clean run's is None. Before, the run went on silently from MuJoCo's reset
+    of the device to its zero angles."""
+    monkeypatch.chdir(tmp_path)
+    session = load_session("probe_rate").with_changes(duration=0.3)
+
+    class Spoiled:
+        """The session's own script, with the plant's state spoiled once before its 100th tick."""
+
+        def __init__(self, loop: ServoLoop) -> None:
+            self.script, self.ticks = OperatorScript.for_loop(session.data, loop), 0
+
+        def before_tick(self, loop: ServoLoop) -> None:
+            self.ticks += 1
+            if self.ticks == 100:
+                loop.plant.data.qvel[loop.plant.dof_slice.start] = math.nan
+            self.script.before_tick(loop)
+
+    def spoiled(loop: ServoLoop) -> Operator:
+        return Spoiled(loop)
+
+    result = run_session(session, out_dir=None, plots=False, operator=spoiled)
+    assert "went unstable" in result.summary["device_fault"]
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+    assert run_session(session, out_dir=None, plots=False).summary["device_fault"] is None

@@ -130,6 +130,54 @@ def _all_finite(a: Array) -> bool:
     return True
 
 
+#: How far (largest entry of ``R^T R - I``, and ``det R - 1``) a pose's rotation may be from a
+#: rotation: a float32 orientation, as a device SDK may send, is off by ~1e-7 and rounding over a
+#: tick's products by ~1e-15, while anything off by this much would turn the tool visibly (a
+#: shear or scale of 1e-4 is 0.1 mm on a 1 m lever) and is no pose.
+RIGID_TOLERANCE = 1e-4
+
+
+def pose_error(T: Array, what: str) -> str | None:
+    """Why ``T`` (4, 4) is not a rigid pose (non-finite, a rotation block that is not a rotation
+    within :data:`RIGID_TOLERANCE`, or a last row other than ``[0, 0, 0, 1]``), or None."""
+    if is_f8(T, SHAPE_44):  # every tick in pose mode: one compiled call and one comparison
+        off = _rigid_error(T)
+        if off <= RIGID_TOLERANCE:
+            return None
+    else:
+        a = np.asarray(T)
+        if a.shape != SHAPE_44 or a.dtype.kind not in "iuf":
+            return None  # the command's own check (checked_command) refuses it, with its own message
+        off = _rigid_error(a.astype(np.float64))
+    if not math.isfinite(off):
+        return f"non-finite {what}"
+    if off > RIGID_TOLERANCE:
+        return (
+            f"{what} is not rigid: its rotation block is off a rotation by {off:.3g} (R^T R - I, det R - 1, last row)"
+        )
+    return None
+
+
+@njit(cache=True)
+def _rigid_error(T: Array) -> float:
+    """The largest of ``|R^T R - I|``, ``|det R - 1|`` and the last row's distance from
+    ``[0, 0, 0, 1]`` for ``T`` (4, 4); NaN if an entry is not finite."""
+    for v in T.flat:
+        if not math.isfinite(v):
+            return math.nan
+    off = abs(T[3, 0]) + abs(T[3, 1]) + abs(T[3, 2]) + abs(T[3, 3] - 1.0)
+    for i in range(3):
+        for j in range(3):
+            d = T[0, i] * T[0, j] + T[1, i] * T[1, j] + T[2, i] * T[2, j] - (1.0 if i == j else 0.0)
+            off = max(off, abs(d))
+    det = (
+        T[0, 0] * (T[1, 1] * T[2, 2] - T[1, 2] * T[2, 1])
+        - T[0, 1] * (T[1, 0] * T[2, 2] - T[1, 2] * T[2, 0])
+        + T[0, 2] * (T[1, 0] * T[2, 1] - T[1, 1] * T[2, 0])
+    )
+    return max(off, abs(det - 1.0))
+
+
 def command_error(command: SlaveCommand, dt: float) -> str | None:
     """Why ``command`` and ``dt`` cannot be applied this tick, or None (for every kind of slave)."""
     if not (math.isfinite(dt) and dt > 0.0):
@@ -139,7 +187,7 @@ def command_error(command: SlaveCommand, dt: float) -> str | None:
     if command.mode == "rate":
         return None if finite(command.twist) else "non-finite twist command"
     if command.mode == "pose":
-        return None if finite(command.T_w_MRF) else "non-finite pose command"
+        return pose_error(command.T_w_MRF, "pose command")
     raise ValueError(f"unknown slave command mode {command.mode!r}")
 
 

@@ -551,3 +551,17 @@ def test_a_run_whose_arm_goes_unstable_counts_ft_invalid_and_says_why(
     assert result.summary["faults"] == {"FT_INVALID": 199}
     assert "went unstable" in result.summary["slave_fault"]
     assert run_session(session, out_dir=None, plots=False).summary["slave_fault"] is None
+
+
+@pytest.mark.parametrize("kind", ARMS)
+def test_an_arm_refuses_a_pose_command_that_is_not_rigid(kind: str) -> None:
+    """The arm's IK would chase a scaled rotation block as if it were a pose; it is refused as the
+    tool refuses it (an invalid reading, the arm where it was). Before, it was accepted."""
+    arm = ArmSlave(arm_scene(kind))
+    home = arm.T_w_MRF.copy()
+    scaled = home.copy()
+    scaled[:3, :3] *= 1.05
+    for _ in range(3):
+        assert not arm.step(SlaveCommand(active=True, mode="pose", T_w_MRF=scaled)).valid
+    np.testing.assert_allclose(arm.T_w_MRF, home, rtol=0, atol=1e-6)
+    assert arm.step(SlaveCommand(active=True, mode="pose", T_w_MRF=home)).valid

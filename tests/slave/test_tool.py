@@ -8,10 +8,14 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
 from app.errors import InputError
-from app.slave.tool import VirtualSlave, finite
+from app.slave.tool import RIGID_TOLERANCE, VirtualSlave, finite, pose_error
+from app.spatial import quat_to_matrix
 from app.world import load_scene
 from app.world.contact.force import V_SLIP
 from app.world.scene import Scene
@@ -311,3 +315,51 @@ def test_a_command_is_refused_for_any_non_finite_entry_and_only_then() -> None:
         twist[11] = bad
         assert finite(twist[::2])
         assert not finite(twist[1::2])
+
+
+def test_a_pose_command_that_is_not_rigid_is_refused_and_the_tool_holds() -> None:
+    """A pose whose rotation block is scaled, sheared or mirrored is no pose: the slave's reading
+    is invalid (the controller's safe output) and the tool stays where it was. Before, a 1 %
+    scale was accepted and steered the tool. A rotation rounded to float32, as a device SDK may
+    send, is still a pose."""
+    slave = VirtualSlave(scene("probe"))
+    home = slave.T_w_MRF
+    tilt = home.copy()
+    c, s = math.cos(0.3), math.sin(0.3)
+    tilt[:3, :3] = home[:3, :3] @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    scaled, sheared, mirrored, last_row = (tilt.copy() for _ in range(4))
+    scaled[:3, :3] *= 1.01
+    sheared[0, 1] += 1e-3
+    mirrored[:3, 2] *= -1.0
+    last_row[3, 0] = 0.5
+    for bad, why in ((scaled, "not rigid"), (sheared, "not rigid"), (mirrored, "not rigid"), (last_row, "not rigid")):
+        assert why in str(pose_error(bad, "pose command"))
+        assert not slave.step(SlaveCommand(active=True, mode="pose", T_w_MRF=bad)).valid
+        np.testing.assert_array_equal(slave.T_w_MRF, home)
+    assert pose_error(tilt.astype(np.float32), "pose command") is None
+    assert slave.step(SlaveCommand(active=True, mode="pose", T_w_MRF=tilt.astype(np.float32))).valid
+    assert pose_error(np.full((4, 4), np.nan), "pose command") == "non-finite pose command"
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    q=arrays(np.float64, 4, elements=st.floats(-1.0, 1.0)).filter(lambda q: np.linalg.norm(q) > 0.1),
+    p=arrays(np.float64, 3, elements=st.floats(-10.0, 10.0)),
+    shear=st.floats(2 * RIGID_TOLERANCE, 0.5),
+    i=st.integers(0, 2),
+    j=st.integers(0, 2),
+)
+def test_every_rotation_is_a_rigid_pose_and_every_shear_beyond_the_tolerance_is_not(
+    q: np.ndarray, p: np.ndarray, shear: float, i: int, j: int
+) -> None:
+    """Property: a rotation from any unit quaternion, with any translation, passes the check; the
+    same pose with one rotation entry ``R_ij`` moved by ``e`` >= twice the tolerance does not.
+    Why it must not: ``(R^T R)_jk`` moves by ``e R_ik`` (k != j) and ``(R^T R)_jj`` by ``2 e R_ij + e^2``;
+    row ``i`` is a unit vector, so some ``|R_ik| >= 1/sqrt(3)``, and an entry moves by at least
+    ``e / sqrt(3)`` > the tolerance."""
+    T = np.eye(4)
+    T[:3, :3] = quat_to_matrix(q / np.linalg.norm(q))
+    T[:3, 3] = p
+    assert pose_error(T, "pose") is None
+    T[i, j] += shear if T[i, j] >= 0.0 else -shear
+    assert "not rigid" in str(pose_error(T, "pose"))

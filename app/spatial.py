@@ -34,6 +34,13 @@ def zyx_to_matrix(gamma: float, beta: float, alpha: float) -> Array:
 
 
 @njit(cache=True)
+def norm3(v: Array) -> float:
+    """``|v|`` of a 3-vector without overflow: components up to ~1e308 give their finite norm
+    (a sum of squares turns inf above ~1e154, and a limit divided by it turns the vector to 0)."""
+    return math.hypot(math.hypot(v[0], v[1]), v[2])
+
+
+@njit(cache=True)
 def zyx_to_matrix_into(gamma: float, beta: float, alpha: float, R: Array) -> None:
     """:func:`zyx_to_matrix` written into ``R`` (3, 3), allocating nothing (a per-tick operator's)."""
     ca, sa = math.cos(alpha), math.sin(alpha)

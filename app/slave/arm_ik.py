@@ -35,7 +35,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from app.spatial import Array, rotation_log
+from app.spatial import Array, norm3, rotation_log
 
 BoolArray = NDArray[np.bool_]
 
@@ -317,7 +317,7 @@ def ik_step(
 @njit(cache=True)
 def _spring(e: Array, dead: float, k: float, limit: float, out: Array) -> None:
     """``-min(k (|e| - dead), limit) e / |e|`` for a 3-vector beyond the dead band, into ``out`` (3,)."""
-    n = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+    n = norm3(e)
     if n > dead:
         mag = min(k * (n - dead), limit)
         for i in range(3):

@@ -28,6 +28,7 @@ from app.spatial import (
     Array,
     IntArray,
     cross3_into,
+    norm3,
     quat_to_matrix_into,
     rotation_exp_into,
     rotation_log_into,
@@ -100,7 +101,7 @@ def _apply_into(R: Array, v: Array, out: Array) -> None:
 @njit(cache=True)
 def _saturate(v: Array, limit: float) -> bool:
     """Scale ``v`` (3,) in place down to norm ``limit`` if longer (direction kept); whether it was."""
-    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    n = norm3(v)
     if n > limit:
         s = limit / n
         for i in range(3):
@@ -176,14 +177,14 @@ def rate_reference(
     # Following-error limit: never lead the tool by more than the PD can push against.
     for i in range(3):
         e_p[i] = p_ref[i] - T_w_MRF[i, 3]
-    n = math.sqrt(e_p[0] * e_p[0] + e_p[1] * e_p[1] + e_p[2] * e_p[2])
+    n = norm3(e_p)
     if n > max_lead_lin:
         s = max_lead_lin / n
         for i in range(3):
             p_ref[i] = T_w_MRF[i, 3] + e_p[i] * s
     _mul_t_into(R_ref, R_w_MRF, R_step)
     rotation_log_into(R_step, e_r)
-    n = math.sqrt(e_r[0] * e_r[0] + e_r[1] * e_r[1] + e_r[2] * e_r[2])
+    n = norm3(e_r)
     if n > max_lead_rot:
         s = max_lead_rot / n
         for i in range(3):

@@ -565,3 +565,20 @@ def test_an_arm_refuses_a_pose_command_that_is_not_rigid(kind: str) -> None:
         assert not arm.step(SlaveCommand(active=True, mode="pose", T_w_MRF=scaled)).valid
     np.testing.assert_allclose(arm.T_w_MRF, home, rtol=0, atol=1e-6)
     assert arm.step(SlaveCommand(active=True, mode="pose", T_w_MRF=home)).valid
+
+
+@pytest.mark.parametrize("kind", ARMS)
+def test_an_arm_commanded_any_distance_away_tracks_and_says_so(kind: str) -> None:
+    """A pose 1e200 m away is out of reach as one 1e6 m away is: the same motion and the TRACKING
+    status (the limit wrench acts). Before, the pose error's length overflowed to inf, the limit
+    wrench came out zero and the status did not say TRACKING."""
+    paths = []
+    for far in (1e6, 1e200):  # far enough that the two directions agree to ~1e-8 m over the path
+        arm = ArmSlave(arm_scene(kind))
+        T = arm.T_w_MRF.copy()
+        T[0, 3] += far
+        for _ in range(50):
+            assert arm.step(SlaveCommand(active=True, mode="pose", T_w_MRF=T)).valid
+        assert ArmStatus(arm.status) & ArmStatus.TRACKING
+        paths.append(arm.T_w_MRF[:3, 3].copy())
+    np.testing.assert_allclose(paths[1], paths[0], rtol=0, atol=1e-8)

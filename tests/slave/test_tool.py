@@ -363,3 +363,21 @@ def test_every_rotation_is_a_rigid_pose_and_every_shear_beyond_the_tolerance_is_
     assert pose_error(T, "pose") is None
     T[i, j] += shear if T[i, j] >= 0.0 else -shear
     assert "not rigid" in str(pose_error(T, "pose"))
+
+
+def test_a_pose_command_any_distance_away_leads_the_tool_as_a_nearer_one_does() -> None:
+    """The reference's lead is limited to what the PD can push against, whatever the command's
+    distance: one 1e200 m away moves the tool as one 1e6 m away in the same direction. Before,
+    the lead's length (a sum of squares) overflowed to inf above ~1e154 m, its scale went to 0 and
+    the tool held still."""
+    paths = []
+    for far in (1e6, 1e200):  # far enough that the two directions agree to ~1e-8 m over the path
+        slave = VirtualSlave(scene("probe"))
+        T = slave.T_w_MRF
+        T[0, 3] += far
+        T[2, 3] += far
+        for _ in range(50):
+            assert slave.step(SlaveCommand(active=True, mode="pose", T_w_MRF=T)).valid
+        paths.append(slave.T_w_MRF[:3, 3].copy())
+    np.testing.assert_allclose(paths[1], paths[0], rtol=0, atol=1e-8)
+    assert paths[0][0] - VirtualSlave(scene("probe")).T_w_MRF[0, 3] > 1e-3

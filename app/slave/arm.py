@@ -116,9 +116,7 @@ class ArmSlave(SlaveBase):
         self.params = params = params or ArmParams()
         g = self.gains
         self.name = g.kind
-        self._substeps = g.substeps
-        self._h = period / g.substeps
-        self.model = m = arm_model(scene, g.kind, self._h)
+        self.model = m = arm_model(scene, g.kind, self._divide(period))
         self.data = d = mujoco.MjData(m)
         self.n = m.nu
         self.contact_model = world_contact(scene, self._h)
@@ -380,9 +378,9 @@ class ArmSlave(SlaveBase):
         if error is not None:
             self._reading = self._make_reading(invalid_contact(error))
             return self._reading
-        h = dt / self._substeps
-        if h != self._h:
-            self.model.opt.timestep = self._h = h
+        if dt != self._dt:
+            self.model.opt.timestep = self._divide(dt)
+        h = self._h
         rec, T, V = self._rec, self._T, self._V
         status = 0
         contact = self._contact

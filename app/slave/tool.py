@@ -231,6 +231,8 @@ class SlaveBase:
         self.scene = scene
         self.accommodation = accommodation
         self.gains = g = scene.spec.slave
+        self._dt = self._h = 0.0
+        self._substeps = g.substeps
         self._k_acc = np.array(g.accommodation)
         # Following-error limits (m, rad): never lead the tool by more than the PD can push against.
         self._max_lead_lin = g.force_limit / g.kp_lin
@@ -249,6 +251,21 @@ class SlaveBase:
             [(o.stiffness, o.damping, o.friction) for o in (*scene.objects, *(b.object for b in scene.bodies))],
             dtype=float,
         ).reshape(-1, 3)
+
+    def _divide(self, dt: float) -> float:
+        """Set the substeps for a servo period ``dt`` (s); returns the physics step (s).
+
+        The scene's ``substeps`` are per period at the default 1 kHz servo: the step its gains (the
+        tool's PD, an arm's joint servos, the objects' contacts) were chosen at. A slower servo
+        takes more substeps so that the step never exceeds that one (a 100 Hz servo stepped an arm's
+        joint servos 10 ms at a time, and the 7-dof arm strayed 41 mm off its commanded plane); a
+        faster one keeps the scene's count.
+        """
+        base = self.gains.substeps
+        self._substeps = max(base, math.ceil(dt / (DEFAULT_PERIOD / base) - 1e-9))
+        self._dt = dt
+        self._h = dt / self._substeps
+        return self._h
 
     @property
     def fault(self) -> str | None:
@@ -343,9 +360,7 @@ class VirtualSlave(SlaveBase):
         super().__init__(scene, accommodation)
         g = self.gains
         tool = scene.tool
-        self._substeps = g.substeps
-        self._h = period / self._substeps
-        self.contact_model = world_contact(scene, self._h)
+        self.contact_model = world_contact(scene, self._divide(period))
         # The scene's dynamic objects, advanced with every substep (None: all static).
         self._moving = self.contact_model if isinstance(self.contact_model, MovingWorld) else None
         self.model = mujoco.MjModel.from_xml_string(_tool_xml(scene, self._h))
@@ -465,9 +480,9 @@ class VirtualSlave(SlaveBase):
         if error is not None:
             self._invalid(error)
             return self._reading
-        h = dt / self._substeps
-        if h != self._h:
-            self.model.opt.timestep = self._h = h
+        if dt != self._dt:
+            self.model.opt.timestep = self._divide(dt)
+        h = self._h
         T, V = self._state()
         reference = RATE if command.active and command.mode == "rate" else POSE if command.active else HOLD
         twist, T_cmd = command.twist, command.T_w_MRF

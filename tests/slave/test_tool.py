@@ -381,3 +381,13 @@ def test_a_pose_command_any_distance_away_leads_the_tool_as_a_nearer_one_does() 
         paths.append(slave.T_w_MRF[:3, 3].copy())
     np.testing.assert_allclose(paths[1], paths[0], rtol=0, atol=1e-8)
     assert paths[0][0] - VirtualSlave(scene("probe")).T_w_MRF[0, 3] > 1e-3
+
+
+@pytest.mark.parametrize(("dt", "substeps"), [(1e-3, 1), (2.5e-4, 1), (5e-3, 5), (1e-2, 10), (0.0101, 11)])
+def test_a_slower_servo_takes_more_substeps_so_the_physics_step_stays_the_scenes(dt: float, substeps: int) -> None:
+    """The scene's substeps (1 on probe) are per period at 1 kHz: at a slower servo the slave takes
+    as many more as keep the physics step at most 1 ms; a faster one keeps the scene's count."""
+    slave = VirtualSlave(scene("probe"), period=dt)
+    assert slave._substeps == substeps
+    assert slave.model.opt.timestep == pytest.approx(dt / substeps, rel=1e-15)
+    assert slave.model.opt.timestep <= 1e-3 * (1 + 1e-12)

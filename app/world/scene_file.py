@@ -306,7 +306,9 @@ class SlaveGains(Checked):
         torque_limit: Largest torque (N m), likewise.
         accommodation: NTRFC force accommodation gains ``[m/(N s)] * 3 + [rad/(N m s)] * 3`` on the
             contact wrench at {MRF} in {MRF} (paper Sec 4.3).
-        substeps: MuJoCo steps per servo tick; contact and PD are re-evaluated every substep.
+        substeps: MuJoCo steps per servo tick at the default 1 kHz; contact and PD are re-evaluated
+            every substep. A slower servo takes proportionally more (the physics step stays the
+            one this gives at 1 kHz); a faster one takes this many.
     """
 
     kp_lin: Annotated[float, Range(0.0, 1e6, "N/m", lo_open=True)] = 3000.0

@@ -41,7 +41,7 @@ from app.device.hand import HandParams, OperatorHand, add_hand
 from app.device.plant_kernel import plant_period
 from app.device.spec import DeviceSpec, MotorSpec, PlantParams
 from app.errors import ConfigError
-from app.mjcall import address, pointers
+from app.mjcall import address, pointers, substeps_for
 from app.spatial import Array, IntArray
 
 #: Integer motor commands (counts), shape (n,).
@@ -250,6 +250,7 @@ class DevicePlant:
         self._qfrc_constraint = self.data.qfrc_constraint[dof_slice]
         self._eq0 = self.model.neq - n  # the brakes were appended after the MJCF's own equalities
         self._dt = 0.0
+        self._substeps = self.params.substeps
         self.reset()
 
     @staticmethod
@@ -320,7 +321,8 @@ class DevicePlant:
                 ``+-counts_max`` as the amplifier would. None: no new counts this period (the
                 controller missed it): the amplifier holds the last ones until its watchdog
                 expires, then switches the motors off.
-            dt: Servo period (s); the physics takes ``substeps`` steps of ``dt / substeps``.
+            dt: Servo period (s); the physics takes ``substeps`` steps per 1 ms of it, at least
+                ``substeps`` (:func:`~app.mjcall.substeps_for`).
 
         Returns:
             The reading at the end of the period (the same object every call, overwritten). Once
@@ -331,7 +333,8 @@ class DevicePlant:
         if dt != self._dt:
             if not dt > 0:
                 raise ValueError(f"dt must be positive, got {dt}")
-            m.opt.timestep = dt / self.params.substeps
+            self._substeps = substeps_for(dt, self.params.substeps)
+            m.opt.timestep = dt / self._substeps
             self._dt = dt
         r = self.reading
         if self.fault is not None:
@@ -354,7 +357,7 @@ class DevicePlant:
             commands = counts if ok else self._checked_counts(counts)  # type: ignore[assignment]
             self._since_counts = 0.0
             r.motors_off = False
-        if self._period(self._mj, self.params.substeps, commands, *self._own):
+        if self._period(self._mj, self._substeps, commands, *self._own):
             r.time = d.time
             return r
         # MuJoCo reset the state, its clock included: the time is the period's end as it would have been.

@@ -137,7 +137,8 @@ class PlantParams(Checked):
     (empty) for the ideal value given in brackets.
 
     Attributes:
-        substeps: Physics steps per servo period (-); the physics timestep is ``dt / substeps``.
+        substeps: Physics steps per 1 ms servo period (-); a slower servo takes proportionally more
+            (:func:`~app.mjcall.substeps_for`), a faster one this many.
         mass_scale: Factor (-) on the mass and rotational inertia of the link each joint moves [1].
         frictionloss: Coulomb joint friction added to the MJCF's (N m joint side; N for slides) [0].
         damping: Viscous joint damping added to the MJCF's (N m s/rad; N s/m for slides) [0].

@@ -41,7 +41,7 @@ from numba import njit
 from app.compiled import F8, entry_point, is_f8
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
 from app.errors import InputError
-from app.mjcall import address, pointers
+from app.mjcall import address, pointers, substeps_for
 from app.slave.tool_kernel import (
     GRAVITY_W,
     HOLD,
@@ -255,14 +255,9 @@ class SlaveBase:
     def _divide(self, dt: float) -> float:
         """Set the substeps for a servo period ``dt`` (s); returns the physics step (s).
 
-        The scene's ``substeps`` are per period at the default 1 kHz servo: the step its gains (the
-        tool's PD, an arm's joint servos, the objects' contacts) were chosen at. A slower servo
-        takes more substeps so that the step never exceeds that one (a 100 Hz servo stepped an arm's
-        joint servos 10 ms at a time, and the 7-dof arm strayed 41 mm off its commanded plane); a
-        faster one keeps the scene's count.
+        The scene's ``substeps`` are per 1 ms period (:func:`~app.mjcall.substeps_for`).
         """
-        base = self.gains.substeps
-        self._substeps = max(base, math.ceil(dt / (DEFAULT_PERIOD / base) - 1e-9))
+        self._substeps = substeps_for(dt, self.gains.substeps)
         self._dt = dt
         self._h = dt / self._substeps
         return self._h

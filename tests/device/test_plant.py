@@ -266,3 +266,21 @@ def test_a_plant_whose_simulation_goes_unstable_stops_until_reset(
     assert not reading.motors_off
     assert np.all(np.isfinite(reading.q))
     assert np.any(reading.tau_joint != 0.0)
+
+
+@pytest.mark.parametrize("name", ["kraft", "jpl", "freflex"])
+def test_a_slower_servo_steps_the_device_at_its_own_1khz_step(name: str) -> None:
+    """The device file's ``substeps`` are per 1 ms: ten 10 ms periods under the same counts are
+    the same hundred 1 ms physics steps as a hundred 1 ms periods, bit for bit. Before, a 100 Hz
+    servo stepped the device (and the operator's hand on it) 10 ms at a time."""
+    spec = load_device(name)
+    counts = np.full(spec.n_joints, 500, dtype=np.int64)
+    ends = []
+    for dt, periods in ((1e-3, 100), (1e-2, 10)):
+        plant = DevicePlant(spec)
+        for _ in range(periods):
+            reading = plant.step(counts, dt)
+        assert plant.model.opt.timestep == pytest.approx(1e-3, rel=1e-12)
+        ends.append((reading.q_true.copy(), reading.qdot.copy()))
+    np.testing.assert_array_equal(ends[1][0], ends[0][0])
+    np.testing.assert_array_equal(ends[1][1], ends[0][1])

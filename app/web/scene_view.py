@@ -745,7 +745,7 @@ class SceneView:
         arrows: dict[Space, dict[str, Array]] = {space: {} for space in SPACES}
         tips = points + CONTACT_NORMAL_UNITS * self.units["world"] * snap.contact_normals_w
         for i, ends in enumerate(np.stack((points, tips), axis=1) + WORLD_ORIGIN_V):
-            arrows["world"][f"{CONTACT_NORMAL}/{i}"] = ends
+            arrows["world"][f"{CONTACT_NORMAL}{i}"] = ends
         for arrow in WRENCH_ARROWS:
             origin, force, moment = in_v[arrow.key]
             unit, drawn = self.units[arrow.space], arrows[arrow.space]

@@ -77,6 +77,9 @@ WRENCH_ARROWS = (
 )
 #: Contact points and their normals (magenta).
 CONTACT_COLOR = (255, 0, 200)
+#: A contact normal's key among the world's arrows (``contact/<i>``) and its length in arrow units.
+CONTACT_NORMAL = "contact/"
+CONTACT_NORMAL_UNITS = 0.8
 #: Static objects (grey) and dynamic ones (teal: no other node of the world has that hue).
 STATIC_COLOR = (170, 175, 185)
 DYNAMIC_COLOR = (20, 150, 160)
@@ -238,6 +241,29 @@ def _add_axes(
         axes_length=length,
         axes_radius=radius,
         position=np.zeros(3) if position is None else position,
+    )
+
+
+#: Radius / length of the axes of frames drawn together in one batched node
+#: (:func:`_add_axes_set`), whose instances differ only by a uniform scale.
+AXES_RADIUS_RATIO = 0.04
+
+
+def _add_axes_set(
+    scene: viser.SceneApi, name: str, poses: list[Array], lengths: list[float]
+) -> viser.BatchedAxesHandle:
+    """Several frames' axes at ``name``, one instance each (one draw for all; in software WebGL a
+    draw costs the page's GPU process about 0.4 ms of CPU a frame): frame ``i`` at ``poses[i]``
+    (4, 4, in the node's parent) with axes ``lengths[i]`` long (m), all of radius
+    :data:`AXES_RADIUS_RATIO` x length."""
+    wxyzs, positions = zip(*(pose_to_wxyz_position(T) for T in poses), strict=True)
+    return scene.add_batched_axes(
+        name,
+        np.array(wxyzs),
+        np.array(positions),
+        np.array(lengths),
+        axes_length=1.0,
+        axes_radius=AXES_RADIUS_RATIO,
     )
 
 
@@ -449,11 +475,14 @@ class SceneView:
         #: pose in the viser frame as last sent (4, 4): functions, as they change.
         self._pickable: list[tuple[Callable[[], bool], trimesh.Trimesh, Callable[[], Array]]] = []
 
-        self._add(_add_axes(scene, "/device", 0.08, 0.003, DEVICE_ORIGIN_V))
-        self._add(scene.add_label("/device/label", "device base {0}", position=(0.0, 0.0, -0.03)))
         # The world's frames at its own scale (8 cm axes hid a 13 cm peg block).
         axes = 1.5 * ARROW_UNIT_FRACTION * space_size(world_box(loop.slave.scene))
-        self._add(_add_axes(scene, "/world", axes, 0.04 * axes, WORLD_ORIGIN_V))
+        # {0} and {w} never move: their axes are one node (one draw), /device and /world groups
+        # (no draw) hold their labels and the world's objects.
+        self._add(_add_axes_set(scene, "/base_frames", [T_V_0, T_V_W], [0.08, axes]))
+        self._add(scene.add_frame("/device", show_axes=False, position=DEVICE_ORIGIN_V))
+        self._add(scene.add_label("/device/label", "device base {0}", position=(0.0, 0.0, -0.03)))
+        self._add(scene.add_frame("/world", show_axes=False, position=WORLD_ORIGIN_V))
         self._add(scene.add_label("/world/label", "slave world {w}", position=(0.0, 0.0, -0.05)))
 
         self.links = self._geoms(GeomBatches(scene, "/links", loop.plant.model, T_V_0))
@@ -496,7 +525,10 @@ class SceneView:
         # The tool and the F/T sensor are rigid on {MRF}: children of /mrf, so a moving tool costs
         # one pose update, not three.
         tool = loop.slave.scene.tool
-        self.mrf = self._add(_add_axes(scene, "/mrf", axes, 0.04 * axes))
+        # /mrf is a group (no draw); the axes of {MRF} and {S} are one node in it (one draw), {S}'s
+        # instance at {S}'s pose in {MRF} (fixed: sent once, with the /mrf/sensor group holding its label).
+        self.mrf = self._add(scene.add_frame("/mrf", show_axes=False))
+        self.mrf_axes = self._add(_add_axes_set(scene, "/mrf/axes", [np.eye(4), np.eye(4)], [axes, 0.75 * axes]))
         self._add(scene.add_label("/mrf/label", "{MRF}", position=(0.015, 0.0, 0.0)))
         tool_mesh = _tool_mesh(tool.centers_T, tool.radii)
         #: Radius (m) of the tool's sphere shell about {MRF}: what the tool camera preset frames.
@@ -506,7 +538,7 @@ class SceneView:
             "/mrf/tool", tool_mesh.vertices, tool_mesh.faces, color=(200, 160, 60), wxyz=wxyz, position=position
         )
         self.tool = self._mesh(tool_handle, tool_mesh, lambda: _pose(self.mrf))
-        self.sensor = self._add(_add_axes(scene, "/mrf/sensor", 0.75 * axes, 0.04 * axes))
+        self.sensor = self._add(scene.add_frame("/mrf/sensor", show_axes=False))
         self._add(scene.add_label("/mrf/sensor/label", "{S}", position=(0.015, 0.0, 0.0)))
         self.device_box_v = device_box(loop) + DEVICE_ORIGIN_V
         self.world_box_v = world_box(loop.slave.scene) + WORLD_ORIGIN_V
@@ -531,22 +563,10 @@ class SceneView:
                 visible=False,
             )
         )
-        self.normals = self._add(
-            scene.add_arrows(
-                "/contact_normals",
-                np.zeros((1, 2, 3)),
-                colors=CONTACT_COLOR,
-                shaft_radius=0.04 * world_unit,
-                head_radius=0.1 * world_unit,
-                head_length=0.2 * world_unit,
-                visible=False,
-            )
-        )
-
         #: The wrench arrows, one node per space: its arrows (shafts and heads) are two instanced
         #: draws whatever their number, where a node per arrow cost two draws each (software WebGL
         #: spends about half a millisecond of the GPU process's CPU a draw). Arrows in a space
-        #: share its unit's radii, so nothing drawn changes.
+        #: share its unit's radii. The world's node draws the contact normals too (magenta).
         self.arrows: dict[Space, viser.ArrowsHandle] = {}
         #: The arrows each node draws, in its order (``task_MRF/force``, ``hand_G/moment``...).
         self.arrow_keys: dict[Space, tuple[str, ...]] = {}
@@ -641,6 +661,15 @@ class SceneView:
             self._sent_position[key] = position
             handle.position = position
 
+    @staticmethod
+    def _place_instance(batch: viser.BatchedAxesHandle, i: int, like: viser.SceneNodeHandle) -> None:
+        """Put instance ``i`` of ``batch`` at ``like``'s pose as last sent (viser sends an array only
+        when it changed: nothing while it is there)."""
+        wxyzs, positions = np.array(batch.batched_wxyzs), np.array(batch.batched_positions)
+        wxyzs[i], positions[i] = like.wxyz, like.position
+        batch.batched_wxyzs = wxyzs
+        batch.batched_positions = positions
+
     def _points(
         self, key: str, handle: viser.PointCloudHandle | viser.ArrowsHandle, points: Array, space: Space
     ) -> None:
@@ -669,7 +698,8 @@ class SceneView:
             self.arrow_keys[space] = keys
             self._last_points.pop(f"arrows/{space}", None)  # other arrows: redrawn whatever moved
             if keys:
-                handle.colors = np.array([self.arrow_colors[k] for k in keys], dtype=np.uint8)
+                colors = [CONTACT_COLOR if k.startswith(CONTACT_NORMAL) else self.arrow_colors[k] for k in keys]
+                handle.colors = np.array(colors, dtype=np.uint8)
         if keys:
             self._points(f"arrows/{space}", handle, np.stack(list(shown.values())), space)
         handle.visible = bool(keys)
@@ -693,17 +723,16 @@ class SceneView:
         self._place("reference", self.reference, T_V_0 @ snap.T_0_G0, "device")
         T_v_MRF = T_V_W @ snap.T_w_MRF
         self._place("mrf", self.mrf, T_v_MRF, "world")  # with the tool and {S} on it
-        self._place("sensor", self.sensor, invert_pose(snap.T_w_MRF) @ snap.T_w_S, "world")  # fixed: sent once
+        T_MRF_S = invert_pose(snap.T_w_MRF) @ snap.T_w_S  # fixed: sent once
+        self._place("sensor", self.sensor, T_MRF_S, "world")
+        self._place_instance(self.mrf_axes, 1, self.sensor)
         for b, (handle, pose) in enumerate(zip(self.bodies, snap.object_poses, strict=True)):
             self._place(f"body_{b}", handle, make_pose(quat_to_matrix(pose[3:7]), pose[0:3]), "world")
 
         points = snap.contact_points_w
-        shown = len(points) > 0
-        if shown:
+        if len(points):
             self._points("contacts", self.contacts, points + WORLD_ORIGIN_V, "world")
-            tips = points + 0.8 * self.units["world"] * snap.contact_normals_w
-            self._points("normals", self.normals, np.stack((points, tips), axis=1) + WORLD_ORIGIN_V, "world")
-        self.contacts.visible = self.normals.visible = shown
+        self.contacts.visible = len(points) > 0
 
         R_v_MRF, R_v_G = T_v_MRF[0:3, 0:3], T_v_G[0:3, 0:3]
         p_MRF, p_G = T_v_MRF[0:3, 3], T_v_G[0:3, 3]
@@ -714,6 +743,9 @@ class SceneView:
             "hand_G": (p_G, snap.hand_wrench_0[0:3], snap.hand_wrench_0[3:6]),
         }
         arrows: dict[Space, dict[str, Array]] = {space: {} for space in SPACES}
+        tips = points + CONTACT_NORMAL_UNITS * self.units["world"] * snap.contact_normals_w
+        for i, ends in enumerate(np.stack((points, tips), axis=1) + WORLD_ORIGIN_V):
+            arrows["world"][f"{CONTACT_NORMAL}{i}"] = ends
         for arrow in WRENCH_ARROWS:
             origin, force, moment = in_v[arrow.key]
             unit, drawn = self.units[arrow.space], arrows[arrow.space]

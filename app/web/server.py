@@ -500,6 +500,10 @@ class DemoApp:
                 elif self._drawn is not None:
                     with self.server.atomic():  # one websocket window: the page applies it in one frame
                         self.view.update(self._drawn)
+            # Sent now, not at viser's next window tick: its event loop sends a window and then
+            # waits up to 1/60 s for more, so a redraw could wait there, merge with the next one
+            # (panel with scene: the status waits for a 3D frame) or be superseded by it.
+            self.server.flush()
             panel = not panel
             next_step += half
             self._stop.wait(max(0.0, next_step - time.perf_counter()))

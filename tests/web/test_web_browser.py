@@ -18,6 +18,7 @@ from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT, wait_until
 
 from app.web.camera import PANEL_SHARE, SOFTWARE_PIXEL_RATIO, CameraPose, box_corners, fit_camera, project
 from app.web.controls import format_six
+from app.web.headless import press_probe
 from app.web.scene_view import WORLD_ORIGIN_V, world_box
 from app.web.server import DemoApp
 from app.world.scene import available_scenes, load_scene
@@ -451,3 +452,34 @@ def test_the_page_draws_no_background_quad_without_a_background_image(demo: Demo
     finally:
         demo.server.scene.set_background_image(None)
     wait_until(lambda: page.evaluate(BACKGROUND_SHOWN_JS) is False, "the quad stays drawn after the image is gone")  # type: ignore[attr-defined]
+
+
+def test_each_redraw_is_flushed_to_the_pages(demo: DemoApp, page: object, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every panel and scene redraw of the UI thread goes out at once (``server.flush``), not at
+    viser's next window tick (after a window it waits up to 1/60 s, in which a status update can
+    be superseded by the next): two flushes per panel redraw."""
+    flushes = []
+    monkeypatch.setattr(demo.server, "flush", lambda: flushes.append(time.monotonic()))
+    start = demo.controls.redraws
+    time.sleep(1.0)
+    panels = demo.controls.redraws - start
+    assert panels > 0
+    assert 2 * panels - 2 <= len(flushes) <= 2 * panels + 2
+
+
+#: The draw calls of the page's last 3D frame (three.js's counter, through viser's test hook).
+DRAW_CALLS_JS = "() => window.__viserTestpoints.rendererInfo.render.calls"
+
+
+def test_a_pressed_probe_is_drawn_in_at_most_34_calls(demo: DemoApp, page: object) -> None:
+    """With the probe pressed on the surface (arrows, labels and contact normals shown) a 3D frame
+    makes at most 34 draw calls: the frames {0} and {w} share one node, {MRF} and {S} another, and
+    the contact normals are drawn by the world's arrows node (38 before)."""
+    demo.reset()
+    wait_until(lambda: not demo.rt.snapshot.deadman, "the reset did not reach the loop")
+    press_probe(demo)
+    wait_until(lambda: len(demo.rt.snapshot.contact_points_w) > 0, "the probe did not reach the surface")
+    time.sleep(1.5)  # frames drawn pressed
+    calls = page.evaluate(DRAW_CALLS_JS)  # type: ignore[attr-defined]
+    assert 0 < calls <= 34
+    demo.reset()

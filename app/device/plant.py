@@ -91,6 +91,7 @@ class PlantReading:
         motors_off: The amplifier's watchdog switched the motors off in the last step (no new
             counts for longer than :attr:`DevicePlant.watchdog`).
         watchdog_trips: How many times since the reset the watchdog switched the motors off.
+        fault: Why the simulation stopped (:attr:`DevicePlant.fault`), or None.
         time: Simulated time (s).
         status: The link to the device, always :attr:`~app.device.boundary.LinkStatus.OK`: the
             plant is simulated in this process (a :class:`~app.device.boundary.CartesianReading`'s
@@ -105,6 +106,7 @@ class PlantReading:
         "_pose_into",
         "_xmat_G",
         "_xpos_G",
+        "fault",
         "geom_xmat",
         "geom_xpos",
         "motors_off",
@@ -130,6 +132,7 @@ class PlantReading:
         self.time = 0.0
         self.motors_off = False
         self.watchdog_trips = 0
+        self.fault: str | None = None
         self._hand = plant.hand
         self._xmat_G = d.site_xmat[plant.grip_site_id].reshape(3, 3)
         self._xpos_G = d.site_xpos[plant.grip_site_id]
@@ -241,10 +244,6 @@ class DevicePlant:
             r.q,
             unstable,
         )
-        #: Why the simulated device stopped (None while it runs): its physics went unstable, as a
-        #: real amplifier's fault would stop it. The motors stay off and the encoders hold their
-        #: last reading until :meth:`reset`.
-        self.fault: str | None = None
         # ``step`` checks the counts, so the compiled period is called without numba's typing.
         self._period = entry_point(plant_period, self._mj, 1, self._no_counts, *self._own)
         self._qfrc_constraint = self.data.qfrc_constraint[dof_slice]
@@ -285,6 +284,13 @@ class DevicePlant:
         mujoco.mj_setConst(model, mujoco.MjData(model))  # derived constants (subtree masses...) after the edits
         return model
 
+    @property
+    def fault(self) -> str | None:
+        """Why the simulated device stopped (None while it runs): its physics went unstable, as a
+        real amplifier's fault would stop it. The motors stay off and the encoders hold their last
+        reading until :meth:`reset` (also the reading's :attr:`PlantReading.fault`)."""
+        return self.reading.fault
+
     def reset(self, q: Array | None = None) -> PlantReading:
         """Put the device at rest at joint angles ``q`` (rad, (n,); default the device's home pose).
 
@@ -292,7 +298,7 @@ class DevicePlant:
         """
         d = self.data
         mujoco.mj_resetData(self.model, d)  # its warning counts too
-        self.fault = None
+        self.reading.fault = None
         self._since_counts = 0.0
         self.reading.motors_off = False
         self.reading.watchdog_trips = 0
@@ -337,7 +343,7 @@ class DevicePlant:
             m.opt.timestep = dt / self._substeps
             self._dt = dt
         r = self.reading
-        if self.fault is not None:
+        if r.fault is not None:
             return r
         commands = self._no_counts
         if counts is None:
@@ -362,7 +368,7 @@ class DevicePlant:
             return r
         # MuJoCo reset the state, its clock included: the time is the period's end as it would have been.
         r.time += dt
-        self.fault = (
+        r.fault = (
             f"the device's simulation went unstable by t = {r.time:.4f} s (MuJoCo: {self._warned()}); "
             "motors off until reset"
         )

@@ -191,6 +191,8 @@ def status_block(snap: Snapshot, timing: TimingStats, scheduling: str, servo_rat
         extra.append(notice)
     if snap.device_link:
         extra.append(f"device link **{snap.device_link}**")
+    if snap.device_fault:
+        extra.append(f"**device stopped:** {snap.device_fault}")
     if limits != ArmStatus.NONE:
         extra.append(f"**slave limited: {limits.name}**")
     if faults != Fault.NONE:

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from app.device.boundary import CartesianReading
+from app.device.plant import PlantReading
 from app.session.tick import TickRecord
 from app.spatial import Array
 
@@ -73,6 +74,8 @@ class Snapshot:
             name: OK, RAMPING, STALLED, DISCONNECTED); empty for a joint-space device.
         slave_status: Why the slave did not follow the command exactly this tick
             (:class:`~app.slave.arm.ArmStatus` bits; 0 = it did, always for the ideal tool).
+        device_fault: Why the simulated device stopped (:attr:`~app.device.plant.DevicePlant.fault`),
+            or ``""``.
         slave_geom_xpos, slave_geom_xmat: The slave's own geoms (an arm's links) in {w}, (k, 3)
             and (k, 3, 3); empty for the ideal tool and in a replay (the log keeps no arm angles).
         object_poses: The scene's dynamic objects' frames {B} in {w}, rows ``[x, y, z, qw, qx,
@@ -116,6 +119,7 @@ class Snapshot:
     object_poses: Array
     slave_status: int = 0
     device_link: str = ""
+    device_fault: str = ""
     recording: Path | None = None
     playing: Path | None = None
     play_left: float = 0.0
@@ -181,6 +185,7 @@ def take_snapshot(
         watchdog_trips=reading.watchdog_trips,
         slave_status=tick.slave_status,
         device_link=reading.status.name if isinstance(reading, CartesianReading) else "",
+        device_fault=(reading.fault or "") if isinstance(reading, PlantReading) else "",
         slave_geom_xpos=own(slave_xpos),
         slave_geom_xmat=own(slave_xmat.reshape(-1, 3, 3)),
         object_poses=own(tick.object_poses()),

@@ -271,7 +271,7 @@ import numpy as np
 from numba import njit
 
 from app.config import Checked, Range
-from app.device.dissipation import grip_damping_matrix, joint_damping, joint_friction
+from app.device.dissipation import grip_damping_matrix, grip_jacobian, joint_damping, joint_friction
 from app.device.spec import DeviceSpec
 from app.spatial import Array
 
@@ -311,6 +311,12 @@ class PassivitySettings(Checked):
         observe_device: The observer credits what the device's own hardware surely dissipated
             (friction and damping from its file, see "The observed port" in the module
             docstring): the port it watches is the one the hand holds, not the motors'.
+        chatter_scale: Pose mode: a limit-cycle detector at the port sets the wall's stiffness
+            scale (see "The chatter scale" in the module docstring, :func:`chatter_scale`).
+        chatter_reversals: Active count reversals (leaking with the device's rest time) that
+            trip the detector (-).
+        chatter_step: Factor (0, 1) the stiffness scale is multiplied by at each trip.
+        chatter_writeoff: A trip also writes the observer's deficit off (``E = max(E, 0)``).
     """
 
     enabled: bool = False
@@ -324,6 +330,20 @@ class PassivitySettings(Checked):
     hold_slave: bool = True
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
+    chatter_scale: bool = False
+    chatter_reversals: Annotated[float, Range(1.0, 1e3)] = 6.0
+    chatter_step: Annotated[float, Range(0.0, 1.0, lo_open=True, hi_open=True)] = math.sqrt(0.5)
+    chatter_writeoff: bool = False
+
+
+def grip_friction(device: DeviceSpec) -> float:
+    """The least Coulomb friction force (N) any translation of the grip meets at the home pose:
+    ``min_i sum_j f_c,j |(J_v^+ e_i)_j|`` over the axes ``e_i`` of {0}, ``J_v`` the grip's
+    translational Jacobian (3 x n) and ``f_c`` :func:`~app.device.dissipation.joint_friction`:
+    the friction work per metre of grip travel along that axis."""
+    J = grip_jacobian(device)[0:3]
+    per_axis = np.abs(np.linalg.pinv(J)).T @ joint_friction(device)
+    return float(per_axis.min())
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -558,3 +578,65 @@ def coupling_hold(
             offset[i] *= scale
     for i in range(3):
         dx_cmd[i] -= offset[i]
+
+
+
+
+@njit(cache=True)
+def chatter_scale(R_0_G: Array, G_F: Array, dx: Array, dx_prev: Array, state: Array, dt: float, friction: float, memory: float, reversals: float, step: float) -> bool:
+    """The limit-cycle detector at the port: sets the wall's stiffness scale ``kappa = state[0]``.
+
+    The grip's motion along the rendered force ``f_0 = R_0_G G_F[0:3]`` (the change of Delta X,
+    from the encoders) *reverses* when its sign is the opposite of its last nonzero one; the
+    reversal is *active* when the force as rendered, ``kappa |f_0|``, differs from its value at
+    the previous reversal by more than ``2 friction``: a dither whose force step exceeds twice
+    the Coulomb friction at the grip is the quantised wall's limit cycle (Abbott & Okamura 2005;
+    Diolaiti et al. 2006), one within it the device's friction absorbs. Active reversals add up
+    in ``R``, leaking with the device's rest time ``memory``; at ``R >= reversals`` ``kappa`` is
+    multiplied by ``step`` and ``R`` starts over, so each further trip needs the chatter to go on
+    at the softer wall. While ``kappa |f_0| <= friction`` (the rendered force cannot move the
+    device: out of contact) ``kappa`` recovers toward 1 with ``memory``. The caller scales the
+    rendered torque by ``kappa``: the stiffness ``K_T K_P k_s`` the loop renders, not a cap on its
+    force, so the force still grows with the push.
+
+    Args:
+        R_0_G: The grip's orientation in {0} (3, 3). ``G_F``: the rendered wrench in {G} (6,).
+        dx: Delta X (6,): its translations (m, {0}). ``dx_prev``: last tick's (3,), updated.
+        state: ``[kappa, R, direction, force at the last reversal (N)]``, (4,), updated.
+        dt: Servo period (s); 0 = no usable period (nothing is counted or recovered).
+        friction: The least Coulomb friction force at the grip (N, :func:`grip_friction`).
+        memory: The device's rest time (s, :func:`~app.device.dissipation.rest_time`).
+        reversals: ``R`` at which the detector trips. ``step``: ``kappa``'s factor at a trip.
+
+    Returns:
+        Whether the detector tripped this tick.
+    """
+    f0 = R_0_G[0, 0] * G_F[0] + R_0_G[0, 1] * G_F[1] + R_0_G[0, 2] * G_F[2]
+    f1 = R_0_G[1, 0] * G_F[0] + R_0_G[1, 1] * G_F[1] + R_0_G[1, 2] * G_F[2]
+    f2 = R_0_G[2, 0] * G_F[0] + R_0_G[2, 1] * G_F[1] + R_0_G[2, 2] * G_F[2]
+    norm = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+    along = (dx[0] - dx_prev[0]) * f0 + (dx[1] - dx_prev[1]) * f1 + (dx[2] - dx_prev[2]) * f2
+    for i in range(3):
+        dx_prev[i] = dx[i]
+    if dt <= 0.0:
+        return False
+    rendered = state[0] * norm
+    decay = math.exp(-dt / memory)
+    if rendered <= friction:
+        state[0] = 1.0 - (1.0 - state[0]) * decay
+        state[1] *= decay
+        return False
+    active = 0.0
+    if along != 0.0:
+        d = 1.0 if along > 0.0 else -1.0
+        if d == -state[2]:
+            if abs(rendered - state[3]) > 2.0 * friction:
+                active = 1.0
+            state[3] = rendered
+        state[2] = d
+    state[1] = state[1] * decay + active
+    if state[1] >= reversals:
+        state[0] *= step
+        state[1] = 0.0
+        return True
+    return False

@@ -290,7 +290,6 @@ class FRHCController:
         rec["pc_grip_friction"] = self._grip_friction
         rec["pc_reversals"] = settings.chatter_reversals
         rec["pc_scale_step"] = settings.chatter_step
-        rec["pc_writeoff"] = settings.chatter_writeoff
         if not rec["pc_chatter"][0] or rec["pc_scale"][0, 0] <= 0.0:
             self._reset_scale()
 

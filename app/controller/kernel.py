@@ -246,7 +246,7 @@ def controller_tick(
         kappa = 1.0
         if r.pc_chatter:
             scale = r.pc_scale[:]
-            if chatter_scale(
+            chatter_scale(
                 T_0_G[0:3, 0:3],
                 out.vectors[G_F_T],
                 out.vectors[DELTA_X_CMD],
@@ -257,8 +257,7 @@ def controller_tick(
                 r.pc_rest,
                 r.pc_reversals,
                 r.pc_scale_step,
-            ) and r.pc_writeoff:
-                po_energy[0] = max(po_energy[0], 0.0)
+            )
             kappa = scale[0]
             for j in range(n):
                 torques[TAU, j] -= (1.0 - kappa) * po_tau[j]

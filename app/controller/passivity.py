@@ -316,7 +316,6 @@ class PassivitySettings(Checked):
         chatter_reversals: Active count reversals (leaking with the device's rest time) that
             trip the detector (-).
         chatter_step: Factor (0, 1) the stiffness scale is multiplied by at each trip.
-        chatter_writeoff: A trip also writes the observer's deficit off (``E = max(E, 0)``).
     """
 
     enabled: bool = False
@@ -333,7 +332,6 @@ class PassivitySettings(Checked):
     chatter_scale: bool = False
     chatter_reversals: Annotated[float, Range(1.0, 1e3)] = 6.0
     chatter_step: Annotated[float, Range(0.0, 1.0, lo_open=True, hi_open=True)] = math.sqrt(0.5)
-    chatter_writeoff: bool = False
 
 
 def grip_friction(device: DeviceSpec) -> float:
@@ -580,10 +578,19 @@ def coupling_hold(
         dx_cmd[i] -= offset[i]
 
 
-
-
 @njit(cache=True)
-def chatter_scale(R_0_G: Array, G_F: Array, dx: Array, dx_prev: Array, state: Array, dt: float, friction: float, memory: float, reversals: float, step: float) -> bool:
+def chatter_scale(
+    R_0_G: Array,
+    G_F: Array,
+    dx: Array,
+    dx_prev: Array,
+    state: Array,
+    dt: float,
+    friction: float,
+    memory: float,
+    reversals: float,
+    step: float,
+) -> bool:
     """The limit-cycle detector at the port: sets the wall's stiffness scale ``kappa = state[0]``.
 
     The grip's motion along the rendered force ``f_0 = R_0_G G_F[0:3]`` (the change of Delta X,

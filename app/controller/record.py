@@ -118,7 +118,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. pc_on, pc_limit
         (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), po_count (rad, (n,)), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_filter (s),
         pc_hold, pc_b_device (N s/m), pc_bleed (s), pc_chatter, pc_grip_friction (N), pc_rest (s), pc_reversals,
-        pc_scale_step, pc_writeoff: :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
+        pc_scale_step: :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
         (n,) each (N m or N; -). horner_pos, horner_neg: (n, n_coeffs) torque curves, highest
         order first; counts_max: the amplifier's range. payload_mass (kg), payload_com_S (m, in
         {S}), payload_inertia_S (kg m^2, about the centre of mass, {S} axes), gravity_w (m/s^2,
@@ -180,7 +180,6 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("pc_rest", f8),
             ("pc_reversals", f8),
             ("pc_scale_step", f8),
-            ("pc_writeoff", b1),
             ("pc_grip_friction", f8),
             ("pc_scale", f8, (4,)),
             ("pc_scale_prev", f8, (3,)),

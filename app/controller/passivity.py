@@ -259,6 +259,41 @@ Halving only when the energy bound binds (no 20 mJ threshold) left the same chat
 bank of a coarse encoder, ``sum_j limit_j step_j``, ~0.1 J on a 12-bit Kraft, is spent at that
 rate in seconds), and without recovery the 10-bit Kraft at 3x rang at 72 N (five points, not run
 further).
+
+Why not a limit-cycle detector that sets the stiffness (helper passivity12; measured, not shipped;
+the mechanism is commit faaf002 on branch passivity12, rows in its notes). Energy is not used to
+find the cycle: the grip's motion along the rendered force (the change of Delta X, from the
+encoders) *reverses* when its sign flips, and the reversal is *active* when the force as rendered
+changed since the previous reversal by more than twice the least Coulomb friction force at the
+grip (``min_i sum_j f_c,j |(J_v^+ e_i)_j|`` at home: 0.19 / 0.11 / 0.38 N on kraft / jpl /
+freflex), Abbott & Okamura's and Diolaiti et al.'s one-count condition. Active reversals leak with
+the device's rest time (slowest joint's ``M_jj / (2 d_j)``, 0.87 / 4.1 / 2.0 s); six trip it,
+multiplying a stiffness scale ``kappa`` on the rendered torque by ``1 / sqrt(2)`` (so one needless
+trip still leaves half of the wall), recovering toward 1 with the rest time only while the
+rendered force is within that friction; the PO/PC acts on ``kappa tau_r`` as before and the hold
+takes the energy bound's cut only. Scaling the *slave's* share of the grip motion instead (the
+slave-side twin, so the slave is not asked for ``1 / kappa`` the force) did not stop the cycle:
+the 4x Kraft's reversals went on at ``kappa`` 0.001, the F/T's ringing amplified by ``K_T`` being
+outside the scaled loop. Stable / worse / vanish (secant; capped), against this PC's 204 / 1 / 14
+(9), 99 / 0 / 1 (1), 206 / 2 / 43 (33): tuned 321 / 15 / 101 (93), held out 168 / 11 / 68 (66),
+encoders 286 / 14 / 76 (60); the 33 hard points of passivity11 4 / 0 / 5, 1 / 0 / 0, 14 / 0 / 11
+(main 2 / 0 / 7, 0 / 0 / 1, 11 / 2 / 21), writing the deficit off at each trip no better (2 / 0 /
+5, 1 / 0 / 0, 12 / 0 / 11). It holds 116 / 50 / 96 walls this PC does not without failing a bar
+there, close to the oracle on the shipped Kraft at 4x (stable, felt 2,456 N/m against plain's
+5,292 at 0.25x, i.e. ``kappa`` 0.03-0.05 against the oracle's 1/16), but it trips on the touch
+and on each push's transient as well as on a cycle: where plain and it are both stable its felt
+wall is a median 0.69 of plain's (43 of 120 within 20 %), and most of its vanishing walls are
+such stable walls taken down two to four steps too far (66 / 67 / 73 "felt below half"). Without
+friction (the ``nofric`` variants) every reversal is active and nothing stops the steps: the
+wall is scaled to nothing and the slave pushed to its limit at 33 of 36 points. Released,
+the JPL's scaled force lets the grip drift where plain holds (8 / 5 / 3 points, all JPL, nearly
+all at 0.25x). The 10-bit JPL rings at 42-61 N with it (the slave's own contact, stepped ~2 mm a
+count, not a loop ``kappa`` reaches). Twelve reversals to trip (chosen on the tuned set, not run further):
+288 / 19 / 72 (61): fewer transient trips, more walls left ringing. Its cost: +0.04 us a pose-mode
+step (median of 20,000 interleaved, Kraft; 4.14 against 4.18 us) with no trip. What it would
+need, measured here: a trip that tells a transient from a cycle (both are a few active reversals
+within the rest time), and a floor from the device (the Colgate / Abbott-Okamura device-only
+stiffness) so that a frictionless device's reversals cannot scale the wall away.
 """
 
 from __future__ import annotations
@@ -271,7 +306,7 @@ import numpy as np
 from numba import njit
 
 from app.config import Checked, Range
-from app.device.dissipation import grip_damping_matrix, grip_jacobian, joint_damping, joint_friction
+from app.device.dissipation import grip_damping_matrix, joint_damping, joint_friction
 from app.device.spec import DeviceSpec
 from app.spatial import Array
 
@@ -311,11 +346,6 @@ class PassivitySettings(Checked):
         observe_device: The observer credits what the device's own hardware surely dissipated
             (friction and damping from its file, see "The observed port" in the module
             docstring): the port it watches is the one the hand holds, not the motors'.
-        chatter_scale: Pose mode: a limit-cycle detector at the port sets the wall's stiffness
-            scale (see "The chatter scale" in the module docstring, :func:`chatter_scale`).
-        chatter_reversals: Active count reversals (leaking with the device's rest time) that
-            trip the detector (-).
-        chatter_step: Factor (0, 1) the stiffness scale is multiplied by at each trip.
     """
 
     enabled: bool = False
@@ -329,19 +359,6 @@ class PassivitySettings(Checked):
     hold_slave: bool = True
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
-    chatter_scale: bool = False
-    chatter_reversals: Annotated[float, Range(1.0, 1e3)] = 6.0
-    chatter_step: Annotated[float, Range(0.0, 1.0, lo_open=True, hi_open=True)] = math.sqrt(0.5)
-
-
-def grip_friction(device: DeviceSpec) -> float:
-    """The least Coulomb friction force (N) any translation of the grip meets at the home pose:
-    ``min_i sum_j f_c,j |(J_v^+ e_i)_j|`` over the axes ``e_i`` of {0}, ``J_v`` the grip's
-    translational Jacobian (3 x n) and ``f_c`` :func:`~app.device.dissipation.joint_friction`:
-    the friction work per metre of grip travel along that axis."""
-    J = grip_jacobian(device)[0:3]
-    per_axis = np.abs(np.linalg.pinv(J)).T @ joint_friction(device)
-    return float(per_axis.min())
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -576,74 +593,3 @@ def coupling_hold(
             offset[i] *= scale
     for i in range(3):
         dx_cmd[i] -= offset[i]
-
-
-@njit(cache=True)
-def chatter_scale(
-    R_0_G: Array,
-    G_F: Array,
-    dx: Array,
-    dx_prev: Array,
-    state: Array,
-    dt: float,
-    friction: float,
-    memory: float,
-    reversals: float,
-    step: float,
-) -> bool:
-    """The limit-cycle detector at the port: sets the wall's stiffness scale ``kappa = state[0]``.
-
-    The grip's motion along the rendered force ``f_0 = R_0_G G_F[0:3]`` (the change of Delta X,
-    from the encoders) *reverses* when its sign is the opposite of its last nonzero one; the
-    reversal is *active* when the force as rendered, ``kappa |f_0|``, differs from its value at
-    the previous reversal by more than ``2 friction``: a dither whose force step exceeds twice
-    the Coulomb friction at the grip is the quantised wall's limit cycle (Abbott & Okamura 2005;
-    Diolaiti et al. 2006), one within it the device's friction absorbs. Active reversals add up
-    in ``R``, leaking with the device's rest time ``memory``; at ``R >= reversals`` ``kappa`` is
-    multiplied by ``step`` and ``R`` starts over, so each further trip needs the chatter to go on
-    at the softer wall. While ``kappa |f_0| <= friction`` (the rendered force cannot move the
-    device: out of contact) ``kappa`` recovers toward 1 with ``memory``. The caller scales the
-    rendered torque by ``kappa``: the stiffness ``K_T K_P k_s`` the loop renders, not a cap on its
-    force, so the force still grows with the push.
-
-    Args:
-        R_0_G: The grip's orientation in {0} (3, 3). ``G_F``: the rendered wrench in {G} (6,).
-        dx: Delta X (6,): its translations (m, {0}). ``dx_prev``: last tick's (3,), updated.
-        state: ``[kappa, R, direction, force at the last reversal (N)]``, (4,), updated.
-        dt: Servo period (s); 0 = no usable period (nothing is counted or recovered).
-        friction: The least Coulomb friction force at the grip (N, :func:`grip_friction`).
-        memory: The device's rest time (s, :func:`~app.device.dissipation.rest_time`).
-        reversals: ``R`` at which the detector trips. ``step``: ``kappa``'s factor at a trip.
-
-    Returns:
-        Whether the detector tripped this tick.
-    """
-    f0 = R_0_G[0, 0] * G_F[0] + R_0_G[0, 1] * G_F[1] + R_0_G[0, 2] * G_F[2]
-    f1 = R_0_G[1, 0] * G_F[0] + R_0_G[1, 1] * G_F[1] + R_0_G[1, 2] * G_F[2]
-    f2 = R_0_G[2, 0] * G_F[0] + R_0_G[2, 1] * G_F[1] + R_0_G[2, 2] * G_F[2]
-    norm = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
-    along = (dx[0] - dx_prev[0]) * f0 + (dx[1] - dx_prev[1]) * f1 + (dx[2] - dx_prev[2]) * f2
-    for i in range(3):
-        dx_prev[i] = dx[i]
-    if dt <= 0.0:
-        return False
-    rendered = state[0] * norm
-    decay = math.exp(-dt / memory)
-    if rendered <= friction:
-        state[0] = 1.0 - (1.0 - state[0]) * decay
-        state[1] *= decay
-        return False
-    active = 0.0
-    if along != 0.0:
-        d = 1.0 if along > 0.0 else -1.0
-        if d == -state[2]:
-            if abs(rendered - state[3]) > 2.0 * friction:
-                active = 1.0
-            state[3] = rendered
-        state[2] = d
-    state[1] = state[1] * decay + active
-    if state[1] >= reversals:
-        state[0] *= step
-        state[1] = 0.0
-        return True
-    return False

@@ -259,6 +259,41 @@ Halving only when the energy bound binds (no 20 mJ threshold) left the same chat
 bank of a coarse encoder, ``sum_j limit_j step_j``, ~0.1 J on a 12-bit Kraft, is spent at that
 rate in seconds), and without recovery the 10-bit Kraft at 3x rang at 72 N (five points, not run
 further).
+
+Why not a limit-cycle detector that sets the stiffness (helper passivity12; measured, not shipped;
+the mechanism is commit faaf002 on branch passivity12, rows in its notes). Energy is not used to
+find the cycle: the grip's motion along the rendered force (the change of Delta X, from the
+encoders) *reverses* when its sign flips, and the reversal is *active* when the force as rendered
+changed since the previous reversal by more than twice the least Coulomb friction force at the
+grip (``min_i sum_j f_c,j |(J_v^+ e_i)_j|`` at home: 0.19 / 0.11 / 0.38 N on kraft / jpl /
+freflex), Abbott & Okamura's and Diolaiti et al.'s one-count condition. Active reversals leak with
+the device's rest time (slowest joint's ``M_jj / (2 d_j)``, 0.87 / 4.1 / 2.0 s); six trip it,
+multiplying a stiffness scale ``kappa`` on the rendered torque by ``1 / sqrt(2)`` (so one needless
+trip still leaves half of the wall), recovering toward 1 with the rest time only while the
+rendered force is within that friction; the PO/PC acts on ``kappa tau_r`` as before and the hold
+takes the energy bound's cut only. Scaling the *slave's* share of the grip motion instead (the
+slave-side twin, so the slave is not asked for ``1 / kappa`` the force) did not stop the cycle:
+the 4x Kraft's reversals went on at ``kappa`` 0.001, the F/T's ringing amplified by ``K_T`` being
+outside the scaled loop. Stable / worse / vanish (secant; capped), against this PC's 204 / 1 / 14
+(9), 99 / 0 / 1 (1), 206 / 2 / 43 (33): tuned 321 / 15 / 101 (93), held out 168 / 11 / 68 (66),
+encoders 286 / 14 / 76 (60); the 33 hard points of passivity11 4 / 0 / 5, 1 / 0 / 0, 14 / 0 / 11
+(main 2 / 0 / 7, 0 / 0 / 1, 11 / 2 / 21), writing the deficit off at each trip no better (2 / 0 /
+5, 1 / 0 / 0, 12 / 0 / 11). It holds 116 / 50 / 96 walls this PC does not without failing a bar
+there, close to the oracle on the shipped Kraft at 4x (stable, felt 2,456 N/m against plain's
+5,292 at 0.25x, i.e. ``kappa`` 0.03-0.05 against the oracle's 1/16), but it trips on the touch
+and on each push's transient as well as on a cycle: where plain and it are both stable its felt
+wall is a median 0.69 of plain's (43 of 120 within 20 %), and most of its vanishing walls are
+such stable walls taken down two to four steps too far (66 / 67 / 73 "felt below half"). Without
+friction (the ``nofric`` variants) every reversal is active and nothing stops the steps: the
+wall is scaled to nothing and the slave pushed to its limit at 33 of 36 points. Released,
+the JPL's scaled force lets the grip drift where plain holds (8 / 5 / 3 points, all JPL, nearly
+all at 0.25x). The 10-bit JPL rings at 42-61 N with it (the slave's own contact, stepped ~2 mm a
+count, not a loop ``kappa`` reaches). Twelve reversals to trip (chosen on the tuned set, not run further):
+288 / 19 / 72 (61): fewer transient trips, more walls left ringing. Its cost: +0.04 us a pose-mode
+step (median of 20,000 interleaved, Kraft; 4.14 against 4.18 us) with no trip. What it would
+need, measured here: a trip that tells a transient from a cycle (both are a few active reversals
+within the rest time), and a floor from the device (the Colgate / Abbott-Okamura device-only
+stiffness) so that a frictionless device's reversals cannot scale the wall away.
 """
 
 from __future__ import annotations

@@ -186,7 +186,15 @@ def matrix_to_quat(R: Array) -> Array:
 @njit(cache=True)
 def quat_into(R: Array, out: Array) -> None:
     """Write the unit quaternion ``[w, x, y, z]`` (w >= 0) of rotation ``R`` (3, 3) into ``out`` (4,)
-    (Shepperd's method: the largest of the four squared components is taken from the diagonal)."""
+    (:func:`quat_of`)."""
+    out[0], out[1], out[2], out[3] = quat_of(R)
+
+
+@njit(cache=True)
+def quat_of(R: Array) -> tuple[float, float, float, float]:
+    """The unit quaternion ``(w, x, y, z)`` (w >= 0) of the rotation in ``R[0:3, 0:3]`` (a (3, 3)
+    rotation or a (4, 4) pose; no view made) by Shepperd's method: the largest of the four squared
+    components is taken from the diagonal."""
     tr = R[0, 0] + R[1, 1] + R[2, 2]
     if tr > 0:
         s = 2.0 * math.sqrt(tr + 1.0)
@@ -203,7 +211,7 @@ def quat_into(R: Array, out: Array) -> None:
     norm = math.sqrt(w * w + x * x + y * y + z * z)
     if w < 0:
         norm = -norm
-    out[0], out[1], out[2], out[3] = w / norm, x / norm, y / norm, z / norm
+    return w / norm, x / norm, y / norm, z / norm
 
 
 @njit(cache=True)

@@ -158,7 +158,7 @@ class StateBlock:
         own values, passed as they are (the kernel's signature types them). A full fill counts as
         the tick's."""
         out, reading, ft = tick.out, tick.reading, tick.ft
-        T_w_MRF = tick._pose()  # refreshes the slave's pose buffer (TickRecord.T_w_MRF, without the property)
+        T_w_MRF = tick.pose_view()
         made = self._made_from
         if not made or out is not made[0] or reading is not made[1] or ft is not made[2] or T_w_MRF is not made[3]:
             self._bundle(tick, T_w_MRF)
@@ -166,7 +166,7 @@ class StateBlock:
         kernel(
             sinks, i, j, self.sources, contact.w, tick.time, tick.hand_on, tick.deadman, tick.reference,
             tick.reflection, len(contact.contacts), out.faults, reading.watchdog_trips, tick.slave_status,
-            reading.status, tick._slave.link_force, out.reflecting, full,
+            reading.status, tick.link_force, out.reflecting, full,
         )  # fmt: skip
         if full:
             self.serial = tick.serial
@@ -181,7 +181,7 @@ class StateBlock:
         arrays = {
             "q": reading.q, "vectors": out.vectors, "twist": out.command.twist, "torques": out.torques,
             "counts": out.counts, "stage_ns": tick.stage_ns, "scalars": out.scalars, "T_H": grip.T_H,
-            "w_H": grip.w_H, "how": grip.how, "hand": tick._hand, "F_S": tick.ft.wrench_S, "T_w_MRF": T_w_MRF,
+            "w_H": grip.w_H, "how": grip.how, "hand": tick.hand_buffer, "F_S": tick.ft.wrench_S, "T_w_MRF": T_w_MRF,
             "objects": tick.object_poses(),
         }  # fmt: skip
         for name, a in arrays.items():

@@ -54,20 +54,25 @@ class TickRecord:
         serial: Counts every tick and reset of the loop (never repeats): what the state block
             compares to fill its row once a tick.
         block: The loop's state block (:mod:`app.session.state`), set by the loop: :meth:`state`.
+        pose_view: The slave's :meth:`~app.slave.api.Slave.pose_view`, bound once: the pose buffer
+            :attr:`T_w_MRF` returns, refreshed when stale, without the property's call (read every
+            tick by the state row and the operators).
+        hand_buffer: The loop's buffer of the hand target (4, 4): :attr:`hand_target` while
+            :attr:`hand_on`, else the last target held (for compiled readers that take it once).
     """
 
     __slots__ = (
-        "_hand",
-        "_pose",
         "_slave",
         "block",
         "command",
         "contact",
         "deadman",
         "ft",
+        "hand_buffer",
         "hand_on",
         "index",
         "out",
+        "pose_view",
         "reading",
         "reference",
         "reflection",
@@ -91,10 +96,8 @@ class TickRecord:
         self.out = out
         self.command: SlaveCommand = out.command
         self._slave = slave
-        # The slave's pose buffer, refreshed when stale (Slave.pose_view): read every tick by the
-        # state row and the operators, bound once.
-        self._pose = slave.pose_view
-        self._hand = hand
+        self.pose_view = slave.pose_view
+        self.hand_buffer = hand
         self.hand_on = False
         self.deadman = self.reference = self.reflection = False
         self.ft: FTReading = slave.reading()
@@ -113,7 +116,7 @@ class TickRecord:
     @property
     def hand_target(self) -> Array | None:
         """``T_0_H`` (4, 4) the hand pulled toward this tick, or None when it let go."""
-        return self._hand if self.hand_on else None
+        return self.hand_buffer if self.hand_on else None
 
     def slave_geom_poses(self) -> tuple[Array, Array]:
         """The slave's geoms in {w}: positions (ngeom, 3), orientations (ngeom, 9) (views; see
@@ -135,7 +138,7 @@ class TickRecord:
     @property
     def T_w_MRF(self) -> Array:
         """Pose of the tool's {MRF} in the slave world {w} at the end of the tick, (4, 4)."""
-        return self._pose()
+        return self.pose_view()
 
     @property
     def link_force(self) -> float:

@@ -137,6 +137,41 @@ def test_hand_pulls_grip_to_target_against_gravity_compensated_device() -> None:
     assert np.linalg.norm(reading.qdot) < 1e-2
 
 
+def test_a_held_hand_steps_as_one_whose_kinematics_are_recomputed_every_tick() -> None:
+    """A target set again unchanged skips MuJoCo's kinematics (pull_target): the states are
+    bit-identical to a plant that recomputes them after every set, through a move, a hold, a
+    release and re-grab, and a reset (which moved the mocap body home: the target is restored)."""
+    spec = load_device("kraft")
+    plants = (DevicePlant(spec), DevicePlant(spec))
+    rng = np.random.default_rng(3)
+    start = plants[0].reading.T_0_G.copy()
+    counts = rng.integers(-300, 300, (400, spec.n_joints))
+    held = plants[0].hand
+
+    def run(k: int) -> list[np.ndarray]:
+        T_0_H = start.copy()
+        T_0_H[:3, 3] += [0.01 * min(k, 100) / 100, 0.0, -0.005]  # moves, then held from tick 100
+        out = []
+        for i, plant in enumerate(plants):
+            plant.set_hand_target(None if 200 <= k < 210 else T_0_H)
+            if i == 1:  # the reference: MuJoCo's kinematics and transmissions after every set
+                mujoco.mj_kinematics(plant.model, plant.data)
+                mujoco.mj_transmission(plant.model, plant.data)
+            r = plant.step(counts[k], DT)
+            out.append(np.concatenate([r.q_true, r.qdot, r.wrench_G, plant.data.actuator_length]))
+        return out
+
+    for k in range(400):
+        if k == 300:
+            for plant in plants:
+                plant.reset()
+            assert held.T_0_H is not None
+            np.testing.assert_array_equal(plants[0].data.mocap_pos[0], held.T_0_H[:3, 3])
+        a, b = run(k)
+        np.testing.assert_array_equal(a, b, err_msg=f"tick {k}")
+    assert np.linalg.norm(plants[0].reading.T_0_G[:3, 3] - start[:3, 3]) > 1e-3  # the hand moved it
+
+
 @pytest.mark.parametrize("name", available_devices())
 def test_every_device_steps_one_second_of_random_commands_cleanly(name: str) -> None:
     spec = load_device(name)

@@ -294,6 +294,8 @@ class SessionMetrics:
         self._tail = np.full(max(1, round(SETTLE_WINDOW / dt)), np.nan)
         self._task = task
         assert start.block is not None, "the loop sets the record's state block"
+        # The loop's block, set once with its record: bound here rather than looked up a tick.
+        self._block = start.block
         starts = start.block.starts
         self._ints = ints = np.zeros(_N_INTS, dtype=np.int64)
         ints[_AT_T], ints[_AT_TOOL], ints[_AT_R] = starts["t"], starts["tool"], starts["R_w_MRF"]
@@ -316,12 +318,11 @@ class SessionMetrics:
         (:meth:`~app.session.state.StateBlock.fill_with`): with a log, the whole row, its logged
         part written to the log's buffer in the same call; without, only the values the reduction
         reads (the whole row costs ~2 us more). A row an observer before filled is only reduced."""
-        block = tick.block
-        assert block is not None, "the loop sets the record's state block"
+        block = self._block
         log = self._log
         log_row = -1 if log is None else log.rows
         if tick.serial != block.serial:
-            block.fill_with(tick, log is not None, self._fill_and_reduce, self._sinks, self._ticks, log_row)
+            block.fill_with(tick, log_row >= 0, self._fill_and_reduce, self._sinks, self._ticks, log_row)
         else:
             if self._reduce is None:
                 self._reduce = entry_point(_reduce_row, block.sources, self._sinks, 0, 0)

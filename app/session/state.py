@@ -30,7 +30,7 @@ from app.controller.layout import SCALARS, TORQUE_ROWS, TWIST_AXES, VECTOR_ROWS,
 from app.device.boundary import HAND_OFF, HAND_ROTATED
 from app.device.hand import rotate_wrench
 from app.session.tick import STAGES
-from app.spatial import Array, IntArray, quat_into
+from app.spatial import Array, IntArray, quat_of
 
 if TYPE_CHECKING:
     from app.session.tick import TickRecord
@@ -267,7 +267,14 @@ def _bundle(
 def _pose7(R: Array, p: Array, row: Array, at: int) -> None:
     """Position ``p`` (3,) and the wxyz quaternion of the rotation ``R`` (3, 3) into ``row`` from ``at``."""
     row[at], row[at + 1], row[at + 2] = p[0], p[1], p[2]
-    quat_into(R, row[at + 3 : at + 7])
+    _quat4(R, row, at + 3)
+
+
+@njit(cache=True)
+def _quat4(R: Array, row: Array, at: int) -> None:
+    """The wxyz quaternion of the rotation in ``R[0:3, 0:3]`` (a (3, 3) rotation or a (4, 4) pose)
+    into ``row`` from ``at``, by index: a view of either (a slice) costs its reference counting."""
+    row[at], row[at + 1], row[at + 2], row[at + 3] = quat_of(R)
 
 
 @njit(cache=True)
@@ -358,7 +365,7 @@ def fill_row(
         row[starts[3] + i] = hand[i, 3]
     _put2(row, starts[4], a.vectors)
     _put1(row, starts[5], a.twist)
-    _pose7(T_w_MRF[0:3, 0:3], T_w_MRF[0:3, 3], row, starts[6])
+    _quat4(T_w_MRF, row, starts[6] + 3)  # its position is written above
     _put1(row, starts[7], a.F_S)
     _hand_wrench(a.how[0], a.T_H, a.w_H, row, starts[9])
     _put2(row, starts[10], a.torques)

@@ -227,7 +227,8 @@ def test_opening_view_fills_the_free_viewport(demo: DemoApp, page: object) -> No
     view = demo.view
     both = np.vstack((box_corners(view.device_box_v), box_corners(view.world_box_v)))
     share = _free_share(page, both, _browser_camera(demo)(None))
-    print(f"opening view: device and world cover {share:.3f} of the free viewport")
+    panel_left = float(page.evaluate(PANEL_LEFT_JS))  # type: ignore[attr-defined]
+    print(f"opening view: device and world cover {share:.3f} of the free viewport ({panel_left:.0f} px wide)")
     assert share >= BOTH_LEAST_SHARE
 
 

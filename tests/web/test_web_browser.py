@@ -24,6 +24,7 @@ from app.web.camera import (
     box_corners,
     choose_direction,
     fit_camera,
+    free_share,
     project,
 )
 from app.web.controls import format_six
@@ -214,10 +215,7 @@ def _free_share(page: object, points: np.ndarray, report: tuple[CameraPose, floa
     panel_left = float(page.evaluate(PANEL_LEFT_JS))  # type: ignore[attr-defined]
     css_width, css_height = page.viewport_size["width"], page.viewport_size["height"]  # type: ignore[attr-defined]
     pose, fov, _, _ = report
-    px = project(points, pose, fov, css_width, css_height)
-    lo = np.clip(px.min(axis=0), 0.0, [panel_left, css_height])
-    hi = np.clip(px.max(axis=0), 0.0, [panel_left, css_height])
-    return float(np.prod(hi - lo) / (panel_left * css_height))
+    return free_share(points, pose, fov, css_width / css_height, 1.0 - panel_left / css_width)
 
 
 def test_opening_view_fills_the_free_viewport(demo: DemoApp, page: object) -> None:

@@ -1,12 +1,13 @@
-"""Camera framing: fit a box of the viser scene into the part of the page the panel leaves free.
+"""Camera framing: fit boxes of the viser scene into the part of the page the panel leaves free.
 
 viser's panel floats over the right of the canvas, and a camera centres its look-at point on the
-whole canvas. :func:`fit_camera` therefore places the box's centre in the middle of the *free*
-part (left of the panel) and backs off until every corner of the box projects inside it with a
-margin. The camera looks along :data:`VIEW_DIRECTION` (from the front, above), z up.
+whole canvas. :func:`fit_camera` therefore comes as near as it can while every corner of the
+boxes still projects inside the *free* part (left of the panel) with a margin, their projected
+extent centred there. The view direction is a view's own (:func:`choose_direction`): of a few
+turned and raised views, the one that shows the device and the world largest beside the panel.
 
 Presets (:data:`PRESETS`): both spaces, the device, the world (the scene file's ``[view]`` box if
-it has one), the tool.
+it has one), the tool; all seen from the view's direction.
 
 Zoom about what is under the cursor, two ways: the page's camera controls dolly toward the cursor
 (:data:`DOLLY_TO_CURSOR_JS`), and a click on a mesh makes the clicked surface point the orbit
@@ -29,9 +30,14 @@ from viser._messages import RunJavascriptMessage
 
 from app.spatial import Array
 
-#: Viewing direction of every preset (viser frame, from the camera toward the scene): from the
-#: front (-y) and 24 degrees above the horizontal.
-VIEW_DIRECTION = np.array([0.0, 1.0, -0.45]) / math.hypot(1.0, 0.45)
+#: The view directions a framing chooses among (:func:`choose_direction`): azimuths (rad) of the
+#: camera round z from the front (-y; positive: from the right, so the world on the right comes
+#: nearer than the device on the left) and elevations (rad) above the horizontal. The device
+#: and the world stand side by side along x: seen square from the front (azimuth 0) they make a
+#: wide, low band across a nearly square free view, empty above and below; turned and raised,
+#: their x gap shortens and their depths spread up the view.
+AZIMUTHS = np.radians(np.arange(0.0, 46.0, 5.0))
+ELEVATIONS = np.radians(np.arange(20.0, 46.0, 5.0))
 #: Vertical field of view set on every browser (rad).
 FOV = math.radians(45.0)
 #: Share of the canvas width kept clear for the panel on the right. viser 1.1's "large" panel is
@@ -54,9 +60,16 @@ class CameraPose:
     look_at: Array
 
 
-def _basis() -> tuple[Array, Array, Array]:
-    """Camera right, up and forward unit vectors for :data:`VIEW_DIRECTION` (z up)."""
-    forward = VIEW_DIRECTION
+def view_direction(azimuth: float, elevation: float) -> Array:
+    """Unit vector (3,) from the camera toward the scene (viser frame, z up) for a camera at
+    ``azimuth`` (rad, round z from the front, -y; positive toward +x) and ``elevation`` (rad)
+    above the horizontal."""
+    c = math.cos(elevation)
+    return np.array([-math.sin(azimuth) * c, math.cos(azimuth) * c, -math.sin(elevation)])
+
+
+def _basis(forward: Array) -> tuple[Array, Array, Array]:
+    """Camera right, up and forward unit vectors looking along ``forward`` (z up)."""
     right = np.cross(forward, [0.0, 0.0, 1.0])
     right /= np.linalg.norm(right)
     return right, np.cross(right, forward), forward
@@ -83,35 +96,76 @@ def project(points: Array, pose: CameraPose, fov: float, width: float, height: f
     return np.stack(((x_ndc + 1) * width / 2, (1 - y_ndc) * height / 2), axis=1)
 
 
-def fit_camera(box: Array, aspect: float, fov: float = FOV, panel_share: float = PANEL_SHARE) -> CameraPose:
-    """The camera along :data:`VIEW_DIRECTION` that shows ``box`` ([min, max], (2, 3), viser frame)
-    as large as it fits in the canvas (width / height ``aspect``) left of the panel (which covers
-    ``panel_share`` of the width on the right)."""
-    right, up, forward = _basis()
-    centre = box.mean(axis=0)
-    q = box_corners(box) - centre
-    free = 1.0 - panel_share  # share of the canvas left of the panel
+def fit_camera(
+    points: Array, aspect: float, forward: Array, fov: float = FOV, panel_share: float = PANEL_SHARE
+) -> CameraPose:
+    """The camera looking along ``forward`` (unit, (3,)) nearest to ``points`` ((k, 3), viser
+    frame, m) that still shows every point in the canvas (width / height ``aspect``) left of the
+    panel (which covers ``panel_share`` of the width on the right), :data:`MARGIN` clear of each
+    edge: the points as large as they fit, their projected extent centred in that free part.
+
+    At a distance ``d`` the camera may still slide sideways (``s_x`` along the camera's right,
+    ``s_y`` along its up); each point bounds each slide on both sides linearly, so ``d`` fits if
+    both slides' bounds leave room. The least such ``d`` is found by bisection; the slides are
+    then the middles of their (then nearly closed) ranges."""
+    right, up, forward = _basis(forward)
+    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+    q = points - centre
     t = math.tan(fov / 2)
+    free = 1.0 - panel_share  # share of the canvas left of the panel
     x_mid = free - 1.0  # NDC x of the free part's middle
     half_x, half_y = free * (1 - MARGIN), 1 - MARGIN
+    qr, qu, qf = q @ right, q @ up, q @ forward
 
-    def fits(distance: float) -> bool:
-        depth = distance + q @ forward
+    def slides(distance: float) -> tuple[float, float, float, float] | None:
+        """Each slide's range ``(lo_x, hi_x, lo_y, hi_y)`` (m) at ``distance``, None if empty:
+        a point's NDC x is ``(q.right - s_x) / (depth t aspect)``, and likewise y."""
+        depth = distance + qf
         if np.any(depth <= 0):
-            return False
-        x = (x_mid * distance * t * aspect + q @ right) / (depth * t * aspect)
-        y = (q @ up) / (depth * t)
-        return bool(np.all(np.abs(x - x_mid) <= half_x) and np.all(np.abs(y) <= half_y))
+            return None
+        dx, dy = depth * t * aspect, depth * t
+        lo_x, hi_x = np.max(qr - (x_mid + half_x) * dx), np.min(qr - (x_mid - half_x) * dx)
+        lo_y, hi_y = np.max(qu - half_y * dy), np.min(qu + half_y * dy)
+        if lo_x > hi_x or lo_y > hi_y:
+            return None
+        return float(lo_x), float(hi_x), float(lo_y), float(hi_y)
 
     near, far = 1e-3, 1.0
-    while not fits(far):
+    while slides(far) is None:
         near, far = far, 2 * far
     for _ in range(40):  # bisection to 1e-12 of the bracket: exact enough for pixels
         mid = 0.5 * (near + far)
-        near, far = (near, mid) if fits(mid) else (mid, far)
-    # The look-at point sits right of the centre so that the centre lands mid free part.
-    look_at = centre - x_mid * far * t * aspect * right
+        near, far = (near, mid) if slides(mid) is not None else (mid, far)
+    fitted = slides(far)
+    assert fitted is not None
+    lo_x, hi_x, lo_y, hi_y = fitted
+    look_at = centre + 0.5 * (lo_x + hi_x) * right + 0.5 * (lo_y + hi_y) * up
     return CameraPose(position=look_at - far * forward, look_at=look_at)
+
+
+def free_share(points: Array, pose: CameraPose, fov: float, aspect: float, panel_share: float = PANEL_SHARE) -> float:
+    """Share of the free part of the canvas (left of the panel) that the rectangle round
+    ``points`` ((k, 3), viser frame), seen from ``pose``, covers (clipped to that part)."""
+    px = project(points, pose, fov, aspect, 1.0)
+    free = (1.0 - panel_share) * aspect
+    lo = np.clip(px.min(axis=0), 0.0, [free, 1.0])
+    hi = np.clip(px.max(axis=0), 0.0, [free, 1.0])
+    return float(np.prod(hi - lo) / free)
+
+
+def choose_direction(points: Array, aspect: float, fov: float = FOV, panel_share: float = PANEL_SHARE) -> Array:
+    """The view direction (unit, (3,)) among :data:`AZIMUTHS` x :data:`ELEVATIONS` whose fitted
+    camera (:func:`fit_camera`) shows the rectangle round ``points`` ((k, 3), viser frame)
+    largest in the free part of the canvas (:func:`free_share`); ties go to the first, the
+    lowest azimuth and elevation."""
+    best, best_share = view_direction(AZIMUTHS[0], ELEVATIONS[0]), -1.0
+    for azimuth in AZIMUTHS:
+        for elevation in ELEVATIONS:
+            forward = view_direction(azimuth, elevation)
+            share = free_share(points, fit_camera(points, aspect, forward, fov, panel_share), fov, aspect, panel_share)
+            if share > best_share + 1e-9:
+                best, best_share = forward, share
+    return best
 
 
 def recentre(pose: CameraPose, point: Array) -> CameraPose:

@@ -40,6 +40,8 @@ from app.web.camera import (
     NO_EMPTY_BACKGROUND_JS,
     SOFTWARE_RESOLUTION_JS,
     CameraPose,
+    box_corners,
+    choose_direction,
     fit_camera,
     recentre,
     run_in_page,
@@ -268,33 +270,39 @@ class DemoApp:
 
     # -- camera -------------------------------------------------------------------------------
 
-    def preset_box(self, preset: str) -> Array:
-        """The box ``[min, max]`` (2, 3, viser frame, m) camera preset ``preset`` frames."""
+    def preset_points(self, preset: str) -> Array:
+        """The points (k, 3, viser frame, m) camera preset ``preset`` frames: the corners of the
+        device's box, the world's, both (the two boxes' 16 corners, not the box round both: its
+        corners above the low world and below the device's reach are empty), or the tool's."""
         view = self.view
         if preset == "device":
-            return view.device_box_v
+            return box_corners(view.device_box_v)
         if preset == "world":
-            return view.world_box_v
+            return box_corners(view.world_box_v)
         if preset == "tool":
             centre = self.shown_snapshot().T_w_MRF[0:3, 3] + WORLD_ORIGIN_V
             half = np.full(3, 1.5 * view.tool_radius)
-            return np.stack((centre - half, centre + half))
-        boxes = np.stack((view.device_box_v, view.world_box_v))
-        return np.stack((boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)))
+            return box_corners(np.stack((centre - half, centre + half)))
+        return np.vstack((box_corners(view.device_box_v), box_corners(view.world_box_v)))
 
     def frame_camera(self, client: viser.ClientHandle, preset: str = "both") -> CameraPose:
-        """Point ``client``'s camera at ``preset`` fitted to its canvas beside the panel."""
+        """Point ``client``'s camera at ``preset`` fitted to its canvas beside the panel, from the
+        view's direction."""
         camera = client.camera
         aspect = camera.aspect if camera.image_height else DEFAULT_ASPECT
         camera.fov = FOV
-        pose = fit_camera(self.preset_box(preset), aspect)
+        pose = fit_camera(self.preset_points(preset), aspect, self.view_direction)
         camera.position = pose.position
         camera.look_at = pose.look_at
         return pose
 
     def _frame_initial_camera(self) -> None:
-        """The opening (and Reset View) camera: both spaces, fitted to :data:`DEFAULT_ASPECT`."""
-        pose = fit_camera(self.preset_box("both"), DEFAULT_ASPECT)
+        """The view's direction (the one showing both spaces largest at :data:`DEFAULT_ASPECT`)
+        and the opening (and Reset View) camera: both spaces from it."""
+        both = self.preset_points("both")
+        #: The direction every preset looks from (unit, viser frame): the view's own.
+        self.view_direction = choose_direction(both, DEFAULT_ASPECT)
+        pose = fit_camera(both, DEFAULT_ASPECT, self.view_direction)
         initial = self.server.initial_camera
         initial.fov = FOV
         initial.position = pose.position
@@ -336,12 +344,12 @@ class DemoApp:
             self.view.on_hand_moved = on_hand_moved
             self.view_loop = loop
             return
-        before = self.preset_box("both")
+        before = self.preset_points("both")
         self.view.remove()
         self.view = SceneView(self.server, loop, on_hand_moved)
         self.view_loop = loop
         self._drawn = None  # a snapshot of the view before: another device's links
-        if not np.allclose(before, self.preset_box("both")):
+        if not np.allclose(before, self.preset_points("both")):
             self._frame_initial_camera()
             for client in self.server.get_clients().values():
                 self.frame_camera(client)

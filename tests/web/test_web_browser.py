@@ -9,6 +9,7 @@ from __future__ import annotations
 import re
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -16,11 +17,20 @@ import pytest
 import viser
 from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT, wait_until
 
-from app.web.camera import PANEL_SHARE, SOFTWARE_PIXEL_RATIO, CameraPose, box_corners, fit_camera, project
+from app.web.camera import (
+    PANEL_SHARE,
+    SOFTWARE_PIXEL_RATIO,
+    CameraPose,
+    box_corners,
+    choose_direction,
+    fit_camera,
+    free_share,
+    project,
+)
 from app.web.controls import format_six
 from app.web.headless import press_probe
 from app.web.scene_view import WORLD_ORIGIN_V, world_box
-from app.web.server import DemoApp
+from app.web.server import DEFAULT_ASPECT, DemoApp
 from app.world.scene import available_scenes, load_scene
 
 pytestmark = pytest.mark.browser
@@ -156,11 +166,17 @@ PANEL_LEFT_JS = """() => {
 }"""
 
 
-def test_every_scene_is_framed_beside_the_panel(demo: DemoApp, page: object) -> None:
-    """The world's box, seen by the browser's own camera (the pose, field of view and canvas it
-    reports back), projects inside the canvas left of the panel: the opening view of the running
-    scene, then both spaces and the world preset for every shipped scene (each with its [view])."""
-    panel_left = float(page.evaluate(PANEL_LEFT_JS))  # type: ignore[attr-defined]
+#: The least share of the free viewport (the canvas left of the panel, full height) the rectangle
+#: round the device's and the world's boxes covers in the "both" view. A fit with
+#: :data:`~app.web.camera.MARGIN` on each side reaches 0.94^2 = 0.88 at most; 0.6 asks for two
+#: thirds of both the width and the height at least, so a full-width band across the middle (main
+#: before web13: 0.29-0.33 of the measured free viewport, the top and bottom empty) fails it.
+BOTH_LEAST_SHARE = 0.6
+
+
+def _browser_camera(demo: DemoApp) -> Callable[[CameraPose | None], tuple[CameraPose, float, int, int]]:
+    """A function returning the browser's next camera report: pose, field of view (rad) and canvas
+    (device px), at the pose given, or any if None (the current one once the page is fitted)."""
     client = next(iter(demo.server.get_clients().values()))
     reports: list[tuple[CameraPose, float, int, int]] = []
 
@@ -170,7 +186,6 @@ def test_every_scene_is_framed_beside_the_panel(demo: DemoApp, page: object) -> 
         reports.append((CameraPose(c.position.copy(), c.look_at.copy()), c.fov, c.image_width, c.image_height))
 
     def shown(pose: CameraPose | None) -> tuple[CameraPose, float, int, int]:
-        """The browser's next camera report (at ``pose``, if given)."""
         n, end = len(reports), time.monotonic() + STEP_TIMEOUT
         while True:
             # Both fields: the server sets position then look_at, and a report may come between.
@@ -191,6 +206,39 @@ def test_every_scene_is_framed_beside_the_panel(demo: DemoApp, page: object) -> 
             assert time.monotonic() < end, "the browser did not report its camera"
             time.sleep(0.05)
 
+    return shown
+
+
+def _free_share(page: object, points: np.ndarray, report: tuple[CameraPose, float, int, int]) -> float:
+    """Share of the free viewport (CSS px left of the measured panel, full height) covered by the
+    rectangle round ``points`` (k, 3, viser frame) seen by the browser's camera ``report``."""
+    panel_left = float(page.evaluate(PANEL_LEFT_JS))  # type: ignore[attr-defined]
+    css_width, css_height = page.viewport_size["width"], page.viewport_size["height"]  # type: ignore[attr-defined]
+    pose, fov, _, _ = report
+    return free_share(points, pose, fov, css_width / css_height, 1.0 - panel_left / css_width)
+
+
+def test_opening_view_fills_the_free_viewport(demo: DemoApp, page: object) -> None:
+    """The opening ("both") view of the running scene, as the browser's camera shows it: the
+    rectangle round the device's and the world's boxes covers at least
+    :data:`BOTH_LEAST_SHARE` of the canvas left of the panel."""
+    view = demo.view
+    both = np.vstack((box_corners(view.device_box_v), box_corners(view.world_box_v)))
+    share = _free_share(page, both, _browser_camera(demo)(None))
+    panel_left = float(page.evaluate(PANEL_LEFT_JS))  # type: ignore[attr-defined]
+    print(f"opening view: device and world cover {share:.3f} of the free viewport ({panel_left:.0f} px wide)")
+    assert share >= BOTH_LEAST_SHARE
+
+
+def test_every_scene_is_framed_beside_the_panel(demo: DemoApp, page: object) -> None:
+    """The world's box, seen by the browser's own camera (the pose, field of view and canvas it
+    reports back), projects inside the canvas left of the panel: the opening view of the running
+    scene, then both spaces and the world preset for every shipped scene (each with its [view]),
+    each from the direction the demo chooses for it; in the "both" view the device's and the
+    world's boxes cover at least :data:`BOTH_LEAST_SHARE` of that part of the canvas."""
+    panel_left = float(page.evaluate(PANEL_LEFT_JS))  # type: ignore[attr-defined]
+    client = next(iter(demo.server.get_clients().values()))
+    shown = _browser_camera(demo)
     css_width, css_height = page.viewport_size["width"], page.viewport_size["height"]  # type: ignore[attr-defined]
     assert 1.0 - panel_left / css_width <= PANEL_SHARE  # framing keeps clear at least what the panel covers
 
@@ -211,12 +259,17 @@ def test_every_scene_is_framed_beside_the_panel(demo: DemoApp, page: object) -> 
     device = demo.view.device_box_v
     for name in available_scenes():
         world = world_box(load_scene(name)) + WORLD_ORIGIN_V
-        both = np.stack((np.minimum(device[0], world[0]), np.maximum(device[1], world[1])))
-        for box, least in ((both, 0.0), (world, 0.7)):
-            pose = fit_camera(box, client.camera.aspect)
+        both = np.vstack((box_corners(device), box_corners(world)))
+        forward = choose_direction(both, DEFAULT_ASPECT)  # as the demo does for the scene
+        for points, least in ((both, 0.0), (box_corners(world), 0.7)):
+            pose = fit_camera(points, client.camera.aspect, forward)
             client.camera.position = pose.position
             client.camera.look_at = pose.look_at
-            check(world, shown(pose), least)
+            report = shown(pose)
+            check(world, report, least)
+            if points is both:
+                share = _free_share(page, both, report)
+                assert share >= BOTH_LEAST_SHARE, (name, share)
     demo.frame_camera(client, "both")
 
 

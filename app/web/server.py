@@ -228,29 +228,37 @@ class DemoApp:
         if self._showing_selection or (scene_name == self._scene.spec.name and device_name == self._device.name):
             return
         playing = self.rt.snapshot.playing
+        what = "scene" if scene_name != self._scene.spec.name else "device"
+        try:
+            scene = self._scene if scene_name == self._scene.spec.name else load_scene(scene_name)
+            device = self._device if device_name == self._device.name else load_device(device_name)
+            gains = self.rt.gains if device is self._device else self._start_gains(device)
+            # Building the loop refuses what the files alone do not show (an arm that cannot
+            # reach the tool's home), before the running loop is stopped.
+            self._rebuild(self._loop_config(device, scene, gains))
+        except Exception as exc:  # a broken file in scenes/ or devices/ must not kill the server
+            self.controls.record_status.content = f"**cannot load:** {exc}"
+            self._show_selection()  # the dropdowns back on what still runs
+            return
         if playing is not None:
-            what = "scene" if scene_name != self._scene.spec.name else "device"
             # Not a loading notice any more: the redraw that sees the play start must not clear it.
             self._notice, self._loading = f"**stopped `{playing.stem}`**: the {what} was changed", False
             for client in self.server.get_clients().values():  # viser notifies per browser
                 client.add_notification("Session stopped", f"{playing.stem}: the {what} was changed", color="yellow")
-        try:
-            scene = self._scene if scene_name == self._scene.spec.name else load_scene(scene_name)
-            device = self._device if device_name == self._device.name else load_device(device_name)
-        except Exception as exc:  # a broken file in scenes/ or devices/ must not kill the server
-            self.controls.record_status.content = f"**cannot load:** {exc}"
-            return
-        gains = self.rt.gains if device is self._device else self._start_gains(device)
-        self._rebuild(self._loop_config(device, scene, gains))
 
     def _rebuild(self, config: LoopConfig) -> None:
-        """Replace the running loop (and the view, unless a replay is shown) by one of ``config``."""
+        """Replace the running loop (and the view, unless a replay is shown) by one of ``config``.
+
+        Raises:
+            ConfigError: ``config``'s loop cannot be built; the running loop is left as it is.
+        """
+        rt = RealtimeLoop(config, spin=self._spin)
         with self._lock:
             self.rt.stop()  # closes a log being written
             self._recording = False
             self.controls.record.label = "Record"
             self._scene, self._device = config.scene, config.device
-            self.rt = RealtimeLoop(config, spin=self._spin)
+            self.rt = rt
             if self._notice == self._loop_lost:  # not a loading notice written over it
                 self._notice = ""
             self._loop_lost = None
@@ -262,9 +270,13 @@ class DemoApp:
             self.controls.release_switches()
             self.controls.clear_plots()
             self.rt.start()
+        self._show_selection()
+
+    def _show_selection(self) -> None:
+        """The scene and device dropdowns on the running loop's."""
         self._showing_selection = True  # the dropdowns' callbacks must not rebuild again
         try:
-            self.controls.show_selection(config.scene.spec.name, config.device.name)
+            self.controls.show_selection(self._scene.spec.name, self._device.name)
         finally:
             self._showing_selection = False
 
@@ -383,7 +395,11 @@ class DemoApp:
             have.servo_rate,
         )
         if not same or self.rt.ended() is not None:
-            self._rebuild(wanted)
+            try:
+                self._rebuild(wanted)
+            except ConfigError as exc:
+                self.show_notice(f"**cannot load:** {exc}")
+                return
             try:
                 started = self.rt.wait_running()
             except RuntimeError:  # it died while starting: the UI frame says so (_notice_lost_loop)

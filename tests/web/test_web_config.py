@@ -8,6 +8,7 @@ import signal
 import time
 import urllib.error
 import urllib.request
+from pathlib import Path
 
 import pytest
 import viser
@@ -17,6 +18,7 @@ from web_helpers import nothing_listens
 from app.errors import ConfigError, InvalidField
 from app.web import launch as server
 from app.web.headless import free_port
+from app.world.scene import SCENES_DIR
 
 
 @pytest.mark.parametrize(
@@ -138,3 +140,32 @@ def test_the_page_is_served_with_the_head_script_first() -> None:
             urllib.request.urlopen(base + "/no-such-file.js", timeout=10)
     finally:
         viser_server.stop()
+
+
+def test_a_scene_whose_arm_cannot_reach_its_home_is_refused_and_the_running_loop_kept(tmp_path: Path) -> None:
+    """The page switched to a scene whose PUMA cannot reach the tool's home (turned 90 deg about
+    y): the file loads, but building its loop refuses it naming ``tool.home``. The page says so and
+    the loop that was running goes on, dropdowns on it. Before, the running loop was stopped first
+    and the refusal escaped the callback: no loop, nothing said."""
+    text = (SCENES_DIR / "probe.toml").read_text()
+    text = text.replace(
+        "home = { position = [0.0, 0.0, 0.03] }", "home = { position = [0.0, 0.0, 0.03], zyx_deg = [0.0, 90.0, 0.0] }"
+    )
+    text = text.replace("[slave]\n", '[slave]\nkind = "puma560"\n', 1)
+    path = tmp_path / "turned_puma.toml"
+    path.write_text(text)
+    app = server.start_demo("probe", "kraft", port=free_port())
+    try:
+        assert app.rt.wait_running()
+        running = app.rt
+        app.select(str(path), "kraft")
+        assert app.rt is running
+        assert running.ended() is None
+        ticks = running.snapshot.ticks
+        time.sleep(0.3)
+        assert running.snapshot.ticks > ticks
+        assert "cannot load" in app.controls.record_status.content
+        assert "tool.home" in app.controls.record_status.content
+        assert app._scene.spec.name == "probe"
+    finally:
+        app.close()

@@ -162,9 +162,8 @@ def pose_error(T: Array, what: str) -> str | None:
 def _rigid_error(T: Array) -> float:
     """The largest of ``|R^T R - I|``, ``|det R - 1|`` and the last row's distance from
     ``[0, 0, 0, 1]`` for ``T`` (4, 4); NaN if an entry is not finite."""
-    for v in T.flat:
-        if not math.isfinite(v):
-            return math.nan
+    if not _all_finite(T):
+        return math.nan
     off = abs(T[3, 0]) + abs(T[3, 1]) + abs(T[3, 2]) + abs(T[3, 3] - 1.0)
     for i in range(3):
         for j in range(3):
@@ -224,6 +223,10 @@ class SlaveBase:
     _reading: FTReading
     _moving: MovingWorld | None
     _fault: str | None
+    # The servo period (s), its substeps and the physics step (s): set by _divide.
+    _dt: float
+    _substeps: int
+    _h: float
     model: mujoco.MjModel
     data: mujoco.MjData
 
@@ -231,8 +234,6 @@ class SlaveBase:
         self.scene = scene
         self.accommodation = accommodation
         self.gains = g = scene.spec.slave
-        self._dt = self._h = 0.0
-        self._substeps = g.substeps
         self._k_acc = np.array(g.accommodation)
         # Following-error limits (m, rad): never lead the tool by more than the PD can push against.
         self._max_lead_lin = g.force_limit / g.kp_lin

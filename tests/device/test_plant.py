@@ -122,6 +122,33 @@ def test_hand_wrench_at_rest_is_stiffness_times_offset(name: str) -> None:
     assert np.all(plant.step(np.zeros(plant.n_joints, dtype=np.int64), DT).wrench_G == 0.0)
 
 
+@pytest.mark.parametrize("name", available_devices())
+def test_a_far_hand_target_pulls_with_a_persons_strength_and_the_device_stays_up(name: str) -> None:
+    """A hand target 30 m off the grip (a script's or a page's slip) is a person pulling as hard
+    as they can: from rest the pull is exactly ``force_limit`` along the target's axis and the
+    twist ``torque_limit`` about it, never the spring's 12 kN; and the device runs on. Before, the
+    unlimited spring drove the Touch unstable within 12 ms and the Kraft's joints to 850 rad/s."""
+    params = HandParams(stiffness_rot=100.0)  # 300 N m at 3 rad: past the wrist's strength too
+    plant = DevicePlant(load_device(name), hand=params)
+    T_0_G = plant.reading.T_0_G.copy()
+    # Along the grip's (1, 1, 1), which a turn about itself keeps, and so {H}'s (1, 1, 1) too:
+    # every axis of {H} shares the pull and the twist equally.
+    along = T_0_G[:3, :3] @ (np.ones(3) / math.sqrt(3.0))
+    T_0_H = np.eye(4)
+    T_0_H[:3, :3] = rotation_exp(3.0 * along) @ T_0_G[:3, :3]
+    T_0_H[:3, 3] = T_0_G[:3, 3] + 30.0 * along
+    plant.set_hand_target(T_0_H)
+    zero = np.zeros(plant.n_joints, dtype=np.int64)
+    reading = plant.step(zero, DT)
+    np.testing.assert_allclose(reading.wrench_G[:3], params.force_limit * along, rtol=1e-9)
+    np.testing.assert_allclose(reading.wrench_G[3:], params.torque_limit * along, rtol=1e-9)
+    for _ in range(500):
+        reading = plant.step(zero, DT)
+        assert np.linalg.norm(reading.wrench_G[:3]) <= params.force_limit * (1.0 + 1e-12)
+    assert plant.fault is None
+    assert np.all(np.isfinite(reading.q))
+
+
 def test_hand_pulls_grip_to_target_against_gravity_compensated_device() -> None:
     """The spring-damper drags the grip 2 cm: it ends near the target (friction leaves a little)."""
     spec = load_device("jpl")  # balanced by design, so no compensation is needed for this check

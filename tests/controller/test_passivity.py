@@ -14,9 +14,11 @@ from hypothesis.extra.numpy import arrays
 
 from app.controller.passivity import (
     PassivitySettings,
+    chatter_scale,
     coupling_hold,
     crossed_edge,
     device_dissipation,
+    grip_friction,
     observe_energy,
     passivity_control,
 )
@@ -298,3 +300,67 @@ def test_a_one_count_dither_reads_as_no_work_where_the_encoder_difference_reads_
     assert entered == pytest.approx(0.5 * f_c * c)
     assert e[0] == entered
     assert encoder == pytest.approx(-10 * (Kc - 2 * f_c) * c)
+
+
+def _dither(state: np.ndarray, force: tuple[float, float], ticks: int) -> int:
+    """A grip dithering along z under an upward force (a floor) from rest at 0: 1 mm down and the
+    force is ``force[1]`` (N), back up and it is ``force[0]``, a reversal every tick after the
+    first, for ``ticks``; friction at the grip 0.2 N, rest time 1 s, 6 reversals trip, the scale
+    halves at a trip. Returns the trips."""
+    prev, trips = np.zeros(3), 0
+    for k in range(ticks):
+        down = k % 2 == 0
+        dx = np.array([0.0, 0.0, -1e-3 if down else 0.0, 0.0, 0.0, 0.0])
+        G_F = np.array([0.0, 0.0, force[1] if down else force[0], 0.0, 0.0, 0.0])
+        trips += chatter_scale(np.eye(3), G_F, dx, prev, state, T, 0.2, 1.0, 6.0, 0.5)
+    return trips
+
+
+def test_a_dither_whose_force_step_exceeds_twice_the_friction_trips_and_halves_the_wall() -> None:
+    """A one-count dither between 5 and 5.5 N (a 0.5 N step against 2 x 0.2 N of friction): six
+    active reversals leak to just under 6 over 6 ms, so the seventh (tick 8) trips and the scale
+    halves; the rendered step, 0.25 N, is then within the friction: no further trip in 0.4 s.
+    A dither of 0.3 N steps trips only on its first reversal's step from nothing (5 N), never
+    after (Abbott & Okamura: the friction absorbs it)."""
+    state = np.array([1.0, 0.0, 0.0, 0.0])
+    assert _dither(state, (5.0, 5.5), 7) == 0
+    state = np.array([1.0, 0.0, 0.0, 0.0])
+    assert _dither(state, (5.0, 5.5), 8) == 1
+    assert state[0] == 0.5
+    assert _dither(state, (5.0, 5.5), 400) == 0
+    calm = np.array([1.0, 0.0, 0.0, 0.0])
+    assert _dither(calm, (5.0, 5.3), 400) == 0
+    assert calm[0] == 1.0
+
+
+def test_the_scale_recovers_over_the_rest_time_only_out_of_contact_and_reversals_leak() -> None:
+    """Within the friction (the wall cannot move the device) the scale recovers toward 1 with the
+    rest time (1 s): from 0.5, 1 - 0.5 exp(-1) after 1 s. Pressed (above the friction) it stays.
+    Two active reversals every 2 s leak away (R < 2 / (1 - exp(-2)) < 6): no trip."""
+    state = np.array([0.5, 0.0, 0.0, 0.0])
+    prev, still = np.zeros(3), np.zeros(6)
+    light = np.array([0.0, 0.0, 0.1, 0.0, 0.0, 0.0])
+    for _ in range(1000):
+        chatter_scale(np.eye(3), light, still, prev, state, T, 0.2, 1.0, 6.0, 0.5)
+    assert state[0] == pytest.approx(1.0 - 0.5 * math.exp(-1.0), rel=1e-9)
+    pressed = np.array([0.5, 0.0, 0.0, 0.0])
+    for _ in range(1000):
+        chatter_scale(np.eye(3), 80 * light, still, prev, pressed, T, 0.2, 1.0, 6.0, 0.5)
+    assert pressed[0] == 0.5
+    slow = np.array([1.0, 0.0, 0.0, 0.0])
+    trips = 0
+    for _ in range(10):
+        trips += _dither(slow, (5.0, 6.0), 3)
+        for _ in range(2000):
+            chatter_scale(np.eye(3), 80 * light, still, prev, slow, T, 0.2, 1.0, 6.0, 0.5)
+    assert trips == 0
+    assert slow[0] == 1.0
+
+
+def test_the_grip_friction_is_the_least_joint_friction_work_per_metre_of_grip_travel() -> None:
+    """Kraft at home: positive, and no more than the friction work along z alone."""
+    from app.device.dissipation import grip_jacobian, joint_friction
+
+    kraft = load_device("kraft")
+    along_z = np.abs(np.linalg.pinv(grip_jacobian(kraft)[0:3]) @ np.array([0.0, 0.0, 1.0])) @ joint_friction(kraft)
+    assert 0.0 < grip_friction(kraft) <= along_z

@@ -27,7 +27,7 @@ from app.controller.gains import ControllerGains
 from app.controller.inputs import SHAPE_3, SHAPE_6, SHAPE_33, checked_arrays, checked_float
 from app.controller.kinematics import DeviceKinematics, RecordArray, topology_fields
 from app.controller.layout import GAIN_ROWS, RTC_LAWS, TORQUE_ROWS, vector_row_names
-from app.controller.passivity import PassivitySettings, bank_bounds, device_dissipation, grip_count, grip_friction
+from app.controller.passivity import PassivitySettings, bank_bounds, device_dissipation
 from app.controller.record import (
     ASSIST_SCALE,
     PC_CUT,
@@ -39,7 +39,6 @@ from app.controller.record import (
 )
 from app.controller.safety import SafetyLimits
 from app.controller.types import Fault, FTReading, SlaveCommand, SlaveModel, Switches
-from app.device.dissipation import rest_time
 from app.device.spec import DeviceSpec
 from app.spatial import Array, IntArray, wrench_transform
 
@@ -227,9 +226,6 @@ class FRHCController:
         rec["R_W_G"] = R_0_W.T @ kin.R_0_G
         rec["p_W_G"] = R_0_W.T @ (kin.p_0_G - kin.p_0_W)
         self._friction, self._damping, self._b_device = device_dissipation(device)
-        self._rest = rest_time(device)
-        self._grip_friction = grip_friction(device)
-        self._grip_count = grip_count(device)
         # The compiled tick's arguments that stay the same objects for this controller's life.
         self._fixed_args: tuple[object, ...] = (*kin.fk_arrays, rec)
         # Eq 1 before the compiled tick, and what the device's coordinates are called in errors.
@@ -286,14 +282,6 @@ class FRHCController:
         rec["pc_bleed"] = settings.hold_bleed
         if not rec["pc_hold"][0]:
             rec["pc_offset"] = 0.0
-        rec["pc_chatter"] = settings.enabled and settings.chatter_scale
-        rec["pc_rest"] = self._rest
-        rec["pc_grip_friction"] = self._grip_friction
-        rec["pc_grip_count"] = self._grip_count
-        rec["pc_reversals"] = settings.chatter_reversals
-        rec["pc_scale_step"] = settings.chatter_step
-        if not rec["pc_chatter"][0] or rec["pc_scale"][0, 0] <= 0.0:
-            self._reset_scale()
 
     def reset(self, q: Array, T_w_MRF_home: Array | None = None) -> None:
         """Start over at joint angles ``q``: reference {G0} = FK(q), slave reference = home."""
@@ -307,16 +295,7 @@ class FRHCController:
         self.out.scalars[RAMP] = 0.0
         for name in ("po_energy", "po_tau", "pc_velocity", "pc_offset", "pc_dx_prev"):
             self._rec[name] = 0.0
-        self._reset_scale()
         self.out.scalars[PO_ENERGY] = self.out.scalars[PC_CUT] = 0.0
-
-    def _reset_scale(self) -> None:
-        """The chatter detector starts over: full stiffness, no reversal seen."""
-        for name in ("pc_scale", "pc_scale_prev"):
-            self._rec[name] = 0.0
-        scale = self._rec["pc_scale"][0]
-        scale[0] = 1.0
-        scale[5] = scale[6] = math.inf
 
     def resume(self) -> None:
         """After a gap in the servo ticks (an overrun): no velocity across the gap, and the wrench

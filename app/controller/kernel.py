@@ -30,12 +30,7 @@ from numba import njit
 from app.controller.assist import constant_force_rtc, damping, deadband, hooke_rtc, saturate, uniform_scale
 from app.controller.calibration import curve_counts
 from app.controller.kinematics import RecordArray, gravity_torque, wrist_jacobian
-from app.controller.passivity import (
-    chatter_scale,
-    coupling_hold,
-    observe_energy,
-    passivity_control,
-)
+from app.controller.passivity import coupling_hold, observe_energy, passivity_control
 from app.controller.payload import add_inertial_load, remove_weight
 from app.controller.record import (
     ASSIST_SCALE,
@@ -241,30 +236,8 @@ def controller_tick(
     for j in range(n):
         po_tau[j] = torques[TAU, j] - torques[TAU_G, j]
         torques[TAU_PC, j] = 0.0
-    bound_cut = 0.0
     if r.pc_on:
-        kappa = 1.0
-        if r.pc_chatter:
-            scale = r.pc_scale[:]
-            chatter_scale(
-                T_0_G[0:3, 0:3],
-                out.vectors[G_F_T],
-                out.vectors[DELTA_X_CMD],
-                r.pc_scale_prev[:],
-                scale,
-                dt,
-                r.pc_grip_friction,
-                r.pc_grip_count,
-                r.pc_rest,
-                r.pc_b_device,
-                r.pc_reversals,
-                r.pc_scale_step,
-            )
-            kappa = scale[0]
-            for j in range(n):
-                torques[TAU, j] -= (1.0 - kappa) * po_tau[j]
-                po_tau[j] *= kappa
-        bound_cut = passivity_control(
+        out.scalars[PC_CUT] = passivity_control(
             po_energy,
             po_tau,
             pc_velocity,
@@ -276,11 +249,6 @@ def controller_tick(
             torques[TAU],
             torques[TAU_PC],
         )
-        if kappa < 1.0:
-            # The PC torque carries the stiffness scale too: the whole change of the rendered torque.
-            for j in range(n):
-                torques[TAU_PC, j] += (kappa - 1.0) / kappa * po_tau[j]
-        out.scalars[PC_CUT] = 1.0 - kappa * (1.0 - bound_cut)
     s = motor_commands(torques, record_motors(rec), out.counts)
     out.scalars[SATURATION_SCALE] = s
     # What the motors were commanded to render (the uniform saturation scales it too).
@@ -289,10 +257,9 @@ def controller_tick(
     if deadman and not r.rate_mode:
         dx_cmd = out.vectors[DELTA_X_CMD]
         if r.pc_hold:
-            # The hold takes the energy bound's cut only: the stiffness scale softens the wall
-            # the slave presses, it does not hold the slave off it.
+            cut = out.scalars[PC_CUT] if r.pc_on else 0.0
             coupling_hold(
-                bound_cut,
+                cut,
                 T_0_G[0:3, 0:3],
                 out.vectors[G_F_T],
                 dx_cmd,

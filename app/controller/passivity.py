@@ -294,6 +294,47 @@ step (median of 20,000 interleaved, Kraft; 4.14 against 4.18 us) with no trip. W
 need, measured here: a trip that tells a transient from a cycle (both are a few active reversals
 within the rest time), and a floor from the device (the Colgate / Abbott-Okamura device-only
 stiffness) so that a frictionless device's reversals cannot scale the wall away.
+
+The same detector with both (helper passivity13; measured, not shipped; commit aa964a3 on branch
+passivity13, rows, traces and patches in its notes). Traces at the reversals of 24 tuned points
+(12 stable walls passivity12 took away, 12 cycles it stopped) showed what its trips were: most of
+the walls it took away carry a steady *one-count* dither at the grip whose rendered swing exceeds
+``2 f_c`` (Kraft, 120/3 hand, 2x: 0.6 <-> 1.3 N every 20 ms over one count) while the contact force
+stays still, Abbott & Okamura's bounded quantisation mode, and a touch's ring that decays (JPL,
+gear 0.5, 0.25x: swings 9.9, 8.6, 5.0, 7.3, 5.5 ... 1.3 N); the cycles move several counts a half
+period (Kraft, 16-bit, 1x: 7-8 counts, 4-7 N). A reversal therefore counts only when (a) its
+swing exceeds ``2 f_c``, (b) the grip travelled, since the previous reversal, further than one
+count of every joint at once (``sum_j |J_v,j| c_j`` at home: 464 / 354 / 732 um on kraft / jpl /
+freflex), so not the quantisation's buzz, and (c) its swing has not decayed against the counted
+swing a cycle before faster than the device's own damping would let it, ``s >= s' exp(-t / (2 M /
+d))`` with the slowest joint's amplitude time ``2 M_jj / d_j`` (3.5 / 16 / 8 s): a transient
+decays at the whole loop's damping, the hand's included. Counts leak with the rest time, six trip
+(passivity12's, not re-chosen), ``1 / sqrt(2)`` a trip, and a trip never takes the cycle's own
+stiffness (its swing over its travel) below ``2 b / T`` with the device's own ``b`` (Colgate &
+Schenkel; 803 / 290 / 630 N/m at 1 kHz from the least grip damping), nor trips a cycle already
+below it. Requiring every swing not to have shrunk, the count starting over at one that had
+(tried first, travel not tested), hardly ever tripped: a real cycle's swings jitter by +-50 %
+reversal to reversal (33 hard points: 2 / 0 / 7, 0 / 0 / 1, 10 / 2 / 20 against this PC's 2 / 0 /
+7, 0 / 0 / 1, 11 / 2 / 21). (b) and (c) were
+chosen on those 24 tuned traces before any matrix run; on the tuned set the variants: one count
+of the coarsest joint instead of all (231 / 4 / 14), no decay test (222 / 10 / 16), three
+reversals (228 / 20 / 37). Stable / worse / vanish (secant; capped) against this PC's 204 / 1 /
+14 (9), 99 / 0 / 1 (1), 206 / 2 / 43 (33): tuned 210 / 1 / 14 (9), held out 99 / 0 / 1 (1),
+encoders 213 / 3 / 42 (31). It no longer takes any stable wall down (felt within 20 % of plain's
+at all 127 / 62 / 125 points both hold; passivity12 43 / 8 / 54), but it trips at few points (it
+changes 18 of 1,080): the touch and push transients are gone, and so is most of what passivity12
+held, whose cycles were mostly one-count or irregular. Worse + vanish ties this PC on every set
+(15 / 1 / 45), so the rule (lower on every set) is not met: on the encoder set it removes two
+vanishing walls (Kraft 16-bit, 100/10 hand, 4x: the scale stands in for the energy bound's cut,
+felt 6.2 -> 12.8 kN/m, stable; 20-bit: 6.4 -> 22.6 kN/m, left at a 0.2 N ripple) and adds one
+(11-bit JPL, 120/3 hand, 0.25x: after its trips the
+softer wall lets the grip cross its 1.3 mm counts and the slave, stepped a count at a time, rings
+at 22 N where this PC held still). The vanishing walls this PC leaves are out of any stiffness
+scale's reach: most are walls plain rendering itself cannot hold (its felt there is below half
+of what it holds at a smaller multiple) or walls the energy bound cut to 0.05-0.3x of plain's on 10-12-bit
+encoders, where a scale that only lowers the wall cannot raise the felt. Cost: +0.02-0.04 us a
+pose-mode step over this PC (median of 20,000 interleaved, Kraft pressed and dithering; 3.94 /
+5.37 / 5.90 against 3.97 / 5.41 / 5.92 us in three runs).
 """
 
 from __future__ import annotations
@@ -306,7 +347,7 @@ import numpy as np
 from numba import njit
 
 from app.config import Checked, Range
-from app.device.dissipation import grip_damping_matrix, grip_jacobian, joint_damping, joint_friction
+from app.device.dissipation import grip_damping_matrix, joint_damping, joint_friction
 from app.device.spec import DeviceSpec
 from app.spatial import Array
 
@@ -346,11 +387,6 @@ class PassivitySettings(Checked):
         observe_device: The observer credits what the device's own hardware surely dissipated
             (friction and damping from its file, see "The observed port" in the module
             docstring): the port it watches is the one the hand holds, not the motors'.
-        chatter_scale: Pose mode: a limit-cycle detector at the port sets the wall's stiffness
-            scale (see "The chatter scale" in the module docstring, :func:`chatter_scale`).
-        chatter_reversals: Active count reversals (leaking with the device's rest time) that
-            trip the detector (-).
-        chatter_step: Factor (0, 1) the stiffness scale is multiplied by at each trip.
     """
 
     enabled: bool = False
@@ -364,28 +400,6 @@ class PassivitySettings(Checked):
     hold_slave: bool = True
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
-    chatter_scale: bool = False
-    chatter_reversals: Annotated[float, Range(1.0, 1e3)] = 6.0
-    chatter_step: Annotated[float, Range(0.0, 1.0, lo_open=True, hi_open=True)] = math.sqrt(0.5)
-
-
-def grip_friction(device: DeviceSpec) -> float:
-    """The least Coulomb friction force (N) any translation of the grip meets at the home pose:
-    ``min_i sum_j f_c,j |(J_v^+ e_i)_j|`` over the axes ``e_i`` of {0}, ``J_v`` the grip's
-    translational Jacobian (3 x n) and ``f_c`` :func:`~app.device.dissipation.joint_friction`:
-    the friction work per metre of grip travel along that axis."""
-    J = grip_jacobian(device)[0:3]
-    per_axis = np.abs(np.linalg.pinv(J)).T @ joint_friction(device)
-    return float(per_axis.min())
-
-
-def grip_count(device: DeviceSpec) -> float:
-    """The grip's travel (m) over one encoder count of every joint at once at the home pose,
-    ``sum_j |J_v,j| c_j`` (``J_v,j`` column ``j`` of the grip's translational Jacobian, ``c_j``
-    one count): the most a one-count dither of the joints can move the grip; 0 for ideal
-    encoders."""
-    J = grip_jacobian(device)[0:3]
-    return float(np.linalg.norm(J, axis=0) @ device.encoder_step)
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -620,114 +634,3 @@ def coupling_hold(
             offset[i] *= scale
     for i in range(3):
         dx_cmd[i] -= offset[i]
-
-
-@njit(cache=True)
-def chatter_scale(
-    R_0_G: Array,
-    G_F: Array,
-    dx: Array,
-    dx_prev: Array,
-    state: Array,
-    dt: float,
-    friction: float,
-    count: float,
-    memory: float,
-    b_device: float,
-    reversals: float,
-    step: float,
-) -> bool:
-    """The limit-cycle detector at the port: sets the wall's stiffness scale ``kappa = state[0]``.
-
-    The grip's motion along the rendered force ``f_0 = R_0_G G_F[0:3]`` (the change of Delta X,
-    from the encoders) *reverses* when its sign is the opposite of its last nonzero one; the
-    reversal's *swing* ``s`` is the change of the force as rendered, ``kappa |f_0|``, since the
-    previous reversal, its *travel* the grip's motion along ``f_0`` since then. It is a reversal
-    of the wall's sampled-data limit cycle, Abbott & Okamura's (2005) unstable mode, when
-
-    - ``s > 2 friction``: a swing within twice the Coulomb friction at the grip is absorbed by
-      it (Abbott & Okamura 2005; Diolaiti et al. 2006);
-    - ``travel > count``: more than one count of every joint at once can move the grip, so not
-      their other mode, the bounded one-count buzz of the quantisation (``count`` from
-      :func:`grip_count`), which plain rendering shows under a wall it holds;
-    - the swing has not decayed over the cycle: ``s >= s' exp(-t / (4 memory))``, ``s'`` the
-      swing of the last such reversal but one, ``t`` the time since it, ``4 memory`` the
-      amplitude time constant ``2 M / d`` of the device's slowest joint on its own damping
-      (``memory = M / (2 d)``). A touch's or a push's transient decays at the damping of the
-      whole loop, the hand's included, faster than that; a limit cycle does not decay. A
-      decayed swing is not counted.
-
-    Counted reversals add up in ``R``, leaking with ``memory``; at ``R >= reversals`` ``kappa`` is
-    multiplied by ``step``, but not below where the cycle's own stiffness ``K = s / travel``
-    reaches ``2 b_device / dt``, Colgate & Schenkel's bound with the device's own damping (no
-    hand): below it the sampled wall cannot go unstable whatever holds the grip, so a device
-    without friction cannot have its wall scaled away. A cycle already below it does not trip.
-    After a trip, or out of contact, the swings start over. While ``kappa |f_0| <= friction`` (the
-    rendered force cannot move the device: out of contact) ``kappa`` recovers toward 1 with
-    ``memory``. The caller scales the rendered torque by ``kappa``: the stiffness ``K_T K_P k_s``
-    the loop renders, not a cap on its force.
-
-    Args:
-        R_0_G: The grip's orientation in {0} (3, 3). ``G_F``: the rendered wrench in {G} (6,).
-        dx: Delta X (6,): its translations (m, {0}). ``dx_prev``: last tick's (3,), updated.
-        state: ``[kappa, R, direction, force at the last reversal (N), travel since it (m), the
-            last two counted swings s, s' (N; inf: none), time since the last counted reversal,
-            the interval before it (s)]``, (9,), updated.
-        dt: Servo period (s); 0 = no usable period (nothing is counted or recovered).
-        friction: The least Coulomb friction force at the grip (N, :func:`grip_friction`).
-        count: The grip's travel over one count of every joint (m, :func:`grip_count`).
-        memory: The device's rest time (s, :func:`~app.device.dissipation.rest_time`).
-        b_device: The device's own least translational damping at the grip (N s/m).
-        reversals: ``R`` at which the detector trips. ``step``: ``kappa``'s factor at a trip.
-
-    Returns:
-        Whether the detector tripped this tick.
-    """
-    f0 = R_0_G[0, 0] * G_F[0] + R_0_G[0, 1] * G_F[1] + R_0_G[0, 2] * G_F[2]
-    f1 = R_0_G[1, 0] * G_F[0] + R_0_G[1, 1] * G_F[1] + R_0_G[1, 2] * G_F[2]
-    f2 = R_0_G[2, 0] * G_F[0] + R_0_G[2, 1] * G_F[1] + R_0_G[2, 2] * G_F[2]
-    norm = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
-    along = (dx[0] - dx_prev[0]) * f0 + (dx[1] - dx_prev[1]) * f1 + (dx[2] - dx_prev[2]) * f2
-    for i in range(3):
-        dx_prev[i] = dx[i]
-    if dt <= 0.0:
-        return False
-    rendered = state[0] * norm
-    decay = math.exp(-dt / memory)
-    state[1] *= decay
-    if rendered <= friction:
-        state[0] = 1.0 - (1.0 - state[0]) * decay
-        state[4] = state[7] = state[8] = 0.0
-        state[5] = state[6] = math.inf
-        return False
-    state[7] += dt
-    if along == 0.0:
-        return False
-    moved = abs(along) / norm
-    d = 1.0 if along > 0.0 else -1.0
-    if d != -state[2]:
-        state[2] = d
-        state[4] += moved
-        return False
-    swing = abs(rendered - state[3])
-    travel = state[4]
-    state[2] = d
-    state[3] = rendered
-    state[4] = moved
-    if swing <= 2.0 * friction or travel <= count:
-        return False
-    if swing >= state[6] * math.exp(-(state[7] + state[8]) / (4.0 * memory)):
-        state[1] += 1.0
-    state[6] = state[5]
-    state[5] = swing
-    state[8] = state[7]
-    state[7] = 0.0
-    if state[1] < reversals:
-        return False
-    state[1] = 0.0
-    state[5] = state[6] = math.inf
-    bound = 2.0 * b_device / dt
-    if swing <= bound * travel:
-        return False
-    state[0] *= max(step, bound * travel / swing)
-    return True

@@ -117,8 +117,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         names. min_period, max_period: accepted periods (s). ramp_rate (1/s), max_joint_speed and
         release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. pc_on, pc_limit
         (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), po_count (rad, (n,)), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_filter (s),
-        pc_hold, pc_b_device (N s/m), pc_bleed (s), pc_chatter, pc_grip_friction (N), pc_grip_count (m), pc_rest (s), pc_reversals,
-        pc_scale_step: :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
+        pc_hold, pc_b_device (N s/m), pc_bleed (s): :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
         (n,) each (N m or N; -). horner_pos, horner_neg: (n, n_coeffs) torque curves, highest
         order first; counts_max: the amplifier's range. payload_mass (kg), payload_com_S (m, in
         {S}), payload_inertia_S (kg m^2, about the centre of mass, {S} axes), gravity_w (m/s^2,
@@ -138,8 +137,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         edge of its count the joint last crossed (rad or m), (n,); pc_velocity: the low-passed joint velocity the
         passivity controller uses (n,); pc_offset: the PC's hold on
         the slave's command (m, {0}, (3,)); pc_dx_prev: last tick's Delta X command translations
-        before it (m, (3,)); pc_scale, pc_scale_prev: the chatter detector's
-        state and last tick's Delta X translations (:func:`~app.controller.passivity.chatter_scale`).
+        before it (m, (3,)).
 
     Outputs (see :class:`~app.controller.frhc.ControllerOutput`):
         T_0_G, T_0_G0 (4, 4); vectors (9, 6); torques (8, n); counts (n,) int64; scalars (6,);
@@ -176,14 +174,6 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("pc_bleed", f8),
             ("pc_offset", f8, (3,)),
             ("pc_dx_prev", f8, (3,)),
-            ("pc_chatter", b1),
-            ("pc_rest", f8),
-            ("pc_reversals", f8),
-            ("pc_scale_step", f8),
-            ("pc_grip_friction", f8),
-            ("pc_grip_count", f8),
-            ("pc_scale", f8, (9,)),
-            ("pc_scale_prev", f8, (3,)),
             ("assist_limit", f8, (n,)),
             ("joint_limit", f8, (n,)),
             ("gear_ratio", f8, (n,)),

@@ -39,13 +39,6 @@ def grip_damping_matrix(device: DeviceSpec) -> Array | None:
     damping = joint_damping(device)
     if not np.all(damping > 0.0):
         return None
-    J = grip_jacobian(device)
-    return np.asarray(np.linalg.pinv(J @ (J.T / damping[:, None])))
-
-
-def grip_jacobian(device: DeviceSpec) -> Array:
-    """The grip site's 6 x n Jacobian at the home pose in the device base {0} (rows: linear (m/rad
-    or -), then angular velocity (-, or rad/m) of the grip point)."""
     model = device.model
     data = mujoco.MjData(model)
     data.qpos[list(device.qpos_ids)] = device.data.home
@@ -54,23 +47,5 @@ def grip_jacobian(device: DeviceSpec) -> Array:
     site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, device.data.grip_site)
     J = np.zeros((6, model.nv))
     mujoco.mj_jacSite(model, data, J[:3], J[3:], site)
-    return J[:, list(device.dof_ids)]
-
-
-def rest_time(device: DeviceSpec) -> float:
-    """The device's own rest time (s): the slowest joint's ``M_jj / (2 d_j)``, the time constant in
-    which joint ``j``'s viscous damping ``d_j`` (:func:`joint_damping`) removes its kinetic energy,
-    ``M_jj`` the joint-space inertia at the home pose with the plant's armature. Inf if some joint
-    has no damping (it never comes to rest by itself)."""
-    damping = joint_damping(device)
-    if not np.all(damping > 0.0):
-        return float("inf")
-    model = device.model
-    data = mujoco.MjData(model)
-    data.qpos[list(device.qpos_ids)] = device.data.home
-    mujoco.mj_forward(model, data)
-    M = np.zeros((model.nv, model.nv))
-    mujoco.mj_fullM(model, data, M)
-    dofs = list(device.dof_ids)
-    inertia = np.diag(M)[dofs] + device.data.plant.per_joint("armature", device.n_joints)
-    return float(np.max(inertia / (2.0 * damping)))
+    J = J[:, list(device.dof_ids)]
+    return np.asarray(np.linalg.pinv(J @ (J.T / damping[:, None])))

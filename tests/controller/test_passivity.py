@@ -14,12 +14,9 @@ from hypothesis.extra.numpy import arrays
 
 from app.controller.passivity import (
     PassivitySettings,
-    chatter_scale,
     coupling_hold,
     crossed_edge,
     device_dissipation,
-    grip_count,
-    grip_friction,
     observe_energy,
     passivity_control,
 )
@@ -301,101 +298,3 @@ def test_a_one_count_dither_reads_as_no_work_where_the_encoder_difference_reads_
     assert entered == pytest.approx(0.5 * f_c * c)
     assert e[0] == entered
     assert encoder == pytest.approx(-10 * (Kc - 2 * f_c) * c)
-
-
-#: The detector's device in these tests: friction at the grip 0.2 N, one count of every joint
-#: 0.1 mm at the grip, rest time 1 s, damping 1 N s/m (device-only bound 2 b / T = 2,000 N/m at
-#: 1 kHz), 6 reversals to trip, the scale halved at a trip.
-DETECTOR = (0.2, 1e-4, 1.0, 1.0, 6.0, 0.5)
-
-
-def _fresh() -> np.ndarray:
-    state = np.zeros(9)
-    state[0] = 1.0
-    state[5] = state[6] = math.inf
-    return state
-
-
-def _dither(state: np.ndarray, K: float, depths: list[float], F0: float = 20.0) -> int:
-    """A grip dithering along z under an upward wall force ``F0 + K penetration`` (N): each tick it
-    goes in to ``depth`` and the next back to 0, a reversal every tick; ``F0`` keeps the rendered
-    force above the friction (in contact) down to the scale's floor. Returns the trips."""
-    prev, trips = np.zeros(3), 0
-    for depth in depths:
-        for z in (-depth, 0.0):
-            G_F = np.array([0.0, 0.0, F0 - K * z, 0.0, 0.0, 0.0])
-            dx = np.array([0.0, 0.0, z, 0.0, 0.0, 0.0])
-            trips += chatter_scale(np.eye(3), G_F, dx, prev, state, T, *DETECTOR)
-    return trips
-
-
-def test_a_sustained_cycle_trips_down_to_the_device_only_bound_and_no_further() -> None:
-    """Three counts' travel at 50 kN/m (swings of 15 N, not decaying): it trips, halving the wall
-    while its own stiffness is above 2 b / T, and the last trip stops exactly there: kappa 2,000 /
-    50,000 = 0.04, not 0.03125; a wall already at or below the bound never trips."""
-    state = _fresh()
-    assert _dither(state, 5e4, [3e-4] * 400) >= 5
-    assert state[0] == pytest.approx(0.04, rel=1e-9)
-    soft = _fresh()
-    assert _dither(soft, 1500.0, [1e-3] * 400) == 0
-    assert soft[0] == 1.0
-
-
-def test_a_one_count_dither_and_a_decaying_ring_do_not_trip() -> None:
-    """The same 50 kN/m wall dithering over one count of every joint (Abbott & Okamura's bounded
-    quantisation mode, swings of 5 N far above the friction) never trips; a ring from 3 mm whose
-    travel shrinks by 0.8 a reversal (a transient the hand damps: much faster than the device's own
-    amplitude time 4 s) does not trip either, while the same ring kept at 3 mm does."""
-    quantised = _fresh()
-    assert _dither(quantised, 5e4, [1e-4] * 400) == 0
-    ring = _fresh()
-    assert _dither(ring, 5e4, [3e-3 * 0.8**k for k in range(40)]) == 0
-    assert ring[0] == 1.0
-    kept = _fresh()
-    assert _dither(kept, 5e4, [3e-3] * 40) > 0
-
-
-def test_the_scale_recovers_over_the_rest_time_only_out_of_contact() -> None:
-    """Within the friction (the wall cannot move the device) the scale recovers toward 1 with the
-    rest time (1 s): from 0.5, 1 - 0.5 exp(-1) after 1 s. Pressed (above the friction) it stays."""
-    state, pressed = _fresh(), _fresh()
-    state[0] = pressed[0] = 0.5
-    prev, still = np.zeros(3), np.zeros(6)
-    light = np.array([0.0, 0.0, 0.1, 0.0, 0.0, 0.0])
-    for _ in range(1000):
-        chatter_scale(np.eye(3), light, still, prev, state, T, *DETECTOR)
-        chatter_scale(np.eye(3), 80 * light, still, prev, pressed, T, *DETECTOR)
-    assert state[0] == pytest.approx(1.0 - 0.5 * math.exp(-1.0), rel=1e-9)
-    assert pressed[0] == 0.5
-
-
-def test_the_grip_count_is_the_grip_travel_of_one_count_of_each_joint() -> None:
-    """Kraft at home: the sum over the joints of how far one count of each moves the grip (finite
-    differences of MuJoCo's kinematics) equals the Jacobian's sum to first order."""
-    import mujoco
-
-    kraft = load_device("kraft")
-    model, data = kraft.model, mujoco.MjData(kraft.model)
-    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, kraft.data.grip_site)
-    ids = list(kraft.qpos_ids)
-
-    def grip(q: np.ndarray) -> np.ndarray:
-        data.qpos[ids] = q
-        mujoco.mj_kinematics(model, data)
-        return data.site_xpos[site].copy()
-
-    home = np.array(kraft.data.home, dtype=float)
-    moved = sum(
-        float(np.linalg.norm(grip(home + c * np.eye(len(ids))[j]) - grip(home)))
-        for j, c in enumerate(kraft.encoder_step)
-    )
-    assert grip_count(kraft) == pytest.approx(moved, rel=1e-3)
-
-
-def test_the_grip_friction_is_the_least_joint_friction_work_per_metre_of_grip_travel() -> None:
-    """Kraft at home: positive, and no more than the friction work along z alone."""
-    from app.device.dissipation import grip_jacobian, joint_friction
-
-    kraft = load_device("kraft")
-    along_z = np.abs(np.linalg.pinv(grip_jacobian(kraft)[0:3]) @ np.array([0.0, 0.0, 1.0])) @ joint_friction(kraft)
-    assert 0.0 < grip_friction(kraft) <= along_z

@@ -87,6 +87,18 @@ geometry outside the solid, kept: no field exact there can avoid it.
 Across the hand-over from a held entry to the face the gradient of the weight can make the force
 larger than either part (61 N 0.7 mm under a box's top entered 15 degrees off its edge's bisector,
 on a loop 4 mm past the edge, where the face alone gives 17 N and the entry 27 N).
+A tool that entered through an edge and leaves through the other face steps by about ``k r``
+(26-28 N at 3000 N/m and 5 mm, any entry angle, in 10 um moves). Two hand-overs were measured
+and not shipped (branches wall12 and wall13): (a) hold ``k (r + s)`` on the entry line, (b) meet
+``k r n`` on each face's plane, (c) be a gradient with a bounded force: no field has all three.
+Blending potentials keeps (a)-(c) only with a bulge of at least ``k (r + s/2) / theta`` across a
+wedge of angle theta (wall12: exits fixed above 20 degrees only, the bulge 25 % higher); blending
+forces removes the step at every angle (28 -> 0.6-7 N) and the bulge, but gives back up to 2.3e-2
+J round a 1 mm loop 3 mm past the edge, 5-19x what the Kraft, the least cited hand and the
+contact damping dissipate on it at 0.01-0.1 m/s (wall13), and made passive by a depth shortfall
+it drains the held wall instead (24 N -> 0 in seven loops). Most such steps are not edge entries
+anyway: a push passing 20 um beside the edge is a face entry and steps 23-28 N too, as a
+god-object's proxy would snap round the dilated edge.
 A sharp-cornered part hidden behind less than r of material still pushes (as a second
 object would); with the centre inside the solid, a secondary contact can switch on or off where
 the plane of a cut face extends into the material (the force is continuous outside the solid,

@@ -16,7 +16,7 @@ Starts the demo on a free port and opens it in headless chromium (1400x900), the
 4. records the live page's loop during 2 and 3, replays the same stretches of that log at 1x and
    counts the same bytes (same run, side by side); for each, what the server sent by kind of
    message (:class:`SentByKind`);
-5. with ``--screenshots``, writes the README's screenshots to ``assets/web/`` (palette PNGs);
+5. with ``--screenshots``, writes the README's screenshots to ``assets/web/`` (exact-colour PNGs);
 6. with ``--trace``, records chromium's own trace while it counts the update rate while dragging
    and prints where the page's time went (:func:`trace_split`): its main thread waiting for the
    WebGL frame to be read back (the GPU process rendering it in software), running JavaScript
@@ -278,7 +278,8 @@ def drag_circle(app: DemoApp, stop: threading.Event, radius: float = 0.02, perio
 
 
 def screenshot(app: DemoApp, page: Any, name: str, preset: str = "both") -> Path:
-    """A palette PNG in ``assets/web/<name>.png`` (the README's; well under 300 KB) of the demo in a
+    """A PNG in ``assets/web/<name>.png`` (the README's; exact colours, 140-270 KB: a 128-colour
+    palette made them 3-4x smaller and shifted the rarer colours, the arrows' and the gizmo's) of the demo in a
     second page like ``page``, opened with ``?fixedDpr=1``: its 3D view at full resolution and
     antialiased, as a browser with a GPU draws it (headless chromium renders in software, where
     the page draws at :data:`~app.web.camera.SOFTWARE_PIXEL_RATIO` without antialiasing, fixed
@@ -302,7 +303,7 @@ def screenshot(app: DemoApp, page: Any, name: str, preset: str = "both") -> Path
     finally:
         shot.close()
     out = SHOT_DIR / f"{name}.png"
-    Image.open(raw).convert("RGB").quantize(colors=128).save(out, optimize=True)
+    Image.open(raw).convert("RGB").save(out, optimize=True)
     raw.unlink()
     return out
 

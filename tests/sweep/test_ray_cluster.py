@@ -186,3 +186,25 @@ def test_a_sweep_joins_a_loopback_head_with_its_token_and_is_refused_in_one_line
         assert error[0].startswith(f"error: --address {runs[name][0]}: "), error[0]
         assert reason in error[0], error[0]
     assert "RAY_AUTH_MODE=token" in results["no token"][1]
+
+
+def test_a_sweep_asking_for_more_workers_than_the_cluster_has_cpus_runs_every_point(
+    ray_head: tuple[str, str], tmp_path: Path
+) -> None:
+    """Three workers asked of the one-CPU head (``--workers`` defaults to this machine's cores,
+    not the cluster's): the two Ray cannot place never load the task, and no point waits on them.
+    Before, each was given points as it was asked for, and those points waited for ever (an
+    experiment with a real head stopped at 6 of 8 runs)."""
+    address, token = ray_head
+    sweep = tmp_path / "four.toml"
+    sweep.write_text('base = "probe_rate"\n[[vary]]\nfield = "duration"\nvalues = [0.05, 0.06, 0.07, 0.08]\n')
+    proc = subprocess.run(
+        frhc_command("sweep", str(sweep), "--address", address, "--workers", "3", "--out", str(tmp_path / "out")),
+        env=frhc_env(RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token),
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = pq.read_table(tmp_path / "out" / "results.parquet").to_pylist()
+    assert sorted(r["status"] for r in rows) == ["ok"] * 4

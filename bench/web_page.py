@@ -279,8 +279,8 @@ def drag_circle(app: DemoApp, stop: threading.Event, radius: float = 0.02, perio
 
 def screenshot(app: DemoApp, page: Any, name: str, preset: str = "both") -> Path:
     """A PNG in ``assets/web/<name>.png`` (the README's; exact colours, 140-270 KB: a 128-colour
-    palette made them 3-4x smaller and shifted the rarer colours, the arrows' and the gizmo's) of the demo in a
-    second page like ``page``, opened with ``?fixedDpr=1``: its 3D view at full resolution and
+    palette made them 3-4x smaller and shifted the rarer colours, the arrows' and the gizmo's) of
+    the demo in a second page like ``page``, opened with ``?fixedDpr=1``: its 3D view at full resolution and
     antialiased, as a browser with a GPU draws it (headless chromium renders in software, where
     the page draws at :data:`~app.web.camera.SOFTWARE_PIXEL_RATIO` without antialiasing, fixed
     when the page makes its WebGL context); its camera on ``preset``."""

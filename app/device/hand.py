@@ -7,10 +7,9 @@ Scripts set that target; the browser gizmo drags it. The hand pushes on the grip
     f = K_t (p_H - p_G) - D_t v_G                 (N, base {0} coordinates, acting at the G origin)
     m = K_r log(R_H R_G^T) - D_r omega_G          (N m, base {0} coordinates)
 
-their magnitudes limited to a person's strength (``HandParams.force_limit``, ``torque_limit``).
-
 where ``v_G``/``omega_G`` are the grip's linear (m/s) and angular (rad/s) velocities in {0} and
-``log(R_H R_G^T)`` is the rotation vector (rad) turning {G} onto {H}, in {0}.
+``log(R_H R_G^T)`` is the rotation vector (rad) turning {G} onto {H}, in {0}; their magnitudes are
+limited to a person's strength (``HandParams.force_limit``, ``torque_limit``).
 
 It is built from MuJoCo parts so that it costs no Python in the servo loop: {H} is a mocap body
 with a site, and six position actuators with a *site transmission* (``site = grip``,
@@ -129,12 +128,13 @@ class HandParams(Checked):
             et al. 2012), a grip held with co-contraction stiffer.
         damping_rot: Rotational damping D_r (N m s/rad); no source found.
         force_limit: The most the hand pushes or pulls (N): a person's strength, the bound on the
-            force's magnitude (each axis of {H} is limited to ``force_limit / sqrt(3)``). 400, the strongest isometric pull of males seated or standing anywhere in
-            the workspace (Das & Wang 2004, Int. J. Occup. Saf. Ergon. 10(1):43-58; their
-            strongest push, 227-251 N, is lower).
-        torque_limit: The most the hand twists (N m), the same way. 18.7, the largest
-            peak isometric wrist moment of ten males (flexion 5.2-18.7, radial-ulnar deviation up
-            to 15.3; Delp, Grierson & Buchanan 1996, J. Biomech. 29(10):1371-1375).
+            force's magnitude (each axis of {H} is limited to ``force_limit / sqrt(3)``). 400, the
+            strongest isometric pull of males seated or standing anywhere in the workspace (Das &
+            Wang 2004, Int. J. Occup. Saf. Ergon. 10(1):43-58; their strongest push, 227-251 N, is
+            lower).
+        torque_limit: The most the hand twists (N m), the same way. 18.7, the largest peak
+            isometric wrist moment of ten males (flexion 5.2-18.7, radial-ulnar deviation up to
+            15.3; Delp, Grierson & Buchanan 1996, J. Biomech. 29(10):1371-1375).
     """
 
     stiffness_trans: Annotated[float, Range(0.0, 1e4, "N/m")] = 400.0
@@ -153,8 +153,8 @@ def add_hand(mjspec: mujoco.MjSpec, grip_site: str, params: HandParams) -> None:
     kv = [params.damping_trans] * 3 + [params.damping_rot] * 3
     # A target far from the grip is a person pulling as hard as they can, not a spring of
     # kilonewtons: 30 m out, the unlimited spring (12 kN) drove the Touch's joints unstable
-    # within 12 ms and the Kraft's to 850 rad/s.
-    # MuJoCo limits each actuator, so each axis gets the share that keeps the magnitude within.
+    # within 12 ms and the Kraft's to 850 rad/s. MuJoCo limits each actuator, so each axis gets
+    # the share that keeps the magnitude within.
     share = 1.0 / math.sqrt(3.0)
     limit = [params.force_limit * share] * 3 + [params.torque_limit * share] * 3
     for k in range(6):

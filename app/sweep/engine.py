@@ -361,7 +361,7 @@ class Engine:
         load = [0] * n
         alone = [False] * n  # the slot runs a suspect
         queue = iter(points)
-        more = [True]  # the queue may hold points yet
+        more = True  # the queue may hold points yet
         suspects: deque[_Job] = deque()  # points lost with a dead worker, to run alone
 
         def replace(k: int) -> None:
@@ -376,12 +376,13 @@ class Engine:
             load[k] += 1
 
         def fill() -> None:
+            nonlocal more
             # Only a worker that has loaded the task takes points: one the cluster cannot place
             # (more workers asked for than it has free CPUs) would hold its points for ever.
             for k in range(n):
                 if alone[k] or not loaded[k]:
                     continue
-                if suspects and loaded[k] and load[k] == 0:
+                if suspects and load[k] == 0:
                     job = suspects.popleft()
                     job.alone = alone[k] = True
                     submit(k, job)
@@ -390,7 +391,7 @@ class Engine:
                 while load[k] < (1 if suspects else 1 + QUEUE_PER_WORKER):
                     nxt = next(queue, None)
                     if nxt is None:
-                        more[0] = False
+                        more = False
                         break
                     submit(k, _Job(*nxt))
 
@@ -406,7 +407,7 @@ class Engine:
             return {"status": "error", "error": f"worker died running this point: {' '.join(str(exc).split())[:300]}"}
 
         fill()
-        while pending or suspects or more[0]:
+        while pending or suspects or more:
             loads = {self._loads[k]: k for k in range(n) if not loaded[k]}
             done, _ = ray.wait([*pending, *loads], num_returns=1)
             if done[0] in loads:

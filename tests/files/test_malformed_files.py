@@ -196,6 +196,12 @@ CASES: dict[str, dict[str, Case]] = {
         "hand damping 1e300": P(
             "accommodation = true", "accommodation = true\n[hand]\ndamping_trans = 1e300", "hand.damping_trans"
         ),
+        "hand force_limit 0": P(
+            "accommodation = true", "accommodation = true\n[hand]\nforce_limit = 0.0", "hand.force_limit"
+        ),
+        "hand torque_limit nan": P(
+            "accommodation = true", "accommodation = true\n[hand]\ntorque_limit = nan", "hand.torque_limit", "NaN"
+        ),
         "passivity damping inf": P(
             "accommodation = true",
             "accommodation = true\n[passivity]\nfriction_credit = inf",

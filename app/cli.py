@@ -63,6 +63,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
         session = load_session(args.session)
     if args.rate is not None:
         session = session.with_changes(servo_rate=args.rate)
+    if args.device is not None and session.data.passivity.enabled:
+        raise ConfigError(
+            session.path or args.session,
+            "passivity.enabled",
+            f"the passivity controller needs a device driven joint by joint; --device {args.device} is driven through its Cartesian interface",
+        )
     for notice in session.notices:
         print(f"warning: {notice}", file=sys.stderr)
     if args.device is not None:  # the device link's changes (connect, stall, loss) on stderr

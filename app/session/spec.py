@@ -197,6 +197,13 @@ def resolve_session(data: SessionFile, path: Path | None) -> Session:
             "gains.max_period",
             f"{gains.max_period:g} s is shorter than the servo period 1/{data.servo_rate:g} Hz: every tick would overrun",
         )
+    if data.passivity.enabled and device.data.interface == "cartesian":
+        # The controller observes and damps joint ports, which a Cartesian device keeps to itself.
+        raise ConfigError(
+            source,
+            "passivity.enabled",
+            f"the passivity controller needs a device driven joint by joint; {device.name} is driven through its Cartesian interface",
+        )
     return Session(path, data, device, scene, gains)
 
 

@@ -15,6 +15,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from app.errors import ConfigError
 from app.session import load_session, run_session
 from app.session.log import PART_SECONDS, read_log
 from app.session.loop import ServoLoop
@@ -189,3 +190,26 @@ def test_an_event_due_at_or_after_the_run_end_is_named_by_run_and_check(tmp_path
         f"warning: {n}" for n in load_session(path).notices
     ]
     assert load_session("probe_rate").notices == ()
+
+
+def test_the_passivity_controller_asked_of_a_cartesian_device_is_one_line(tmp_path: Path) -> None:
+    """``[passivity] enabled = true`` with a device driven through its Cartesian interface (the
+    touch3 file, or any device behind ``--device``): refused naming ``passivity.enabled``, exit
+    2. Before, ``frhc run`` ended in a ValueError traceback from the controller and ``frhc check``
+    called it a model MuJoCo refuses."""
+    path = tmp_path / "pc.toml"
+    path.write_text('scene = "probe"\ndevice = "touch3"\nduration = 0.2\n[passivity]\nenabled = true\n')
+    with pytest.raises(ConfigError) as info:
+        load_session(path)
+    assert info.value.field == "passivity.enabled"
+    assert "touch3 is driven through its Cartesian interface" in str(info.value)
+    joint = tmp_path / "pc_joint.toml"
+    joint.write_text(path.read_text().replace("touch3", "kraft"))
+    assert load_session(joint).data.passivity.enabled
+    for args in (("run", str(path)), ("check", str(path)), ("run", str(joint), "--device", "ws://127.0.0.1:9")):
+        res = frhc(*args, "--out", str(tmp_path / "out")) if args[0] == "run" else frhc(*args)
+        assert res.returncode == 2, res.stderr
+        assert "Traceback" not in res.stderr
+        assert res.stderr.strip().splitlines()[-1].startswith(f"error: {args[1]}: field 'passivity.enabled': "), (
+            res.stderr
+        )

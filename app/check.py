@@ -54,7 +54,8 @@ def _model_errors(path: Path) -> Iterator[None]:
 
 
 def check_file(name: str) -> str:
-    """Load ``name`` (a path, or a device/scene/session/sweep name) fully; return a one-line description.
+    """Load ``name`` (a path, or a device/scene/session/sweep name) fully; return a one-line description
+    (a session's then one ``warning:`` line per switch event that never fires, :attr:`Session.notices`).
 
     Raises:
         ConfigError: naming the file and field on any problem.
@@ -85,7 +86,7 @@ def check_file(name: str) -> str:
             return (
                 f"session {path.stem}: {session.scene.spec.name} with {session.device.name}, "
                 f"{session.data.mode} mode, {session.data.n_ticks} ticks ({path})"
-            )
+            ) + "".join(f"\nwarning: {notice}" for notice in session.notices)
         if kind == "device":
             device = load_device(path)
             scene = load_scene(DEFAULT_SCENE)

@@ -63,6 +63,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
         session = load_session(args.session)
     if args.rate is not None:
         session = session.with_changes(servo_rate=args.rate)
+    if args.device is not None and session.data.passivity.enabled:
+        raise ConfigError(
+            session.path or args.session,
+            "passivity.enabled",
+            f"the passivity controller needs a device driven joint by joint; --device {args.device} is driven through its Cartesian interface",
+        )
+    for notice in session.notices:
+        print(f"warning: {notice}", file=sys.stderr)
     if args.device is not None:  # the device link's changes (connect, stall, loss) on stderr
         logging.basicConfig(level=logging.INFO, format="%(message)s")
         logging.getLogger("websockets").setLevel(logging.WARNING)
@@ -170,6 +178,10 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     return 0
 
 
+#: Failed sweep points printed with their error (the rest are counted; all are in the table).
+MAX_FAILED_SHOWN = 10
+
+
 def _cmd_sweep(args: argparse.Namespace) -> int:
     with signals_held():
         from app.sweep import load_sweep, run_sweep
@@ -182,6 +194,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         f"results:  {report.results} ({report.table.num_rows} points: {report.ran} run now, {report.skipped} resumed)"
     )
     print(f"failed:   {report.failed}" + (" (see the 'error' column)" if report.failed else ""))
+    failed = [row for row in report.table.to_pylist() if row["status"] != "ok"]
+    for row in failed[:MAX_FAILED_SHOWN]:
+        values = ", ".join(f"{f}={row[f]:g}" if isinstance(row[f], float) else f"{f}={row[f]}" for f in plan.fields)
+        print(f"  point {row['point']} ({values}): {row['error']}")
+    if len(failed) > MAX_FAILED_SHOWN:
+        print(f"  ... and {len(failed) - MAX_FAILED_SHOWN} more")
     if report.plot is not None:
         print(f"plot:     {report.plot}")
     return 0

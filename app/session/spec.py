@@ -142,6 +142,19 @@ class Session:
     scene: Scene
     gains: ControllerGains
 
+    @property
+    def notices(self) -> tuple[str, ...]:
+        """One line per switch event that never fires, naming the file and field: due
+        (``t * time_scale``) at or after the run's end, ``duration``. Not an error: a sweep or
+        ``--rate`` may shorten a run on purpose; a file written that way is likely a mistake."""
+        data, source = self.data, self.path or "<session>"
+        return tuple(
+            f"{source}: field 'events[{i}].t': due at {e.t * data.time_scale:g} s, at or after the run's end "
+            f"({data.duration:g} s): it never fires"
+            for i, e in enumerate(data.events)
+            if e.t * data.time_scale >= data.duration
+        )
+
     def with_changes(self, **changes: Any) -> Session:
         """A copy with fields of the session file replaced (e.g. ``accommodation=False``)."""
         return resolve_session(dataclasses.replace(self.data, **changes), self.path)
@@ -183,6 +196,13 @@ def resolve_session(data: SessionFile, path: Path | None) -> Session:
             source,
             "gains.max_period",
             f"{gains.max_period:g} s is shorter than the servo period 1/{data.servo_rate:g} Hz: every tick would overrun",
+        )
+    if data.passivity.enabled and device.data.interface == "cartesian":
+        # The controller observes and damps joint ports, which a Cartesian device keeps to itself.
+        raise ConfigError(
+            source,
+            "passivity.enabled",
+            f"the passivity controller needs a device driven joint by joint; {device.name} is driven through its Cartesian interface",
         )
     return Session(path, data, device, scene, gains)
 

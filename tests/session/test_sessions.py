@@ -15,6 +15,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from app.errors import ConfigError
 from app.session import load_session, run_session
 from app.session.log import PART_SECONDS, read_log
 from app.session.loop import ServoLoop
@@ -164,3 +165,51 @@ def test_a_run_whose_device_goes_unstable_stops_it_and_says_why(
     assert "went unstable" in result.summary["device_fault"]
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
     assert run_session(session, out_dir=None, plots=False).summary["device_fault"] is None
+
+
+def test_an_event_due_at_or_after_the_run_end_is_named_by_run_and_check(tmp_path: Path) -> None:
+    """Events stretched by ``time_scale`` to the end (0.5 s x 2 = 1.0 s of a 1.0 s run) or past
+    it never fire: ``frhc check`` and ``frhc run`` each say so in one line naming the file and
+    field, and still run. Before, such an event was dropped silently."""
+    path = tmp_path / "late.toml"
+    path.write_text(
+        'scene = "probe"\ndevice = "kraft"\nduration = 1.0\ntime_scale = 2.0\n'
+        "[[events]]\nt = 0.1\ndeadman = true\n[[events]]\nt = 0.5\nreflection = true\n"
+        "[[events]]\nt = 30.0\ndeadman = false\n"
+    )
+    assert load_session(path).notices == (
+        f"{path}: field 'events[1].t': due at 1 s, at or after the run's end (1 s): it never fires",
+        f"{path}: field 'events[2].t': due at 60 s, at or after the run's end (1 s): it never fires",
+    )
+    check = frhc("check", str(path))
+    assert check.returncode == 0, check.stderr
+    assert check.stdout.splitlines()[1:] == [f"warning: {n}" for n in load_session(path).notices]
+    run = frhc("run", str(path), "--out", str(tmp_path / "out"), "--no-plots")
+    assert run.returncode == 0, run.stderr
+    assert [line for line in run.stderr.splitlines() if line.startswith("warning: ")] == [
+        f"warning: {n}" for n in load_session(path).notices
+    ]
+    assert load_session("probe_rate").notices == ()
+
+
+def test_the_passivity_controller_asked_of_a_cartesian_device_is_one_line(tmp_path: Path) -> None:
+    """``[passivity] enabled = true`` with a device driven through its Cartesian interface (the
+    touch3 file, or any device behind ``--device``): refused naming ``passivity.enabled``, exit
+    2. Before, ``frhc run`` ended in a ValueError traceback from the controller and ``frhc check``
+    called it a model MuJoCo refuses."""
+    path = tmp_path / "pc.toml"
+    path.write_text('scene = "probe"\ndevice = "touch3"\nduration = 0.2\n[passivity]\nenabled = true\n')
+    with pytest.raises(ConfigError) as info:
+        load_session(path)
+    assert info.value.field == "passivity.enabled"
+    assert "touch3 is driven through its Cartesian interface" in str(info.value)
+    joint = tmp_path / "pc_joint.toml"
+    joint.write_text(path.read_text().replace("touch3", "kraft"))
+    assert load_session(joint).data.passivity.enabled
+    for args in (("run", str(path)), ("check", str(path)), ("run", str(joint), "--device", "ws://127.0.0.1:9")):
+        res = frhc(*args, "--out", str(tmp_path / "out")) if args[0] == "run" else frhc(*args)
+        assert res.returncode == 2, res.stderr
+        assert "Traceback" not in res.stderr
+        assert res.stderr.strip().splitlines()[-1].startswith(f"error: {args[1]}: field 'passivity.enabled': "), (
+            res.stderr
+        )

@@ -72,6 +72,20 @@ def test_a_failing_point_is_a_row_with_its_error_and_the_sweep_goes_on(serial: P
     assert (serial / "peak_contact_force_N.png").stat().st_size > 0
 
 
+def test_frhc_sweep_names_each_failed_point_with_its_values_and_error(sweep_file: Path, serial: Path) -> None:
+    """The command prints one line per failed point (its index, varied values and error), here
+    on a re-run that resumes every point. Before, only their count ('see the 'error' column')."""
+    res = frhc("sweep", str(sweep_file), "--out", str(serial), "--workers", "1")
+    assert res.returncode == 0, res.stderr
+    bad = [r for r in pq.read_table(serial / "results.parquet").to_pylist() if r["status"] != "ok"]
+    assert bad
+    lines = [line.strip() for line in res.stdout.splitlines() if line.startswith("  point ")]
+    assert len(lines) == len(bad), res.stdout
+    for line, r in zip(lines, bad, strict=True):
+        assert line.startswith(f"point {r['point']} (tremor={r['tremor']:g}, "), line
+        assert line.endswith(f"): {r['error']}"), line
+
+
 def test_ray_gives_the_serial_rows(sweep_file: Path, serial: Path, tmp_path: Path, local_ray: None) -> None:
     report = run_sweep(load_sweep(sweep_file), tmp_path, workers=2)
     assert report.ran == 6

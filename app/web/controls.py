@@ -66,6 +66,12 @@ PLOT_ASPECT = 1.6
 PlotRow = tuple[float, ...]
 #: Rows of a plot sample array (see :data:`PlotRow`).
 PLOT_ROWS = 10
+#: The PO/PC checkbox's hint, on a device with joint ports and on one without (a Cartesian one).
+PC_HINT = (
+    "Passivity observer/controller: the rendered torque is scaled down so the device port never gives out "
+    "more energy than it has taken in"
+)
+PC_UNAVAILABLE = "Not on this device: it is driven through its Cartesian interface, and PO/PC acts on joint ports"
 T = TypeVar("T")
 
 
@@ -279,12 +285,7 @@ class Controls:
             self.gain_message = gui.add_markdown("")
 
         with gui.add_folder("Passivity and delay", expand_by_default=False):
-            self.pc = gui.add_checkbox(
-                "PO/PC",
-                False,
-                hint="Passivity observer/controller: the rendered torque is scaled down so the device port "
-                "never gives out more energy than it has taken in",
-            )
+            self.pc = gui.add_checkbox("PO/PC", False, hint=PC_HINT)
             self.delay = gui.add_number("Delay one way (ms)", 0.0, min=0.0, max=1000.0, step=1.0)
             self.coupling = gui.add_dropdown("Coupling", COUPLINGS, initial_value=COUPLINGS[0])
 
@@ -336,7 +337,11 @@ class Controls:
         for text in self.six.values():
             text.on_update(self._apply_gains)
 
-        self.pc.on_update(lambda _: a.set_passivity(self.pc.value))
+        @self.pc.on_update
+        def _(_: viser.GuiEvent) -> None:
+            if not self._quiet():
+                a.set_passivity(self.pc.value)
+
         for channel_input in (self.delay, self.coupling):
             channel_input.on_update(lambda _: a.set_channel(float(self.delay.value), self.coupling.value))
 
@@ -382,6 +387,15 @@ class Controls:
         """Forget the plotted history (a new loop, a new play: its time starts again)."""
         self._history.clear()
         self._switches_seen = None
+
+    def show_passivity(self, enabled: bool, available: bool) -> None:
+        """Tick the PO/PC checkbox as the running loop has it (a session may enable it); on a
+        device without joint ports (``available`` false: a Cartesian device) it is greyed out,
+        since the controller observes and damps joint ports that such a device keeps to itself."""
+        with self._showing():
+            _assign(self.pc, enabled)
+        self.pc.disabled = not available
+        self.pc.hint = PC_HINT if available else PC_UNAVAILABLE
 
     def _reset(self) -> None:
         self.actions.reset()

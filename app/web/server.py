@@ -25,7 +25,6 @@ import numpy as np
 import viser
 
 from app.controller.gains import ControllerGains
-from app.controller.passivity import PassivitySettings
 from app.device.spec import DeviceSpec, available_devices, load_device
 from app.errors import ConfigError, InvalidField
 from app.session.files import RUNS_DIR
@@ -145,6 +144,7 @@ class DemoApp:
         self.rt.set_hand_target(self._home_T_0_G)
         self._recording = False
         self.controls = Controls(server, self, available_scenes(), available_devices(), scene.spec.name, device.name)
+        self._show_passivity(self.rt.config)
         self._replay_shown = float("nan")  # the replay cursor the plots show
         self._drawn: Snapshot | None = None  # what the panel shows, for the scene's redraw
         self.experiment: ExperimentJob | None = None
@@ -166,6 +166,10 @@ class DemoApp:
             config = LoopConfig.from_session(self.session, scene, device, gains)
         if self._device_url is not None and device.path == self._url_device:
             config = dataclasses.replace(config, device_url=self._device_url)
+        if device.data.interface == "cartesian" and config.passivity.enabled:
+            # A session's PO/PC cannot act on a device chosen in the page that has no joint
+            # ports; the loop runs without it and the greyed checkbox says why.
+            config = dataclasses.replace(config, passivity=dataclasses.replace(config.passivity, enabled=False))
         return config
 
     def _at_rate(self, session: Session) -> Session:
@@ -267,10 +271,15 @@ class DemoApp:
             self._home_T_0_G = self.rt.loop.reading.T_0_G.copy()
             self.rt.set_hand_target(self._home_T_0_G)
             self.controls.show_gains(config.gains)
+            self._show_passivity(config)
             self.controls.release_switches()
             self.controls.clear_plots()
             self.rt.start()
         self._show_selection()
+
+    def _show_passivity(self, config: LoopConfig) -> None:
+        """The PO/PC checkbox on ``config``'s passivity, greyed out on a Cartesian device."""
+        self.controls.show_passivity(config.passivity.enabled, config.device.data.interface != "cartesian")
 
     def _show_selection(self) -> None:
         """The scene and device dropdowns on the running loop's."""
@@ -478,8 +487,8 @@ class DemoApp:
         self.experiment = ExperimentJob(RUNS_DIR / f"web-experiment-{datetime.now():%Y%m%d-%H%M%S}", operators)
 
     def set_passivity(self, on: bool) -> None:
-        """Switch the passivity controller (its settings otherwise as the defaults)."""
-        self.rt.set_passivity(PassivitySettings(enabled=on))
+        """Switch the passivity controller (its settings otherwise the loop's: a session's own)."""
+        self.rt.set_passivity(dataclasses.replace(self.rt.config.passivity, enabled=on))
 
     def set_channel(self, delay_ms: float, coupling: str) -> None:
         """A master-slave channel of ``delay_ms`` each way with ``coupling``; refused values are shown."""

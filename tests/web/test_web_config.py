@@ -16,6 +16,7 @@ import websockets.asyncio.server
 from web_helpers import nothing_listens
 
 from app.errors import ConfigError, InvalidField
+from app.session.files import SESSIONS_DIR
 from app.web import launch as server
 from app.web.headless import free_port
 from app.world.scene import SCENES_DIR
@@ -167,5 +168,30 @@ def test_a_scene_whose_arm_cannot_reach_its_home_is_refused_and_the_running_loop
         assert "cannot load" in app.controls.record_status.content
         assert "tool.home" in app.controls.record_status.content
         assert app._scene.spec.name == "probe"
+    finally:
+        app.close()
+
+
+def test_the_po_pc_checkbox_shows_the_loops_passivity_and_is_greyed_out_on_a_cartesian_device(tmp_path: Path) -> None:
+    """A session that enables PO/PC ticks the checkbox; a device without joint ports (touch3,
+    driven through its Cartesian interface) greys it out and runs without PO/PC, instead of the
+    loop failing to build (a session's PO/PC) or ending in a ValueError (a click); the Kraft
+    again: the session's PO/PC is back."""
+    session = tmp_path / "probe_pc.toml"
+    session.write_text((SESSIONS_DIR / "probe_rate.toml").read_text() + "\n[passivity]\nenabled = true\n")
+    app = server.start_demo("probe", "kraft", port=free_port(), session=str(session))
+    try:
+        pc = app.controls.pc
+        assert app.rt.config.passivity.enabled
+        assert (pc.value, pc.disabled) == (True, False)
+        app.select("probe", "touch3")
+        assert app.rt.config.device.name == "touch3"  # built, not refused
+        assert not app.rt.config.passivity.enabled
+        assert (pc.value, pc.disabled) == (False, True)
+        assert "Cartesian" in pc.hint
+        assert app.rt.wait_running()
+        app.select("probe", "kraft")
+        assert (pc.value, pc.disabled) == (True, False)
+        assert app.rt.config.passivity.enabled
     finally:
         app.close()

@@ -51,7 +51,7 @@ from types import TracebackType
 from typing import Any
 
 from app.errors import EngineError, FrhcError
-from app.sweep.probe import answers_grpc
+from app.sweep.probe import UNAUTHENTICATED, call_grpc, ray_authorization
 
 Task = Callable[[Any], dict[str, Any]]
 Point = tuple[int, Any]
@@ -174,10 +174,10 @@ def init_local_ray(cpus: int) -> None:
 def join_ray(address: str, source: str = "--address") -> None:
     """Join the Ray cluster at ``address`` (its GCS ``host:port``, ``"auto"`` or ``ray://host:port``).
 
-    The address must answer as a gRPC server within :data:`CONNECT_TIMEOUT` first
-    (:func:`~app.sweep.probe.answers_grpc`), so a wrong one (nothing there, a web server, an HTTP/2
-    proxy, a stopped head) fails at once instead of after Ray's retries (~20 s to minutes, a
-    warning line a second). A head on a loopback address is joined on loopback (:func:`loopback_ray`; Ray would look for it on the routable address).
+    The address must answer as a gRPC server within :data:`CONNECT_TIMEOUT` first, and take the
+    token Ray would send (:func:`~app.sweep.probe.call_grpc`), so a wrong one (nothing there, a web
+    server, an HTTP/2 proxy, a stopped head, a head that refuses the token) fails at once instead
+    of after Ray's retries (~20 s to minutes, a warning line a second). A head on a loopback address is joined on loopback (:func:`loopback_ray`; Ray would look for it on the routable address).
 
     Args:
         source: Where the address came from (``--address`` or ``RAY_ADDRESS``), named in errors.
@@ -196,18 +196,20 @@ def join_ray(address: str, source: str = "--address") -> None:
         if not host or not port.isdigit() or "/" in host:  # another scheme, or a path
             raise EngineError(f"{where}: not a Ray cluster address (host:port of its head, or 'auto')")
         try:
-            grpc = answers_grpc(host.strip("[]"), int(port), CONNECT_TIMEOUT)
+            answer = call_grpc(host.strip("[]"), int(port), CONNECT_TIMEOUT, ray_authorization())
         except OSError as exc:
             reason = exc.strerror or str(exc) or type(exc).__name__
             raise EngineError(
                 f"{where}: no Ray cluster answers there ({reason}); start one with 'ray start --head' (sweeps/README.md)"
             ) from None
-        if not grpc:
+        if answer is None:
             # Ray would retry for minutes, printing a warning every second, before giving up.
             raise EngineError(
                 f"{where}: something listens there, but it is not a Ray cluster's head (it does not "
                 f"answer a gRPC call within {CONNECT_TIMEOUT:g} s); start one with 'ray start --head' (sweeps/README.md)"
             )
+        if answer.status == UNAUTHENTICATED:  # Ray would retry for ~20 s, a warning a second
+            raise EngineError(_refused_token(where))
         loopback = host.startswith("127.") or host in LOOPBACK_HOSTS
     try:
         with loopback_ray() if loopback else nullcontext(), python_signal_handlers():
@@ -217,15 +219,19 @@ def join_ray(address: str, source: str = "--address") -> None:
         # Ray's connection loop keeps only the text of its last error (a formatted traceback).
         last = str(causes[-1]).strip().splitlines() or [type(causes[-1]).__name__]
         if any(isinstance(c, AuthenticationError) for c in causes) or "AuthenticationError" in last[-1]:
-            raise EngineError(
-                f"{where}: the Ray cluster refused this process's token; a cluster with token"
-                " authentication is joined with RAY_AUTH_MODE=token and its token in RAY_AUTH_TOKEN"
-                " or RAY_AUTH_TOKEN_PATH (sweeps/README.md)"
-            ) from None
+            raise EngineError(_refused_token(where)) from None
         reason = " ".join(
             (last[-1] if "Traceback (most recent call last)" in str(causes[-1]) else " ".join(last)).split()
         )
         raise EngineError(f"{where}: cannot join the Ray cluster: {reason[:300]}") from None
+
+
+def _refused_token(where: str) -> str:
+    return (
+        f"{where}: the Ray cluster refused this process's token; a cluster with token authentication"
+        " is joined with RAY_AUTH_MODE=token and its token in RAY_AUTH_TOKEN or RAY_AUTH_TOKEN_PATH"
+        " (sweeps/README.md)"
+    )
 
 
 def _host_port(address: str) -> tuple[str, str]:

@@ -12,6 +12,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from app.cli import main
 from app.sweep.probe import (
@@ -21,10 +23,14 @@ from app.sweep.probe import (
     HEADERS,
     HTTP2_PREFACE,
     SETTINGS,
+    GrpcAnswer,
     _frame,
     _header,
+    _int,
+    _literal_fields,
     _read,
-    answers_grpc,
+    _read_int,
+    call_grpc,
 )
 
 pytest.importorskip("ray")
@@ -41,9 +47,10 @@ def ray_not_joined(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 @contextmanager
-def http2_server(reply: bytes) -> Iterator[int]:
-    """A server on loopback that reads the preface and the client's frames up to its DATA frame,
-    then sends its SETTINGS and ``reply`` (whole frames). Yields its port."""
+def http2_server(reply: bytes, requests: list[bytes] | None = None) -> Iterator[int]:
+    """A server on loopback that reads the preface and the client's frames up to its DATA frame
+    (the call's header blocks appended to ``requests``), then sends its SETTINGS and ``reply``
+    (whole frames). Yields its port."""
     listener = socket.create_server(("127.0.0.1", 0))
 
     def serve() -> None:
@@ -51,8 +58,9 @@ def http2_server(reply: bytes) -> Iterator[int]:
         with conn:
             _read(conn, len(HTTP2_PREFACE))
             conn.sendall(_header(0, SETTINGS, 0, 0))
-            while _frame(conn)[0] != 0:  # the call's DATA frame
-                pass
+            while (frame := _frame(conn))[0] != 0:  # the call's DATA frame
+                if frame[0] == HEADERS and requests is not None:
+                    requests.append(frame[3])
             conn.sendall(reply)
 
     thread = threading.Thread(target=serve, daemon=True)
@@ -82,7 +90,69 @@ def _response(block: bytes) -> bytes:
 )
 def test_the_probe_reads_the_status_of_the_answer(name: str, reply: bytes, grpc: bool) -> None:
     with http2_server(reply) as port:
-        assert answers_grpc("127.0.0.1", port, 5.0) is grpc, name
+        assert (call_grpc("127.0.0.1", port, 5.0) is not None) is grpc, name
+
+
+#: grpc-core's answer to a call without the token its server wants: one HEADERS frame (trailers
+#: only), read from a real ``ray start --head`` of Ray 2.60 with token authentication.
+REFUSED = (
+    b"\x88\x40\x0ccontent-type\x10application/grpc\x00\x0bgrpc-status\x0216\x00\x0cgrpc-message"
+    b"\x3eInvalidAuthToken: Authentication token is missing or incorrect"
+)
+#: A full answer: headers, the message, then the trailers with the status.
+OK_HEADERS = b"\x88\x40\x0ccontent-type\x10application/grpc"
+OK_TRAILERS = b"\x00\x0bgrpc-status\x010\x00\x0cgrpc-message\x00"
+
+
+@pytest.mark.parametrize(
+    ("name", "reply", "answer"),
+    [
+        (
+            "a token refused",
+            _response(REFUSED),
+            GrpcAnswer(16, "InvalidAuthToken: Authentication token is missing or incorrect"),
+        ),
+        (
+            "OK, the status in trailers after the message",
+            _header(len(OK_HEADERS), HEADERS, END_HEADERS, 1)
+            + OK_HEADERS
+            + _header(5, 0, 0, 1)
+            + bytes(5)
+            + _response(OK_TRAILERS),
+            GrpcAnswer(0, ""),
+        ),
+        (
+            "a Huffman-coded status: read as unknown",
+            _response(b"\x88\x00\x0bgrpc-status\x81\x00"),
+            GrpcAnswer(None, ""),
+        ),
+    ],
+)
+def test_the_probe_reads_the_grpc_status_and_message(name: str, reply: bytes, answer: GrpcAnswer) -> None:
+    with http2_server(reply) as port:
+        assert call_grpc("127.0.0.1", port, 5.0) == answer, name
+
+
+def test_the_probe_sends_the_metadata_it_is_given() -> None:
+    """The token goes in the call's headers as a literal field, whatever its length (an HPACK
+    length of 127 or more takes more than one byte)."""
+    requests: list[bytes] = []
+    token = "Bearer " + "k" * 300
+    with http2_server(_response(REFUSED), requests) as port:
+        call_grpc("127.0.0.1", port, 5.0, (("authorization", token),))
+    (block,) = requests
+    fields = _literal_fields(block)
+    assert fields[b"authorization"] == token.encode()
+    assert fields[b"te"] == b"trailers"
+
+
+@given(st.integers(0, 2**32), st.sampled_from([4, 5, 6, 7]), st.integers(0, 255))
+def test_hpack_integers_read_back_as_written(value: int, prefix: int, high: int) -> None:
+    """RFC 7541, 5.1: the bits above the prefix are the caller's and do not change the value."""
+    first = high & ~((1 << prefix) - 1)
+    encoded = _int(value, prefix, first) + b"\xff"  # a byte after it that must not be read
+    assert encoded[0] & ~((1 << prefix) - 1) == first
+    assert _read_int(encoded, 0, prefix) == (value, len(encoded) - 1)
 
 
 def test_an_http2_server_that_is_no_ray_head_is_refused_in_one_line(

@@ -9,7 +9,8 @@ Usage::
 
 ``run`` presses every point of the chosen sets (``--plain``: plain rendering, else PO/PC with the
 ``--pc`` overrides of :class:`~app.controller.passivity.PassivitySettings`) and appends one JSON
-line per press; points already in ``OUT`` are skipped, so a run can be resumed. ``count`` prints,
+line per press (with the judged window's course, :func:`profile`); points already in ``OUT`` are
+skipped, so a run can be resumed. ``count`` prints,
 per set, stable / worse than plain / the wall vanishes, under two felt-stiffness measures (below),
 and the ``--rows`` PO/PC presses with the largest ripple; ``--reference``: plain rows the vanish
 bar's reference comes from (an 8 s run on a few points takes it from the 0.6 s matrix);
@@ -49,12 +50,26 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.controller.passivity import PassivitySettings
 from app.device.hand import HandParams
 from app.device.variants import VARIANTS, DeviceVariant, write_variant
-from app.session.stability import HANDS, design_stiffness, grip_damping, press
+from app.session.metrics import SETTLE_MIN_FORCE, SETTLE_RIPPLE, SETTLE_WINDOW
+from app.session.stability import (
+    DRIFT_TOLERANCE,
+    HANDS,
+    HOLD_SECONDS,
+    POSE_SECONDS,
+    FeltStiffness,
+    design_stiffness,
+    grip_damping,
+    press,
+    release_time,
+)
+from app.session.tick import TickRecord
 
 MULTIPLES = (0.25, 1.0, 2.0, 4.0)
 DEVICES = ("kraft", "jpl", "freflex")
@@ -97,6 +112,47 @@ def points(sets: tuple[str, ...]) -> list[tuple[str, str, DeviceVariant | None, 
     return out
 
 
+class Trace:
+    """Tick observer: the contact force magnitude at {MRF} (N), the grip's true height (m, +z of
+    the base {0}) and whether the motors saturated, on every tick from ``start`` (s) on."""
+
+    def __init__(self, start: float) -> None:
+        self._start = start
+        self.rows: list[tuple[float, float, float]] = []
+
+    def on_tick(self, tick: TickRecord) -> None:
+        if tick.time >= self._start:
+            force = float(np.linalg.norm(tick.contact_wrench_MRF[0:3]))
+            self.rows.append((force, float(tick.reading.T_0_G[2, 3]), float(tick.out.saturation_scale < 1.0)))
+
+
+def profile(trace: Trace, reference: float | None, dt: float = 1e-3) -> dict[str, Any]:
+    """The judged window's course: per whole second, ``[mean force (N), peak-to-peak (N), grip
+    height peak-to-peak (m), mean-crossings of the force per second]`` (``seg``), and the verdict of
+    press's rule (settled, grip drift within :data:`DRIFT_TOLERANCE`, no saturated tick) on the
+    first and on the last :data:`SETTLE_WINDOW` alone (``first`` / ``last``, with mean and
+    peak-to-peak). ``reference``: a released press's held force (N) its ripple is judged against
+    (None: held, against the mean). The slave's force limit is not judged here (see ``verdict``)."""
+    a = np.array(trace.rows).reshape(-1, 3)
+
+    def part(x: np.ndarray) -> dict[str, Any]:
+        f, z = x[:, 0], x[:, 1]
+        n = max(1, len(z) // 10)
+        mean, ptp = float(f.mean()), float(np.ptp(f))
+        settled = ptp < SETTLE_RIPPLE * (reference if reference is not None else mean)
+        settled &= reference is not None or mean >= SETTLE_MIN_FORCE
+        still = abs(float(z[-n:].mean() - z[:n].mean())) <= DRIFT_TOLERANCE
+        return {"mean": mean, "ptp": ptp, "stable": bool(settled and still and not x[:, 2].any())}
+
+    per_s, w = round(1.0 / dt), round(SETTLE_WINDOW / dt)
+    seg = []
+    for i in range(0, len(a) - per_s + 1, per_s):
+        f, z = a[i : i + per_s, 0], a[i : i + per_s, 1]
+        crossings = int(np.count_nonzero(np.diff(np.sign(f - f.mean()))))
+        seg.append([float(f.mean()), float(np.ptp(f)), float(np.ptp(z)), crossings])
+    return {"seg": seg, "first": part(a[:w]), "last": part(a[-w:])}
+
+
 def key(row: dict[str, Any]) -> Key:
     """The point a press row was taken at."""
     return row["set"], row["device"], row["variant"], row["hand"], row["multiple"]
@@ -128,6 +184,9 @@ def run(args: argparse.Namespace) -> None:
             bound = 2.0 * grip_damping(path, held) / 1e-3
             per_k_t = design_stiffness(1.0, device=path)
             k_t = multiple * bound / per_k_t
+            seconds = POSE_SECONDS + args.window - SETTLE_WINDOW
+            trace = Trace(seconds - args.window)
+            held_force = FeltStiffness((release_time(seconds, HOLD_SECONDS, args.window), seconds + 1e-9))
             r = press(
                 1e5,
                 "pose",
@@ -137,6 +196,7 @@ def run(args: argparse.Namespace) -> None:
                 device=path,
                 passivity=settings,
                 hand=held,
+                observers=(trace, held_force),
             )
             row = {
                 "set": s,
@@ -151,6 +211,7 @@ def run(args: argparse.Namespace) -> None:
                 "ripple": r.ripple,
                 "felt": r.felt_stiffness,
                 "drift": r.grip_drift,
+                "profile": profile(trace, held_force.plateau_force(0) if hand is None else None),
             }
             sink.write(json.dumps(row) + "\n")
             sink.flush()

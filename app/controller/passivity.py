@@ -223,6 +223,14 @@ passivity8; the same matrix's tuned set, its PC 258 / 4 / 33; patches in the not
   point, where a limit cycle draws its energy; the second is a force law with a step at every
   change of the dither flag, and chatters on it (ripple up to 15 N on walls this PC holds).
 
+*On 8 s holds* (issue 26, helper matrix15; the whole matrix, ``--window 8``): stable at the end of
+the hold (its last 0.6 s) plain against this PC 229 / 305, 110 / 143, 184 / 294 (tuned, held out,
+encoders); over the whole 8 s window 162 / 187, 90 / 96, 137 / 193; worse than plain 4 / 1 / 5,
+the wall vanishing 46 / 8 / 64 at the end, among them the JPL at 1x under the 400/10 and 700/5 hands,
+which the hand pushes to the slave's limit after 4-7 s of the PC's cut (plain rings there). Most
+of what still fails is a steady limit cycle at 2-4x that plain cannot hold either
+(``docs/conventions.md``).
+
 *The matrix reproduced* (issue 26, helper passivity11): the notes' scripts are not in the
 repository, so ``bench/passivity_matrix.py`` rebuilds the sets (``run``, ``count``; its docstring
 lists them). The tuned set reproduces exactly (plain stable 180; this PC 204 / 1 / 14); its

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import re
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -31,7 +32,7 @@ from app.device.spec import load_device
 from app.session.metrics import SETTLE_MIN_FORCE, SETTLE_RIPPLE, SETTLE_WINDOW
 from app.session.run import run_session
 from app.session.spec import Session, SwitchEvent, Waypoint, load_session
-from app.session.tick import TickRecord
+from app.session.tick import TickObserver, TickRecord
 from app.teleop.channel import ChannelSettings, Coupling
 from app.world.scene import SCENES_DIR
 
@@ -365,6 +366,7 @@ def press(
     hold: float = HOLD_SECONDS,
     released: bool = False,
     window: float = SETTLE_WINDOW,
+    observers: Sequence[TickObserver] = (),
     **changes: Any,
 ) -> PressResult:
     """Run the probe session's push on a surface of another stiffness; judge how the force settles.
@@ -381,6 +383,7 @@ def press(
             the force may settle anywhere from zero up: *settled* is then a ripple below 5 % of
             the force the hand held (the first plateau's rendered grip force), and the felt
             stiffness is NaN. ``changes``: further session fields (``passivity``, ``hand``...).
+        observers: Further tick observers, run beside the press's own (a bench's force trace).
     """
     with tempfile.TemporaryDirectory() as tmp:
         scene = probe_scene_with_stiffness(stiffness, damping, Path(tmp))
@@ -390,8 +393,8 @@ def press(
         judged = ContactForce(duration - window)
         let_go = release_time(duration, hold, window) if released else None
         grip = GripTravel(duration - window, let_go)
-        observers = (judged, grip, felt) if felt else (judged,)
-        summary = run_session(session, out_dir=None, plots=False, observers=observers).summary
+        own = (judged, grip, felt) if felt else (judged,)
+        summary = run_session(session, out_dir=None, plots=False, observers=(*own, *observers)).summary
         force_limit = session.scene.spec.slave.force_limit
     mean, ripple = judged.mean_and_ripple()
     settled = bool(math.isfinite(ripple) and mean >= SETTLE_MIN_FORCE and ripple < SETTLE_RIPPLE * mean)

@@ -13,10 +13,12 @@ from app.controller.passivity import PassivitySettings
 from app.device.hand import HandParams
 from app.device.spec import load_device
 from app.device.variants import DeviceVariant, write_variant
+from app.session.metrics import SETTLE_WINDOW
 from app.session.run import run_session
 from app.session.spec import Waypoint, load_session
 from app.session.stability import (
     DRIFT_TOLERANCE,
+    POSE_SECONDS,
     PUSH_DEPTHS,
     PressResult,
     design_stiffness,
@@ -66,6 +68,27 @@ def test_a_wall_well_past_the_passivity_bound_is_not_stable() -> None:
     r = press(1e5, "pose", gains={"k_t": [16.0, 16.0, 16.0, 1.0, 1.0, 1.0]})
     assert not r.stable
     assert r.felt_stiffness < 0.1 * passivity_bound("kraft")
+
+
+def test_a_further_observer_sees_the_ticks_the_press_is_judged_on() -> None:
+    """An observer passed to :func:`press` watches the same run: the contact force it records over
+    the judged window (the last :data:`SETTLE_WINDOW` of a :data:`POSE_SECONDS` press) has the
+    press's mean and peak-to-peak."""
+
+    class Forces:
+        def __init__(self) -> None:
+            self.rows: list[tuple[float, float]] = []
+
+        def on_tick(self, tick: TickRecord) -> None:
+            self.rows.append((tick.time, float(np.linalg.norm(tick.contact_wrench_MRF[0:3]))))
+
+    seen = Forces()
+    r = press(1e5, "pose", observers=(seen,))
+    judged = np.array([f for t, f in seen.rows if t >= POSE_SECONDS - SETTLE_WINDOW])
+    assert len(judged) == round(SETTLE_WINDOW / 1e-3)
+    assert r.mean_force > 1.0
+    assert judged.mean() == pytest.approx(r.mean_force, rel=1e-12)
+    assert np.ptp(judged) == pytest.approx(r.ripple, rel=1e-12, abs=1e-12)
 
 
 def test_a_run_that_never_touches_is_not_settled() -> None:

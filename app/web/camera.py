@@ -42,6 +42,10 @@ AZIMUTHS = np.radians(np.arange(0.0, 46.0, 5.0))
 ELEVATIONS = np.radians(np.arange(20.0, 46.0, 5.0))
 #: Vertical field of view set on every browser (rad).
 FOV = math.radians(45.0)
+#: Width of the panel docked at the right of the page (CSS px): viser 1.1's "large" panel's
+#: (measured in chromium at 1400x900: the canvas beside it is 1008 px wide, the dock's edge 4). Set explicitly: a
+#: page that docked the panel before it took the theme's width kept a narrower one (325 px).
+PANEL_WIDTH = 388
 #: Share of the width and of the height left empty on each side of the framed box.
 MARGIN = 0.06
 #: The presets offered in the panel.

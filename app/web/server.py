@@ -38,6 +38,7 @@ from app.web.camera import (
     DOLLY_TO_CURSOR_JS,
     FOV,
     NO_EMPTY_BACKGROUND_JS,
+    PANEL_WIDTH,
     SOFTWARE_RESOLUTION_JS,
     CameraPose,
     box_corners,
@@ -58,8 +59,8 @@ from app.world.scene import Scene, available_scenes, load_scene
 #: changes a second and, with any late frame, fewer (28.8 Hz measured with the probe pressed).
 UI_RATE = 40.0
 #: The canvas width / height the opening camera is fitted for before a browser reports its own:
-#: a 1400x900 page's, beside the docked panel (1012 x 900 CSS px in chromium).
-DEFAULT_ASPECT = 1012 / 900
+#: a 1400x900 page's, beside the docked panel.
+DEFAULT_ASPECT = (1400 - PANEL_WIDTH) / 900
 #: The hemisphere light replacing the environment map (:func:`light_without_shadows`): its ground
 #: colour (RGB) and intensity, chosen so the picture matches viser's default lighting by eye.
 FILL_GROUND = (90, 90, 100)

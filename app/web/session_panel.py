@@ -17,6 +17,7 @@ import viser
 
 from app.errors import InvalidField
 from app.session.files import META_FILE, SESSIONS_DIR
+from app.web.camera import PANEL_WIDTH
 from app.web.commands import MAX_SPEED, MIN_SPEED
 
 if TYPE_CHECKING:
@@ -123,6 +124,7 @@ class SessionPanel:
         # pixels it shows (:mod:`app.web.camera`).
         gui.configure_theme(control_width="large")
         gui.main_panel.dock_right()
+        gui.main_panel.set_width(PANEL_WIDTH)
         gui.set_panel_label("FRHC haptic demo (Williams 1997)")
         self._ready = threading.Event()
         self._actions: SessionActions | None = None

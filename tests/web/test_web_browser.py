@@ -25,6 +25,7 @@ from app.web.camera import (
     choose_direction,
     fit_camera,
     project,
+    recentre,
 )
 from app.web.controls import format_six
 from app.web.headless import press_probe
@@ -279,6 +280,39 @@ def test_every_scene_is_framed_beside_the_panel(demo: DemoApp, page: object) -> 
                 share = _free_share(page, both, report)
                 assert share >= BOTH_LEAST_SHARE, (name, share)
     demo.frame_camera(client, "both")
+
+
+def test_the_camera_is_refitted_while_the_canvas_changes_shape(demo: DemoApp, page: object) -> None:
+    """A page made narrower (its canvas changes shape, as when the panel docks after the page's
+    first report) has its camera fitted again to the new canvas while the camera is where the
+    fit put it; a camera moved since (here by the server, as a click on a mesh moves it) stays."""
+    client = next(iter(demo.server.get_clients().values()))
+    camera = client.camera
+    size = dict(page.viewport_size)  # type: ignore[attr-defined]
+    both = demo.preset_points("both")
+
+    def fitted() -> bool:
+        pose = fit_camera(both, camera.aspect, demo.view_direction)
+        return bool(np.allclose(camera.position, pose.position, atol=1e-4))
+
+    try:
+        demo.frame_camera(client, "both")
+        wait_until(fitted, "the camera was not fitted")
+        before = camera.aspect
+        page.set_viewport_size({"width": 1100, "height": 900})  # type: ignore[attr-defined]
+        wait_until(lambda: abs(camera.aspect / before - 1.0) > 0.05, "the canvas did not change shape")
+        wait_until(fitted, "the camera was not fitted to the narrower canvas")
+        moved = recentre(CameraPose(camera.position.copy(), camera.look_at.copy()), both.mean(axis=0))
+        camera.position = moved.position
+        wait_until(lambda: np.allclose(camera.position, moved.position, atol=1e-4), "the camera did not move")
+        narrow = camera.aspect
+        page.set_viewport_size(size)  # type: ignore[attr-defined]
+        wait_until(lambda: abs(camera.aspect / narrow - 1.0) > 0.05, "the canvas did not change back")
+        time.sleep(1.0)  # a refit would have been sent at the report
+        assert np.allclose(camera.position, moved.position, atol=1e-4), "a camera moved since was refitted"
+    finally:
+        page.set_viewport_size(size)  # type: ignore[attr-defined]
+        demo.frame_camera(client, "both")
 
 
 def _camera_reports(demo: DemoApp) -> tuple[viser.ClientHandle, list[CameraPose]]:

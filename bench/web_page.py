@@ -93,7 +93,7 @@ COUNT_STATUS_JS = """(seconds) => new Promise((done) => {
   let arrived = 0;
   queue.push = function (...messages) {
     for (const m of messages) {
-      const text = m.type === 'GuiUpdateMessage' && m.updates ? m.updates._markdown : undefined;
+      const text = m.type === 'GuiUpdateMessage' && m.updates ? (m.updates.content ?? m.updates._markdown) : undefined;
       if (typeof text === 'string' && text.includes('Hz simulated')) arrived += 1;
     }
     return Array.prototype.push.apply(this, messages);

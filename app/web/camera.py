@@ -1,10 +1,12 @@
-"""Camera framing: fit boxes of the viser scene into the part of the page the panel leaves free.
+"""Camera framing: fit boxes of the viser scene into the 3D canvas beside the panel.
 
-viser's panel floats over the right of the canvas, and a camera centres its look-at point on the
-whole canvas. :func:`fit_camera` therefore comes as near as it can while every corner of the
-boxes still projects inside the *free* part (left of the panel) with a margin, their projected
-extent centred there. The view direction is a view's own (:func:`choose_direction`): of a few
-turned and raised views, the one that shows the device and the world largest beside the panel.
+The panel is docked at the right of the page (:class:`app.web.session_panel.SessionPanel`), so
+the canvas is only the part of the page it leaves free (viser's floating panel covered the right
+0.29 of a full-page canvas at 1400x900, and a software page drew those pixels too).
+:func:`fit_camera` comes as near as it can while every corner of the boxes still projects inside
+the canvas with a margin, their projected extent centred. The view direction is a view's own
+(:func:`choose_direction`): of a few turned and raised views, the one that shows the device and
+the world largest.
 
 Presets (:data:`PRESETS`): both spaces, the device, the world (the scene file's ``[view]`` box if
 it has one), the tool; all seen from the view's direction.
@@ -40,13 +42,11 @@ AZIMUTHS = np.radians(np.arange(0.0, 46.0, 5.0))
 ELEVATIONS = np.radians(np.arange(20.0, 46.0, 5.0))
 #: Vertical field of view set on every browser (rad).
 FOV = math.radians(45.0)
-#: Share of the canvas width kept clear for the panel on the right. viser 1.1's "large" panel is
-#: 399 CSS px with its margin (measured in chromium at 1400x900: 0.285; the browser test measures
-#: it again). The server learns a browser's canvas only in device pixels (CSS px times an adaptive
-#: pixel ratio), so the panel is kept as a share: 0.32 covers it on canvases from 1250 CSS px wide
-#: (narrower ones lose a few px of the margin), wider ones leave the panel a wider strip.
-PANEL_SHARE = 0.32
-#: Share of the free width and of the height left empty on each side of the framed box.
+#: Width of the panel docked at the right of the page (CSS px): viser 1.1's "large" panel's
+#: (measured in chromium at 1400x900: the canvas beside it is 1008 px wide, the dock's edge 4). Set explicitly: a
+#: page that docked the panel before it took the theme's width kept a narrower one (325 px).
+PANEL_WIDTH = 388
+#: Share of the width and of the height left empty on each side of the framed box.
 MARGIN = 0.06
 #: The presets offered in the panel.
 PRESETS = ("both", "device", "world", "tool")
@@ -96,13 +96,11 @@ def project(points: Array, pose: CameraPose, fov: float, width: float, height: f
     return np.stack(((x_ndc + 1) * width / 2, (1 - y_ndc) * height / 2), axis=1)
 
 
-def fit_camera(
-    points: Array, aspect: float, forward: Array, fov: float = FOV, panel_share: float = PANEL_SHARE
-) -> CameraPose:
+def fit_camera(points: Array, aspect: float, forward: Array, fov: float = FOV) -> CameraPose:
     """The camera looking along ``forward`` (unit, (3,)) nearest to ``points`` ((k, 3), viser
-    frame, m) that still shows every point in the canvas (width / height ``aspect``) left of the
-    panel (which covers ``panel_share`` of the width on the right), :data:`MARGIN` clear of each
-    edge: the points as large as they fit, their projected extent centred in that free part.
+    frame, m) that still shows every point in the canvas (width / height ``aspect``),
+    :data:`MARGIN` clear of each edge: the points as large as they fit, their projected extent
+    centred.
 
     At a distance ``d`` the camera may still slide sideways (``s_x`` along the camera's right,
     ``s_y`` along its up); each point bounds each slide on both sides linearly, so ``d`` fits if
@@ -112,9 +110,7 @@ def fit_camera(
     centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
     q = points - centre
     t = math.tan(fov / 2)
-    free = 1.0 - panel_share  # share of the canvas left of the panel
-    x_mid = free - 1.0  # NDC x of the free part's middle
-    half_x, half_y = free * (1 - MARGIN), 1 - MARGIN
+    half = 1 - MARGIN  # NDC half-extent the points may reach, x and y
     qr, qu, qf = q @ right, q @ up, q @ forward
 
     def slides(distance: float) -> tuple[float, float, float, float] | None:
@@ -124,8 +120,8 @@ def fit_camera(
         if np.any(depth <= 0):
             return None
         dx, dy = depth * t * aspect, depth * t
-        lo_x, hi_x = np.max(qr - (x_mid + half_x) * dx), np.min(qr - (x_mid - half_x) * dx)
-        lo_y, hi_y = np.max(qu - half_y * dy), np.min(qu + half_y * dy)
+        lo_x, hi_x = np.max(qr - half * dx), np.min(qr + half * dx)
+        lo_y, hi_y = np.max(qu - half * dy), np.min(qu + half * dy)
         if lo_x > hi_x or lo_y > hi_y:
             return None
         return float(lo_x), float(hi_x), float(lo_y), float(hi_y)
@@ -143,26 +139,25 @@ def fit_camera(
     return CameraPose(position=look_at - far * forward, look_at=look_at)
 
 
-def free_share(points: Array, pose: CameraPose, fov: float, aspect: float, panel_share: float = PANEL_SHARE) -> float:
-    """Share of the free part of the canvas (left of the panel) that the rectangle round
-    ``points`` ((k, 3), viser frame), seen from ``pose``, covers (clipped to that part)."""
+def canvas_share(points: Array, pose: CameraPose, fov: float, aspect: float) -> float:
+    """Share of the canvas (width / height ``aspect``) that the rectangle round ``points``
+    ((k, 3), viser frame), seen from ``pose``, covers (clipped to the canvas)."""
     px = project(points, pose, fov, aspect, 1.0)
-    free = (1.0 - panel_share) * aspect
-    lo = np.clip(px.min(axis=0), 0.0, [free, 1.0])
-    hi = np.clip(px.max(axis=0), 0.0, [free, 1.0])
-    return float(np.prod(hi - lo) / free)
+    lo = np.clip(px.min(axis=0), 0.0, [aspect, 1.0])
+    hi = np.clip(px.max(axis=0), 0.0, [aspect, 1.0])
+    return float(np.prod(hi - lo) / aspect)
 
 
-def choose_direction(points: Array, aspect: float, fov: float = FOV, panel_share: float = PANEL_SHARE) -> Array:
+def choose_direction(points: Array, aspect: float, fov: float = FOV) -> Array:
     """The view direction (unit, (3,)) among :data:`AZIMUTHS` x :data:`ELEVATIONS` whose fitted
     camera (:func:`fit_camera`) shows the rectangle round ``points`` ((k, 3), viser frame)
-    largest in the free part of the canvas (:func:`free_share`); ties go to the first, the
-    lowest azimuth and elevation."""
+    largest in the canvas (:func:`canvas_share`); ties go to the first, the lowest azimuth and
+    elevation."""
     best, best_share = view_direction(AZIMUTHS[0], ELEVATIONS[0]), -1.0
     for azimuth in AZIMUTHS:
         for elevation in ELEVATIONS:
             forward = view_direction(azimuth, elevation)
-            share = free_share(points, fit_camera(points, aspect, forward, fov, panel_share), fov, aspect, panel_share)
+            share = canvas_share(points, fit_camera(points, aspect, forward, fov), fov, aspect)
             if share > best_share + 1e-9:
                 best, best_share = forward, share
     return best

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import html
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -167,10 +168,24 @@ def _add_plot(gui: viser.GuiApi, title: str, *series: viser.uplot.Series) -> vis
     )
 
 
-def status_block(snap: Snapshot, timing: TimingStats, scheduling: str, servo_rate: float, notice: str) -> str:
-    """The status as a fixed-width block: the same lines in the same places every frame, so the
-    panel below it never moves. Rates: the servo rate is simulated (1/dt, what the controller
-    runs at), the tick rate is wall-clock (ticks per second of real time, ``speed`` times it)."""
+#: The status block's look: that of the code block viser's Markdown draws (Mantine's ``Code``,
+#: measured in chromium: the panel's monospace font at its xs size, line height 1.55, gray-0
+#: background, xs padding, sm corners, indented and as wide as a Markdown element is).
+STATUS_STYLE = (
+    "margin:0 var(--mantine-spacing-sm) var(--mantine-spacing-xs);padding:var(--mantine-spacing-xs);"
+    "background:var(--mantine-color-gray-0);border-radius:var(--mantine-radius-sm);"
+    "font-family:var(--mantine-font-family-monospace);font-size:var(--mantine-font-size-xs);"
+    "line-height:1.55;white-space:pre;overflow-x:auto;max-width:calc(95% - 2 * var(--mantine-spacing-sm))"
+)
+
+
+def status_block(snap: Snapshot, timing: TimingStats, scheduling: str, servo_rate: float) -> str:
+    """The status as a fixed-width block of HTML (a ``<pre>``): the same lines in the same places
+    every frame, so the panel below it never moves. Rates: the servo rate is simulated (1/dt,
+    what the controller runs at), the tick rate is wall-clock (ticks per second of real time,
+    ``speed`` times it). HTML, not Markdown: the page parses a Markdown element's text again at
+    each change (viser's Markdown: remark and rehype), and the status changes up to 40 times a
+    second; while the view moves that parse took the page's main thread from its 3D frames."""
     f_task = float(np.linalg.norm(snap.F_MRF[0:3]))
     f_grip = float(np.linalg.norm(snap.G_F_T[0:3]))
     f_hand = float(np.linalg.norm(snap.hand_wrench_0[0:3]))
@@ -189,7 +204,12 @@ def status_block(snap: Snapshot, timing: TimingStats, scheduling: str, servo_rat
         f"contacts {len(snap.contact_points_w):4d}  sat {snap.saturation_scale:5.3f}  ramp {snap.ramp:4.2f}",
         f"PO {snap.po_energy:+8.3f} J  PC cut {snap.pc_cut:4.0%}  wdog {snap.watchdog_trips}",
     )
-    text = "```\n" + "\n".join(lines) + "\n```"
+    return f'<pre style="{STATUS_STYLE}">' + html.escape("\n".join(lines)) + "</pre>"
+
+
+def status_notes(snap: Snapshot, notice: str) -> str:
+    """What the status block has above it (Markdown; "" for nothing): ``notice`` (loading, a
+    stopped session), the device's link and faults, the slave's limits, the controller's faults."""
     faults = Fault(snap.faults)
     limits = ArmStatus(snap.slave_status)
     extra = []
@@ -203,7 +223,7 @@ def status_block(snap: Snapshot, timing: TimingStats, scheduling: str, servo_rat
         extra.append(f"**slave limited: {limits.name}**")
     if faults != Fault.NONE:
         extra.append(f"**fault {faults!r}:** {snap.fault_message}")
-    return "\n\n".join((*extra, text)) if extra else text
+    return "\n\n".join(extra)
 
 
 class Controls:
@@ -228,8 +248,6 @@ class Controls:
         self.server = server
         self.actions = actions
         gui = server.gui
-        gui.configure_theme(control_width="large")
-        gui.set_panel_label("FRHC haptic demo (Williams 1997)")
 
         with gui.add_folder("Switches (Sec 4.1)"):
             self.deadman = gui.add_checkbox("Deadman [D]", False, hint="Commands and reflection flow while on")
@@ -246,7 +264,8 @@ class Controls:
             )
 
         with gui.add_folder("Status"):
-            self.status = gui.add_markdown("starting...")
+            self.status_notes = gui.add_markdown("starting...")
+            self.status = gui.add_html("")
 
         with gui.add_folder("Legend", expand_by_default=True):
             gui.add_markdown(legend_markdown())
@@ -463,7 +482,11 @@ class Controls:
         """Redraw status and (``live``: a replay plots its own window) plots from ``snap`` (call from
         the UI thread); ``servo_rate`` (Hz) is the simulated rate, ``notice`` a line shown above the
         status (loading, a stopped session)."""
-        self.status.content = status_block(snap, timing, scheduling, servo_rate, notice)
+        notes = status_notes(snap, notice)
+        if notes != self.status_notes.content:  # sent only when it changes: rarely
+            self.status_notes.content = notes
+            self.status_notes.visible = bool(notes)  # an empty one would still take its padding
+        self.status.content = status_block(snap, timing, scheduling, servo_rate)
         self.follow_switches(snap.deadman, snap.reflection, snap.T_0_H is not None)
         self._frames += 1
         if not live:

@@ -37,6 +37,7 @@ from app.web.camera import (
     DOLLY_TO_CURSOR_JS,
     FOV,
     NO_EMPTY_BACKGROUND_JS,
+    PANEL_WIDTH,
     SOFTWARE_RESOLUTION_JS,
     CameraPose,
     box_corners,
@@ -56,8 +57,9 @@ from app.world.scene import Scene, available_scenes, load_scene
 #: Scene and panel redraws per second. 40, not 30: a page redrawn at 30 Hz shows at most 30
 #: changes a second and, with any late frame, fewer (28.8 Hz measured with the probe pressed).
 UI_RATE = 40.0
-#: The canvas width / height the opening camera is fitted for before a browser reports its own.
-DEFAULT_ASPECT = 1400 / 900
+#: The canvas width / height the opening camera is fitted for before a browser reports its own:
+#: a 1400x900 page's, beside the docked panel.
+DEFAULT_ASPECT = (1400 - PANEL_WIDTH) / 900
 #: The hemisphere light replacing the environment map (:func:`light_without_shadows`): its ground
 #: colour (RGB) and intensity, chosen so the picture matches viser's default lighting by eye.
 FILL_GROUND = (90, 90, 100)
@@ -136,7 +138,8 @@ class DemoApp:
         self.view = SceneView(server, self.rt.loop, self.rt.set_hand_target)
         #: The loop the view was built for (its scene and device files).
         self.view_loop = self.rt.loop
-        self._fitted: set[int] = set()  # clients whose camera was fitted to their canvas
+        #: Clients whose camera was fitted to their canvas: the canvas' aspect, the pose set, the preset.
+        self._fitted: dict[int, tuple[float, CameraPose, str]] = {}
         self._frame_initial_camera()
         server.on_client_connect(self._on_connect)
         server.scene.on_click()(self._on_scene_click)
@@ -315,6 +318,8 @@ class DemoApp:
         pose = fit_camera(self.preset_points(preset), aspect, self.view_direction)
         camera.position = pose.position
         camera.look_at = pose.look_at
+        if camera.image_height:
+            self._fitted[client.client_id] = (aspect, pose, preset)
         return pose
 
     def _frame_initial_camera(self) -> None:
@@ -344,16 +349,27 @@ class DemoApp:
     def _on_connect(self, client: viser.ClientHandle) -> None:
         """Zoom toward the cursor in the new browser, draw its view at a lower resolution if it has
         no GPU and without viser's empty background quad, and fit its camera once it has reported
-        its canvas size."""
+        its canvas size, and again while the canvas changes shape (the page docks the panel
+        after its first report) as long as the camera is where the fit put it."""
         run_in_page(client, DOLLY_TO_CURSOR_JS)
         run_in_page(client, SOFTWARE_RESOLUTION_JS)
         run_in_page(client, NO_EMPTY_BACKGROUND_JS)
 
         @client.camera.on_update
         def _(camera: viser.CameraHandle) -> None:
-            if client.client_id not in self._fitted and camera.image_height:
-                self._fitted.add(client.client_id)
+            if not camera.image_height:
+                return
+            fitted = self._fitted.get(client.client_id)
+            if fitted is None:
                 self.frame_camera(client)
+                return
+            aspect, pose, preset = fitted
+            if (
+                abs(camera.aspect / aspect - 1.0) > 0.01
+                and np.allclose(camera.position, pose.position, atol=1e-4)
+                and np.allclose(camera.look_at, pose.look_at, atol=1e-4)
+            ):
+                self.frame_camera(client, preset)
 
     def _show_view(self, loop: ServoLoop, on_hand_moved: Callable[[Array], None]) -> None:
         """Replace the 3D view by one of ``loop``; every browser's camera is refitted when what

@@ -17,6 +17,7 @@ import viser
 
 from app.errors import InvalidField
 from app.session.files import META_FILE, SESSIONS_DIR
+from app.web.camera import PANEL_WIDTH
 from app.web.commands import MAX_SPEED, MIN_SPEED
 
 if TYPE_CHECKING:
@@ -117,6 +118,14 @@ class SessionPanel:
 
     def __init__(self, server: viser.ViserServer, runs: Path) -> None:
         gui = server.gui
+        # The panel is laid out before anything is in it, so the first page shows it in place.
+        # Docked at the right (after the theme, which resets where the panel is), it sits beside
+        # the 3D canvas instead of floating over its right part: a software page draws only the
+        # pixels it shows (:mod:`app.web.camera`).
+        gui.configure_theme(control_width="large")
+        gui.main_panel.dock_right()
+        gui.main_panel.set_width(PANEL_WIDTH)
+        gui.set_panel_label("FRHC haptic demo (Williams 1997)")
         self._ready = threading.Event()
         self._actions: SessionActions | None = None
         on = self._when_ready

@@ -12,12 +12,11 @@ import viser
 
 from app.controller.types import SlaveCommand
 from app.session.loop import LoopConfig, ServoLoop
-from app.session.pacer import TimingStats
 from app.session.script import OperatorScript
 from app.session.spec import load_session
 from app.slave.arm import ArmStatus
 from app.spatial import invert_pose, make_pose
-from app.web.controls import status_block
+from app.web.controls import status_notes
 from app.web.headless import free_port
 from app.web.scene_view import (
     SHOWN_RESOLUTION,
@@ -235,9 +234,6 @@ def _assert_same(read: Snapshot | None, taken: Snapshot) -> None:
             assert a == b, f.name
 
 
-_NO_TIMING = TimingStats(0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0)
-
-
 def test_a_device_that_stopped_is_said_in_the_snapshot_and_the_status(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -248,11 +244,11 @@ def test_a_device_that_stopped_is_said_in_the_snapshot_and_the_status(
     loop = ServoLoop(LoopConfig.from_session(load_session("probe_rate")))
     snap = take_snapshot(loop.tick(), np.eye(4))
     assert snap.device_fault == ""
-    assert "device stopped" not in status_block(snap, _NO_TIMING, "", 1000.0, "")
+    assert "device stopped" not in status_notes(snap, "")
     loop.plant.data.qvel[loop.plant.dof_slice.start] = np.nan
     snap = take_snapshot(loop.tick(), np.eye(4))
     assert "went unstable" in snap.device_fault
-    assert f"**device stopped:** {snap.device_fault}" in status_block(snap, _NO_TIMING, "", 1000.0, "")
+    assert f"**device stopped:** {snap.device_fault}" in status_notes(snap, "")
 
 
 def test_a_published_snapshot_reads_back_as_taken() -> None:

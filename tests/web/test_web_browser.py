@@ -18,14 +18,14 @@ import viser
 from web_helpers import SCREENSHOT_DIR, STEP_TIMEOUT, wait_until
 
 from app.web.camera import (
-    PANEL_SHARE,
     SOFTWARE_PIXEL_RATIO,
     CameraPose,
     box_corners,
+    canvas_share,
     choose_direction,
     fit_camera,
-    free_share,
     project,
+    recentre,
 )
 from app.web.controls import format_six
 from app.web.headless import press_probe
@@ -157,17 +157,27 @@ def test_a_second_browser_watches_the_same_demo(demo: DemoApp, page: object) -> 
         second.close()
 
 
-#: The left edge (px) of viser's panel: the left of the box holding its title.
-PANEL_LEFT_JS = """() => {
+#: The left edge (CSS px) of viser's panel (the left of the box holding its title) and the 3D
+#: canvas' box (left, top, width, height; CSS px): the largest canvas, the plots' are smaller.
+PANEL_AND_CANVAS_JS = """() => {
   const title = [...document.querySelectorAll('*')].find(e => e.innerText === 'FRHC haptic demo (Williams 1997)');
   let e = title;
   while (e.parentElement && e.parentElement.getBoundingClientRect().width < window.innerWidth) e = e.parentElement;
-  return e.getBoundingClientRect().left;
+  const area = (c) => c.width * c.height;
+  const canvas = [...document.querySelectorAll('canvas')].reduce((a, b) => (area(b) > area(a) ? b : a));
+  const box = canvas.getBoundingClientRect();
+  return [e.getBoundingClientRect().left, [box.left, box.top, box.width, box.height]];
 }"""
 
 
-#: The least share of the free viewport (the canvas left of the panel, full height) the rectangle
-#: round the device's and the world's boxes covers in the "both" view. A fit with
+def _panel_and_canvas(page: object) -> tuple[float, tuple[float, float, float, float]]:
+    """The panel's left edge and the 3D canvas' box (CSS px): :data:`PANEL_AND_CANVAS_JS`."""
+    panel_left, box = page.evaluate(PANEL_AND_CANVAS_JS)  # type: ignore[attr-defined]
+    return float(panel_left), (float(box[0]), float(box[1]), float(box[2]), float(box[3]))
+
+
+#: The least share of the free viewport (the 3D canvas beside the panel) the rectangle round the
+#: device's and the world's boxes covers in the "both" view. A fit with
 #: :data:`~app.web.camera.MARGIN` on each side reaches 0.94^2 = 0.88 at most; 0.6 asks for two
 #: thirds of both the width and the height at least, so a full-width band across the middle (main
 #: before web13: 0.29-0.33 of the measured free viewport, the top and bottom empty) fails it.
@@ -210,12 +220,12 @@ def _browser_camera(demo: DemoApp) -> Callable[[CameraPose | None], tuple[Camera
 
 
 def _free_share(page: object, points: np.ndarray, report: tuple[CameraPose, float, int, int]) -> float:
-    """Share of the free viewport (CSS px left of the measured panel, full height) covered by the
-    rectangle round ``points`` (k, 3, viser frame) seen by the browser's camera ``report``."""
-    panel_left = float(page.evaluate(PANEL_LEFT_JS))  # type: ignore[attr-defined]
-    css_width, css_height = page.viewport_size["width"], page.viewport_size["height"]  # type: ignore[attr-defined]
+    """Share of the free viewport (the 3D canvas beside the panel, as measured in the page)
+    covered by the rectangle round ``points`` (k, 3, viser frame) seen by the browser's camera
+    ``report``."""
+    _, (_, _, width, height) = _panel_and_canvas(page)
     pose, fov, _, _ = report
-    return free_share(points, pose, fov, css_width / css_height, 1.0 - panel_left / css_width)
+    return canvas_share(points, pose, fov, width / height)
 
 
 def test_opening_view_fills_the_free_viewport(demo: DemoApp, page: object) -> None:
@@ -225,33 +235,32 @@ def test_opening_view_fills_the_free_viewport(demo: DemoApp, page: object) -> No
     view = demo.view
     both = np.vstack((box_corners(view.device_box_v), box_corners(view.world_box_v)))
     share = _free_share(page, both, _browser_camera(demo)(None))
-    panel_left = float(page.evaluate(PANEL_LEFT_JS))  # type: ignore[attr-defined]
-    print(f"opening view: device and world cover {share:.3f} of the free viewport ({panel_left:.0f} px wide)")
+    _, (_, _, width, _) = _panel_and_canvas(page)
+    print(f"opening view: device and world cover {share:.3f} of the free viewport ({width:.0f} px wide)")
     assert share >= BOTH_LEAST_SHARE
 
 
 def test_every_scene_is_framed_beside_the_panel(demo: DemoApp, page: object) -> None:
     """The world's box, seen by the browser's own camera (the pose, field of view and canvas it
-    reports back), projects inside the canvas left of the panel: the opening view of the running
+    reports back), projects inside the page left of the panel: the opening view of the running
     scene, then both spaces and the world preset for every shipped scene (each with its [view]),
     each from the direction the demo chooses for it; in the "both" view the device's and the
-    world's boxes cover at least :data:`BOTH_LEAST_SHARE` of that part of the canvas."""
-    panel_left = float(page.evaluate(PANEL_LEFT_JS))  # type: ignore[attr-defined]
+    world's boxes cover at least :data:`BOTH_LEAST_SHARE` of the canvas beside the panel."""
+    panel_left, (left, top, css_width, css_height) = _panel_and_canvas(page)
     client = next(iter(demo.server.get_clients().values()))
     shown = _browser_camera(demo)
-    css_width, css_height = page.viewport_size["width"], page.viewport_size["height"]  # type: ignore[attr-defined]
-    assert 1.0 - panel_left / css_width <= PANEL_SHARE  # framing keeps clear at least what the panel covers
+    assert left + css_width <= panel_left + 1.0  # the panel covers none of the 3D canvas
 
     def check(box: object, report: tuple[CameraPose, float, int, int], least: float) -> None:
         pose, fov, width, height = report
         assert width / height == pytest.approx(css_width / css_height, rel=0.01)
         # The browser reports its canvas in device pixels: the page's (CSS) pixels are compared.
-        px = project(box_corners(box), pose, fov, css_width, css_height)  # type: ignore[arg-type]
+        px = project(box_corners(box), pose, fov, css_width, css_height) + np.array([left, top])  # type: ignore[arg-type]
         lo, hi = px.min(axis=0), px.max(axis=0)
         assert lo[0] >= 0, px
         assert hi[0] <= panel_left, px
         assert lo[1] >= 0, px
-        assert hi[1] <= css_height, px
+        assert hi[1] <= page.viewport_size["height"], px  # type: ignore[attr-defined]
         extent = np.ptp(px, axis=0)
         assert max(extent[0] / panel_left, extent[1] / css_height) >= least, extent  # not a speck
 
@@ -271,6 +280,39 @@ def test_every_scene_is_framed_beside_the_panel(demo: DemoApp, page: object) -> 
                 share = _free_share(page, both, report)
                 assert share >= BOTH_LEAST_SHARE, (name, share)
     demo.frame_camera(client, "both")
+
+
+def test_the_camera_is_refitted_while_the_canvas_changes_shape(demo: DemoApp, page: object) -> None:
+    """A page made narrower (its canvas changes shape, as when the panel docks after the page's
+    first report) has its camera fitted again to the new canvas while the camera is where the
+    fit put it; a camera moved since (here by the server, as a click on a mesh moves it) stays."""
+    client = next(iter(demo.server.get_clients().values()))
+    camera = client.camera
+    size = dict(page.viewport_size)  # type: ignore[attr-defined]
+    both = demo.preset_points("both")
+
+    def fitted() -> bool:
+        pose = fit_camera(both, camera.aspect, demo.view_direction)
+        return bool(np.allclose(camera.position, pose.position, atol=1e-4))
+
+    try:
+        demo.frame_camera(client, "both")
+        wait_until(fitted, "the camera was not fitted")
+        before = camera.aspect
+        page.set_viewport_size({"width": 1100, "height": 900})  # type: ignore[attr-defined]
+        wait_until(lambda: abs(camera.aspect / before - 1.0) > 0.05, "the canvas did not change shape")
+        wait_until(fitted, "the camera was not fitted to the narrower canvas")
+        moved = recentre(CameraPose(camera.position.copy(), camera.look_at.copy()), both.mean(axis=0))
+        camera.position = moved.position
+        wait_until(lambda: np.allclose(camera.position, moved.position, atol=1e-4), "the camera did not move")
+        narrow = camera.aspect
+        page.set_viewport_size(size)  # type: ignore[attr-defined]
+        wait_until(lambda: abs(camera.aspect / narrow - 1.0) > 0.05, "the canvas did not change back")
+        time.sleep(1.0)  # a refit would have been sent at the report
+        assert np.allclose(camera.position, moved.position, atol=1e-4), "a camera moved since was refitted"
+    finally:
+        page.set_viewport_size(size)  # type: ignore[attr-defined]
+        demo.frame_camera(client, "both")
 
 
 def _camera_reports(demo: DemoApp) -> tuple[viser.ClientHandle, list[CameraPose]]:
@@ -301,10 +343,10 @@ def _settled(reports: list[CameraPose], quiet: float = 1.0) -> CameraPose:
 def _on_screen(page: object, client: viser.ClientHandle, point: np.ndarray) -> tuple[float, float]:
     """Where ``point`` (viser frame) is on the page (CSS px), seen by the browser's camera."""
     c = client.camera
-    css = page.viewport_size  # type: ignore[attr-defined]
+    _, (left, top, width, height) = _panel_and_canvas(page)
     pose = CameraPose(c.position.copy(), c.look_at.copy())
-    x, y = project(point[None], pose, c.fov, css["width"], css["height"])[0]
-    return float(x), float(y)
+    x, y = project(point[None], pose, c.fov, width, height)[0]
+    return float(x + left), float(y + top)
 
 
 #: A point on the probe scene's surface (top face at z = 0 in {w}, 30 x 30 cm), away from the tool.
@@ -357,8 +399,8 @@ def test_wheel_zooms_toward_the_cursor(demo: DemoApp, page: object) -> None:
     # The same zoom toward the centre: the point would move out from the middle of the canvas.
     forward = (before.look_at - before.position) / d0
     central = CameraPose(before.look_at - d1 * forward, before.look_at)
-    css = page.viewport_size  # type: ignore[attr-defined]
-    xc, yc = project(CORNER_POINT_V[None], central, client.camera.fov, css["width"], css["height"])[0]
+    _, (left, top, width, height) = _panel_and_canvas(page)
+    xc, yc = project(CORNER_POINT_V[None], central, client.camera.fov, width, height)[0] + np.array([left, top])
     moved, centre_moved = np.hypot(x1 - x0, y1 - y0), np.hypot(xc - x0, yc - y0)
     assert centre_moved > 20.0, "the test point is too near the centre to tell"
     assert moved < 0.25 * centre_moved, (moved, centre_moved)

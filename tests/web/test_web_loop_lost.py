@@ -29,7 +29,7 @@ def test_a_loop_process_killed_by_a_signal_is_said_and_play_starts_a_new_one(
         os.kill(first.pid, signal.SIGKILL)
         wait_until(lambda: "stopped (killed by SIGKILL)" in app.panel.play_status.content, "the page's notice")
         assert "Play, Try the peg task or Reset starts a new one" in app.panel.try_status.content
-        assert "the servo loop process stopped (killed by SIGKILL)" in app.controls.status.content
+        assert "the servo loop process stopped (killed by SIGKILL)" in app.controls.status_notes.content
         err = capfd.readouterr().err
         assert err.count("frhc web: the servo loop process stopped (killed by SIGKILL)") == 1  # said once
 
@@ -43,7 +43,7 @@ def test_a_loop_process_killed_by_a_signal_is_said_and_play_starts_a_new_one(
         assert app.rt.ended() is None
         wait_until(lambda: app.rt.snapshot.playing is not None, "the new loop plays")
         wait_until(lambda: "playing `probe_rate`" in app.panel.play_status.content, "the page shows the play")
-        assert "stopped" not in app.controls.status.content
+        assert "stopped" not in app.controls.status_notes.content
 
         # A loop that dies while it starts: Play returns (before: RuntimeError in viser's callback
         # thread, a traceback) and the page says the loop stopped.

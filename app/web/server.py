@@ -27,7 +27,7 @@ import viser
 from app.controller.gains import ControllerGains
 from app.device.spec import DeviceSpec, available_devices, load_device
 from app.errors import ConfigError, InvalidField
-from app.session.files import RUNS_DIR
+from app.session.files import RUNS_DIR, fresh_folder
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.spec import Session, load_session
 from app.spatial import Array
@@ -484,7 +484,7 @@ class DemoApp:
         """Run the Table I experiment in the background; the panel shows progress and results."""
         if self.experiment is not None and not self.experiment.finished:
             return
-        self.experiment = ExperimentJob(RUNS_DIR / f"web-experiment-{datetime.now():%Y%m%d-%H%M%S}", operators)
+        self.experiment = ExperimentJob(RUNS_DIR, f"web-experiment-{datetime.now():%Y%m%d-%H%M%S}", operators)
 
     def set_passivity(self, on: bool) -> None:
         """Switch the passivity controller (its settings otherwise the loop's: a session's own)."""
@@ -500,12 +500,16 @@ class DemoApp:
         self.rt.set_channel(settings)
 
     def toggle_recording(self) -> Path | None:
-        """Start a log in ``runs/web-<timestamp>/log`` and return it, or stop the current one (None)."""
+        """Start a log in ``runs/web-<timestamp>/log`` and return it, or stop the current one (None).
+
+        Raises:
+            OSError: the log's folder cannot be made.
+        """
         if self._recording:
             self.rt.stop_recording()
             self._recording = False
             return None
-        directory = RUNS_DIR / f"web-{datetime.now():%Y%m%d-%H%M%S}" / "log"
+        directory = fresh_folder(RUNS_DIR, f"web-{datetime.now():%Y%m%d-%H%M%S}") / "log"
         self.rt.start_recording(directory)
         self._recording = True
         return directory

@@ -210,6 +210,7 @@ class FRHCController:
             rec[name] = getattr(kin, name)
         fill_record(rec, slave, safety)
         self._brake_damping = safety.brake_damping
+        rec["encoder_count"] = device.encoder_step
         self._shape_q: tuple[int, ...] = (device.n_joints,)
         rec["gear_ratio"] = motors.gear_ratio
         rec["joint_limit"] = rec["gear_ratio"] * np.array(motors.torque_limit)
@@ -275,7 +276,6 @@ class FRHCController:
         observed = settings.observe_device
         rec["po_friction"] = settings.friction_credit * self._friction if observed else 0.0
         rec["po_damping"] = self._damping if observed else 0.0
-        rec["po_count"] = self.device.encoder_step
         rec["pc_filter"] = settings.velocity_filter
         rec["pc_hold"] = settings.enabled and settings.hold_slave
         rec["pc_b_device"] = self._b_device
@@ -293,7 +293,7 @@ class FRHCController:
         for flag in ("prev_reference", "prev_deadman", "prev_reflecting", "have_q_prev", "braking"):
             self._rec[flag] = False
         self.out.scalars[RAMP] = 0.0
-        for name in ("po_energy", "po_tau", "pc_velocity", "pc_offset", "pc_dx_prev"):
+        for name in ("po_energy", "po_tau", "pc_velocity", "pc_offset", "pc_dx_prev", "brake_velocity"):
             self._rec[name] = 0.0
         self.out.scalars[PO_ENERGY] = self.out.scalars[PC_CUT] = 0.0
 

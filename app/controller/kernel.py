@@ -211,7 +211,7 @@ def controller_tick(
         r.po_cap,
         r.po_friction[:],
         r.po_damping[:],
-        r.po_count[:],
+        r.encoder_count[:],
     )
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]

@@ -115,8 +115,10 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         ``RTC_LAWS``. taper: ``[start, stop]`` |beta| (rad) of the rotational fade near gimbal
         lock. gravity_compensation, remove_payload, remove_inertia: the options of the same
         names. min_period, max_period: accepted periods (s). ramp_rate (1/s), max_joint_speed and
-        release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. pc_on, pc_limit
-        (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), po_count (rad, (n,)), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_filter (s),
+        release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. encoder_count:
+        one count of each joint's encoder (rad or m, (n,); 0 for an ideal encoder), for the
+        velocity brake and the passivity observer. pc_on, pc_limit
+        (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_filter (s),
         pc_hold, pc_b_device (N s/m), pc_bleed (s): :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
         (n,) each (N m or N; -). horner_pos, horner_neg: (n, n_coeffs) torque curves, highest
         order first; counts_max: the amplifier's range. payload_mass (kg), payload_com_S (m, in
@@ -129,7 +131,8 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         restart_damping: No previous Delta X on this reference (Eq 9 starts from zero).
         prev_reference, prev_deadman, prev_reflecting: Last tick's switches, for edges. J_W:
         wrist Jacobian (6, n). q_prev, have_q_prev: last finite joint angles; qdot: joint
-        velocities from their difference (n,). braking: the velocity brake is on. gravity_level:
+        velocities from their difference (n,); brake_velocity: their average the velocity brake
+        judges (n,). braking: the velocity brake is on. gravity_level:
         the share of gravity compensation applied, in [0, 1] (0 after a joint-reading fault, ramping
         back at ``ramp_rate``). po_energy:
         the passivity observer's energy of the whole port (J), (1,); po_tau: the rendered torque
@@ -164,7 +167,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("po_cap", f8),
             ("po_friction", f8, (n,)),
             ("po_damping", f8, (n,)),
-            ("po_count", f8, (n,)),
+            ("encoder_count", f8, (n,)),
             ("pc_reserve", f8),
             ("pc_step", f8, (n,)),
             ("pc_credit", f8, (n,)),
@@ -196,6 +199,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("q_prev", f8, (n,)),
             ("have_q_prev", b1),
             ("qdot", f8, (n,)),
+            ("brake_velocity", f8, (n,)),
             ("braking", b1),
             ("gravity_level", f8),
             ("po_energy", f8, (1,)),

@@ -21,6 +21,9 @@ with the fitted curves, and measure the force the grip actually produces from th
 from __future__ import annotations
 
 import argparse
+import contextlib
+import errno
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +34,7 @@ import numpy as np
 from app.controller.calibration import DEGREE, TorqueCurve, fit_torque_curve
 from app.device.plant import Counts, DevicePlant
 from app.device.spec import DeviceSpec, available_devices, load_device, resolve_device_path
+from app.errors import ConfigError
 from app.spatial import Array
 
 DT = 0.001  # s, servo period of the stand
@@ -201,20 +205,55 @@ def _fmt_rows(rows: Array) -> str:
 
 def write_calibration_toml(path: Path, positive: Array, negative: Array, header: str) -> None:
     """Write a :class:`~app.device.spec.CalibrationSpec` file: ``positive``/``negative`` arrays (n, 6)."""
+    path.write_text(calibration_text(positive, negative, header))
+
+
+def calibration_text(positive: Array, negative: Array, header: str) -> str:
+    """A :class:`~app.device.spec.CalibrationSpec` file's text: ``positive``/``negative`` (n, 6)."""
     comment = "".join(f"# {line}\n" for line in header.splitlines())
-    path.write_text(f"{comment}positive = {_fmt_rows(positive)}\nnegative = {_fmt_rows(negative)}\n")
+    return f"{comment}positive = {_fmt_rows(positive)}\nnegative = {_fmt_rows(negative)}\n"
 
 
-def point_device_file_at(device_toml: Path, calibration_name: str) -> None:
-    """Set ``calibration = ...`` and ``torque_curve = "calibrated"`` in the top table of ``device_toml``."""
-    text = device_toml.read_text()
-    head, sep, tail = text.partition("\n[")
+def pointed_at(device_text: str, calibration_name: str) -> str:
+    """``device_text`` (a ``device.toml``) with ``calibration = ...`` and ``torque_curve =
+    "calibrated"`` set in its top table."""
+    head, sep, tail = device_text.partition("\n[")
     head = re.sub(r"(?m)^calibration\s*=.*\n", "", head)
     head = re.sub(r"(?m)^torque_curve\s*=.*$", 'torque_curve = "calibrated"', head)
     if "torque_curve" not in head:
         head = head.rstrip("\n") + '\ntorque_curve = "calibrated"\n'
     head = re.sub(r'(?m)^(torque_curve = "calibrated")$', rf'\1\ncalibration = "{calibration_name}"', head)
-    device_toml.write_text(head + sep + tail)
+    return head + sep + tail
+
+
+def replace_together(texts: dict[Path, str]) -> None:
+    """Write every file of ``texts`` (path -> text) or none: each goes to a temporary file beside
+    it first, and only once all are written are they renamed into place.
+
+    Raises:
+        ConfigError: A file could not be written (a read-only folder, a folder in the way, a full
+            disk), naming it and field ``--write``; no file of ``texts`` was changed.
+    """
+    written: list[Path] = []
+    try:
+        for path, text in texts.items():
+            if path.is_dir():  # the rename would fail, after the files before it were replaced
+                raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
+            tmp = path.with_name(f".{path.name}.tmp")
+            tmp.write_text(text)
+            written.append(tmp)
+        for tmp, path in zip(written, texts, strict=True):
+            os.replace(tmp, path)
+    except OSError as exc:
+        for tmp in written:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+        reason = exc.strerror or str(exc)
+        raise ConfigError(
+            exc.filename or "<device>",
+            "--write",
+            f"cannot write the calibration: {reason}; the device's files are unchanged",
+        ) from None
 
 
 def calibrate(device: str | Path, write: bool = False) -> CalibrationReport:
@@ -242,8 +281,13 @@ def calibrate(device: str | Path, write: bool = False) -> CalibrationReport:
             "counts = sum_k c[k] * tau_motor**k (tau_motor in N m), one row per joint in joint order;\n"
             "'positive' applies for tau >= 0, 'negative' for tau < 0. Measured on the simulated plant."
         )
-        write_calibration_toml(written, positive, negative, header)
-        point_device_file_at(resolve_device_path(device), written.name)
+        device_toml = resolve_device_path(device)
+        replace_together(
+            {
+                written: calibration_text(positive, negative, header),
+                device_toml: pointed_at(device_toml.read_text(), written.name),
+            }
+        )
     return CalibrationReport(
         spec.name, positive, negative, rms, TEST_FORCE_G.copy(), force_linear, force_fitted, written
     )

@@ -87,8 +87,10 @@ class ForceGuard:
 
 def limited(v: Array, limit: float, level: float, out: Array) -> Array:
     """``level * v`` with ``|v|`` first scaled (direction kept) to at most ``limit``, into ``out``
-    (3,), returned; zero for a non-finite ``v`` or a zero limit."""
-    norm = math.sqrt(float(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+    (3,), returned; zero for a non-finite ``v`` (or one longer than the largest float) or a zero
+    limit."""
+    # hypot, not the root of the sum of squares: that overflows from |v| ~ 1e154 on.
+    norm = math.hypot(float(v[0]), float(v[1]), float(v[2]))
     if not math.isfinite(norm) or limit <= 0.0:
         out[:] = 0.0
         return out

@@ -15,3 +15,22 @@ SESSIONS_DIR = _ROOT / "sessions"
 RUNS_DIR = _ROOT / "runs"
 #: A log directory's metadata file (JSON): its presence marks a replayable log.
 META_FILE = "_meta.json"
+
+
+def fresh_folder(parent: Path, name: str) -> Path:
+    """Create and return ``parent / name``, or ``name-2``, ``name-3``, ... if taken: a folder no
+    earlier run wrote (two recordings started within one second of a timestamped name would
+    otherwise share one, and the second would delete the first one's log).
+
+    Raises:
+        OSError: ``parent`` cannot be created or written.
+    """
+    parent.mkdir(parents=True, exist_ok=True)
+    for k in range(1, 10_000):
+        folder = parent / (name if k == 1 else f"{name}-{k}")
+        try:
+            folder.mkdir()
+        except FileExistsError:
+            continue
+        return folder
+    raise FileExistsError(f"{parent / name}: 9999 folders of that name exist")

@@ -431,7 +431,11 @@ class Controls:
         _assign(self.reflection, False)
 
     def _toggle_record(self) -> None:
-        directory = self.actions.toggle_recording()
+        try:
+            directory = self.actions.toggle_recording()
+        except OSError as exc:  # runs/ cannot be written: said on the page, the server lives on
+            self.record_status.content = f"**cannot record:** {exc}"
+            return
         if directory is None:
             self.record.label = "Record"
             self.record_status.content = "log written" if self.record_status.content else ""

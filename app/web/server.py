@@ -25,9 +25,9 @@ import numpy as np
 import viser
 
 from app.controller.gains import ControllerGains
-from app.device.spec import DeviceSpec, available_devices, load_device
+from app.device.spec import DeviceSpec, available_devices, load_device, resolve_device_path
 from app.errors import ConfigError, InvalidField
-from app.session.files import RUNS_DIR
+from app.session.files import RUNS_DIR, fresh_folder
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.spec import Session, load_session
 from app.spatial import Array
@@ -52,7 +52,7 @@ from app.web.replay import LogReplay, ReplayPlayer
 from app.web.scene_view import WORLD_ORIGIN_V, SceneView
 from app.web.session_panel import ExperimentJob, SessionPanel
 from app.web.snapshot import Snapshot
-from app.world.scene import Scene, available_scenes, load_scene
+from app.world.scene import Scene, available_scenes, load_scene, resolve_scene_path
 
 #: Scene and panel redraws per second. 40, not 30: a page redrawn at 30 Hz shows at most 30
 #: changes a second and, with any late frame, fewer (28.8 Hz measured with the probe pressed).
@@ -81,6 +81,18 @@ def _view_files(loop: ServoLoop) -> tuple[Path, Path, str] | None:
     slave's kind (None for a scene made in code, which is never taken for another)."""
     path = loop.config.scene.path
     return None if path is None else (path, loop.config.device.path, loop.slave.scene.spec.slave.kind)
+
+
+def _same_file(a: Path, b: Path | None) -> bool:
+    """Whether ``a`` and ``b`` are one file (a scene built in code, ``b`` None, is no file)."""
+    return b is not None and a.resolve() == b.resolve()
+
+
+def _shown(name: str, path: Path | None, shipped: Callable[[str], Path]) -> str:
+    """What a dropdown shows for the running scene or device: its name if it is the shipped file
+    of that name (``shipped(name)``), else its path, so an edited copy that kept the name is not
+    taken for the shipped one (choosing the name in the dropdown then loads the shipped file)."""
+    return name if path is None or _same_file(shipped(name), path) else str(path)
 
 
 class DemoApp:
@@ -232,13 +244,15 @@ class DemoApp:
     def select(self, scene_name: str, device_name: str) -> None:
         """Rebuild the loop for another scene and/or device (gains follow the device); a session
         playing is stopped, and the page says so."""
-        if self._showing_selection or (scene_name == self._scene.spec.name and device_name == self._device.name):
+        same_scene = _same_file(resolve_scene_path(scene_name), self._scene.path)
+        same_device = _same_file(resolve_device_path(device_name), self._device.path)
+        if self._showing_selection or (same_scene and same_device):
             return
         playing = self.rt.snapshot.playing
-        what = "scene" if scene_name != self._scene.spec.name else "device"
+        what = "scene" if not same_scene else "device"
         try:
-            scene = self._scene if scene_name == self._scene.spec.name else load_scene(scene_name)
-            device = self._device if device_name == self._device.name else load_device(device_name)
+            scene = self._scene if same_scene else load_scene(scene_name)
+            device = self._device if same_device else load_device(device_name)
             gains = self.rt.gains if device is self._device else self._start_gains(device)
             # Building the loop refuses what the files alone do not show (an arm that cannot
             # reach the tool's home), before the running loop is stopped.
@@ -288,7 +302,10 @@ class DemoApp:
         """The scene and device dropdowns on the running loop's."""
         self._showing_selection = True  # the dropdowns' callbacks must not rebuild again
         try:
-            self.controls.show_selection(self._scene.spec.name, self._device.name)
+            self.controls.show_selection(
+                _shown(self._scene.spec.name, self._scene.path, resolve_scene_path),
+                _shown(self._device.name, self._device.path, resolve_device_path),
+            )
         finally:
             self._showing_selection = False
 
@@ -500,7 +517,7 @@ class DemoApp:
         """Run the Table I experiment in the background; the panel shows progress and results."""
         if self.experiment is not None and not self.experiment.finished:
             return
-        self.experiment = ExperimentJob(RUNS_DIR / f"web-experiment-{datetime.now():%Y%m%d-%H%M%S}", operators)
+        self.experiment = ExperimentJob(RUNS_DIR, f"web-experiment-{datetime.now():%Y%m%d-%H%M%S}", operators)
 
     def set_passivity(self, on: bool) -> None:
         """Switch the passivity controller (its settings otherwise the loop's: a session's own)."""
@@ -516,12 +533,16 @@ class DemoApp:
         self.rt.set_channel(settings)
 
     def toggle_recording(self) -> Path | None:
-        """Start a log in ``runs/web-<timestamp>/log`` and return it, or stop the current one (None)."""
+        """Start a log in ``runs/web-<timestamp>/log`` and return it, or stop the current one (None).
+
+        Raises:
+            OSError: the log's folder cannot be made.
+        """
         if self._recording:
             self.rt.stop_recording()
             self._recording = False
             return None
-        directory = RUNS_DIR / f"web-{datetime.now():%Y%m%d-%H%M%S}" / "log"
+        directory = fresh_folder(RUNS_DIR, f"web-{datetime.now():%Y%m%d-%H%M%S}") / "log"
         self.rt.start_recording(directory)
         self._recording = True
         return directory

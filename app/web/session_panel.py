@@ -16,7 +16,7 @@ import numpy as np
 import viser
 
 from app.errors import InvalidField
-from app.session.files import META_FILE, SESSIONS_DIR
+from app.session.files import META_FILE, SESSIONS_DIR, fresh_folder
 from app.web.camera import PANEL_WIDTH
 from app.web.commands import MAX_SPEED, MIN_SPEED
 
@@ -280,16 +280,20 @@ class ExperimentJob:
     Attributes:
         done, total: Runs finished and planned. report: The result once finished. error: Why it
         failed, if it did.
+
+    Its results go to a new folder ``runs_dir / name`` (:func:`~app.session.files.fresh_folder`).
     """
 
-    def __init__(self, out_dir: Path, operators: int) -> None:
+    def __init__(self, runs_dir: Path, name: str, operators: int) -> None:
         self.done, self.total = 0, 1
         self.report: ExperimentReport | None = None
         self.error: str | None = None
-        self._thread = threading.Thread(target=self._run, args=(out_dir, operators), name="experiment", daemon=True)
+        self._thread = threading.Thread(
+            target=self._run, args=(runs_dir, name, operators), name="experiment", daemon=True
+        )
         self._thread.start()
 
-    def _run(self, out_dir: Path, operators: int) -> None:
+    def _run(self, runs_dir: Path, name: str, operators: int) -> None:
         def progress(done: int, total: int) -> None:
             self.done, self.total = done, total
 
@@ -298,7 +302,7 @@ class ExperimentJob:
         from app.study.experiment import run_experiment
 
         try:
-            self.report = run_experiment(out_dir, n_operators=operators, on_run=progress)
+            self.report = run_experiment(fresh_folder(runs_dir, name), n_operators=operators, on_run=progress)
         except Exception as exc:  # shown in the page; the server must live on
             self.error = f"{type(exc).__name__}: {exc}"
 

@@ -287,3 +287,44 @@ def test_gravity_ramps_back_after_a_joint_reading_fault(safe, kraft, slave) -> N
     assert jump > 0.2 * safe.curve.counts_max  # a large torque to bring back
     assert worst <= jump * DT / RAMP_TIME * 1.5 + deadzone_counts(safe) + 1, worst / safe.curve.counts_max
     assert np.all(worst_tau <= np.abs(full_tau) * DT / RAMP_TIME * 1.001 + 1e-9)
+
+
+def quantised(kraft: DeviceSpec, q: np.ndarray) -> np.ndarray:
+    """``q`` as the Kraft's encoders read it (rad): rounded to whole counts of each joint."""
+    count = kraft.encoder_step
+    return np.round(q / count) * count
+
+
+@pytest.mark.parametrize("rate", [1000.0, 4000.0, 20000.0])
+def test_one_encoder_count_is_not_overspeed_at_any_rate(safe, kraft, slave, rate: float) -> None:
+    """The wrist joint turns at 0.5 rad/s (1/16 of the limit) for 0.1 s, read through the Kraft's
+    8192-count wrist encoder (7.67e-4 rad a count): no tick may brake. One count in one 50 us tick
+    reads 15.3 rad/s, twice the 8 rad/s limit, and braked 1 tick in ~20 at 20 kHz."""
+    dt = 1.0 / rate
+    on = Switches(deadman=True, reflection=True)
+    home = np.array(kraft.data.home)
+    assert kraft.encoder_step[4] / 50e-6 > safe.safety.max_joint_speed  # a count does read as overspeed
+    faults = []
+    for k in range(int(0.1 * rate)):
+        q = home.copy()
+        q[4] += 0.5 * k * dt
+        faults.append(safe.step(quantised(kraft, q), on, pushed(slave), dt).faults)
+    assert all(f == Fault.NONE for f in faults), f"{sum(f != Fault.NONE for f in faults)} fault ticks"
+
+
+@pytest.mark.parametrize("rate", [1000.0, 4000.0, 20000.0])
+def test_a_quantised_runaway_brakes_within_a_millisecond(safe, kraft, slave, rate: float) -> None:
+    """The same wrist joint runs away at twice the limit (16 rad/s), read through its encoder:
+    the brake holds within 1 ms of the start at every rate."""
+    dt = 1.0 / rate
+    on = Switches(deadman=True, reflection=True)
+    home = np.array(kraft.data.home)
+    speed = 2 * safe.safety.max_joint_speed
+    first = None
+    for k in range(int(0.005 * rate)):
+        q = home.copy()
+        q[4] += speed * k * dt
+        if safe.step(quantised(kraft, q), on, pushed(slave), dt).faults == Fault.OVERSPEED and first is None:
+            first = k * dt
+    assert first is not None
+    assert first <= 1e-3

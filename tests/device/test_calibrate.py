@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from numpy.polynomial import polynomial as npoly
 
+from app.cli import main
 from app.config import from_dict, load_toml
 from app.device.calibrate import (
     CalibrationReport,
@@ -141,3 +142,43 @@ def test_a_one_percent_motor_change_makes_the_shipped_calibration_stale(tmp_path
     positive, negative, _ = fit_curves(samples, limits)
     assert changed.calibration is not None
     assert counts_gap(changed, changed.calibration, positive, negative) > 10 * MAX_COUNTS_GAP
+
+
+def test_a_calibration_that_cannot_be_written_is_one_line_and_changes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``frhc calibrate --write`` into a device folder where ``calibration.toml`` cannot be written
+    (here a folder of that name: the same OSError as a read-only folder, which root ignores): one
+    line naming the file, exit 2, and the device file as it was. Before: an IsADirectoryError
+    traceback."""
+    dest = tmp_path / "touch3"
+    shutil.copytree(DEVICES_DIR / "touch3", dest)
+    (dest / "calibration.toml").mkdir()
+    before = (dest / "device.toml").read_text()
+    assert main(["calibrate", "--write", str(dest)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.splitlines() == [
+        f"error: {dest / 'calibration.toml'}: field '--write': cannot write the calibration: Is a directory; "
+        "the device's files are unchanged"
+    ]
+    assert (dest / "device.toml").read_text() == before
+    shipped = [p.name for p in (DEVICES_DIR / "touch3").iterdir()]
+    assert sorted(p.name for p in dest.iterdir()) == sorted([*shipped, "calibration.toml"])  # no file left over
+
+
+def test_a_device_file_that_cannot_be_rewritten_keeps_the_old_calibration(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The device file cannot be rewritten after the new curves could be: the calibration the
+    device file points at is still the old one (before, the new curves were already in its place
+    and the device used them while the command said it failed)."""
+    dest = tmp_path / "kraft"
+    shutil.copytree(DEVICES_DIR / "kraft", dest)
+    old = (dest / "calibration.toml").read_text()
+    (dest / ".device.toml.tmp").mkdir()  # where the new device file is written first
+    assert main(["calibrate", "--write", str(dest / "device.toml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "cannot write the calibration" in err
+    assert (dest / "calibration.toml").read_text() == old
+    assert not (dest / ".calibration.toml.tmp").exists()

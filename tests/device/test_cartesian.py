@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -81,6 +82,17 @@ def test_guard_limits_moments_of_a_6dof_device_and_zeroes_non_finite_wrenches() 
     np.testing.assert_allclose(sent, [0, 0, 1.0, 0, 0.3, 0.4])
     sent = guard.apply(np.array([np.nan, 0.0, 1.0, 0.0, 0.0, 0.1]), fresh_reading(), DT)
     np.testing.assert_array_equal(sent, [0, 0, 0, 0, 0, 0.1])
+
+
+def test_guard_limits_a_huge_finite_force_to_the_limit_along_it_without_a_warning() -> None:
+    """A finite force whose squared length overflows (a client's 1e200 N, as ``frhc device
+    serve`` takes any finite number) is the limit along it, as the docstring says. Before: the
+    sum of squares overflowed to inf, the force was zeroed and numpy printed a RuntimeWarning."""
+    guard = ForceGuard(CartesianSpec(force_limit=3.3, torque_limit=0.5, ramp_time=0.0), torque_capable=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sent = guard.apply(np.array([1e200, 0.0, -1e200, 0.0, 0.0, 0.0]), fresh_reading(), DT)
+    np.testing.assert_allclose(sent, [3.3 / math.sqrt(2), 0.0, -3.3 / math.sqrt(2), 0.0, 0.0, 0.0])
 
 
 def test_guard_ramps_after_connect_zeroes_on_a_missed_sample_and_ramps_faster_after_a_gap() -> None:

@@ -195,3 +195,26 @@ def test_the_po_pc_checkbox_shows_the_loops_passivity_and_is_greyed_out_on_a_car
         assert app.rt.config.passivity.enabled
     finally:
         app.close()
+
+
+def test_an_edited_copy_of_a_shipped_scene_is_told_apart_from_it(tmp_path: Path) -> None:
+    """A session plays an edited copy of ``scenes/probe.toml`` that keeps its ``name = "probe"``
+    (a stiffer surface): the scene dropdown shows the copy's path, not "probe", and choosing
+    "probe" there loads the shipped file. Before, the dropdown said "probe" and choosing it did
+    nothing (the same name counted as the running scene), so the copy ran on."""
+    copy = tmp_path / "probe.toml"
+    copy.write_text((SCENES_DIR / "probe.toml").read_text())
+    session = tmp_path / "edited.toml"
+    session.write_text((SESSIONS_DIR / "probe_rate.toml").read_text().replace('scene = "probe"', f'scene = "{copy}"'))
+    app = server.start_demo("probe", "kraft", port=free_port())
+    try:
+        assert app.rt.wait_running()
+        app.play_session(str(session))
+        assert app.rt.config.scene.path == copy
+        assert app.controls.scene.value == str(copy)
+        app.controls.scene.value = "probe"  # as a browser's choice: the dropdown's callback runs
+        assert app.rt.wait_running()
+        assert app.rt.config.scene.path == SCENES_DIR / "probe.toml"
+        assert app.controls.scene.value == "probe"
+    finally:
+        app.close()

@@ -304,7 +304,7 @@ def _cmd_web(args: argparse.Namespace) -> int:
 def _cmd_zwidth(args: argparse.Namespace) -> int:
     with signals_held():
         from app.session.stability import device_bound, passivity_bound
-        from app.study.zwidth import zwidth
+        from app.study.zwidth import TABLE_HEADER, zwidth
 
     device_only = device_bound(args.device, args.rate)
     if args.hand is None:
@@ -326,14 +326,9 @@ def _cmd_zwidth(args: argparse.Namespace) -> int:
             address=args.address,
             hand=args.hand,
         )
-    print(
-        f"{'renderer':<9} {'K_D (N s/m)':>12} {'largest stable K_T':>19} {'felt (N/m)':>12} {'oscillates at K_T':>18}"
-    )
+    print(TABLE_HEADER)
     for e in edges:
-        print(
-            f"{e.renderer:<9} {e.damping:>12g} {e.k_t_stable:>19.3g} {e.felt_stiffness:>12,.0f} {e.k_t_unstable:>18.3g}"
-            + (f"   failed: {e.error}" if e.error else "")
-        )
+        print(e.line())
     print(f"table: {out / 'zwidth.parquet'}\nplot:  {out / 'zwidth.png'}")
     return 0
 

@@ -70,6 +70,24 @@ class ZWidthPoint:
     points: int
     error: str = ""
 
+    def line(self) -> str:
+        """The edge as a row under :data:`TABLE_HEADER`: ``none`` where no K_T was stable, ``not
+        reached`` where none oscillated (rather than NaN and inf)."""
+        stable = "none" if math.isnan(self.k_t_stable) else f"{self.k_t_stable:.3g}"
+        felt = "-" if math.isnan(self.felt_stiffness) else f"{self.felt_stiffness:,.0f}"
+        if math.isnan(self.k_t_unstable):
+            unstable = "-"
+        else:
+            unstable = "not reached" if math.isinf(self.k_t_unstable) else f"{self.k_t_unstable:.3g}"
+        row = f"{self.renderer:<9} {self.damping:>12g} {stable:>19} {felt:>12} {unstable:>18}"
+        return row + (f"   failed: {self.error}" if self.error else "")
+
+
+#: The header of :meth:`ZWidthPoint.line`'s rows.
+TABLE_HEADER = (
+    f"{'renderer':<9} {'K_D (N s/m)':>12} {'largest stable K_T':>19} {'felt (N/m)':>12} {'oscillates at K_T':>18}"
+)
+
 
 def _press(
     k_t: float, damping: float, renderer: str, device: str, servo_rate: float, delay_ms: float, hand: HandParams | None

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 from pathlib import Path
 
 import pyarrow.parquet as pq
 
-from app.study.zwidth import zwidth
+from app.study.zwidth import TABLE_HEADER, ZWidthPoint, zwidth
 
 
 def test_edge_brackets_the_onset_and_is_written(tmp_path: Path) -> None:
@@ -50,3 +51,19 @@ def test_bad_arguments_are_refused_in_one_line(tmp_path: Path) -> None:
         assert done.returncode == 2, args
         assert "Traceback" not in done.stderr
         assert "zwidth: error: argument" in done.stderr.strip().splitlines()[-1]
+
+
+def test_an_edge_prints_words_where_there_is_no_number() -> None:
+    """The command's rows: a bracket prints its numbers; no stable K_T prints ``none`` (was
+    ``nan``), a renderer stable up to the top prints ``not reached`` (was ``inf``), a failed
+    bisection prints ``-`` and its error."""
+    bracket = ZWidthPoint("plain", 4.0, 1.5, 1234.4, 3.0, 4)
+    assert bracket.line().split() == ["plain", "4", "1.5", "1,234", "3"]
+    never = ZWidthPoint("pc", 16.0, math.nan, math.nan, 0.25, 1)
+    assert never.line().split() == ["pc", "16", "none", "-", "0.25"]
+    always = ZWidthPoint("wave", 0.0, 64.0, 5e4, math.inf, 2)
+    assert always.line().split() == ["wave", "0", "64", "50,000", "not", "reached"]
+    failed = ZWidthPoint("plain", 4.0, math.nan, math.nan, math.nan, 0, "worker died")
+    assert failed.line().split() == ["plain", "4", "none", "-", "-", "failed:", "worker", "died"]
+    for edge in (bracket, never, always, failed):
+        assert len(edge.line().split("   failed:")[0]) == len(TABLE_HEADER)  # the columns line up

@@ -58,17 +58,13 @@ if TYPE_CHECKING:
 def _cmd_run(args: argparse.Namespace) -> int:
     with signals_held():
         from app.session.run import run_session
-        from app.session.spec import load_session
+        from app.session.spec import load_session, passivity_on_cartesian
 
         session = load_session(args.session)
     if args.rate is not None:
         session = session.with_changes(servo_rate=args.rate)
     if args.device is not None and session.data.passivity.enabled:
-        raise ConfigError(
-            session.path or args.session,
-            "passivity.enabled",
-            f"the passivity controller needs a device driven joint by joint; --device {args.device} is driven through its Cartesian interface",
-        )
+        raise passivity_on_cartesian(session.path or args.session, f"--device {args.device}")
     for notice in session.notices:
         print(f"warning: {notice}", file=sys.stderr)
     if args.device is not None:  # the device link's changes (connect, stall, loss) on stderr

@@ -203,11 +203,6 @@ def _fmt_rows(rows: Array) -> str:
     return f"[\n{lines},\n]"
 
 
-def write_calibration_toml(path: Path, positive: Array, negative: Array, header: str) -> None:
-    """Write a :class:`~app.device.spec.CalibrationSpec` file: ``positive``/``negative`` arrays (n, 6)."""
-    path.write_text(calibration_text(positive, negative, header))
-
-
 def calibration_text(positive: Array, negative: Array, header: str) -> str:
     """A :class:`~app.device.spec.CalibrationSpec` file's text: ``positive``/``negative`` (n, 6)."""
     comment = "".join(f"# {line}\n" for line in header.splitlines())

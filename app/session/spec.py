@@ -198,13 +198,19 @@ def resolve_session(data: SessionFile, path: Path | None) -> Session:
             f"{gains.max_period:g} s is shorter than the servo period 1/{data.servo_rate:g} Hz: every tick would overrun",
         )
     if data.passivity.enabled and device.data.interface == "cartesian":
-        # The controller observes and damps joint ports, which a Cartesian device keeps to itself.
-        raise ConfigError(
-            source,
-            "passivity.enabled",
-            f"the passivity controller needs a device driven joint by joint; {device.name} is driven through its Cartesian interface",
-        )
+        raise passivity_on_cartesian(source, device.name)
     return Session(path, data, device, scene, gains)
+
+
+def passivity_on_cartesian(source: str | Path, device: str) -> ConfigError:
+    """The error of a session whose ``[passivity] enabled`` meets ``device`` driven through its
+    Cartesian interface: the controller observes and damps joint ports, which such a device keeps
+    to itself."""
+    return ConfigError(
+        source,
+        "passivity.enabled",
+        f"the passivity controller needs a device driven joint by joint; {device} is driven through its Cartesian interface",
+    )
 
 
 def _resolve(loader: Any, name: str, source: str | Path, field_name: str) -> Any:

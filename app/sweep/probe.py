@@ -186,7 +186,8 @@ def _first_status(block: bytes) -> int | None:
     None when it is Huffman-coded.
 
     Raises:
-        ValueError: the first field is not ``:status``, or the block is cut short.
+        ValueError: the first field is not ``:status``.
+        IndexError: the block is cut short.
     """
     at = 0
     while block[at] & 0xE0 == 0x20:  # dynamic table size updates come before any field
@@ -197,13 +198,11 @@ def _first_status(block: bytes) -> int | None:
         if index not in STATIC_STATUS:
             raise ValueError("not :status")
         return STATIC_STATUS[index]
-    index = first & (0x3F if first & 0x40 else 0x0F)  # literal, with or without indexing
+    index, at = _read_int(block, at, 6 if first & 0x40 else 4)  # literal, with or without indexing
     if index not in STATIC_STATUS:
         raise ValueError("not :status")
-    size = block[at + 1]
-    if size & 0x80:
-        return None
-    return int(block[at + 2 : at + 2 + size])
+    value, _ = _read_string(block, at)
+    return None if value is None else int(value)
 
 
 def _literal_fields(block: bytes) -> dict[bytes, bytes]:

@@ -181,7 +181,7 @@ class DemoApp:
             config = LoopConfig.from_session(self.session, scene, device, gains)
         if self._device_url is not None and device.path == self._url_device:
             config = dataclasses.replace(config, device_url=self._device_url)
-        if device.data.interface == "cartesian" and config.passivity.enabled:
+        if config.cartesian and config.passivity.enabled:
             # A session's PO/PC cannot act on a device chosen in the page that has no joint
             # ports; the loop runs without it and the greyed checkbox says why.
             config = dataclasses.replace(config, passivity=dataclasses.replace(config.passivity, enabled=False))
@@ -296,7 +296,7 @@ class DemoApp:
 
     def _show_passivity(self, config: LoopConfig) -> None:
         """The PO/PC checkbox on ``config``'s passivity, greyed out on a Cartesian device."""
-        self.controls.show_passivity(config.passivity.enabled, config.device.data.interface != "cartesian")
+        self.controls.show_passivity(config.passivity.enabled, not config.cartesian)
 
     def _show_selection(self) -> None:
         """The scene and device dropdowns on the running loop's."""

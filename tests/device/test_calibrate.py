@@ -14,9 +14,9 @@ from app.config import from_dict, load_toml
 from app.device.calibrate import (
     CalibrationReport,
     calibrate,
+    calibration_text,
     fit_curves,
     measure_joint_curves,
-    write_calibration_toml,
 )
 from app.device.plant import DevicePlant, true_motor_torque
 from app.device.spec import DEVICES_DIR, CalibrationSpec, DeviceSpec, load_device
@@ -90,7 +90,7 @@ def test_calibration_toml_round_trips_exactly(tmp_path: Path) -> None:
     rng = np.random.default_rng(5)
     positive, negative = rng.normal(size=(3, 6)) * 1e5, rng.normal(size=(3, 6))
     path = tmp_path / "cal.toml"
-    write_calibration_toml(path, positive, negative, "test header\nsecond line")
+    path.write_text(calibration_text(positive, negative, "test header\nsecond line"))
     cal = from_dict(CalibrationSpec, load_toml(path), path)
     np.testing.assert_array_equal(np.array(cal.positive), positive)
     np.testing.assert_array_equal(np.array(cal.negative), negative)

@@ -56,7 +56,7 @@ def test_page_shows_controls_and_scene(demo: DemoApp, page: object) -> None:
         "/mrf/tool",
         "/mrf",
         "/mrf/sensor",
-        "/world/object_0",
+        "/world/objects",
         "/links/cylinder",
         "/wrenches/device",
         "/wrenches/world",

@@ -17,12 +17,14 @@ centre (:meth:`app.web.scene_view.SceneView.pick` finds it with trimesh's ray te
 moves the camera onto it).
 
 A page whose WebGL runs in software draws its view at :data:`SOFTWARE_PIXEL_RATIO`
-(:data:`SOFTWARE_RESOLUTION_JS`), and no page draws viser's background-image quad while it has
+(:data:`SOFTWARE_RESOLUTION_JS`) and shades its lit nodes with three.js's Lambert shader
+(:data:`SOFTWARE_LAMBERT_JS`), and no page draws viser's background-image quad while it has
 no image (:data:`NO_EMPTY_BACKGROUND_JS`).
 """
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 
@@ -247,6 +249,109 @@ SOFTWARE_NO_ANTIALIAS_JS = """(() => {
 })();""".replace("SOFTWARE_WEBGL", SOFTWARE_WEBGL)
 
 
+#: three.js r186's Lambert fragment shader (``meshlambert.glsl.js``, as viser 1.1.1's page
+#: bundles it), given to viser's lit nodes in a page without a GPU (:data:`SOFTWARE_LAMBERT_JS`).
+#: Its chunks are three.js's own, resolved by three.js when it compiles the program; the standard
+#: material's own ``STANDARD`` define, which three.js puts before it, is taken back (with it the
+#: light chunks read the physical material's fields).
+LAMBERT_FRAGMENT = """
+#undef STANDARD
+#define LAMBERT
+uniform vec3 diffuse;
+uniform vec3 emissive;
+uniform float opacity;
+#include <common>
+#include <dithering_pars_fragment>
+#include <color_pars_fragment>
+#include <uv_pars_fragment>
+#include <map_pars_fragment>
+#include <alphamap_pars_fragment>
+#include <alphatest_pars_fragment>
+#include <alphahash_pars_fragment>
+#include <aomap_pars_fragment>
+#include <lightmap_pars_fragment>
+#include <emissivemap_pars_fragment>
+#include <envmap_common_pars_fragment>
+#include <envmap_pars_fragment>
+#include <fog_pars_fragment>
+#include <bsdfs>
+#include <lights_pars_begin>
+#include <normal_pars_fragment>
+#include <lights_lambert_pars_fragment>
+#include <shadowmap_pars_fragment>
+#include <bumpmap_pars_fragment>
+#include <normalmap_pars_fragment>
+#include <specularmap_pars_fragment>
+#include <logdepthbuf_pars_fragment>
+#include <clipping_planes_pars_fragment>
+void main() {
+  vec4 diffuseColor = vec4( diffuse, opacity );
+  #include <clipping_planes_fragment>
+  ReflectedLight reflectedLight = ReflectedLight( vec3( 0.0 ), vec3( 0.0 ), vec3( 0.0 ), vec3( 0.0 ) );
+  vec3 totalEmissiveRadiance = emissive;
+  #include <logdepthbuf_fragment>
+  #include <map_fragment>
+  #include <color_fragment>
+  #include <alphamap_fragment>
+  #include <alphatest_fragment>
+  #include <alphahash_fragment>
+  #include <specularmap_fragment>
+  #include <normal_fragment_begin>
+  #include <normal_fragment_maps>
+  #include <emissivemap_fragment>
+  #include <lights_lambert_fragment>
+  #include <lights_fragment_begin>
+  #include <lights_fragment_maps>
+  #include <lights_fragment_end>
+  #include <aomap_fragment>
+  vec3 outgoingLight = reflectedLight.directDiffuse + reflectedLight.indirectDiffuse + totalEmissiveRadiance;
+  #include <envmap_fragment>
+  #include <opaque_fragment>
+  #include <tonemapping_fragment>
+  #include <colorspace_fragment>
+  #include <fog_fragment>
+  #include <premultiplied_alpha_fragment>
+  #include <dithering_fragment>
+}
+"""
+
+#: Run in each page: if its WebGL renderer is a software one, viser's lit nodes (the device's
+#: links, the world's objects, the tool, the wrench arrows: ``MeshStandardMaterial``, the only lit
+#: material viser 1.1.1 offers besides toon shading) are shaded by three.js's Lambert shader
+#: (:data:`LAMBERT_FRAGMENT`) instead of its physically based one. viser's standard material has
+#: roughness 1 and metalness 0 and the demo sets no environment map, so the two shade the same
+#: diffuse light and differ by the faint broad specular term only; in software each lit draw's
+#: fragments are shaded on the CPU. Done through three.js's ``onBeforeCompile`` hook (and a
+#: program cache key of its own), set on each lit material, which is then compiled again once;
+#: checked every half second, as nodes come and go with the scene (a new node may be drawn
+#: physically based for that long). Set on each material, not on the class: viser's batched
+#: nodes (``InstancedMesh2``) wrap a material's own hook at each draw and leave it on the
+#: material as its own property, which hides one set on the class. As with :data:`SOFTWARE_RESOLUTION_JS`, a page opened with ``?fixedDpr=``
+#: is left as viser makes it.
+SOFTWARE_LAMBERT_JS = """(() => {
+  if (new URLSearchParams(window.location.search).has('fixedDpr')) return;
+  if (!(SOFTWARE_WEBGL)(HTMLCanvasElement.prototype.getContext)) return;
+  const fragment = LAMBERT_FRAGMENT;
+  const lambert = (shader) => { shader.fragmentShader = fragment; };
+  const key = () => 'lambert';
+  const apply = () => {
+    const mutable = window.__viserMutable;
+    if (!mutable || !mutable.scene) return;
+    mutable.scene.traverse((o) => {
+      for (const m of Array.isArray(o.material) ? o.material : [o.material]) {
+        if (m && m.type === 'MeshStandardMaterial' && m.onBeforeCompile !== lambert) {
+          m.onBeforeCompile = lambert;
+          m.customProgramCacheKey = key;
+          m.needsUpdate = true;
+        }
+      }
+    });
+  };
+  apply();
+  setInterval(apply, 500);
+})();""".replace("SOFTWARE_WEBGL", SOFTWARE_WEBGL).replace("LAMBERT_FRAGMENT", json.dumps(LAMBERT_FRAGMENT))
+
+
 #: Run in each page: hide viser's background-image quad while no background image is set. viser
 #: 1.1.1 draws that quad over the whole canvas every frame, and with no image its fragment shader
 #: discards every pixel: nothing shows, but in software WebGL it is a full-canvas shading pass
@@ -270,6 +375,6 @@ NO_EMPTY_BACKGROUND_JS = """(() => {
 
 def run_in_page(client: viser.ClientHandle, source: str) -> None:
     """Run the script ``source`` in ``client``'s page (:data:`DOLLY_TO_CURSOR_JS`,
-    :data:`SOFTWARE_RESOLUTION_JS`, :data:`NO_EMPTY_BACKGROUND_JS`), through the message viser itself uses to run script in a
+    :data:`SOFTWARE_RESOLUTION_JS`, :data:`SOFTWARE_LAMBERT_JS`, :data:`NO_EMPTY_BACKGROUND_JS`), through the message viser itself uses to run script in a
     page (viser 1.1.1 has no public call for it)."""
     client._websock_connection.queue_message(RunJavascriptMessage(source=source))

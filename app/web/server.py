@@ -38,6 +38,7 @@ from app.web.camera import (
     FOV,
     NO_EMPTY_BACKGROUND_JS,
     PANEL_WIDTH,
+    SOFTWARE_LAMBERT_JS,
     SOFTWARE_RESOLUTION_JS,
     CameraPose,
     box_corners,
@@ -364,12 +365,13 @@ class DemoApp:
         camera.position = recentre(CameraPose(camera.position, camera.look_at), hit).position
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
-        """Zoom toward the cursor in the new browser, draw its view at a lower resolution if it has
-        no GPU and without viser's empty background quad, and fit its camera once it has reported
+        """Zoom toward the cursor in the new browser, draw its view at a lower resolution and shade its
+        lit nodes with the Lambert shader if it has no GPU, draw it without viser's empty background quad, and fit its camera once it has reported
         its canvas size, and again while the canvas changes shape (the page docks the panel
         after its first report) as long as the camera is where the fit put it."""
         run_in_page(client, DOLLY_TO_CURSOR_JS)
         run_in_page(client, SOFTWARE_RESOLUTION_JS)
+        run_in_page(client, SOFTWARE_LAMBERT_JS)
         run_in_page(client, NO_EMPTY_BACKGROUND_JS)
 
         @client.camera.on_update

@@ -4,9 +4,11 @@ draws every triangle of every frame in software)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import trimesh
 
-from app.web.scene_view import _tool_mesh, drawn_mesh
+from app.web.scene_view import _tool_mesh, drawn_mesh, static_mesh
+from app.world.scene import available_scenes, load_scene
 
 
 def _first_hits(mesh: trimesh.Trimesh, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
@@ -53,3 +55,19 @@ def test_a_mesh_over_the_budget_is_drawn_with_fewer_triangles_of_the_same_shape(
     centres = drawn.vertices[drawn.faces].mean(axis=1)
     assert (np.einsum("ij,ij->i", drawn.face_normals, centres) > 0).all()
     assert drawn_mesh(sphere, faces=20480) is sphere  # within the budget: drawn as it is
+
+
+@pytest.mark.parametrize("name", available_scenes())
+def test_a_scenes_static_objects_are_one_mesh_of_the_same_geometry(name: str) -> None:
+    """The static objects drawn as one mesh (one draw): each object's drawn triangles, in order,
+    at the same vertices; the same bounds and triangle count as the objects drawn one by one."""
+    objects = [drawn_mesh(obj.mesh) for obj in load_scene(name).objects]
+    merged = static_mesh(load_scene(name))
+    assert merged is not None
+    assert len(merged.faces) == sum(len(o.faces) for o in objects)
+    np.testing.assert_array_equal(merged.bounds[0], np.min([o.bounds[0] for o in objects], axis=0))
+    np.testing.assert_array_equal(merged.bounds[1], np.max([o.bounds[1] for o in objects], axis=0))
+    start = 0
+    for o in objects:  # triangle by triangle: the same corners
+        np.testing.assert_array_equal(merged.vertices[merged.faces[start : start + len(o.faces)]], o.vertices[o.faces])
+        start += len(o.faces)

@@ -10,6 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import viser
+from viser._messages import MeshMessage
 from viser.infra._messages import Message
 
 from app.session.loop import LoopConfig, ServoLoop
@@ -23,6 +24,7 @@ from app.web.scene_view import (
     DEVICE_ORIGIN_V,
     WORLD_ORIGIN_V,
     SceneView,
+    drawn_mesh,
     turn_between,
     wxyz_position_to_pose,
 )
@@ -148,3 +150,30 @@ def test_contact_normals_are_arrows_of_the_worlds_node() -> None:
         view.update(free)
         assert not any(key.startswith("contact/") for key in view.arrow_keys["world"])
         assert not view.contacts.visible
+
+
+def test_a_scenes_static_objects_are_one_mesh_node() -> None:
+    """peg_carry's nine static objects are sent as one mesh node (one draw a frame, not nine), with
+    every one of their drawn triangles."""
+    session = load_session("peg_carry")
+    loop = ServoLoop(LoopConfig.from_session(session))
+    assert len(loop.slave.scene.objects) == 9
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        sent: list[Message] = []
+        interface = server.scene._websock_interface
+        queue = interface.queue_message
+
+        def counted(message: Message) -> None:
+            sent.append(message)
+            queue(message)
+
+        interface.queue_message = counted  # type: ignore[method-assign]
+        SceneView(server, loop, on_hand_moved=lambda _T: None)
+    finally:
+        server.stop()
+    meshes = [m for m in sent if isinstance(m, MeshMessage) and m.name.startswith("/world/")]
+    static = [m for m in meshes if not m.name.startswith("/world/body_")]
+    assert [m.name for m in static] == ["/world/objects"]
+    faces = sum(len(drawn_mesh(obj.mesh).faces) for obj in loop.slave.scene.objects)
+    assert len(static[0].props.faces) == faces

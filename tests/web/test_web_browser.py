@@ -56,7 +56,7 @@ def test_page_shows_controls_and_scene(demo: DemoApp, page: object) -> None:
         "/mrf/tool",
         "/mrf",
         "/mrf/sensor",
-        "/world/object_0",
+        "/world/objects",
         "/links/cylinder",
         "/wrenches/device",
         "/wrenches/world",
@@ -524,6 +524,57 @@ def test_a_page_without_a_gpu_draws_its_view_at_the_software_pixel_ratio(demo: D
             assert own.evaluate(CANVAS_RATIO_JS) == 1.0
             time.sleep(0.2)
         assert own.evaluate(ANTIALIAS_JS) is True
+    finally:
+        own.close()
+
+
+#: The page's lit nodes: each ``MeshStandardMaterial``'s program cache key, and for each program
+#: three.js compiled under the Lambert key, whether its fragment shader lights by Lambert's model
+#: and compiled without error.
+LIT_JS = """() => {
+  const gl = window.__viserMutable.canvas.getContext('webgl2');
+  const keys = [];
+  window.__viserMutable.scene.traverse((o) => {
+    if (o.material && o.material.type === 'MeshStandardMaterial') keys.push(o.material.customProgramCacheKey());
+  });
+  const programs = window.__viserTestpoints.rendererInfo.programs.filter((p) => p.cacheKey.includes('lambert')).map((p) => [
+    gl.getShaderSource(p.fragmentShader).includes('RE_Direct_Lambert') && !gl.getShaderSource(p.fragmentShader).includes('RE_Direct_Physical'),
+    !(p.diagnostics && !p.diagnostics.runnable),
+  ]);
+  return { keys, programs };
+}"""
+
+
+def test_a_page_without_a_gpu_shades_its_lit_nodes_by_lambert(demo: DemoApp, page: object) -> None:
+    """In a page whose WebGL runs in software every lit node (links, world plate, tool, arrows) is
+    drawn by three.js's Lambert shader, compiled without error, a node added later too; a page
+    opened with ``?fixedDpr=1`` keeps viser's physically based shading."""
+
+    def lit(p: object) -> dict[str, list]:
+        return p.evaluate(LIT_JS)  # type: ignore[attr-defined, no-any-return]
+
+    wait_until(lambda: lit(page)["programs"] != [], "no lit node is drawn by the Lambert shader")
+    shown = lit(page)
+    assert len(shown["keys"]) >= 5
+    assert set(shown["keys"]) == {"lambert"}
+    assert all(lambert and compiled for lambert, compiled in shown["programs"])
+    added = demo.server.scene.add_icosphere("/added_node", radius=0.05, color=(200, 0, 0), position=(0.0, 0.0, 0.3))
+    try:
+        wait_until(lambda: len(lit(page)["keys"]) == len(shown["keys"]) + 1, "the added node is not in the page")
+        wait_until(lambda: set(lit(page)["keys"]) == {"lambert"}, "the added node keeps the physical shader")
+    finally:
+        added.remove()
+    own = page.context.browser.new_page(viewport=page.viewport_size)  # type: ignore[attr-defined]
+    try:
+        own.goto(f"http://127.0.0.1:{demo.server.get_port()}/?fixedDpr=1")
+        own.get_by_text("Deadman [D]").first.wait_for(timeout=STEP_TIMEOUT * 1000)
+        own.wait_for_function(
+            "() => window.__viserMutable && window.__viserMutable.canvas", timeout=STEP_TIMEOUT * 1000
+        )
+        wait_until(lambda: len(lit(own)["keys"]) >= 5, "the lit nodes are not in the page")
+        time.sleep(1.5)  # the script came with the panel; time for it to act (it must not)
+        assert "lambert" not in lit(own)["keys"]
+        assert lit(own)["programs"] == []
     finally:
         own.close()
 

@@ -165,6 +165,12 @@ worse / vanish, the whole window (8W) and its last 0.6 s (8L)): tuned 8W 187 / 1
 vanish falls on every set and both judgements, but on the encoder set at the end of the hold it
 holds one stable wall fewer (12 lost, 11 gained: seven released grips that now drift or bounce,
 four 10-12-bit FreFlex walls at 4x that ring), so by issue 26's rule it is not the default.
+Applied also where the bound does not cut (``s = min(1, sqrt(r (2 s_b - r)))`` on the unclipped
+bound, continuous, so no force step where the bound starts cutting), it cuts walls the bound
+leaves alone: on the first 549 points (Kraft and part of the JPL) 8L tuned 195 / 9 / 18 against
+main's 193 / 4 / 32 and this law's 205 / 2 / 18, worse than plain over the whole window at 13
+points against 3; not kept. The step from 1 to ``sqrt(r (2 - r))`` where the bound starts cutting
+is itself a force step at one count, which this law does not remove.
 
 Why not the textbook series damper ``tau_PC = -alpha qdot`` with ``alpha = -E/(T qdot^2)``: on
 this device the joint velocity is an encoder difference, so near contact it is 0 or +-1 count a

@@ -170,7 +170,10 @@ bound, continuous, so no force step where the bound starts cutting), it cuts wal
 leaves alone: on the first 549 points (Kraft and part of the JPL) 8L tuned 195 / 9 / 18 against
 main's 193 / 4 / 32 and this law's 205 / 2 / 18, worse than plain over the whole window at 13
 points against 3; not kept. The step from 1 to ``sqrt(r (2 - r))`` where the bound starts cutting
-is itself a force step at one count, which this law does not remove.
+is itself a force step at one count, which this law does not remove. Traced on one encoder-set loss (FreFlex
+12-bit, default hand, 4x): without the law the ring spends the bank to -0.26 J and the bound then
+freezes the wall at a cut of 0.83 (still to the end); with it the deep first cuts stop each burst
+with the bank still above where the bound cuts, the full wall comes back and the ring restarts.
 
 Why not the textbook series damper ``tau_PC = -alpha qdot`` with ``alpha = -E/(T qdot^2)``: on
 this device the joint velocity is an encoder difference, so near contact it is 0 or +-1 count a

@@ -273,6 +273,7 @@ class FRHCController:
         rec["pc_step"] = step = np.maximum(settings.step, settings.step_counts * self.device.encoder_step)
         rec["pc_reserve"], rec["po_cap"] = bank_bounds(settings, limit, step)
         rec["pc_credit"] = settings.friction_credit * self._friction
+        rec["pc_law_count"] = self.device.encoder_step if settings.passive_law else 0.0
         observed = settings.observe_device
         rec["po_friction"] = settings.friction_credit * self._friction if observed else 0.0
         rec["po_damping"] = self._damping if observed else 0.0

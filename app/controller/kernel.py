@@ -248,6 +248,7 @@ def controller_tick(
             r.pc_limit[:],
             torques[TAU],
             torques[TAU_PC],
+            r.pc_law_count[:],
         )
     s = motor_commands(torques, record_motors(rec), out.counts)
     out.scalars[SATURATION_SCALE] = s

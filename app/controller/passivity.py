@@ -122,6 +122,59 @@ More counts cost felt stiffness (four: about
 5 kN/m against 6-7 with three) and are not more robust (four oscillated on the JPL at 2-3x).
 Encoders much finer than ``step`` (20-bit copies) are unaffected: there ``step`` is the larger.
 
+**The PC's own law** (``passive_law``; issue 26, helper vanish26). Once the bound cuts, the force
+it lets through is its own force law, ``s(E) = (E + E_r + sum_j f_j d_j) / sum_j |tau_r,j| d_j``,
+and that law is a quantised spring: a count of joint ``j`` out of the force takes ``s |tau_r,j|
+c_j`` from ``E`` and so steps joint ``j``'s torque by ``s tau_r,j^2 c_j / worst`` (``worst`` the
+denominator). A count out and back then loses that step times the count, and the joint's
+friction takes only ``2 f_j c_j``: Abbott & Okamura's one-count condition (2005), which the
+observer already credits, applies to the PC's force as much as to the wall's. Where the step is
+larger the cut force is an active spring that spends the bank it is computed from, so the bank
+stays spent and the wall is lost. Traced (helper vanish26, notes ``vanish26/``; the JPL as shipped,
+default hand, 1x, 8 s hold, main's PC): the bound cuts from 4.5 s after the slave's 18 N ring has
+spent the bank; from there the grip swings 2-4 mm peak to peak at ~10 Hz against the hand, the
+cut force between 1 and 8-18 N, the second joint's torque stepping 2.9-3.2 times ``2 f_j`` a
+count (median); the observed work over each 0.5 s is +2 to -12 mJ against +1 to +5 mJ of
+friction credit, so the energy stays within 5 mJ of ``-E_r`` from 6 s to the end while the hand
+sinks the grip 12 mm and the slave, following it, reaches its 40 N limit. The held torque over
+the simulation's true joint motion gives -2 to -37 mJ per 0.5 s: the port really gives that
+energy out (to the hand's damping), so no observer would see a refill there. The device is not
+at rest under a steady push: the cut force rings against the hand, and a steady push refills the
+bank only where the cut force's own law is not active.
+The law: above ``s = worst / a``, where the step reaches ``2 f_j`` for the joint with the largest
+``a = tau_r,j^2 c_j / (2 f_j)`` (J; joints without a count or friction are left out), the scale
+follows ``s s' = 1 / a`` exactly, joined to the bound there: ``s = sqrt(r (2 s_b - r))`` with
+``s_b`` the bound's scale and ``r = worst / a``. It is never above the bound (the squares differ by
+``(s_b - r)^2``), so the reserve holds as before, and it changes nothing where the bound does not
+cut or cuts below ``r``. At a spent bank it renders a spring of about ``f_j / c_j`` at the joint
+(Abbott & Okamura's passive stiffness), whose force the push's own work then raises. The same
+point with it: the grip comes to rest 1.6 mm in after the ring, the slave at 9.8 N, cut 0.76, the
+energy at -17 mJ (not spent), felt 2,840 N/m against 97 (plain holds 4,866 at 0.25x). In one dof
+(a 120 N wall on a spent bank, a 400/10 hand 10 mm in; ``tests/controller/test_passivity.py``):
+the bound alone lets the grip sink 4.1 mm with the energy falling 2.3 mJ, the law holds it 0.32 mm
+in with the energy rising 0.9 mJ. The step is exact to first order in one count's energy over the
+bank's (a coarse count near an empty bank steps up to twice ``2 f_j``). Cost: +0.00-0.01 us a
+pose-mode step (Kraft, 20,000 interleaved, the bound cutting at 45 % of them).
+Measured on the whole matrix with 8 s holds (rows in the notes, ``vanish26/law8.jsonl``, against
+matrix15's rows of main, which main reproduces bit for bit at the 94 points rechecked; stable /
+worse / vanish, the whole window (8W) and its last 0.6 s (8L)): tuned 8W 187 / 1 / 31 -> 194 / 1 /
+17, 8L 305 / 4 / 46 -> 307 / 3 / 25; held out 8W 96 / 0 / 8 -> 97 / 0 / 1, 8L 143 / 1 / 8 -> 146 /
+0 / 1; encoders 8W 193 / 2 / 41 -> 202 / 2 / 33, 8L 294 / 5 / 64 -> 293 / 7 / 56. All eleven JPL
+1x push-throughs (and the encoder set's copy of one) end still, 8.5-16 N on the slave, felt
+1,456-3,902 N/m, none vanishing (their first seconds ring 18 N as plain's do, so 8W fails). Worse +
+vanish falls on every set and both judgements, but on the encoder set at the end of the hold it
+holds one stable wall fewer (12 lost, 11 gained: seven released grips that now drift or bounce,
+four 10-12-bit FreFlex walls at 4x that ring), so by issue 26's rule it is not the default.
+Applied also where the bound does not cut (``s = min(1, sqrt(r (2 s_b - r)))`` on the unclipped
+bound, continuous, so no force step where the bound starts cutting), it cuts walls the bound
+leaves alone: on the first 549 points (Kraft and part of the JPL) 8L tuned 195 / 9 / 18 against
+main's 193 / 4 / 32 and this law's 205 / 2 / 18, worse than plain over the whole window at 13
+points against 3; not kept. The step from 1 to ``sqrt(r (2 - r))`` where the bound starts cutting
+is itself a force step at one count, which this law does not remove. Traced on one encoder-set loss (FreFlex
+12-bit, default hand, 4x): without the law the ring spends the bank to -0.26 J and the bound then
+freezes the wall at a cut of 0.83 (still to the end); with it the deep first cuts stop each burst
+with the bank still above where the bound cuts, the full wall comes back and the ring restarts.
+
 Why not the textbook series damper ``tau_PC = -alpha qdot`` with ``alpha = -E/(T qdot^2)``: on
 this device the joint velocity is an encoder difference, so near contact it is 0 or +-1 count a
 tick (0.38 rad/s on a 16384-count encoder) and its sign flips from tick to tick; the damper then
@@ -396,6 +449,10 @@ class PassivitySettings(Checked):
         observe_device: The observer credits what the device's own hardware surely dissipated
             (friction and damping from its file, see "The observed port" in the module
             docstring): the port it watches is the one the hand holds, not the motors'.
+        passive_law: While the PC cuts, its own force law changes by no more per encoder count
+            than twice the joint's Coulomb friction (a longer predicted step where it would),
+            so that the cut force is not itself an active quantised spring (see "The PC's own
+            law" in the module docstring).
     """
 
     enabled: bool = False
@@ -409,6 +466,7 @@ class PassivitySettings(Checked):
     hold_slave: bool = True
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
+    passive_law: bool = False
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -528,6 +586,7 @@ def passivity_control(
     limit: Array,
     tau: Array,
     tau_pc: Array,
+    count: Array,
 ) -> float:
     """PC step: scale the rendered torque so the next observed step cannot overdraw the energy.
 
@@ -541,17 +600,32 @@ def passivity_control(
         limit: Largest ``|tau_j|`` the PC may lead to (N m or N), (n,).
         tau: The total joint torque (N m or N), (n,): the PC torque is added in place.
         tau_pc: The PC torque ``(s - 1) tau_r`` (N m or N), (n,), written.
+        count: One encoder count of each joint (rad or m), (n,), for the passive law (see
+            "The PC's own law" in the module docstring); zeros leave the energy bound alone.
 
     Returns:
         ``1 - s``: the share of the rendered torque the PC removed (0 when it does not act).
     """
     worst = 0.0
     budget = max(energy[0] + reserve, 0.0)
+    # a: the largest tau_j^2 c_j / (2 f_j) (J); a joint with no count or no friction has none.
+    a = 0.0
     for j in range(tau_r.shape[0]):
         d = max(step[j], abs(velocity[j]) * dt)
         worst += abs(tau_r[j]) * d
         budget += credit[j] * d
+        if count[j] > 0.0 and credit[j] > 0.0:
+            a = max(a, tau_r[j] * tau_r[j] * count[j] / (2.0 * credit[j]))
     s = budget / worst if worst > budget else 1.0
+    if s < 1.0 and s * a > worst:
+        # While the bound cuts, its law s(E) = budget / worst changes joint j's torque by s' s
+        # tau_j^2 c_j a count; above s = worst / a that exceeds 2 f_j for the joint that sets a,
+        # so from there on the law is the one with s s' = 1 / a exactly, joined to it at s =
+        # worst / a: a cut force that is itself a quantised spring passive on the joints'
+        # friction (module docstring, "The PC's own law"). It is never above the bound (the
+        # squares differ by (s - worst / a)^2 >= 0), so the reserve still holds.
+        r = worst / a
+        s = math.sqrt(r * (2.0 * s - r))
     for j in range(tau_r.shape[0]):
         t = (s - 1.0) * tau_r[j]
         # The PC may not push the total out past the limit (a clip that would reverse its sign

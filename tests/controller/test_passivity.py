@@ -123,7 +123,17 @@ def test_an_active_sampled_wall_is_detected_and_the_pc_keeps_the_bounce_passive(
             tau = np.array([-K * q - B * vel[0]]) if q > 0.0 else np.zeros(1)
             if pc:
                 passivity_control(
-                    e, tau.copy(), vel, T, np.array([step]), np.array([f_c]), reserve, np.array([1e9]), tau, tau_pc
+                    e,
+                    tau.copy(),
+                    vel,
+                    T,
+                    np.array([step]),
+                    np.array([f_c]),
+                    reserve,
+                    np.array([1e9]),
+                    tau,
+                    tau_pc,
+                    np.zeros(1),
                 )
             tau_prev[:] = tau
             f_max = max(f_max, abs(tau[0]))
@@ -164,7 +174,7 @@ def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits
     tau = tau_r + tau_g
     tau_pc = np.zeros(4)
     cut = passivity_control(
-        np.array([energy]), tau_r, velocity, T, step, np.full(4, credit), reserve, limit, tau, tau_pc
+        np.array([energy]), tau_r, velocity, T, step, np.full(4, credit), reserve, limit, tau, tau_pc, np.zeros(4)
     )
     np.testing.assert_allclose(tau, tau_r + tau_g + tau_pc)
     rendered = tau_r + tau_pc
@@ -298,3 +308,98 @@ def test_a_one_count_dither_reads_as_no_work_where_the_encoder_difference_reads_
     assert entered == pytest.approx(0.5 * f_c * c)
     assert e[0] == entered
     assert encoder == pytest.approx(-10 * (Kc - 2 * f_c) * c)
+
+
+def _law(energy: float, law: bool) -> float:
+    """The PC's scale s on one joint (tau_r 10 N m, a 1e-3 rad count, friction 0.5 N m, step 3e-3
+    rad, no reserve): with the passive law a = tau^2 c / (2 f) = 0.1 J, worst = 0.03 J."""
+    tau = np.array([10.0])
+    cut = passivity_control(
+        np.array([energy]),
+        tau.copy(),
+        np.zeros(1),
+        T,
+        np.array([3e-3]),
+        np.array([0.5]),
+        0.0,
+        np.array([1e9]),
+        tau,
+        np.zeros(1),
+        np.array([1e-3 if law else 0.0]),
+    )
+    return 1.0 - cut
+
+
+def test_the_passive_law_keeps_the_cut_forces_step_per_count_within_twice_the_friction() -> None:
+    """Known answers: the bound's s = (E + f d) / (tau d), d = 3e-3; the credit f d = 1.5e-3 J.
+    At s = 0.5 the bound's torque step per count, tau * (tau c s) / worst = 1.67 N m, is above 2 f =
+    1 N m (an active quantised spring); the law gives s = sqrt(r (2 s - r)) with r = worst / a = 0.3,
+    sqrt(0.21), whose step per count, tau^2 c / a, is 2 f exactly. Below s = r and where the bound
+    does not cut the law changes nothing."""
+    assert _law(0.0135, law=False) == pytest.approx(0.5)
+    assert _law(0.0135, law=True) == pytest.approx(math.sqrt(0.21))
+    assert _law(0.0045, law=True) == _law(0.0045, law=False) == pytest.approx(0.2)
+    assert _law(0.05, law=True) == _law(0.05, law=False) == 1.0
+    count, tau, h = 1e-3, 10.0, 1e-8
+    for law, most in ((False, 1.7), (True, 1.0 + 1e-4)):
+        # One count out at the cut force takes s tau c from the energy; the torque changes by
+        # tau ds/dE times that (to first order in a count's energy over the bank's).
+        s = _law(0.0135, law)
+        step = tau * (s - _law(0.0135 - h, law)) / h * s * tau * count
+        assert step <= most
+        assert law or step > 1.6  # the bound alone: 1.67 N m a count, above the 2 f = 1 N m
+        assert not law or step > 1.0 - 1e-4  # the law: 2 f exactly
+
+
+def _push(law: bool) -> tuple[float, float]:
+    """A 1-dof grip (0.1 kg, Coulomb friction 0.1 N, encoder 1e-4 m) in a wall that renders a
+    constant 120 N outward (a slave at its force limit, as on the JPL at 1x), the observer's energy
+    3 mJ above its floor (-30 mJ: a ring has spent the bank), a 400 N/m, 10 N s/m hand pulling it
+    to 10 mm inside. Returns how deep the grip rests after 2 s (m) and the energy's rise (J)."""
+    c, f_c, reserve, m, sub = 1e-4, 0.1, 0.03, 0.1, 20
+    x = v = 0.0
+    e = np.array([-reserve + 0.003])
+    tau_prev, vel, angle = np.zeros(1), np.zeros(1), np.zeros(1)
+    q_prev = 0.0
+    for _ in range(2000):
+        q = c * round(x / c)
+        qdot = np.array([(q - q_prev) / T])
+        observe_energy(e, tau_prev, np.array([q]), angle, qdot, T, 1e9, np.array([f_c]), np.zeros(1), np.array([c]))
+        vel[0] += 0.3 * (qdot[0] - vel[0])
+        tau = np.array([120.0 if q <= 0.0 else 0.0])
+        passivity_control(
+            e,
+            tau.copy(),
+            vel,
+            T,
+            np.array([3 * c]),
+            np.array([f_c]),
+            reserve,
+            np.array([1e9]),
+            tau,
+            np.zeros(1),
+            np.array([c if law else 0.0]),
+        )
+        tau_prev[:], q_prev = tau, q
+        for _ in range(sub):  # the grip under the held torque, the hand and its own friction
+            push = tau[0] - 400.0 * (x + 0.01) - 10.0 * v
+            if v == 0.0 and abs(push) <= f_c:
+                continue  # stuck
+            v_next = v + (push - f_c * math.copysign(1.0, v if v != 0.0 else push)) / m * (T / sub)
+            v = 0.0 if v * v_next < 0.0 else v_next
+            x += v * (T / sub)
+    return -x, e[0] - (-reserve + 0.003)
+
+
+def test_a_steady_push_refills_the_bank_with_the_passive_law_and_the_wall_holds() -> None:
+    """The JPL 1x push-through in one dof (vanish26's trace): with the bound alone its cut force
+    rings against the hand, each count out and back losing more than the friction takes (the
+    energy falls 2.3 mJ, to within 1 mJ of its floor) and the hand sinks the grip 4.1 mm into a
+    120 N wall; with the passive law the push's work refills the bank (+0.9 mJ) and the grip rests
+    3.2 counts in."""
+    depth, rise = _push(law=False)
+    assert depth > 3e-3
+    assert rise < -2e-3
+    depth, rise = _push(law=True)
+    assert depth < 4e-4
+    assert rise > 5e-4

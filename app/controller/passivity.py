@@ -397,6 +397,21 @@ there is below half of what it holds at a smaller multiple) or walls the energy 
 0.05-0.3x of plain's on 10-12-bit encoders, where a scale that only lowers the wall cannot raise
 the felt. Cost: +0.02-0.04 us a pose-mode step over this PC (median of 20,000 interleaved, Kraft
 pressed and dithering; 3.94 / 5.37 / 5.90 against 3.97 / 5.41 / 5.92 us in three runs).
+
+Why not one count of hysteresis on the slave's command, for the coarse encoders' one-count bounce
+(helper quant26; measured, not shipped; branch quant26, rows and traces in its notes). Traced on the
+10-bit JPL, default hand, 1x: joints 2, 3 and 5 toggle a count, each toggle steps the slave's
+reference 2.6-4.9 mm (about 16 N a count on its 3000 N/m servo at ``K_P`` 2), and the tool leaves
+and lands at 10-35 N about ten times a second. Reading each joint on the edge of the count it last
+crossed (one count wide, from the device file alone) stops that toggle, but it is backlash in the
+position loop: on matrix15's 59 distinct class-2 points PO/PC went from 0 to 41 stable at the end
+of the 8 s hold and plain from 1 to 8, while on the whole matrix PO/PC was worse than plain at 167
+points (main 10) and its wall vanished at 261 (main 118), losing stable walls on the shipped 13-14-bit
+encoders (Kraft, 100/1 hand, 4x, plain: ripple 0.00 -> 9.1 N); the coarse walls it did settle were
+soft (median felt 410 / 920 / 980 N/m, JPL / Kraft / FreFlex). Gated on the reflected torque's
+swing exceeding twice the joint's friction it was no better (class 2: PO/PC 38, plain 10). What
+the class seems to need is a smaller force step per count at the slave (``K_T k_s K_P`` times one
+count at the grip), not a lagged reference.
 """
 
 from __future__ import annotations

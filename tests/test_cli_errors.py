@@ -6,7 +6,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -85,6 +85,22 @@ def _interrupt_when(proc: subprocess.Popen[str], ready: Callable[[], bool]) -> t
     return proc.communicate(timeout=60)
 
 
+@pytest.fixture
+def sigint_heard() -> Iterator[None]:
+    """Children started in the test hear SIGINT, as from a terminal: a command run in the
+    background by a shell without job control (``nohup make test &``) inherits SIGINT ignored,
+    and a Python started so never raises KeyboardInterrupt, so the Ctrl-C tests would test the
+    harness. Only an ignored signal is inherited across exec, so un-ignoring it here is enough."""
+    before = signal.getsignal(signal.SIGINT)
+    if before is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
+@pytest.mark.usefixtures("sigint_heard")
 def test_ctrl_c_during_a_run_keeps_its_log_and_says_so(tmp_path: Path) -> None:
     """SIGINT once the first part of the log is on disk (a paced run, 5 s long): exit 130, one line
     naming the log and how far it goes, no traceback; the log holds those ticks."""
@@ -126,6 +142,7 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
+@pytest.mark.usefixtures("sigint_heard")
 def test_ctrl_c_inside_a_third_party_import_guard_still_stops_the_command(tmp_path: Path) -> None:
     """Before, the KeyboardInterrupt was swallowed by trimesh's guard and the whole session ran
     (exit 0); the command's imports now hold the signal and deliver it after them."""

@@ -16,7 +16,9 @@ one extension that a real Inverse Service neither sends nor needs: a top-level `
 object. In the state it names the device and its period (``{"device", "period", "time"}``); in a
 command it carries the simulated operator's hand target (``{"hand_target": 16 numbers, row-major
 4x4 in {0}, or null}``), so that scripted sessions drive a served device as they drive one in
-process. A served simulation is **synchronous**: it advances one period per command, so a loop
+process. A hand target that is not a rigid pose (:func:`~app.spatial.pose_error`) is a bad command
+like any other: the connection is closed (1003, naming the field), the force zeroed, and the hand
+holds the last target it accepted. A served simulation is **synchronous**: it advances one period per command, so a loop
 over loopback reproduces the in-process run. With no command for ``watchdog`` seconds, or as soon
 as the connection closes, it sets the commanded force to zero (and with a client connected but
 silent, it runs on in real time under zero force).
@@ -53,7 +55,7 @@ from app.device.spec import DeviceSpec, load_device
 from app.device.vendors import check_device_url, vendor_device
 from app.device.wslink import WsLink
 from app.errors import FrhcError
-from app.spatial import Array, matrix_to_quat, quat_to_matrix
+from app.spatial import Array, matrix_to_quat, pose_error, quat_to_matrix
 
 log = logging.getLogger(__name__)
 
@@ -249,7 +251,9 @@ def parse_state(text: str | bytes) -> ParsedState:
 
 def parse_command(text: str | bytes) -> tuple[Array, Array | None, bool]:
     """Read a command: the force (N, (3,)), the simulated hand target ((4, 4) or None) and
-    whether the message carried the ``frhc_sim`` extension. Raises ValueError naming the field."""
+    whether the message carried the ``frhc_sim`` extension. Raises ValueError naming the field,
+    for a hand target too that is not a rigid pose (:func:`~app.spatial.pose_error`, the check
+    of the slave's pose commands): a scaled, sheared or mirrored one would be pulled toward."""
     try:
         data = _decode_command(text)
     except msgspec.DecodeError as exc:
@@ -258,7 +262,10 @@ def parse_command(text: str | bytes) -> tuple[Array, Array | None, bool]:
     sim = data.frhc_sim
     target = None
     if sim is not None and sim.hand_target is not None:
-        target = np.array(sim.hand_target).reshape(4, 4)
+        target = np.array(sim.hand_target, dtype=float).reshape(4, 4)
+        why = pose_error(target, "$.frhc_sim.hand_target")
+        if why is not None:
+            raise ValueError(why)
     return np.array([v.x, v.y, v.z]), target, sim is not None
 
 

@@ -311,6 +311,34 @@ def test_served_device_holds_its_own_force_limit_and_answers_each_command_once(s
     assert second.sim.time == pytest.approx(t0 + DT)
 
 
+def test_a_served_device_refuses_a_hand_target_that_is_not_rigid_and_the_hand_holds(served: DeviceServer) -> None:
+    """A hand target scaled by 2 % (no pose: the slave refuses such a command, :func:`pose_error`)
+    closes the connection with 1003 naming the field, as any bad command does; the hand holds the
+    last target it accepted, and the force is zeroed."""
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect
+
+    hand = served.device.plant.hand
+    with connect(f"ws://127.0.0.1:{served.port}", ping_interval=None) as ws:
+        first = parse_state(ws.recv(timeout=5.0))
+        held = np.eye(4)
+        held[:3, 3] = first.position - np.array([0.0, 0.0, 0.01])
+        ws.send(force_command(first.device_id, np.array([0.0, 0.0, -1.0]), held, sim=True))
+        parse_state(ws.recv(timeout=5.0))
+        scaled = held.copy()
+        scaled[:3, :3] *= 1.02
+        ws.send(force_command(first.device_id, np.zeros(3), scaled, sim=True))
+        with pytest.raises(ConnectionClosed) as closed:
+            ws.recv(timeout=5.0)
+    assert closed.value.rcvd is not None
+    assert closed.value.rcvd.code == 1003
+    assert closed.value.rcvd.reason.startswith("$.frhc_sim.hand_target is not rigid: its rotation block is off")
+    assert served.zeroed.wait(5.0)
+    np.testing.assert_array_equal(served.log.commanded, 0.0)
+    assert hand.T_0_H is not None
+    np.testing.assert_array_equal(hand.T_0_H, held)
+
+
 def test_dropped_connection_zeroes_the_force_the_next_period_and_ramps_back_on_reconnect(served: DeviceServer) -> None:
     loop = make_served_loop(served.port)
     press_into_contact(loop)

@@ -12,6 +12,7 @@ import argparse
 import logging
 import math
 import os
+import re
 import signal
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -441,8 +442,21 @@ def _damping(text: str) -> float:
     return value
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, taking every argument that starts with ``-`` and a digit (or ``-.`` and a
+    digit) as a value, not an option: ``--hand -1,5``, ``--dampings -1,4`` and ``--rate -1e3`` reach
+    the option's own check as ``--hand=-1,5`` does. argparse's own test (a negative int or
+    decimal only) called them unknown options ("expected one argument"). No frhc option is a
+    dash and a digit; its subcommands' parsers are of this class too (``add_subparsers``
+    makes them of the parent's)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="frhc",
         description="Cartesian control of force-reflecting hand controllers (Williams 1997): "
         "a haptic virtual environment with a simulated FRHC.",

@@ -334,14 +334,29 @@ class HaplyClient:
         self._hand: Array | None = None
         self._last_attempt = -math.inf
         self._bad_states = 0  # bad state messages in a row (logged when the run starts and ends)
-        if not self.connect():
+        #: Whether the last connect was refused with 1013 ("try again later": another client holds
+        #: the device, perhaps one whose close the server has not yet seen).
+        self._try_again = False
+        busy_until = time.monotonic() + CONNECT_TIMEOUT
+        while not self.connect():
+            if self._try_again and time.monotonic() < busy_until:
+                time.sleep(RETRY_INTERVAL)
+                continue
             raise DeviceUnreachable(
                 f"no usable Inverse Service at {url}: {self.why} (is `frhc device serve` or Haply's service running?)"
             )
 
     def connect(self) -> bool:
-        """(Re)connect and read the first state; False (status DISCONNECTED) if it failed."""
+        """(Re)connect and read the first state; False (status DISCONNECTED) if it failed.
+
+        The first connect, in the constructor, is tried again every :data:`RETRY_INTERVAL` for
+        up to :data:`CONNECT_TIMEOUT` while the service refuses with 1013 ("try again later"):
+        ``frhc device serve`` serves one client at a time, and a client that has just closed
+        (:func:`served_device`'s look at the served device, before a run opens its own) still
+        holds it until the server's thread has seen the close, which a loaded machine delays.
+        """
         self._last_attempt = time.monotonic()
+        self._try_again = False
         self._drop()
         try:
             ws = WsLink.connect(self.url, CONNECT_TIMEOUT)
@@ -352,6 +367,7 @@ class HaplyClient:
         try:
             first = parse_state(ws.recv(CONNECT_TIMEOUT))
         except (TimeoutError, ConnectionClosed, ValueError) as exc:
+            self._try_again = isinstance(exc, ConnectionClosed) and exc.rcvd is not None and exc.rcvd.code == 1013
             self.why = f"no usable first state ({exc})"
             log.info("device %s: %s", self.url, self.why)
             ws.close()

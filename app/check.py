@@ -70,7 +70,9 @@ def check_file(name: str) -> str:
         ]
         found = [c for c in candidates if c.is_file()]
         if not found:
-            raise ConfigError(name, "<file>", "no such file, device, scene, session or sweep")
+            # A folder that is not a device's (no device.toml) is there, not missing.
+            why = "a folder with no device.toml" if path.is_dir() else "no such file, device, scene, session or sweep"
+            raise ConfigError(name, "<file>", why)
         path = found[0]
     kind = file_kind(path, load_toml(path))
     with deferred_warnings():

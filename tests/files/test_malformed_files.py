@@ -522,3 +522,13 @@ def test_a_session_script_at_its_entry_limits_fits_the_file_limit_in_the_most_ve
     with pytest.raises(ConfigError, match=rf"field 'waypoints': .*{n}") as err:
         load_session(path)
     assert "\n" not in str(err.value)
+
+
+def test_check_of_a_folder_that_is_not_a_devices_says_so(tmp_path: Path) -> None:
+    """``frhc check some/folder`` (no device.toml in it) said 'no such file, device, scene, session
+    or sweep' of a folder that is there; a missing name still says that."""
+    (tmp_path / "scenes").mkdir()
+    with pytest.raises(ConfigError, match=r"scenes: field '<file>': a folder with no device.toml$"):
+        check_file(str(tmp_path / "scenes"))
+    with pytest.raises(ConfigError, match=r"field '<file>': no such file, device, scene, session or sweep$"):
+        check_file(str(tmp_path / "nothing"))

@@ -338,7 +338,7 @@ class HaplyClient:
         #: the device, perhaps one whose close the server has not yet seen).
         self._try_again = False
         busy_until = time.monotonic() + CONNECT_TIMEOUT
-        while not self.connect():
+        while not self.connect(say=False):  # a failure here is said by the error raised
             if self._try_again and time.monotonic() < busy_until:
                 time.sleep(RETRY_INTERVAL)
                 continue
@@ -346,8 +346,9 @@ class HaplyClient:
                 f"no usable Inverse Service at {url}: {self.why} (is `frhc device serve` or Haply's service running?)"
             )
 
-    def connect(self) -> bool:
-        """(Re)connect and read the first state; False (status DISCONNECTED) if it failed.
+    def connect(self, say: bool = True) -> bool:
+        """(Re)connect and read the first state; False (status DISCONNECTED) if it failed, which
+        is logged (at INFO, as ``frhc run --device`` prints the link's changes) if ``say``.
 
         The first connect, in the constructor, is tried again every :data:`RETRY_INTERVAL` for
         up to :data:`CONNECT_TIMEOUT` while the service refuses with 1013 ("try again later"):
@@ -362,14 +363,16 @@ class HaplyClient:
             ws = WsLink.connect(self.url, CONNECT_TIMEOUT)
         except (OSError, TimeoutError, InvalidHandshake, InvalidURI, ValueError) as exc:
             self.why = f"cannot connect ({exc})"
-            log.info("device %s: %s", self.url, self.why)
+            if say:
+                log.info("device %s: %s", self.url, self.why)
             return False
         try:
             first = parse_state(ws.recv(CONNECT_TIMEOUT))
         except (TimeoutError, ConnectionClosed, ValueError) as exc:
             self._try_again = isinstance(exc, ConnectionClosed) and exc.rcvd is not None and exc.rcvd.code == 1013
             self.why = f"no usable first state ({exc})"
-            log.info("device %s: %s", self.url, self.why)
+            if say:
+                log.info("device %s: %s", self.url, self.why)
             ws.close()
             return False
         self.why = ""

@@ -26,6 +26,7 @@ from app.config import MAX_FILE_BYTES
 from app.device.spec import DEVICES_DIR
 from app.errors import ConfigError
 from app.session.spec import MAX_SCRIPT_ENTRIES, SESSIONS_DIR, SwitchEvent, Waypoint, load_session
+from app.world.scene import SCENES_DIR
 
 BASE_SCENE = """\
 name = "t"
@@ -341,7 +342,7 @@ CASES: dict[str, dict[str, Case]] = {
         "mesh path longer than the file system allows": S(
             "box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/' + "m" * 300 + '.stl"', "objects[0].mesh", "File name too long"
         ),
-        "mesh is a folder": S("box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}"', "objects[0].mesh", "not found"),
+        "mesh is a folder": S("box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}"', "objects[0].mesh", "is a folder, not a file"),
         "open mesh refused before a later error": S(
             None,
             '[[objects]]\nname = "open"\nmesh = "{tmp}/open.ply"\nstiffness = 1.0\n'
@@ -532,3 +533,16 @@ def test_check_of_a_folder_that_is_not_a_devices_says_so(tmp_path: Path) -> None
         check_file(str(tmp_path / "scenes"))
     with pytest.raises(ConfigError, match=r"field '<file>': no such file, device, scene, session or sweep$"):
         check_file(str(tmp_path / "nothing"))
+
+
+def test_a_referenced_file_that_is_a_device_node_is_named_so_not_missing(tmp_path: Path) -> None:
+    """A scene's mesh that is not a regular file (``/dev/null``; a folder: the table's 'mesh is a
+    folder') was 'mesh file not found': it is there. The same check (``require_file``) serves an
+    MJCF, a calibration and a named file."""
+    scene = (SCENES_DIR / "probe.toml").read_text()
+    scene = scene.replace("plane = [0.3, 0.3]", 'mesh = "/dev/null" #').replace("plane_thickness = 0.02\n", "")
+    path = tmp_path / "scene.toml"
+    path.write_text(scene)
+    with pytest.raises(ConfigError) as err:
+        check_file(str(path))
+    assert str(err.value) == f"{path}: field 'objects[0].mesh': /dev/null is not a regular file"

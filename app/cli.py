@@ -267,9 +267,14 @@ def _cmd_check(args: argparse.Namespace) -> int:
     with signals_held():
         from app.check import check_file
 
-    for name in args.files:
-        print(f"ok: {check_file(name)}")
-    return 0
+    failed = 0
+    for name in args.files:  # every file, each said in its own line (ok, or the first error in it)
+        try:
+            print(f"ok: {check_file(name)}")
+        except FrhcError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            failed += 1
+    return 2 if failed else 0
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
@@ -521,7 +526,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run every point of a sweep file (sweeps/README.md) as a headless session; "
         "results to Parquet, resumable, with a plot.",
     )
-    p.add_argument("file", help="sweep .toml file")
+    p.add_argument("file", help="sweep name in sweeps/ or a path to a sweep .toml")
     p.add_argument(
         "--out", type=_out_dir, help="output directory (default runs/sweeps/<file>); re-running into it resumes"
     )

@@ -191,3 +191,15 @@ def test_every_option_takes_a_value_starting_with_a_minus_as_with_an_equals_sign
         assert spaced == _parse([*command, f"{option}={value}"], capsys), (command, option)
         if isinstance(spaced, tuple):
             assert "expected one argument" not in spaced[1]
+
+
+def test_check_of_several_files_says_each_and_exits_2_if_any_failed(capsys: pytest.CaptureFixture[str]) -> None:
+    """``frhc check nosuch probe_rate`` stopped at the first bad file: the others were never
+    checked and nothing said so. Now one line each, in order, and exit 2."""
+    assert main(["check", "nosuch", "probe_rate", "also-nosuch"]) == 2
+    out, err = capsys.readouterr()
+    assert out.startswith("ok: session probe_rate")
+    assert err.splitlines() == [
+        "error: nosuch: field '<file>': no such file, device, scene, session or sweep",
+        "error: also-nosuch: field '<file>': no such file, device, scene, session or sweep",
+    ]

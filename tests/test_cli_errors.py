@@ -203,3 +203,31 @@ def test_check_of_several_files_says_each_and_exits_2_if_any_failed(capsys: pyte
         "error: nosuch: field '<file>': no such file, device, scene, session or sweep",
         "error: also-nosuch: field '<file>': no such file, device, scene, session or sweep",
     ]
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["run", ""],
+        ["sweep", " "],
+        ["check", "probe_rate", ""],
+        ["calibrate", ""],
+        ["device", "serve", "--device", ""],
+        ["web", "--scene", ""],
+        ["web", "--device", ""],
+        ["web", "--session", ""],
+        ["web", "--replay", ""],
+        ["zwidth", "--device", ""],
+    ],
+)
+def test_an_empty_file_name_is_refused_as_empty(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], args: list[str]
+) -> None:
+    """An empty name meant the working folder, and each command said something else of it ('.: is a
+    directory', 'scenes/.toml: no such scene', 'device.toml: no such device'). Parsed in this process."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        main(args)
+    assert exit_.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].endswith(": expected a name or a path, got an empty one")
+    assert list(tmp_path.iterdir()) == []

@@ -23,7 +23,7 @@ from app.device.spec import DEFAULT_DEVICE, DeviceFile, load_device, resolve_dev
 from app.errors import ConfigError
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.spec import SessionFile, load_session, resolve_session_path
-from app.sweep.spec import SWEEPS_DIR, SweepFile, load_sweep
+from app.sweep.spec import SweepFile, load_sweep, resolve_sweep_path
 from app.world.scene import DEFAULT_SCENE, SCENES_DIR, SceneFile, load_scene
 
 #: The schema of each kind of file; a file's kind is the one whose fields its keys match best.
@@ -66,11 +66,13 @@ def check_file(name: str) -> str:
             resolve_device_path(name),
             SCENES_DIR / f"{name}.toml",
             resolve_session_path(name),
-            SWEEPS_DIR / f"{name}.toml",
+            resolve_sweep_path(name),
         ]
         found = [c for c in candidates if c.is_file()]
         if not found:
-            raise ConfigError(name, "<file>", "no such file, device, scene, session or sweep")
+            # A folder that is not a device's (no device.toml) is there, not missing.
+            why = "a folder with no device.toml" if path.is_dir() else "no such file, device, scene, session or sweep"
+            raise ConfigError(name, "<file>", why)
         path = found[0]
     kind = file_kind(path, load_toml(path))
     with deferred_warnings():

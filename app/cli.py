@@ -12,6 +12,7 @@ import argparse
 import logging
 import math
 import os
+import re
 import signal
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -266,9 +267,14 @@ def _cmd_check(args: argparse.Namespace) -> int:
     with signals_held():
         from app.check import check_file
 
-    for name in args.files:
-        print(f"ok: {check_file(name)}")
-    return 0
+    failed = 0
+    for name in args.files:  # every file, each said in its own line (ok, or the first error in it)
+        try:
+            print(f"ok: {check_file(name)}")
+        except FrhcError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            failed += 1
+    return 2 if failed else 0
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
@@ -414,6 +420,14 @@ def _host(text: str) -> str:
     return text
 
 
+def _name(text: str) -> str:
+    """A file given by name or path (a session, sweep, scene, device or log): an empty one named the
+    working folder, and each command then said something else of it ('.: is a directory')."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a name or a path, got an empty one")
+    return text
+
+
 def _out_dir(text: str) -> Path:
     """An output folder (``--out``); an empty name would write into the working folder."""
     if not text.strip():
@@ -441,8 +455,21 @@ def _damping(text: str) -> float:
     return value
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, taking every argument that starts with ``-`` and a digit (or ``-.`` and a
+    digit) as a value, not an option: ``--hand -1,5``, ``--dampings -1,4`` and ``--rate -1e3`` reach
+    the option's own check as ``--hand=-1,5`` does. argparse's own test (a negative int or
+    decimal only) called them unknown options ("expected one argument"). No frhc option is a
+    dash and a digit; its subcommands' parsers are of this class too (``add_subparsers``
+    makes them of the parent's)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="frhc",
         description="Cartesian control of force-reflecting hand controllers (Williams 1997): "
         "a haptic virtual environment with a simulated FRHC.",
@@ -450,7 +477,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("run", help="run a headless scripted session", description="Run a session file headless.")
-    p.add_argument("session", help="session name in sessions/ or a path to a session .toml")
+    p.add_argument("session", type=_name, help="session name in sessions/ or a path to a session .toml")
     p.add_argument("--out", type=_out_dir, help="output directory (default runs/<session>)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--realtime", action="store_true", help="pace ticks to the wall clock")
@@ -507,7 +534,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run every point of a sweep file (sweeps/README.md) as a headless session; "
         "results to Parquet, resumable, with a plot.",
     )
-    p.add_argument("file", help="sweep .toml file")
+    p.add_argument("file", type=_name, help="sweep name in sweeps/ or a path to a sweep .toml")
     p.add_argument(
         "--out", type=_out_dir, help="output directory (default runs/sweeps/<file>); re-running into it resumes"
     )
@@ -536,7 +563,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "check", help="check scene/device/session/sweep files", description="Load and check files without running."
     )
-    p.add_argument("files", nargs="+", help="scene, device or session .toml files (or names)")
+    p.add_argument("files", nargs="+", type=_name, help="scene, device or session .toml files (or names)")
     p.set_defaults(func=_cmd_check)
 
     p = sub.add_parser(
@@ -544,7 +571,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="calibrate torque curves (Sec 4.2)",
         description="Sweep motor counts on the simulated device and fit 5th-order curves.",
     )
-    p.add_argument("device", help="device name or path")
+    p.add_argument("device", type=_name, help="device name or path")
     p.add_argument("--write", action="store_true", help="write the fitted curves into the device folder")
     p.set_defaults(func=_cmd_calibrate)
 
@@ -556,22 +583,25 @@ def build_parser() -> argparse.ArgumentParser:
         description="Serve a simulated device as a Cartesian device (grip pose out, force in) over the "
         "Inverse Service JSON protocol, for frhc run/web --device ws://host:port (app/device/haply.py).",
     )
-    p.add_argument("--device", default="kraft", help="device name or path with a [cartesian] table (default: kraft)")
+    p.add_argument(
+        "--device", type=_name, default="kraft", help="device name or path with a [cartesian] table (default: kraft)"
+    )
     p.add_argument("--host", type=_host, default="127.0.0.1", help="bind address (default 127.0.0.1)")
     p.add_argument("--port", type=_port, default=10001, help="port (default 10001, as Haply's service)")
     p.add_argument("--rate", type=float, default=1000.0, help="simulation rate (Hz, default 1000)")
     p.set_defaults(func=_cmd_device_serve)
 
     p = sub.add_parser("web", help="the browser demo (viser)", description="Serve the haptic demo in the browser.")
-    p.add_argument("--scene", default="probe", help="scene name or path (default: probe)")
+    p.add_argument("--scene", type=_name, default="probe", help="scene name or path (default: probe)")
     p.add_argument(
         "--device",
+        type=_name,
         default="kraft",
         help="device name or path (default: kraft), or a device outside this process: ws://host:port "
         "(frhc device serve, Haply's Inverse Service), fd:N, openhaptics:NAME (limits from the session's "
         "device file if it is Cartesian, else from inverse3, omega3 or touch3)",
     )
-    p.add_argument("--session", default=None, help="start with this session's gains and mode")
+    p.add_argument("--session", type=_name, default=None, help="start with this session's gains and mode")
     p.add_argument(
         "--host",
         type=_host,
@@ -580,7 +610,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--port", type=_port, default=8080)
     p.add_argument("--insecure", action="store_true", help="serve a non-loopback --host without an access token")
-    p.add_argument("--replay", metavar="LOG", help="start replaying a recorded log (runs/<name> or runs/<name>/log)")
+    p.add_argument(
+        "--replay", type=_name, metavar="LOG", help="start replaying a recorded log (runs/<name> or runs/<name>/log)"
+    )
     p.add_argument(
         "--rate",
         type=_servo_rate,
@@ -602,7 +634,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="the stable region of a design (largest stable felt stiffness per damping)",
         description="Z-width by bisection on the task-wrench gain, pose-mode probe presses (see app/study/zwidth.py).",
     )
-    p.add_argument("--device", default="kraft")
+    p.add_argument("--device", type=_name, default="kraft")
     p.add_argument("--rate", type=_servo_rate, default=1000.0, help="servo rate (Hz)")
     p.add_argument("--delay-ms", type=_delay_ms, default=0.0, help="one-way master-slave delay (ms)")
     p.add_argument("--renderers", type=_list_of(_renderer), default=["plain", "pc"], help="e.g. plain,pc,wave")

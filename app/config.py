@@ -258,18 +258,22 @@ def require_file(path: Path, source: str | Path, field: str, missing: str) -> Pa
     """``path`` if it names a regular file; else a :class:`ConfigError` on ``field`` of ``source``.
 
     The one check of every file a file refers to (a mesh, an MJCF, a calibration) and of a named
-    file itself: ``missing`` is the reason when there is no such file; any other failure of the
-    look-up (a name longer than the file system allows, a permission) gives the system's reason.
+    file itself: ``missing`` is the reason when there is no such file; something else there (a
+    folder) is named; any other failure of the look-up (a name longer than the file system allows,
+    a permission) gives the system's reason.
     """
+    shown = str(path) if len(str(path)) <= 120 else f"{str(path)[:100]}...({len(str(path))} characters)"
     try:
-        if path.stat().st_mode & 0o170000 == 0o100000:  # S_IFREG
-            return path
+        kind = path.stat().st_mode & 0o170000
     except (FileNotFoundError, NotADirectoryError):
-        pass
+        raise ConfigError(source, field, missing) from None
     except OSError as exc:
-        shown = str(path) if len(str(path)) <= 120 else f"{str(path)[:100]}...({len(str(path))} characters)"
         raise ConfigError(source, field, f"cannot read {shown}: {exc.strerror}") from None
-    raise ConfigError(source, field, missing)
+    if kind == 0o100000:  # S_IFREG
+        return path
+    raise ConfigError(
+        source, field, f"{shown} is {'a folder, not a file' if kind == 0o040000 else 'not a regular file'}"
+    )
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import signal
 import subprocess
 import sys
@@ -12,7 +13,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
-from app.cli import main
+from app.cli import build_parser, main
 
 FRHC = [sys.executable, "-m", "app.cli"]
 
@@ -156,3 +157,94 @@ def test_ctrl_c_inside_a_third_party_import_guard_still_stops_the_command(tmp_pa
     assert done.returncode == 130, done.stderr[-2000:]
     assert "Traceback" not in done.stderr
     assert not (tmp_path / "r").exists()
+
+
+def _options_taking_a_value() -> list[tuple[list[str], str]]:
+    """Every option of every ``frhc`` command that takes one value: (the command with its
+    positionals filled, the option)."""
+    commands: list[tuple[list[str], argparse.ArgumentParser]] = []
+
+    def walk(prefix: list[str], parser: argparse.ArgumentParser) -> None:
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk([*prefix, name], sub)
+                return
+        commands.append((prefix, parser))
+
+    walk([], build_parser())
+    found = []
+    for prefix, parser in commands:
+        positionals = [
+            "x" for a in parser._actions if not a.option_strings and not isinstance(a, argparse._SubParsersAction)
+        ]
+        for action in parser._actions:
+            if action.option_strings and action.nargs is None and action.type is not None:
+                found.append(([*prefix, *positionals], action.option_strings[-1]))
+    return found
+
+
+def _parse(argv: list[str], capsys: pytest.CaptureFixture[str]) -> object:
+    try:
+        return vars(build_parser().parse_args(argv))
+    except SystemExit as exc:
+        return exc.code, capsys.readouterr().err.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize("value", ["-1", "-1,5", "-1e3", "-.5"])
+def test_every_option_takes_a_value_starting_with_a_minus_as_with_an_equals_sign(
+    value: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--hand -1,5`` was refused as 'expected one argument' (argparse took ``-1,5``, not a plain
+    negative number, for an option) while ``--hand=-1,5`` reached the option's own check. Now both
+    forms give the same answer, for every option of every command that takes a value."""
+    options = _options_taking_a_value()
+    assert "--hand" in {o for _, o in options}
+    assert len(options) > 20
+    for command, option in options:
+        if option == "--host":
+            continue  # its check resolves the name (a DNS look-up): the same either way, not parsed here
+        spaced = _parse([*command, option, value], capsys)
+        assert spaced == _parse([*command, f"{option}={value}"], capsys), (command, option)
+        if isinstance(spaced, tuple):
+            assert "expected one argument" not in spaced[1]
+
+
+def test_check_of_several_files_says_each_and_exits_2_if_any_failed(capsys: pytest.CaptureFixture[str]) -> None:
+    """``frhc check nosuch probe_rate`` stopped at the first bad file: the others were never
+    checked and nothing said so. Now one line each, in order, and exit 2."""
+    assert main(["check", "nosuch", "probe_rate", "also-nosuch"]) == 2
+    out, err = capsys.readouterr()
+    assert out.startswith("ok: session probe_rate")
+    assert err.splitlines() == [
+        "error: nosuch: field '<file>': no such file, device, scene, session or sweep",
+        "error: also-nosuch: field '<file>': no such file, device, scene, session or sweep",
+    ]
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["run", ""],
+        ["sweep", " "],
+        ["check", "probe_rate", ""],
+        ["calibrate", ""],
+        ["device", "serve", "--device", ""],
+        ["web", "--scene", ""],
+        ["web", "--device", ""],
+        ["web", "--session", ""],
+        ["web", "--replay", ""],
+        ["zwidth", "--device", ""],
+    ],
+)
+def test_an_empty_file_name_is_refused_as_empty(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], args: list[str]
+) -> None:
+    """An empty name meant the working folder, and each command said something else of it ('.: is a
+    directory', 'scenes/.toml: no such scene', 'device.toml: no such device'). Parsed in this process."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        main(args)
+    assert exit_.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].endswith(": expected a name or a path, got an empty one")
+    assert list(tmp_path.iterdir()) == []

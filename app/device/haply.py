@@ -16,7 +16,9 @@ one extension that a real Inverse Service neither sends nor needs: a top-level `
 object. In the state it names the device and its period (``{"device", "period", "time"}``); in a
 command it carries the simulated operator's hand target (``{"hand_target": 16 numbers, row-major
 4x4 in {0}, or null}``), so that scripted sessions drive a served device as they drive one in
-process. A served simulation is **synchronous**: it advances one period per command, so a loop
+process. A hand target that is not a rigid pose (:func:`~app.spatial.pose_error`) is a bad command
+like any other: the connection is closed (1003, naming the field), the force zeroed, and the hand
+holds the last target it accepted. A served simulation is **synchronous**: it advances one period per command, so a loop
 over loopback reproduces the in-process run. With no command for ``watchdog`` seconds, or as soon
 as the connection closes, it sets the commanded force to zero (and with a client connected but
 silent, it runs on in real time under zero force).
@@ -53,7 +55,7 @@ from app.device.spec import DeviceSpec, load_device
 from app.device.vendors import check_device_url, vendor_device
 from app.device.wslink import WsLink
 from app.errors import FrhcError
-from app.spatial import Array, matrix_to_quat, quat_to_matrix
+from app.spatial import Array, matrix_to_quat, pose_error, quat_to_matrix
 
 log = logging.getLogger(__name__)
 
@@ -249,7 +251,9 @@ def parse_state(text: str | bytes) -> ParsedState:
 
 def parse_command(text: str | bytes) -> tuple[Array, Array | None, bool]:
     """Read a command: the force (N, (3,)), the simulated hand target ((4, 4) or None) and
-    whether the message carried the ``frhc_sim`` extension. Raises ValueError naming the field."""
+    whether the message carried the ``frhc_sim`` extension. Raises ValueError naming the field,
+    for a hand target too that is not a rigid pose (:func:`~app.spatial.pose_error`, the check
+    of the slave's pose commands): a scaled, sheared or mirrored one would be pulled toward."""
     try:
         data = _decode_command(text)
     except msgspec.DecodeError as exc:
@@ -258,7 +262,10 @@ def parse_command(text: str | bytes) -> tuple[Array, Array | None, bool]:
     sim = data.frhc_sim
     target = None
     if sim is not None and sim.hand_target is not None:
-        target = np.array(sim.hand_target).reshape(4, 4)
+        target = np.array(sim.hand_target, dtype=float).reshape(4, 4)
+        why = pose_error(target, "$.frhc_sim.hand_target")
+        if why is not None:
+            raise ValueError(why)
     return np.array([v.x, v.y, v.z]), target, sim is not None
 
 
@@ -327,26 +334,45 @@ class HaplyClient:
         self._hand: Array | None = None
         self._last_attempt = -math.inf
         self._bad_states = 0  # bad state messages in a row (logged when the run starts and ends)
-        if not self.connect():
+        #: Whether the last connect was refused with 1013 ("try again later": another client holds
+        #: the device, perhaps one whose close the server has not yet seen).
+        self._try_again = False
+        busy_until = time.monotonic() + CONNECT_TIMEOUT
+        while not self.connect(say=False):  # a failure here is said by the error raised
+            if self._try_again and time.monotonic() < busy_until:
+                time.sleep(RETRY_INTERVAL)
+                continue
             raise DeviceUnreachable(
                 f"no usable Inverse Service at {url}: {self.why} (is `frhc device serve` or Haply's service running?)"
             )
 
-    def connect(self) -> bool:
-        """(Re)connect and read the first state; False (status DISCONNECTED) if it failed."""
+    def connect(self, say: bool = True) -> bool:
+        """(Re)connect and read the first state; False (status DISCONNECTED) if it failed, which
+        is logged (at INFO, as ``frhc run --device`` prints the link's changes) if ``say``.
+
+        The first connect, in the constructor, is tried again every :data:`RETRY_INTERVAL` for
+        up to :data:`CONNECT_TIMEOUT` while the service refuses with 1013 ("try again later"):
+        ``frhc device serve`` serves one client at a time, and a client that has just closed
+        (:func:`served_device`'s look at the served device, before a run opens its own) still
+        holds it until the server's thread has seen the close, which a loaded machine delays.
+        """
         self._last_attempt = time.monotonic()
+        self._try_again = False
         self._drop()
         try:
             ws = WsLink.connect(self.url, CONNECT_TIMEOUT)
         except (OSError, TimeoutError, InvalidHandshake, InvalidURI, ValueError) as exc:
             self.why = f"cannot connect ({exc})"
-            log.info("device %s: %s", self.url, self.why)
+            if say:
+                log.info("device %s: %s", self.url, self.why)
             return False
         try:
             first = parse_state(ws.recv(CONNECT_TIMEOUT))
         except (TimeoutError, ConnectionClosed, ValueError) as exc:
+            self._try_again = isinstance(exc, ConnectionClosed) and exc.rcvd is not None and exc.rcvd.code == 1013
             self.why = f"no usable first state ({exc})"
-            log.info("device %s: %s", self.url, self.why)
+            if say:
+                log.info("device %s: %s", self.url, self.why)
             ws.close()
             return False
         self.why = ""

@@ -58,8 +58,8 @@ from app.mjcall import address, pointers
 from app.slave import arm_ik
 from app.slave import arm_kernel as ak
 from app.slave.arm_model import ArmGeom, ArmParams, arm_model, arm_record, link_contact_models, place_base
-from app.slave.tool import DEFAULT_PERIOD, SlaveBase, command_error, contact_rows, finite, invalid_contact
-from app.spatial import Array
+from app.slave.tool import DEFAULT_PERIOD, SlaveBase, command_error, contact_rows, invalid_contact
+from app.spatial import Array, finite
 from app.world.contact import ContactResult
 from app.world.contact.layout import MAX_PER_PAIR
 from app.world.contact.model import failed

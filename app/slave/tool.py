@@ -36,9 +36,8 @@ import math
 
 import mujoco
 import numpy as np
-from numba import njit
 
-from app.compiled import F8, entry_point, is_f8
+from app.compiled import entry_point, is_f8
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
 from app.errors import InputError
 from app.mjcall import address, pointers, substeps_for
@@ -65,7 +64,7 @@ from app.slave.tool_kernel import (
     sensor_reading,
     tool_substep,
 )
-from app.spatial import Array, invert_pose, matrix_to_quat
+from app.spatial import SHAPE_44, Array, finite, invert_pose, matrix_to_quat, pose_error
 from app.world.contact import ContactResult
 from app.world.dynamics import MovingWorld, world_contact
 from app.world.scene import Scene
@@ -81,7 +80,7 @@ _ZERO15 = np.zeros(15)
 _NO_OBJECTS = np.zeros((0, 7))
 # No contact rows (a result without contacts shares a read-only empty array).
 _NO_ROWS = np.zeros((0, 9))
-SHAPE_6, SHAPE_44 = (6,), (4, 4)
+SHAPE_6 = (6,)
 
 
 def contact_rows(contact: ContactResult) -> Array:
@@ -107,74 +106,6 @@ def _tool_xml(scene: Scene, timestep: float) -> str:
     </body>
   </worldbody>
 </mujoco>"""
-
-
-def finite(a: Array) -> bool:
-    """True if every entry of ``a`` is finite.
-
-    A float64 array is checked by compiled code (:func:`_all_finite`): once a tick on the slave
-    command, where numpy's ``a.sum()`` (the check before) cost 2-4 us on the shared machine
-    against ~0.3-0.5 us for the compiled call. (A sum also called huge finite entries that
-    overflow it non-finite.)"""
-    if a.__class__ is np.ndarray and a.dtype is F8:
-        return bool(_all_finite(a))
-    return bool(np.isfinite(a).all())
-
-
-@njit(cache=True)
-def _all_finite(a: Array) -> bool:
-    """Whether every entry of ``a`` (float64, any shape and layout) is finite."""
-    for v in a.flat:  # noqa: SIM110 (no generators in numba)
-        if not math.isfinite(v):
-            return False
-    return True
-
-
-#: How far (largest entry of ``R^T R - I``, and ``det R - 1``) a pose's rotation may be from a
-#: rotation: a float32 orientation, as a device SDK may send, is off by ~1e-7 and rounding over a
-#: tick's products by ~1e-15, while anything off by this much would turn the tool visibly (a
-#: shear or scale of 1e-4 is 0.1 mm on a 1 m lever) and is no pose.
-RIGID_TOLERANCE = 1e-4
-
-
-def pose_error(T: Array, what: str) -> str | None:
-    """Why ``T`` (4, 4) is not a rigid pose (non-finite, a rotation block that is not a rotation
-    within :data:`RIGID_TOLERANCE`, or a last row other than ``[0, 0, 0, 1]``), or None."""
-    if is_f8(T, SHAPE_44):  # every tick in pose mode: one compiled call and one comparison
-        off = _rigid_error(T)
-        if off <= RIGID_TOLERANCE:
-            return None
-    else:
-        a = np.asarray(T)
-        if a.shape != SHAPE_44 or a.dtype.kind not in "iuf":
-            return None  # the command's own check (checked_command) refuses it, with its own message
-        off = _rigid_error(a.astype(np.float64))
-    if not math.isfinite(off):
-        return f"non-finite {what}"
-    if off > RIGID_TOLERANCE:
-        return (
-            f"{what} is not rigid: its rotation block is off a rotation by {off:.3g} (R^T R - I, det R - 1, last row)"
-        )
-    return None
-
-
-@njit(cache=True)
-def _rigid_error(T: Array) -> float:
-    """The largest of ``|R^T R - I|``, ``|det R - 1|`` and the last row's distance from
-    ``[0, 0, 0, 1]`` for ``T`` (4, 4); NaN if an entry is not finite."""
-    if not _all_finite(T):
-        return math.nan
-    off = abs(T[3, 0]) + abs(T[3, 1]) + abs(T[3, 2]) + abs(T[3, 3] - 1.0)
-    for i in range(3):
-        for j in range(3):
-            d = T[0, i] * T[0, j] + T[1, i] * T[1, j] + T[2, i] * T[2, j] - (1.0 if i == j else 0.0)
-            off = max(off, abs(d))
-    det = (
-        T[0, 0] * (T[1, 1] * T[2, 2] - T[1, 2] * T[2, 1])
-        - T[0, 1] * (T[1, 0] * T[2, 2] - T[1, 2] * T[2, 0])
-        + T[0, 2] * (T[1, 0] * T[2, 1] - T[1, 1] * T[2, 0])
-    )
-    return max(off, abs(det - 1.0))
 
 
 def command_error(command: SlaveCommand, dt: float) -> str | None:

@@ -226,13 +226,22 @@ def _device_gains(device: str, source: Path) -> dict[str, Any]:
         raise ConfigError(source, "device", f"cannot load '{device}': {exc.reason}") from None
 
 
+def resolve_sweep_path(name_or_path: str | Path) -> Path:
+    """A sweep name (``"probe_stiffness"``, in ``sweeps/``) or a path, as a session's is resolved."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    return SWEEPS_DIR / f"{name_or_path}.toml"
+
+
 def load_sweep(path: str | Path) -> SweepPlan:
-    """Load and check a sweep file (see the module docstring for what is checked).
+    """Load and check a sweep file, by name (in ``sweeps/``) or path (see the module docstring
+    for what is checked).
 
     Raises:
         ConfigError: naming the sweep file and the sweep field.
     """
-    path = Path(path)
+    path = resolve_sweep_path(path)
     spec = from_dict(SweepFile, load_toml(path), path)
     # A path is the sweep file's neighbour, wherever the sweep is run from; a name is in sessions/.
     base_path = (path.parent / spec.base).absolute() if spec.base.endswith(".toml") else resolve_session_path(spec.base)

@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import logging
 import re
+import socket
+import subprocess
+import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -152,3 +155,27 @@ def test_bad_states_mid_contact_zero_the_force_said_once_and_the_force_ramps_bac
     assert again is not None
     assert 5 <= int(again.group(1)) <= bad
     loop.close()
+
+
+FRHC_RUN = [sys.executable, "-m", "app.cli", "run", "probe_rate", "--out"]
+
+
+def test_frhc_run_with_no_service_at_the_device_address_prints_one_line(tmp_path: Path) -> None:
+    """Nothing listening at ``--device``: exit 2 and the error alone on stderr. The client's own
+    log line of the failed connect ('device ws://...: cannot connect ...', what ``frhc run
+    --device`` prints of the link's changes mid-run) came first and said it twice."""
+    with socket.socket() as s:  # a port nothing listens on: bound, never listening
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+        done = subprocess.run(
+            [*FRHC_RUN, str(tmp_path / "out"), "--device", f"ws://127.0.0.1:{port}"],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            check=False,
+        )
+    assert done.returncode == 2
+    assert done.stderr.splitlines() == [
+        f"error: no usable Inverse Service at ws://127.0.0.1:{port}: cannot connect ([Errno 111] Connection refused) "
+        "(is `frhc device serve` or Haply's service running?)"
+    ]

@@ -137,3 +137,34 @@ def test_device_server_refuses_a_second_client_with_code_1013() -> None:
         assert refused.value.rcvd.code == 1013
     finally:
         server.shutdown()
+
+
+def test_a_client_refused_with_1013_tries_again_until_the_device_is_free_and_no_longer() -> None:
+    """``frhc run --device ws://...`` connects twice (``served_device`` looks at the served device,
+    then the run opens its own); on a loaded machine the server's thread had not yet seen the first
+    close, refused the second with 1013 and the run ended in 'another client controls the device'
+    (the loopback session test's flaky failure). The client now tries again, for up to
+    ``CONNECT_TIMEOUT``, while refused with 1013: it takes the device once the holder leaves
+    0.3 s later, and still gives up, naming the holder, when it does not leave."""
+    from app.device.cartesian_sim import SimCartesianDevice
+    from app.device.haply import CONNECT_TIMEOUT, DeviceUnreachable, HaplyClient
+    from app.device.spec import load_device
+
+    server = DeviceServer(SimCartesianDevice(load_device("touch3")), port=0).start()
+    try:
+        url = f"ws://127.0.0.1:{server.port}"
+        with connect(url, ping_interval=None) as holder:
+            holder.recv(timeout=WAIT)
+            leaves = threading.Timer(0.3, holder.close)
+            leaves.start()
+            client = HaplyClient(url, period=CONNECT_TIMEOUT)
+            leaves.join()
+        assert client.served is not None
+        assert client.served.device == "touch3"
+        client.close()
+        with connect(url, ping_interval=None) as holder:
+            holder.recv(timeout=WAIT)
+            with pytest.raises(DeviceUnreachable, match=r"1013 .*another client controls the device"):
+                HaplyClient(url, period=CONNECT_TIMEOUT)
+    finally:
+        server.shutdown()

@@ -9,9 +9,11 @@ stderr, no traceback, nothing written).
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import subprocess
 import sys
+import typing
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,9 +22,11 @@ import pytest
 import trimesh
 
 from app.check import check_file
+from app.config import MAX_FILE_BYTES
 from app.device.spec import DEVICES_DIR
 from app.errors import ConfigError
-from app.session.spec import SESSIONS_DIR
+from app.session.spec import MAX_SCRIPT_ENTRIES, SESSIONS_DIR, SwitchEvent, Waypoint, load_session
+from app.world.scene import SCENES_DIR
 
 BASE_SCENE = """\
 name = "t"
@@ -338,7 +342,7 @@ CASES: dict[str, dict[str, Case]] = {
         "mesh path longer than the file system allows": S(
             "box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}/' + "m" * 300 + '.stl"', "objects[0].mesh", "File name too long"
         ),
-        "mesh is a folder": S("box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}"', "objects[0].mesh", "not found"),
+        "mesh is a folder": S("box = [0.2, 0.2, 0.02]", 'mesh = "{tmp}"', "objects[0].mesh", "is a folder, not a file"),
         "open mesh refused before a later error": S(
             None,
             '[[objects]]\nname = "open"\nmesh = "{tmp}/open.ply"\nstiffness = 1.0\n'
@@ -479,3 +483,66 @@ def test_command_line_prints_one_line_and_exits_2(tmp_path: Path, cls: str, name
         assert res.stderr.startswith(f"error: {source}: field '{case.field}': ")
     assert not (tmp_path / "out").exists()
     assert not (Path.cwd() / "MUJOCO_LOG.TXT").exists()
+
+
+def verbose_entry(cls: type, table: str, t: float) -> str:
+    """One entry of a session script in the most verbose form a program writes: its own
+    ``[[table]]``, every field on its own CRLF line, numbers at 17 significant digits, every switch
+    given."""
+    hints = typing.get_type_hints(cls, include_extras=True)
+    number = "-1.2345678901234567e-300"  # in every range, and as long as a float64 gets
+    lines = [f"[[{table}]]", f"t = {t:.16e}"]
+    for f in dataclasses.fields(cls):
+        tp = (
+            typing.get_args(hints[f.name])[0] if typing.get_origin(hints[f.name]) is typing.Annotated else hints[f.name]
+        )
+        if f.name == "t":
+            continue
+        if typing.get_origin(tp) is tuple:
+            lines.append(f"{f.name} = [{', '.join([number] * len(typing.get_args(tp)))}]")
+        else:
+            assert tp == bool | None, tp  # a new kind of field: give it its longest form here
+            lines.append(f"{f.name} = false")
+    return "".join(line + "\r\n" for line in lines)
+
+
+def test_a_session_script_at_its_entry_limits_fits_the_file_limit_in_the_most_verbose_form(tmp_path: Path) -> None:
+    """The documented most waypoints and events load in any form (before, 100,000 of each fitted
+    only inline with short numbers: the 4 MiB limit refused about 19,000 verbose waypoints), and
+    one waypoint more is refused in one line naming the field."""
+    n = MAX_SCRIPT_ENTRIES
+    head = 'scene = "probe"\r\ndevice = "touch3"\r\nduration = 1.0\r\n'
+    waypoints = [verbose_entry(Waypoint, "waypoints", (i + 1) * 1e-290) for i in range(n)]
+    events = [verbose_entry(SwitchEvent, "events", 0.0) for _ in range(n)]
+    path = tmp_path / "long.toml"
+    path.write_text(head + "".join(waypoints) + "".join(events), newline="")
+    assert path.stat().st_size <= MAX_FILE_BYTES
+    session = load_session(path)
+    assert (len(session.data.waypoints), len(session.data.events)) == (n, n)
+    path.write_text(head + "".join(waypoints) + verbose_entry(Waypoint, "waypoints", 1.0), newline="")
+    with pytest.raises(ConfigError, match=rf"field 'waypoints': .*{n}") as err:
+        load_session(path)
+    assert "\n" not in str(err.value)
+
+
+def test_check_of_a_folder_that_is_not_a_devices_says_so(tmp_path: Path) -> None:
+    """``frhc check some/folder`` (no device.toml in it) said 'no such file, device, scene, session
+    or sweep' of a folder that is there; a missing name still says that."""
+    (tmp_path / "scenes").mkdir()
+    with pytest.raises(ConfigError, match=r"scenes: field '<file>': a folder with no device.toml$"):
+        check_file(str(tmp_path / "scenes"))
+    with pytest.raises(ConfigError, match=r"field '<file>': no such file, device, scene, session or sweep$"):
+        check_file(str(tmp_path / "nothing"))
+
+
+def test_a_referenced_file_that_is_a_device_node_is_named_so_not_missing(tmp_path: Path) -> None:
+    """A scene's mesh that is not a regular file (``/dev/null``; a folder: the table's 'mesh is a
+    folder') was 'mesh file not found': it is there. The same check (``require_file``) serves an
+    MJCF, a calibration and a named file."""
+    scene = (SCENES_DIR / "probe.toml").read_text()
+    scene = scene.replace("plane = [0.3, 0.3]", 'mesh = "/dev/null" #').replace("plane_thickness = 0.02\n", "")
+    path = tmp_path / "scene.toml"
+    path.write_text(scene)
+    with pytest.raises(ConfigError) as err:
+        check_file(str(path))
+    assert str(err.value) == f"{path}: field 'objects[0].mesh': /dev/null is not a regular file"

@@ -14,8 +14,8 @@ from hypothesis.extra.numpy import arrays
 
 from app.controller.types import FTReading, SlaveCommand, SlaveModel
 from app.errors import InputError
-from app.slave.tool import RIGID_TOLERANCE, VirtualSlave, finite, pose_error
-from app.spatial import quat_to_matrix
+from app.slave.tool import VirtualSlave
+from app.spatial import RIGID_TOLERANCE, finite, pose_error, quat_to_matrix
 from app.world import load_scene
 from app.world.contact.force import V_SLIP
 from app.world.scene import Scene

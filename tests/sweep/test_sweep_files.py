@@ -16,7 +16,7 @@ from app.check import check_file
 from app.errors import ConfigError
 from app.sweep import load_sweep
 from app.sweep.fields import parse_target
-from app.sweep.spec import SweepFile, SweepPlan, Vary
+from app.sweep.spec import SWEEPS_DIR, SweepFile, SweepPlan, Vary
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -203,3 +203,12 @@ def test_a_base_path_is_read_beside_the_sweep_file(tmp_path: Path, monkeypatch: 
     (folder / "sweep.toml").write_text('base = "mine.toml"\n[[vary]]\nfield = "seed"\nvalues = [1, 2]\n')
     monkeypatch.chdir(tmp_path)
     assert load_sweep("study/sweep.toml").base_path == folder / "mine.toml"
+
+
+def test_a_sweep_is_found_by_name_as_a_session_is(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``frhc sweep probe_stiffness`` said 'file not found' while ``frhc run probe_rate`` and ``frhc
+    check probe_stiffness`` find theirs by name; a path still wins, from any working folder."""
+    monkeypatch.chdir(tmp_path)
+    assert load_sweep("probe_stiffness").path == SWEEPS_DIR / "probe_stiffness.toml"
+    with pytest.raises(ConfigError, match=r"nosuch\.toml: field '<file>': file not found$"):
+        load_sweep("nosuch")

@@ -304,7 +304,13 @@ def test_the_camera_is_refitted_while_the_canvas_changes_shape(demo: DemoApp, pa
         wait_until(fitted, "the camera was not fitted to the narrower canvas")
         moved = recentre(CameraPose(camera.position.copy(), camera.look_at.copy()), both.mean(axis=0))
         camera.position = moved.position
-        wait_until(lambda: np.allclose(camera.position, moved.position, atol=1e-4), "the camera did not move")
+        # The setter changes the server's copy at once; wait for the page's own report of the move,
+        # so that no report it sent before applying it (the fitted pose) can arrive later.
+        sent = camera.update_timestamp
+        wait_until(
+            lambda: camera.update_timestamp > sent and np.allclose(camera.position, moved.position, atol=1e-4),
+            "the page did not report the moved camera",
+        )
         narrow = camera.aspect
         page.set_viewport_size(size)  # type: ignore[attr-defined]
         wait_until(lambda: abs(camera.aspect / narrow - 1.0) > 0.05, "the canvas did not change back")

@@ -34,6 +34,20 @@ from app.web.snapshot import Snapshot, take_snapshot
 TICKS_PER_REDRAW = 25
 
 
+def recorded_messages(server: viser.ViserServer) -> list[Message]:
+    """A list every scene message ``server`` queues from now on is appended to (and still sent)."""
+    sent: list[Message] = []
+    interface = server.scene._websock_interface
+    queue = interface.queue_message
+
+    def counted(message: Message) -> None:
+        sent.append(message)
+        queue(message)
+
+    interface.queue_message = counted  # type: ignore[method-assign]
+    return sent
+
+
 @contextmanager
 def _viewed(session_name: str = "probe_rate") -> Iterator[tuple[ServoLoop, OperatorScript, SceneView, list[Message]]]:
     """A loop of ``session_name`` with its script, pressed into contact, its view on a real viser
@@ -49,15 +63,7 @@ def _viewed(session_name: str = "probe_rate") -> Iterator[tuple[ServoLoop, Opera
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
         view = SceneView(server, loop, on_hand_moved=lambda _T: None)
-        sent: list[Message] = []
-        interface = server.scene._websock_interface
-        queue = interface.queue_message
-
-        def counted(message: Message) -> None:
-            sent.append(message)
-            queue(message)
-
-        interface.queue_message = counted  # type: ignore[method-assign]
+        sent = recorded_messages(server)
         yield loop, script, view, sent
     finally:
         server.stop()
@@ -160,15 +166,7 @@ def test_a_scenes_static_objects_are_one_mesh_node() -> None:
     assert len(loop.slave.scene.objects) == 9
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
-        sent: list[Message] = []
-        interface = server.scene._websock_interface
-        queue = interface.queue_message
-
-        def counted(message: Message) -> None:
-            sent.append(message)
-            queue(message)
-
-        interface.queue_message = counted  # type: ignore[method-assign]
+        sent = recorded_messages(server)
         SceneView(server, loop, on_hand_moved=lambda _T: None)
     finally:
         server.stop()

@@ -11,6 +11,7 @@ import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -509,6 +510,22 @@ CANVAS_RATIO_JS = "() => { const c = window.__viserMutable.canvas; return c.widt
 ANTIALIAS_JS = "() => window.__viserMutable.canvas.getContext('webgl2').getContextAttributes().antialias"
 
 
+def _fixed_dpr_page(demo: DemoApp, page: object) -> Any:
+    """A second page of ``demo`` in ``page``'s browser, opened with ``?fixedDpr=1`` (the visitor's
+    own resolution: the software-only scripts leave it alone), once its panel and canvas are up."""
+    own = page.context.browser.new_page(viewport=page.viewport_size)  # type: ignore[attr-defined]
+    try:
+        own.goto(f"http://127.0.0.1:{demo.server.get_port()}/?fixedDpr=1")
+        own.get_by_text("Deadman [D]").first.wait_for(timeout=STEP_TIMEOUT * 1000)
+        own.wait_for_function(
+            "() => window.__viserMutable && window.__viserMutable.canvas", timeout=STEP_TIMEOUT * 1000
+        )
+    except BaseException:
+        own.close()
+        raise
+    return own
+
+
 def test_a_page_without_a_gpu_draws_its_view_at_the_software_pixel_ratio(demo: DemoApp, page: object) -> None:
     """Headless chromium renders WebGL in software (SwiftShader): the page draws its 3D view at
     :data:`SOFTWARE_PIXEL_RATIO` (viser's own floor would be 0.75) without antialiasing (viser's
@@ -519,13 +536,8 @@ def test_a_page_without_a_gpu_draws_its_view_at_the_software_pixel_ratio(demo: D
         "the page without a GPU does not draw at the software pixel ratio",
     )
     assert page.evaluate(ANTIALIAS_JS) is False  # type: ignore[attr-defined]
-    own = page.context.browser.new_page(viewport=page.viewport_size)  # type: ignore[attr-defined]
+    own = _fixed_dpr_page(demo, page)
     try:
-        own.goto(f"http://127.0.0.1:{demo.server.get_port()}/?fixedDpr=1")
-        own.get_by_text("Deadman [D]").first.wait_for(timeout=STEP_TIMEOUT * 1000)
-        own.wait_for_function(
-            "() => window.__viserMutable && window.__viserMutable.canvas", timeout=STEP_TIMEOUT * 1000
-        )
         for _ in range(10):  # the script came with the panel; two seconds for it to act (it must not)
             assert own.evaluate(CANVAS_RATIO_JS) == 1.0
             time.sleep(0.2)
@@ -570,13 +582,8 @@ def test_a_page_without_a_gpu_shades_its_lit_nodes_by_lambert(demo: DemoApp, pag
         wait_until(lambda: set(lit(page)["keys"]) == {"lambert"}, "the added node keeps the physical shader")
     finally:
         added.remove()
-    own = page.context.browser.new_page(viewport=page.viewport_size)  # type: ignore[attr-defined]
+    own = _fixed_dpr_page(demo, page)
     try:
-        own.goto(f"http://127.0.0.1:{demo.server.get_port()}/?fixedDpr=1")
-        own.get_by_text("Deadman [D]").first.wait_for(timeout=STEP_TIMEOUT * 1000)
-        own.wait_for_function(
-            "() => window.__viserMutable && window.__viserMutable.canvas", timeout=STEP_TIMEOUT * 1000
-        )
         wait_until(lambda: len(lit(own)["keys"]) >= 5, "the lit nodes are not in the page")
         time.sleep(1.5)  # the script came with the panel; time for it to act (it must not)
         assert "lambert" not in lit(own)["keys"]

@@ -71,6 +71,9 @@ RETRY_INTERVAL = 0.1
 #: 2-CPU VM); bounded because at real-time priority it keeps a device server at ordinary
 #: priority off this CPU meanwhile. 0.3 ms covers the median reply.
 REALTIME_SPIN = 300e-6
+#: The most simulated time (s) a silent served device catches up at once, after its thread was
+#: held up (a loaded machine): the rest of the gap is skipped, not run in a burst.
+RUN_ON_CATCH_UP = 0.1
 #: How often the server's accept loop looks whether it was shut down (s).
 ACCEPT_POLL = 0.1
 
@@ -608,21 +611,31 @@ class DeviceServer:
             log.info("device %s: client connected from %s", self.device.name, ws.remote_address)
             wrench = np.zeros(6)
             ws.send(self._state())
-            silent = 0.0
+            # Wall-clock time (s, monotonic) of the last command, and how far the silent device has
+            # run on since the watchdog tripped (None before). A receive that times out returns a
+            # period or more later (much more on a loaded machine): counting timeouts would zero the
+            # force late and run the device on slower than real time.
+            heard = time.monotonic()
+            ran: float | None = None
             while True:
                 try:
                     text = ws.recv(self.period)
                 except TimeoutError:
-                    silent += self.period
-                    if silent >= self.watchdog:
+                    now = time.monotonic()
+                    if now - heard >= self.watchdog:
                         self._zero("watchdog")
                         wrench[:] = 0.0
-                        self.device.step(wrench, self.period)
+                        if ran is None:
+                            ran = heard + self.watchdog
+                        periods = int((now - ran) / self.period)
+                        for _ in range(min(periods, round(RUN_ON_CATCH_UP / self.period))):
+                            self.device.step(wrench, self.period)
+                        ran += periods * self.period
                     continue
                 if self._paused.is_set():
                     continue
                 force, target, _ = parse_command(text)
-                silent = 0.0
+                heard, ran = time.monotonic(), None
                 self.log.commands += 1
                 self.device.set_hand_target(target)
                 # The device's own limit, whatever the client sent (as a vendor's firmware does).

@@ -353,6 +353,34 @@ def test_a_served_device_refuses_a_hand_target_that_is_not_rigid_and_the_hand_ho
     np.testing.assert_array_equal(hand.T_0_H, held)
 
 
+def test_a_silent_client_zeroes_the_force_on_the_watchdog_and_the_device_runs_on_in_real_time(
+    served: DeviceServer,
+) -> None:
+    """After a command and then 0.3 s of silence, the served device has run on for that silence
+    less the watchdog (zero force, real time) and one period for the next command: its clock is the
+    wall clock, not a count of 1 ms receive timeouts (each returns late, under load much later).
+    Before, each timeout counted one period."""
+    from websockets.sync.client import connect
+
+    with connect(f"ws://127.0.0.1:{served.port}", ping_interval=None) as ws:
+        first = parse_state(ws.recv(timeout=5.0))
+        before_first = time.monotonic()
+        ws.send(force_command(first.device_id, np.array([0.0, 0.0, -0.5]), None, sim=True))
+        t0 = parse_state(ws.recv(timeout=5.0)).sim.time
+        after_first = time.monotonic()
+        time.sleep(0.3)
+        assert served.zeroed.wait(5.0)
+        before_last = time.monotonic()
+        ws.send(force_command(first.device_id, np.zeros(3), None, sim=True))
+        after_last = time.monotonic()
+        t1 = parse_state(ws.recv(timeout=5.0)).sim.time
+    assert served.log.events[0].reason == "watchdog"
+    ran_on = t1 - t0 - DT  # less the last command's own period
+    # The server heard the two commands somewhere between these client times.
+    least, most = before_last - after_first, after_last - before_first
+    assert least - served.watchdog - 2 * DT <= ran_on <= most - served.watchdog + 2 * DT, (ran_on, least, most)
+
+
 def test_dropped_connection_zeroes_the_force_the_next_period_and_ramps_back_on_reconnect(served: DeviceServer) -> None:
     loop = make_served_loop(served.port)
     press_into_contact(loop)

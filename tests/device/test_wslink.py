@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import socket
 import threading
+import time
 from collections.abc import Iterator
 
 import pytest
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
-from websockets.sync.client import connect
+from websockets.sync.client import ClientConnection, connect
 from websockets.sync.server import Server, ServerConnection, serve
 
 from app.device.haply import DeviceServer
@@ -139,6 +140,22 @@ def test_device_server_refuses_a_second_client_with_code_1013() -> None:
         server.shutdown()
 
 
+def _hold(url: str) -> ClientConnection:
+    """A raw client holding the served device at ``url`` (its first state received). The server's
+    thread may not yet have seen the last holder's close and refuse with 1013: try again then."""
+    deadline = time.monotonic() + WAIT
+    while True:
+        ws = connect(url, ping_interval=None)
+        try:
+            ws.recv(timeout=WAIT)
+            return ws
+        except ConnectionClosed as exc:
+            ws.close()
+            if exc.rcvd is None or exc.rcvd.code != 1013 or time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+
+
 def test_a_client_refused_with_1013_tries_again_until_the_device_is_free_and_no_longer() -> None:
     """``frhc run --device ws://...`` connects twice (``served_device`` looks at the served device,
     then the run opens its own); on a loaded machine the server's thread had not yet seen the first
@@ -153,8 +170,7 @@ def test_a_client_refused_with_1013_tries_again_until_the_device_is_free_and_no_
     server = DeviceServer(SimCartesianDevice(load_device("touch3")), port=0).start()
     try:
         url = f"ws://127.0.0.1:{server.port}"
-        with connect(url, ping_interval=None) as holder:
-            holder.recv(timeout=WAIT)
+        with _hold(url) as holder:
             leaves = threading.Timer(0.3, holder.close)
             leaves.start()
             client = HaplyClient(url, period=CONNECT_TIMEOUT)
@@ -162,9 +178,8 @@ def test_a_client_refused_with_1013_tries_again_until_the_device_is_free_and_no_
         assert client.served is not None
         assert client.served.device == "touch3"
         client.close()
-        with connect(url, ping_interval=None) as holder:
-            holder.recv(timeout=WAIT)
-            with pytest.raises(DeviceUnreachable, match=r"1013 .*another client controls the device"):
-                HaplyClient(url, period=CONNECT_TIMEOUT)
+        # The holder gets the device once the server has seen the client's close.
+        with _hold(url), pytest.raises(DeviceUnreachable, match=r"1013 .*another client controls the device"):
+            HaplyClient(url, period=CONNECT_TIMEOUT)
     finally:
         server.shutdown()

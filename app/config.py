@@ -276,6 +276,15 @@ def require_file(path: Path, source: str | Path, field: str, missing: str) -> Pa
     )
 
 
+def named_toml(name_or_path: str | Path, folder: Path) -> Path:
+    """A file given by name (``name`` is ``folder/name.toml``) or by path (a ``.toml`` name, or
+    anything that exists): how sessions and sweeps are found."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    return folder / f"{name_or_path}.toml"
+
+
 def load_toml(path: str | Path) -> dict[str, Any]:
     """Read a TOML file, turning I/O, size, encoding and syntax errors into :class:`ConfigError`."""
     p = Path(path)

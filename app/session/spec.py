@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
 
-from app.config import Checked, Count, Range, field_range, from_dict, load_toml
+from app.config import Checked, Count, Range, field_range, from_dict, load_toml, named_toml
 from app.controller.gains import ControllerGains
 from app.controller.layout import Mode
 from app.controller.passivity import PassivitySettings
@@ -174,10 +174,8 @@ def check_servo_rate(rate: float) -> None:
 
 
 def resolve_session_path(name_or_path: str | Path) -> Path:
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
-        return p
-    return SESSIONS_DIR / f"{name_or_path}.toml"
+    """A session name (``"probe_rate"``, in ``sessions/``) or a path."""
+    return named_toml(name_or_path, SESSIONS_DIR)
 
 
 def load_session(name_or_path: str | Path) -> Session:

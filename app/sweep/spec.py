@@ -29,7 +29,7 @@ from typing import Annotated, Any
 
 import numpy as np
 
-from app.config import Checked, Count, Range, from_dict, load_toml
+from app.config import Checked, Count, Range, from_dict, load_toml, named_toml
 from app.controller.gains import ControllerGains
 from app.device.spec import load_device
 from app.errors import ConfigError, InvalidField
@@ -227,11 +227,8 @@ def _device_gains(device: str, source: Path) -> dict[str, Any]:
 
 
 def resolve_sweep_path(name_or_path: str | Path) -> Path:
-    """A sweep name (``"probe_stiffness"``, in ``sweeps/``) or a path, as a session's is resolved."""
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
-        return p
-    return SWEEPS_DIR / f"{name_or_path}.toml"
+    """A sweep name (``"probe_stiffness"``, in ``sweeps/``) or a path."""
+    return named_toml(name_or_path, SWEEPS_DIR)
 
 
 def load_sweep(path: str | Path) -> SweepPlan:

@@ -602,6 +602,7 @@ def passivity_control(
     tau: Array,
     tau_pc: Array,
     count: Array,
+    law_zero: Array,
 ) -> float:
     """PC step: scale the rendered torque so the next observed step cannot overdraw the energy.
 
@@ -617,6 +618,9 @@ def passivity_control(
         tau_pc: The PC torque ``(s - 1) tau_r`` (N m or N), (n,), written.
         count: One encoder count of each joint (rad or m), (n,), for the passive law (see
             "The PC's own law" in the module docstring); zeros leave the energy bound alone.
+        law_zero: The passive law's zero ``B_0`` (J), (1,), updated: the budget at which its
+            force is nil, pinned where the bound cut deepest; ``-inf`` while the law is not
+            entered.
 
     Returns:
         ``1 - s``: the share of the rendered torque the PC removed (0 when it does not act).
@@ -625,22 +629,33 @@ def passivity_control(
     budget = max(energy[0] + reserve, 0.0)
     # a: the largest tau_j^2 c_j / (2 f_j) (J); a joint with no count or no friction has none.
     a = 0.0
+    # The law's budget counts the friction credit over the set step alone: the bound's, over the
+    # step the velocity predicts, shrinks as the joints slow without any energy leaving the port.
+    held = budget
     for j in range(tau_r.shape[0]):
         d = max(step[j], abs(velocity[j]) * dt)
         worst += abs(tau_r[j]) * d
         budget += credit[j] * d
+        held += credit[j] * step[j]
         if count[j] > 0.0 and credit[j] > 0.0:
             a = max(a, tau_r[j] * tau_r[j] * count[j] / (2.0 * credit[j]))
     s = budget / worst if worst > budget else 1.0
-    if s < 1.0 and s * a > worst:
-        # While the bound cuts, its law s(E) = budget / worst changes joint j's torque by s' s
-        # tau_j^2 c_j a count; above s = worst / a that exceeds 2 f_j for the joint that sets a,
-        # so from there on the law is the one with s s' = 1 / a exactly, joined to it at s =
-        # worst / a: a cut force that is itself a quantised spring passive on the joints'
-        # friction (module docstring, "The PC's own law"). It is never above the bound (the
-        # squares differ by (s - worst / a)^2 >= 0), so the reserve still holds.
-        r = worst / a
-        s = math.sqrt(r * (2.0 * s - r))
+    if a > 0.0:
+        # The passive law (module docstring, "The PC's own law"): s = sqrt(2 (budget - B_0) / a),
+        # a quantised spring whose torque steps 2 f_j a count for the joint that sets a. It is
+        # entered where the bound first cuts and its zero B_0 is pinned where the bound is below
+        # it (s_b^2 a / 2 = budget - B_0 there), so it never exceeds the bound, the reserve still
+        # holds, and the scale is continuous: no step where the bound starts cutting. It is left
+        # where it reaches 1 again (continuous too).
+        if s < 1.0:
+            law_zero[0] = max(law_zero[0], held - 0.5 * a * s * s)
+        room = held - law_zero[0]
+        if room >= 0.5 * a:
+            law_zero[0] = -math.inf
+        else:
+            s = min(s, math.sqrt(2.0 * max(room, 0.0) / a))
+    else:
+        law_zero[0] = -math.inf  # no force the law could shape: a new contact starts with the bound
     for j in range(tau_r.shape[0]):
         t = (s - 1.0) * tau_r[j]
         # The PC may not push the total out past the limit (a clip that would reverse its sign

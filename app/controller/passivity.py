@@ -647,13 +647,18 @@ def passivity_control(
         # it (s_b^2 a / 2 = budget - B_0 there), so it never exceeds the bound, the reserve still
         # holds, and the scale is continuous: no step where the bound starts cutting. It is left
         # where it reaches 1 again (continuous too).
-        if s < 1.0:
-            law_zero[0] = max(law_zero[0], held - 0.5 * a * s * s)
-        room = held - law_zero[0]
-        if room >= 0.5 * a:
-            law_zero[0] = -math.inf
+        if s * a <= worst:
+            # At or below s = worst / a the bound's own step is within 2 f_j a count: it is
+            # passive there, and the law only keeps its zero on it (none while it does not cut).
+            law_zero[0] = held - 0.5 * a * s * s if s < 1.0 else -math.inf
         else:
-            s = min(s, math.sqrt(2.0 * max(room, 0.0) / a))
+            if s < 1.0:
+                law_zero[0] = max(law_zero[0], held - 0.5 * a * s * s)
+            room = held - law_zero[0]
+            if room >= 0.5 * a:
+                law_zero[0] = -math.inf
+            else:
+                s = min(s, math.sqrt(2.0 * max(room, 0.0) / a))
     else:
         law_zero[0] = -math.inf  # no force the law could shape: a new contact starts with the bound
     for j in range(tau_r.shape[0]):

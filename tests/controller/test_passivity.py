@@ -366,7 +366,8 @@ def test_the_passive_law_is_entered_where_the_bound_cuts_and_then_steps_twice_th
     s / worst = 1.67 N m); still sqrt(0.51) where the bound no longer cuts, and 1 again, the law
     left, where the budget reaches B_0 + a / 2 = 54.5 mJ."""
     zero = np.array([-math.inf])
-    assert _law(0.0285 + 1e-6, True, zero) == 1.0 and zero[0] == -math.inf
+    assert _law(0.0285 + 1e-6, True, zero) == 1.0
+    assert zero[0] == -math.inf
     assert _law(0.0285 - 3e-5, True, zero) == pytest.approx(0.999)
     assert _law(0.0285 - 3e-5, False) == pytest.approx(0.999)
     assert _law(0.0135, True, zero) == pytest.approx(0.5)
@@ -386,7 +387,33 @@ def test_the_passive_law_is_entered_where_the_bound_cuts_and_then_steps_twice_th
     assert _law(0.0285, True, zero) == pytest.approx(math.sqrt(0.51))  # the bound: 1
     assert _law(0.053 - 1e-6, True, zero) == pytest.approx(1.0, abs=1e-4)
     assert zero[0] == pytest.approx(0.0045)
-    assert _law(0.053, True, zero) == 1.0 and zero[0] == -math.inf
+    assert _law(0.053, True, zero) == 1.0
+    assert zero[0] == -math.inf
+
+
+def test_where_the_bounds_own_step_is_within_twice_the_friction_the_law_is_the_bound() -> None:
+    """A 100x finer count (1e-5 rad: a = 1 mJ, r = worst / a = 30): the bound's step per count,
+    tau^2 c s / worst <= 0.033 N m, is within 2 f = 1 N m at every scale, so the law is the bound
+    there (as on 20-bit encoders), and its zero only follows the bound."""
+    tau = np.array([10.0])
+    zero = np.array([-math.inf])
+    for energy, bound in ((0.0285, 1.0), (0.0135, 0.5), (0.0015, 0.1), (0.0135, 0.5), (0.05, 1.0)):
+        cut = passivity_control(
+            np.array([energy]),
+            tau.copy(),
+            np.zeros(1),
+            T,
+            np.array([3e-3]),
+            np.array([0.5]),
+            0.0,
+            np.array([1e9]),
+            tau.copy(),
+            np.zeros(1),
+            np.array([1e-5]),
+            zero,
+        )
+        assert 1.0 - cut == pytest.approx(bound)
+    assert zero[0] == -math.inf
 
 
 def test_one_count_out_and_back_at_the_onset_of_the_cut() -> None:

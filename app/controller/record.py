@@ -137,7 +137,8 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         back at ``ramp_rate``). po_energy:
         the passivity observer's energy of the whole port (J), (1,); po_tau: the rendered torque
         commanded last tick (N m or N), (n,); po_angle: the observer's joint angles, each on the
-        edge of its count the joint last crossed (rad or m), (n,); pc_velocity: the low-passed joint velocity the
+        edge of its count the joint last crossed (rad or m), (n,); pc_law_zero: the passive law's zero
+        (J), (1,), ``-inf`` while the law is not entered; pc_velocity: the low-passed joint velocity the
         passivity controller uses (n,); pc_offset: the PC's hold on
         the slave's command (m, {0}, (3,)); pc_dx_prev: last tick's Delta X command translations
         before it (m, (3,)).
@@ -204,6 +205,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("braking", b1),
             ("gravity_level", f8),
             ("po_energy", f8, (1,)),
+            ("pc_law_zero", f8, (1,)),
             ("po_tau", f8, (n,)),
             ("po_angle", f8, (n,)),
             ("pc_velocity", f8, (n,)),

@@ -225,10 +225,7 @@ def _cmd_device_serve(args: argparse.Namespace) -> int:
         raise FrhcError(f"--rate must be in [10, 20000] Hz, got {args.rate:g}")
     if spec.data.cartesian is None:
         raise ConfigError(spec.path, "cartesian", "serving a device needs its [cartesian] table (force limit)")
-    try:
-        server = DeviceServer(SimCartesianDevice(spec), args.host, args.port, period=1.0 / args.rate)
-    except OSError as exc:
-        raise FrhcError(f"cannot listen on {args.host}:{args.port}: {exc.strerror or exc}") from None
+    server = DeviceServer(SimCartesianDevice(spec), args.host, args.port, period=1.0 / args.rate)
     # The served simulation stands for a device's own processor: it keeps its period whatever else runs.
     scheduling = SCHEDULING[raise_priority()]
     print(
@@ -395,6 +392,10 @@ def _schema_number(module: str, owner: str, name: str, what: str) -> Callable[[s
 
 _servo_rate = _schema_number("app.session.spec", "SessionFile", "servo_rate", "a servo rate in Hz")
 _delay_ms = _schema_number("app.teleop.channel", "ChannelSettings", "delay_ms", "a one-way delay in ms")
+
+
+#: What ``frhc web`` and ``frhc device serve`` do with a busy port (:class:`~app.errors.ListenError`).
+PORT_RULE = "a busy port is refused, not swapped for another (0: any free port, printed)"
 
 
 def _port(text: str) -> int:
@@ -587,7 +588,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--device", type=_name, default="kraft", help="device name or path with a [cartesian] table (default: kraft)"
     )
     p.add_argument("--host", type=_host, default="127.0.0.1", help="bind address (default 127.0.0.1)")
-    p.add_argument("--port", type=_port, default=10001, help="port (default 10001, as Haply's service)")
+    p.add_argument("--port", type=_port, default=10001, help=f"port (default 10001, as Haply's service); {PORT_RULE}")
     p.add_argument("--rate", type=float, default=1000.0, help="simulation rate (Hz, default 1000)")
     p.set_defaults(func=_cmd_device_serve)
 
@@ -608,7 +609,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="127.0.0.1",
         help="bind address (default 127.0.0.1); any other needs the access token in the printed URL",
     )
-    p.add_argument("--port", type=_port, default=8080)
+    p.add_argument("--port", type=_port, default=8080, help=f"port (default 8080); {PORT_RULE}")
     p.add_argument("--insecure", action="store_true", help="serve a non-loopback --host without an access token")
     p.add_argument(
         "--replay", type=_name, metavar="LOG", help="start replaying a recorded log (runs/<name> or runs/<name>/log)"

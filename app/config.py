@@ -286,7 +286,8 @@ def named_toml(name_or_path: str | Path, folder: Path) -> Path:
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Read a TOML file, turning I/O, size, encoding and syntax errors into :class:`ConfigError`."""
+    """Read a TOML file (UTF-8, with or without a byte-order mark), turning I/O, size, encoding and
+    syntax errors into :class:`ConfigError`."""
     p = Path(path)
     try:
         with p.open("rb") as fh:
@@ -300,10 +301,13 @@ def load_toml(path: str | Path) -> dict[str, Any]:
     if len(raw) > MAX_FILE_BYTES:
         raise ConfigError(p, "<file>", f"file larger than {MAX_FILE_BYTES // 1024 // 1024} MiB")
     try:
-        text = raw.decode("utf-8")
+        # A leading byte-order mark (Windows editors write one) is skipped: tomllib refuses it as an
+        # invalid statement at line 1, column 1, a character nobody sees.
+        text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        raise ConfigError(p, "<file>", f"not UTF-8 text (byte 0x{raw[exc.start]:02x} on line {line})") from None
+        body = exc.object  # the bytes after the mark: where exc.start counts from
+        line = body[: exc.start].count(b"\n") + 1
+        raise ConfigError(p, "<file>", f"not UTF-8 text (byte 0x{body[exc.start]:02x} on line {line})") from None
     check_structure(text, p)
     try:
         return tomllib.loads(text)

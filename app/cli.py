@@ -21,7 +21,7 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-from app.config import Range, field_range, fmt_number
+from app.config import Range, field_range, fmt_number, repeated
 from app.errors import ConfigError, FrhcError, InputError, Interrupted, InvalidField, OutputError
 from app.interrupts import signals_held
 
@@ -333,7 +333,8 @@ def _cmd_zwidth(args: argparse.Namespace) -> int:
 
 
 def _list_of(kind: Callable[[str], object]) -> Callable[[str], list[object]]:
-    """An argparse type: comma-separated values of ``kind``."""
+    """An argparse type: comma-separated values of ``kind``, each once (a study's axis: a repeat
+    would run and tabulate the same design twice)."""
 
     def parse(text: str) -> list[object]:
         try:
@@ -342,6 +343,9 @@ def _list_of(kind: Callable[[str], object]) -> Callable[[str], list[object]]:
             raise argparse.ArgumentTypeError(str(exc)) from None
         if not values:
             raise argparse.ArgumentTypeError(f"expected at least one value, got {text!r}")
+        again = repeated(values)
+        if again is not None:
+            raise argparse.ArgumentTypeError(f"value {again[0] + 1} repeats an earlier one ({again[1]!r}) in {text!r}")
         return values
 
     return parse

@@ -37,7 +37,7 @@ import tomllib
 import types
 import typing
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -234,6 +234,35 @@ def field_range(cls: type, name: str) -> Range | Count | None:
             ranges = [r for r in bounds if isinstance(r, Range)]
             return ranges[0] if ranges else bounds[0]
     return None
+
+
+def repeated(values: Sequence[Any]) -> tuple[int, Any] | None:
+    """The first value given again among ``values``, as ``(index of the repeat, value)``, or None.
+
+    For lists that are an axis of a grid or a study, where a repeat is a typo that runs the same
+    point twice and tabulates it twice. Numbers compare as numbers (``1`` and ``1.0`` are the same),
+    lists and tables element by element.
+    """
+    seen = set()
+    for i, value in enumerate(values):
+        key = _comparable(value)
+        if key in seen:
+            return i, value
+        seen.add(key)
+    return None
+
+
+def _comparable(value: Any) -> Any:
+    """``value`` made hashable, with every number a float (bools stay bools)."""
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, int | float):
+        return float(value)
+    if isinstance(value, list | tuple):
+        return tuple(_comparable(v) for v in value)
+    if isinstance(value, dict):
+        return tuple(sorted((k, _comparable(v)) for k, v in value.items()))
+    return value
 
 
 def identity_digest(*parts: object) -> str:

@@ -56,7 +56,8 @@ class Vary(Checked):
 
     Attributes:
         field: Dotted field of the base session (``gains.k_t``, ``scene.objects.surface.stiffness``).
-        values: The values themselves (any type the field takes). Grid: each; random: drawn uniformly.
+        values: The values themselves (any type the field takes). Grid: each, given once; random:
+            drawn uniformly (a repeat weights a value).
         range: ``[lo, hi]`` (the field's unit). Grid: ``steps`` values from lo to hi inclusive;
             random: drawn uniformly (log-uniformly with ``log``).
         normal: ``[mean, standard deviation]`` (the field's unit), drawn; a grid draws ``steps`` values.

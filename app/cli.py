@@ -218,6 +218,7 @@ def _cmd_device_serve(args: argparse.Namespace) -> int:
         from app.device.cartesian_sim import SimCartesianDevice
         from app.device.haply import DeviceServer
         from app.device.spec import load_device
+        from app.listen import url_authority
         from app.session.pacer import SCHEDULING, raise_priority
 
         spec = load_device(args.device)
@@ -229,7 +230,7 @@ def _cmd_device_serve(args: argparse.Namespace) -> int:
     # The served simulation stands for a device's own processor: it keeps its period whatever else runs.
     scheduling = SCHEDULING[raise_priority()]
     print(
-        f"serving {spec.name} (simulated, {args.rate:g} Hz) at ws://{args.host}:{server.port} ({scheduling})  "
+        f"serving {spec.name} (simulated, {args.rate:g} Hz) at ws://{url_authority(args.host, server.port)} ({scheduling})  "
         "(Ctrl-C stops)",
         flush=True,
     )

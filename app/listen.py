@@ -27,3 +27,11 @@ def check_listenable(host: str, port: int) -> None:
     """Raise :class:`~app.errors.ListenError` unless ``host:port`` can be listened on now (for a
     server that binds by itself, such as viser, which would otherwise move on to the next port)."""
     listening_socket(host, port).close()
+
+
+def url_authority(host: str, port: int) -> str:
+    """``host:port`` as a URL writes it: an IPv6 address in brackets (``[::1]:8080``), a wildcard
+    address (``0.0.0.0``, ``::``) as the loopback one a browser on this machine can open."""
+    if host in ("0.0.0.0", "::"):
+        host = "127.0.0.1"
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"

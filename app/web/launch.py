@@ -29,7 +29,7 @@ from websockets.http11 import Request, Response
 
 from app.errors import ListenError
 from app.interrupts import signals_held
-from app.listen import check_listenable
+from app.listen import check_listenable, url_authority
 from app.session.files import RUNS_DIR
 from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token, viser_on_unix_socket
 from app.web.camera import SOFTWARE_NO_ANTIALIAS_JS
@@ -184,16 +184,15 @@ def start_demo(
         with redirect_stdout(io.StringIO()):
             server.stop()
         raise
-    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
     if app.gate is not None:
-        app.url = f"http://{shown}:{app.gate.port}/?{TOKEN_NAME}={app.gate.token}"
+        app.url = f"http://{url_authority(host, app.gate.port)}/?{TOKEN_NAME}={app.gate.token}"
     else:
         if not is_loopback(host):
             print(
                 f"warning: serving on {host} without a token (--insecure): anyone who can reach it can drive the demo",
                 file=sys.stderr,
             )
-        app.url = f"http://{shown}:{server.get_port()}/"
+        app.url = f"http://{url_authority(host, server.get_port())}/"
     return app
 
 

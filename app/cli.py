@@ -21,7 +21,7 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-from app.config import Range, field_range, fmt_number
+from app.config import Range, field_range, fmt_number, repeated
 from app.errors import ConfigError, FrhcError, InputError, Interrupted, InvalidField, OutputError
 from app.interrupts import signals_held
 
@@ -218,6 +218,7 @@ def _cmd_device_serve(args: argparse.Namespace) -> int:
         from app.device.cartesian_sim import SimCartesianDevice
         from app.device.haply import DeviceServer
         from app.device.spec import load_device
+        from app.listen import url_authority
         from app.session.pacer import SCHEDULING, raise_priority
 
         spec = load_device(args.device)
@@ -225,14 +226,11 @@ def _cmd_device_serve(args: argparse.Namespace) -> int:
         raise FrhcError(f"--rate must be in [10, 20000] Hz, got {args.rate:g}")
     if spec.data.cartesian is None:
         raise ConfigError(spec.path, "cartesian", "serving a device needs its [cartesian] table (force limit)")
-    try:
-        server = DeviceServer(SimCartesianDevice(spec), args.host, args.port, period=1.0 / args.rate)
-    except OSError as exc:
-        raise FrhcError(f"cannot listen on {args.host}:{args.port}: {exc.strerror or exc}") from None
+    server = DeviceServer(SimCartesianDevice(spec), args.host, args.port, period=1.0 / args.rate)
     # The served simulation stands for a device's own processor: it keeps its period whatever else runs.
     scheduling = SCHEDULING[raise_priority()]
     print(
-        f"serving {spec.name} (simulated, {args.rate:g} Hz) at ws://{args.host}:{server.port} ({scheduling})  "
+        f"serving {spec.name} (simulated, {args.rate:g} Hz) at ws://{url_authority(args.host, server.port)} ({scheduling})  "
         "(Ctrl-C stops)",
         flush=True,
     )
@@ -336,7 +334,8 @@ def _cmd_zwidth(args: argparse.Namespace) -> int:
 
 
 def _list_of(kind: Callable[[str], object]) -> Callable[[str], list[object]]:
-    """An argparse type: comma-separated values of ``kind``."""
+    """An argparse type: comma-separated values of ``kind``, each once (a study's axis: a repeat
+    would run and tabulate the same design twice)."""
 
     def parse(text: str) -> list[object]:
         try:
@@ -345,6 +344,9 @@ def _list_of(kind: Callable[[str], object]) -> Callable[[str], list[object]]:
             raise argparse.ArgumentTypeError(str(exc)) from None
         if not values:
             raise argparse.ArgumentTypeError(f"expected at least one value, got {text!r}")
+        again = repeated(values)
+        if again is not None:
+            raise argparse.ArgumentTypeError(f"value {again[0] + 1} repeats an earlier one ({again[1]!r}) in {text!r}")
         return values
 
     return parse
@@ -395,6 +397,10 @@ def _schema_number(module: str, owner: str, name: str, what: str) -> Callable[[s
 
 _servo_rate = _schema_number("app.session.spec", "SessionFile", "servo_rate", "a servo rate in Hz")
 _delay_ms = _schema_number("app.teleop.channel", "ChannelSettings", "delay_ms", "a one-way delay in ms")
+
+
+#: What ``frhc web`` and ``frhc device serve`` do with a busy port (:class:`~app.errors.ListenError`).
+PORT_RULE = "a busy port is refused, not swapped for another (0: any free port, printed)"
 
 
 def _port(text: str) -> int:
@@ -587,7 +593,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--device", type=_name, default="kraft", help="device name or path with a [cartesian] table (default: kraft)"
     )
     p.add_argument("--host", type=_host, default="127.0.0.1", help="bind address (default 127.0.0.1)")
-    p.add_argument("--port", type=_port, default=10001, help="port (default 10001, as Haply's service)")
+    p.add_argument("--port", type=_port, default=10001, help=f"port (default 10001, as Haply's service); {PORT_RULE}")
     p.add_argument("--rate", type=float, default=1000.0, help="simulation rate (Hz, default 1000)")
     p.set_defaults(func=_cmd_device_serve)
 
@@ -608,7 +614,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="127.0.0.1",
         help="bind address (default 127.0.0.1); any other needs the access token in the printed URL",
     )
-    p.add_argument("--port", type=_port, default=8080)
+    p.add_argument("--port", type=_port, default=8080, help=f"port (default 8080); {PORT_RULE}")
     p.add_argument("--insecure", action="store_true", help="serve a non-loopback --host without an access token")
     p.add_argument(
         "--replay", type=_name, metavar="LOG", help="start replaying a recorded log (runs/<name> or runs/<name>/log)"

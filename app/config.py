@@ -37,7 +37,7 @@ import tomllib
 import types
 import typing
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -236,6 +236,35 @@ def field_range(cls: type, name: str) -> Range | Count | None:
     return None
 
 
+def repeated(values: Sequence[Any]) -> tuple[int, Any] | None:
+    """The first value given again among ``values``, as ``(index of the repeat, value)``, or None.
+
+    For lists that are an axis of a grid or a study, where a repeat is a typo that runs the same
+    point twice and tabulates it twice. Numbers compare as numbers (``1`` and ``1.0`` are the same),
+    lists and tables element by element.
+    """
+    seen = set()
+    for i, value in enumerate(values):
+        key = _comparable(value)
+        if key in seen:
+            return i, value
+        seen.add(key)
+    return None
+
+
+def _comparable(value: Any) -> Any:
+    """``value`` made hashable, with every number a float (bools stay bools)."""
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, int | float):
+        return float(value)
+    if isinstance(value, list | tuple):
+        return tuple(_comparable(v) for v in value)
+    if isinstance(value, dict):
+        return tuple(sorted((k, _comparable(v)) for k, v in value.items()))
+    return value
+
+
 def identity_digest(*parts: object) -> str:
     """A short digest of what a loaded file makes (``"sha256:"`` + 16 hex digits), for a log to
     tell the file it names from the one it was run with.
@@ -286,7 +315,8 @@ def named_toml(name_or_path: str | Path, folder: Path) -> Path:
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Read a TOML file, turning I/O, size, encoding and syntax errors into :class:`ConfigError`."""
+    """Read a TOML file (UTF-8, with or without a byte-order mark), turning I/O, size, encoding and
+    syntax errors into :class:`ConfigError`."""
     p = Path(path)
     try:
         with p.open("rb") as fh:
@@ -300,10 +330,13 @@ def load_toml(path: str | Path) -> dict[str, Any]:
     if len(raw) > MAX_FILE_BYTES:
         raise ConfigError(p, "<file>", f"file larger than {MAX_FILE_BYTES // 1024 // 1024} MiB")
     try:
-        text = raw.decode("utf-8")
+        # A leading byte-order mark (Windows editors write one) is skipped: tomllib refuses it as an
+        # invalid statement at line 1, column 1, a character nobody sees.
+        text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        raise ConfigError(p, "<file>", f"not UTF-8 text (byte 0x{raw[exc.start]:02x} on line {line})") from None
+        body = exc.object  # the bytes after the mark: where exc.start counts from
+        line = body[: exc.start].count(b"\n") + 1
+        raise ConfigError(p, "<file>", f"not UTF-8 text (byte 0x{body[exc.start]:02x} on line {line})") from None
     check_structure(text, p)
     try:
         return tomllib.loads(text)

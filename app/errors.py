@@ -6,6 +6,7 @@ file and the field, so the command line can print it as one line and exit 2.
 
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 
@@ -77,6 +78,25 @@ class OutputError(FrhcError):
         if isinstance(exc, FileExistsError | NotADirectoryError):
             reason = "a file is in the way of the folder"
         super().__init__(f"{where}: field '--out': cannot write the output: {reason}")
+
+
+class ListenError(FrhcError):
+    """A server (``frhc web``, ``frhc device serve``) cannot listen on the address it was given:
+    the port is busy, the host is not this machine's, or the port needs privileges.
+
+    A busy port is refused, not swapped for another: whoever connects (a browser tab, a ``frhc
+    run --device ws://...``) was told that port and would find something else there, or nothing.
+    Port 0 asks for any free one.
+    """
+
+    def __init__(self, host: str, port: int, exc: OSError) -> None:
+        self.host, self.port = host, port
+        # A name that does not resolve has a negative errno (getaddrinfo's own) and its text.
+        reason = os.strerror(exc.errno) if exc.errno and exc.errno > 0 else exc.strerror or str(exc)
+        hint = ""
+        if exc.errno == errno.EADDRINUSE:
+            hint = " (another server holds it: choose another --port, or --port 0 for any free one)"
+        super().__init__(f"cannot listen on {host}:{port}: {reason}{hint}")
 
 
 class Interrupted(KeyboardInterrupt):

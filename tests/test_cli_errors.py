@@ -54,6 +54,8 @@ def test_bad_arguments_give_one_line_and_exit_2(tmp_path: Path, args: list[str],
         (["zwidth", "--delay-ms", "soon"], "--delay-ms: expected a one-way delay in ms: not a number: 'soon'"),
         (["zwidth", "--renderers", ""], "--renderers: expected at least one value, got ''"),
         (["zwidth", "--dampings", ","], "--dampings: expected at least one value, got ','"),
+        (["zwidth", "--dampings", "0,4,0.0"], "--dampings: value 3 repeats an earlier one (0.0) in '0,4,0.0'"),
+        (["zwidth", "--renderers", "pc,plain,pc"], "--renderers: value 3 repeats an earlier one ('pc')"),
         (["experiment", "--operators", "0"], "--operators: must be between 1 and 10000000, got 0"),
         (["run", "probe_rate", "--out", ""], "--out: expected a folder name, got an empty one"),
         (["sweep", "probe_stiffness", "--out", " "], "--out: expected a folder name, got an empty one"),
@@ -248,3 +250,27 @@ def test_an_empty_file_name_is_refused_as_empty(
     assert exit_.value.code == 2
     assert capsys.readouterr().err.strip().splitlines()[-1].endswith(": expected a name or a path, got an empty one")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", [["web"], ["web", "--host", "0.0.0.0"], ["device", "serve"]])
+def test_both_servers_refuse_a_busy_port_in_one_line_and_say_so_in_help(
+    command: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``frhc web`` and ``frhc device serve`` started on a taken port (a second copy of either):
+    refused, exit 2, one line naming the address and what to do; ``--help`` says so. Before,
+    ``frhc web`` served on the next free port (a URL other than the one asked for) and with
+    ``--host 0.0.0.0`` failed with a traceback; ``frhc device serve`` refused."""
+    import socket
+
+    with socket.create_server(("0.0.0.0", 0)) as holder:
+        port = holder.getsockname()[1]
+        assert main([*command, "--port", str(port)]) == 2
+    host = command[2] if "--host" in command else "127.0.0.1"
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"error: cannot listen on {host}:{port}: Address already in use "
+        "(another server holds it: choose another --port, or --port 0 for any free one)"
+    ]
+    with pytest.raises(SystemExit):
+        main([*command, "--help"])
+    assert "a busy port is refused, not swapped for another" in " ".join(capsys.readouterr().out.split())

@@ -55,6 +55,7 @@ from app.device.spec import DeviceSpec, load_device
 from app.device.vendors import check_device_url, vendor_device
 from app.device.wslink import WsLink
 from app.errors import FrhcError
+from app.listen import listening_socket
 from app.spatial import Array, matrix_to_quat, pose_error, quat_to_matrix
 
 log = logging.getLogger(__name__)
@@ -509,6 +510,9 @@ class DeviceServer:
         watchdog: Silence (s) after which the force is zeroed and the device runs on without it.
 
     One client controls the device at a time; a second connection is closed with code 1013.
+
+    Raises:
+        ListenError: ``host:port`` cannot be listened on (a busy port is refused, not swapped).
     """
 
     def __init__(
@@ -531,7 +535,7 @@ class DeviceServer:
         #: Set whenever the force is zeroed (tests wait on it).
         self.zeroed = threading.Event()
         self._conn: WsLink | None = None
-        self._listener = socket.create_server((host, port))
+        self._listener = listening_socket(host, port)
         self._listener.settimeout(ACCEPT_POLL)
         self.port: int = self._listener.getsockname()[1]
         self._stop = threading.Event()

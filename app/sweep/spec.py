@@ -29,7 +29,7 @@ from typing import Annotated, Any
 
 import numpy as np
 
-from app.config import Checked, Count, Range, from_dict, load_toml, named_toml
+from app.config import Checked, Count, Range, from_dict, load_toml, named_toml, repeated
 from app.controller.gains import ControllerGains
 from app.device.spec import load_device
 from app.errors import ConfigError, InvalidField
@@ -56,7 +56,8 @@ class Vary(Checked):
 
     Attributes:
         field: Dotted field of the base session (``gains.k_t``, ``scene.objects.surface.stiffness``).
-        values: The values themselves (any type the field takes). Grid: each; random: drawn uniformly.
+        values: The values themselves (any type the field takes). Grid: each, given once; random:
+            drawn uniformly (a repeat weights a value).
         range: ``[lo, hi]`` (the field's unit). Grid: ``steps`` values from lo to hi inclusive;
             random: drawn uniformly (log-uniformly with ``log``).
         normal: ``[mean, standard deviation]`` (the field's unit), drawn; a grid draws ``steps`` values.
@@ -262,6 +263,10 @@ def load_sweep(path: str | Path) -> SweepPlan:
             raise ConfigError(path, f"vary[{i}].steps", "a grid needs the number of values drawn from normal")
         if not spec.samples and v.range is not None and v.steps is None:
             raise ConfigError(path, f"vary[{i}].steps", "a grid needs the number of values over the range")
+        # A random sweep may weight a value by giving it twice; a grid would run its points twice.
+        again = repeated(v.values) if not spec.samples and v.values is not None else None
+        if again is not None:
+            raise ConfigError(path, f"vary[{i}].values", f"value {again[0] + 1} repeats an earlier one ({again[1]!r})")
         n_grid *= len(v.values) if v.values is not None else (v.steps or 1)
     if not spec.samples and n_grid > MAX_POINTS:
         raise ConfigError(path, "vary", f"the grid has {n_grid} points (at most {MAX_POINTS})")

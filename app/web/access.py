@@ -32,6 +32,8 @@ from urllib.parse import parse_qs, urlsplit
 
 import websockets.asyncio.server
 
+from app.errors import ListenError
+
 #: Name of the query parameter and of the cookie that carry the token.
 TOKEN_NAME = "frhc_token"
 #: Longest request head read before the check (bytes).
@@ -114,13 +116,20 @@ class TokenGate:
         target: viser's unix socket (:func:`viser_on_unix_socket`), in a folder of its own that
             the gate removes when it closes.
         token: The access token.
+
+    Raises:
+        ListenError: ``host:port`` cannot be listened on.
     """
 
     def __init__(self, host: str, port: int, target: Path, token: str) -> None:
         self.token = token
         self.target = target
         self._loop = asyncio.new_event_loop()
-        self._server = self._loop.run_until_complete(asyncio.start_server(self._serve, host, port))
+        try:
+            self._server = self._loop.run_until_complete(asyncio.start_server(self._serve, host, port))
+        except OSError as exc:
+            self._loop.close()
+            raise ListenError(host, port, exc) from None
         self.port: int = self._server.sockets[0].getsockname()[1]
         self._thread = threading.Thread(target=self._loop.run_forever, name="token-gate", daemon=True)
         self._thread.start()

@@ -11,6 +11,7 @@ panel's light modules; :mod:`app.web.server` (the demo itself) is imported in :f
 
 from __future__ import annotations
 
+import errno
 import gzip
 import io
 import sys
@@ -26,7 +27,9 @@ import websockets.asyncio.server
 from websockets.datastructures import Headers
 from websockets.http11 import Request, Response
 
+from app.errors import ListenError
 from app.interrupts import signals_held
+from app.listen import check_listenable, url_authority
 from app.session.files import RUNS_DIR
 from app.web.access import TOKEN_NAME, TokenGate, is_loopback, new_token, viser_on_unix_socket
 from app.web.camera import SOFTWARE_NO_ANTIALIAS_JS
@@ -151,9 +154,12 @@ def start_demo(
             first: nothing stays served).
         InvalidField: ``servo_rate`` outside the sessions' range (likewise).
         DeviceUnreachable: nothing answers at a ``ws://`` ``device`` (likewise).
+        ListenError: ``host:port`` cannot be listened on: a busy port is refused, not swapped for
+            the next free one as viser would (nothing is started, or it is stopped).
     """
     gated = not is_loopback(host) and not insecure
     inner: Path | None = None
+    check_listenable(host, port)  # viser would serve on the next free port instead, the gate fail late
     # viser prints its own address box (without the token; :func:`serve` prints the address to
     # open) and "Server stopped": not on stdout, where a refused input must leave nothing.
     with redirect_stdout(io.StringIO()), script_in_page_head(SOFTWARE_NO_ANTIALIAS_JS):
@@ -168,23 +174,25 @@ def start_demo(
     try:
         with signals_held():
             app = _demo(server, SessionPanel(server, RUNS_DIR), scene, device, session, replay, servo_rate, spin)
+        if inner is not None:
+            app.gate = TokenGate(host, port, inner, new_token())
+        elif port and server.get_port() != port:  # taken between the check and viser's bind
+            raise ListenError(host, port, OSError(errno.EADDRINUSE, "in use"))
     except BaseException:
         if app is not None:  # a signal held while it was built
             app.close()
         with redirect_stdout(io.StringIO()):
             server.stop()
         raise
-    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
-    if inner is not None:
-        app.gate = TokenGate(host, port, inner, new_token())
-        app.url = f"http://{shown}:{app.gate.port}/?{TOKEN_NAME}={app.gate.token}"
+    if app.gate is not None:
+        app.url = f"http://{url_authority(host, app.gate.port)}/?{TOKEN_NAME}={app.gate.token}"
     else:
         if not is_loopback(host):
             print(
                 f"warning: serving on {host} without a token (--insecure): anyone who can reach it can drive the demo",
                 file=sys.stderr,
             )
-        app.url = f"http://{shown}:{server.get_port()}/"
+        app.url = f"http://{url_authority(host, server.get_port())}/"
     return app
 
 

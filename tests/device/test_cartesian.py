@@ -18,6 +18,7 @@ from app.device.cartesian_sim import SimCartesianDevice
 from app.device.guard import ForceGuard
 from app.device.haply import (
     DeviceServer,
+    HaplyClient,
     SimInfo,
     force_command,
     parse_command,
@@ -257,19 +258,18 @@ def test_a_cartesian_devices_log_replays_its_grip_reference_and_tool_without_lin
 # -- served over loopback -----------------------------------------------------------------------
 
 
-#: How long (s) the loopback tests' loop waits for a reply before counting the tick as stalled. A
-#: loaded 2-core machine delayed replies past 50 ms (the watchdog tripped in a run meant to have
-#: no trip, and a stall showed at tick 967 instead of 1400); a stopped stream still stalls, at
-#: this cost a tick.
-REPLY_WAIT = 0.5
+#: How long (s) the link test's loop waits for a reply in the ticks its stream is stopped: no reply
+#: comes however long it waits, so the length only sets the test's time (and how long the served
+#: device runs on under zero force).
+STOPPED_WAIT = 0.05
 
 
 #: How long (s) the loopback comparison's client waits for a reply and its server for a command
 #: before either counts the other as stopped. Under load (three busy loops beside the test on the
 #: 2-core machine) this process was starved for longer than the served device's own 20 ms
 #: watchdog, which then ran the simulation on under zero force (8 trips: the steady force 1.5 %
-#: off the in-process run's; none: identical), and longer than :data:`REPLY_WAIT` (a stalled
-#: tick, watchdog_trips 1 and 3). Neither timeout is what that test compares.
+#: off the in-process run's; none: identical), and longer than 0.5 s (a stalled tick,
+#: watchdog_trips 1 and 3). Neither timeout is what the tests below compare.
 STARVED_WAIT = 10.0
 
 
@@ -507,7 +507,12 @@ def test_realtime_run_against_a_served_device_raises_its_priority_for_the_ticks_
 class LinkTrouble:
     """The session's script, plus trouble on the served device's link before given rows' ticks:
     its stream stalls for ``stall_ticks`` ticks from row ``stall_at``, and its connection is
-    pulled (as a cable would be) before row ``drop_at``."""
+    pulled (as a cable would be) before row ``drop_at``.
+
+    The loop's client waits :data:`STOPPED_WAIT` for a reply in the stopped ticks and the run's
+    ``sample_wait`` (:data:`STARVED_WAIT`) in all others, so that a tick is stalled because the
+    stream stopped, never because this process was starved (with one wait of 0.5 s for all, tick
+    0 stalled in 1 of 5 runs beside two busy loops)."""
 
     def __init__(self, script: Operator, served: DeviceServer, stall_at: int, stall_ticks: int, drop_at: int) -> None:
         self.script = script
@@ -517,10 +522,14 @@ class LinkTrouble:
 
     def before_tick(self, loop: ServoLoop) -> None:
         self.script.before_tick(loop)
+        client = loop.device
+        assert isinstance(client, HaplyClient)
         if self.row == self.stall_at:
             self.served.pause_stream(True)
+            client.period = STOPPED_WAIT
         elif self.row == self.stall_at + self.stall_ticks:
             self.served.pause_stream(False)
+            client.period = STARVED_WAIT
         elif self.row == self.drop_at:
             self.served.drop_client()
         self.row += 1
@@ -554,7 +563,7 @@ def test_link_state_is_logged_per_tick_through_a_stall_and_a_dropped_connection_
         out_dir=tmp_path / "run",
         plots=False,
         device_url=f"ws://127.0.0.1:{served.port}",
-        sample_wait=REPLY_WAIT,  # a reply is late only when the stream stopped
+        sample_wait=STARVED_WAIT,  # a reply is late only when the stream stopped (LinkTrouble)
         operator=lambda loop: LinkTrouble(OperatorScript.for_loop(session.data, loop), served, stall_at, 3, drop_at),
     )
     table = read_log(tmp_path / "run" / "log")

@@ -183,3 +183,27 @@ def test_a_client_refused_with_1013_tries_again_until_the_device_is_free_and_no_
             HaplyClient(url, period=CONNECT_TIMEOUT)
     finally:
         server.shutdown()
+
+
+def test_device_server_listens_on_an_ipv6_host_and_names_it_as_a_url_does() -> None:
+    """``frhc device serve --host ::1``: refused before ('Address family for hostname not
+    supported': the listener was IPv4 only); now served, named ``ws://[::1]:P`` (brackets, as
+    a URL needs them), and a client reaches it at that name."""
+    from app.device.cartesian_sim import SimCartesianDevice
+    from app.device.haply import HaplyClient
+    from app.device.spec import load_device
+    from app.listen import url_authority
+
+    if not socket.has_ipv6:
+        pytest.skip("no IPv6 on this machine")
+    assert url_authority("::1", 80) == "[::1]:80"
+    assert url_authority("::", 80) == url_authority("0.0.0.0", 80) == "127.0.0.1:80"
+    assert url_authority("localhost", 80) == "localhost:80"
+    server = DeviceServer(SimCartesianDevice(load_device("touch3")), host="::1", port=0).start()
+    try:
+        client = HaplyClient(f"ws://{url_authority('::1', server.port)}", period=WAIT)
+        assert client.served is not None
+        assert client.served.device == "touch3"
+        client.close()
+    finally:
+        server.shutdown()

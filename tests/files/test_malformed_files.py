@@ -9,10 +9,12 @@ stderr, no traceback, nothing written).
 
 from __future__ import annotations
 
+import codecs
 import dataclasses
 import shutil
 import subprocess
 import sys
+import tomllib
 import typing
 import warnings
 from dataclasses import dataclass
@@ -22,7 +24,7 @@ import pytest
 import trimesh
 
 from app.check import check_file
-from app.config import MAX_FILE_BYTES
+from app.config import MAX_FILE_BYTES, load_toml
 from app.device.spec import DEVICES_DIR
 from app.errors import ConfigError
 from app.session.spec import MAX_SCRIPT_ENTRIES, SESSIONS_DIR, SwitchEvent, Waypoint, load_session
@@ -114,6 +116,9 @@ CAPSULE = "[[tool.capsules]]\nstart = [0.0, 0.0, 0.0]\nend = [0.0, 0.0, 1.0]\nra
 
 CASES: dict[str, dict[str, Case]] = {
     "encoding": {
+        "session BOM, then a latin-1 byte": P(
+            "", b"\xef\xbb\xbf# caf\xe9\n", "<file>", "not UTF-8 text (byte 0xe9 on line 1)"
+        ),
         "scene latin-1 byte": S('"base scene', b'"base sc\xe9ne', "<file>", "not UTF-8"),
         "session UTF-16": P("", "\ufeff".encode("utf-16-le"), "<file>", "not UTF-8"),
         "device NUL and 0xff": D('name = "kraft"', b'name = "kr\x00\xffaft"', "<file>", "not UTF-8"),
@@ -444,6 +449,17 @@ def test_the_base_files_pass(tmp_path: Path) -> None:
         folder.mkdir()
         checked, _ = make_file(folder, Case(kind, "", "", ""))
         assert check_file(str(checked)).startswith(kind)
+
+
+@pytest.mark.parametrize("kind", ["scene", "session", "device", "calibration"])
+def test_a_file_saved_with_a_utf8_byte_order_mark_reads_as_without_it(tmp_path: Path, kind: str) -> None:
+    """Windows editors (Notepad) may save UTF-8 with a byte-order mark. It was refused as 'not valid
+    TOML: Invalid statement (at line 1, column 1)', a character nobody sees; now skipped (a UTF-16
+    file is still refused as not UTF-8: the table)."""
+    checked, target = make_file(tmp_path, Case(kind, "", "\ufeff", ""))
+    assert target.read_bytes().startswith(codecs.BOM_UTF8)
+    assert load_toml(target) == tomllib.loads(target.read_bytes()[len(codecs.BOM_UTF8) :].decode())
+    assert check_file(str(checked)).startswith("device" if kind == "calibration" else kind)
 
 
 def test_an_open_mesh_is_refused_naming_its_field(tmp_path: Path) -> None:

@@ -55,6 +55,16 @@ BAD = {
     "two sources": ('[[vary]]\nfield = "seed"\nvalues = [1]\nnormal = [0.0, 1.0]', "vary[0].values", "exactly one"),
     "no fields": ("vary = []", "vary", "1..16"),
     "unknown metric": ('metric = "speed"\n[[vary]]\nfield = "seed"\nvalues = [1]', "metric", "unknown metric"),
+    "a grid value twice": (
+        '[[vary]]\nfield = "gains.k_t[0:3]"\nvalues = [0.5, 2.0, 0.5]',
+        "vary[0].values",
+        "value 3 repeats an earlier one (0.5)",
+    ),
+    "a grid value twice, as an int and a float": (
+        '[[vary]]\nfield = "duration"\nvalues = [1, 1.0]',
+        "vary[0].values",
+        "value 2 repeats an earlier one (1.0)",
+    ),
     "twice": ('[[vary]]\nfield = "seed"\nvalues = [1]\n[[vary]]\nfield = "seed"\nvalues = [2]', "vary", "twice"),
     "negative samples": ('samples = -1\n[[vary]]\nfield = "seed"\nvalues = [1]', "samples", "non-negative"),
     "samples over the limit": (
@@ -90,6 +100,12 @@ def test_check_refuses_a_bad_sweep_file_as_the_sweep_would(tmp_path: Path, case:
         check_file(str(path))
     assert (err.value.source, err.value.field) == (str(path), field)
     assert reason in str(err.value)
+
+
+def test_a_random_sweep_may_weight_a_value_by_repeating_it(tmp_path: Path) -> None:
+    """Repeats are refused in a grid (BAD: the same points run twice), not where values are drawn."""
+    path = write(tmp_path, 'base = "probe_rate"\nsamples = 3\n[[vary]]\nfield = "duration"\nvalues = [1.0, 1.0, 2.0]\n')
+    assert load_sweep(path).spec.vary[0].values == (1.0, 1.0, 2.0)
 
 
 def test_frhc_check_names_file_and_field_of_a_bad_sweep_in_one_line(tmp_path: Path) -> None:

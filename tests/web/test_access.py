@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import http.client
-import os
 import time
-from pathlib import Path
 
 import pytest
+from web_helpers import listening_tcp_ports
 
 from app.web.access import TOKEN_NAME, token_in_request
 from app.web.headless import free_port
@@ -27,26 +26,6 @@ from app.web.launch import start_demo
 )
 def test_token_is_found_in_query_or_cookie(head: bytes, ok: bool) -> None:
     assert token_in_request(head, "abc") is ok
-
-
-def listening_tcp_ports() -> set[int]:
-    """TCP ports this process listens on (IPv4 and IPv6), from ``/proc``: the sockets among its
-    open files that the kernel's tables list in state LISTEN."""
-    inodes = set()
-    for fd in Path("/proc/self/fd").iterdir():
-        try:
-            target = os.readlink(fd)
-        except OSError:
-            continue
-        if target.startswith("socket:["):
-            inodes.add(target[8:-1])
-    ports = set()
-    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
-        for line in Path(table).read_text().splitlines()[1:]:
-            fields = line.split()
-            if fields[3] == "0A" and fields[9] in inodes:
-                ports.add(int(fields[1].rsplit(":", 1)[1], 16))
-    return ports
 
 
 def _get(port: int, path: str, headers: dict[str, str] | None = None) -> http.client.HTTPResponse:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import gzip
 import os
 import signal
+import socket
 import time
 import urllib.error
 import urllib.request
@@ -13,9 +14,9 @@ from pathlib import Path
 import pytest
 import viser
 import websockets.asyncio.server
-from web_helpers import nothing_listens
+from web_helpers import listening_tcp_ports, nothing_listens
 
-from app.errors import ConfigError, InvalidField
+from app.errors import ConfigError, InvalidField, ListenError
 from app.session.files import SESSIONS_DIR
 from app.web import launch as server
 from app.web.headless import free_port
@@ -40,6 +41,21 @@ def test_unknown_names_raise_config_error_leaving_nothing_served(
     if field is not None:
         assert info.value.field == field
     assert nothing_listens(port)
+
+
+@pytest.mark.parametrize("host", ["127.0.0.1", "0.0.0.0"])
+def test_a_busy_port_is_refused_not_swapped_leaving_nothing_served(host: str) -> None:
+    """``frhc web --port P`` with P taken (a second ``frhc web``): one error naming the address,
+    as ``frhc device serve`` says it. Before, viser served on P + 1 under a printed URL the user
+    did not ask for (loopback), and the token gate failed with a traceback after the demo was
+    built (0.0.0.0)."""
+    before = listening_tcp_ports()
+    with socket.create_server(("0.0.0.0", 0)) as holder:
+        port = holder.getsockname()[1]
+        with pytest.raises(ListenError, match=rf"^cannot listen on {host}:{port}: Address already in use \(") as info:
+            server.start_demo("probe", "kraft", host=host, port=port).close()
+        assert (info.value.host, info.value.port) == (host, port)
+    assert listening_tcp_ports() == before
 
 
 def test_loopback_detection() -> None:

@@ -222,12 +222,12 @@ def _wrong_type(table: pa.Table) -> str | None:
     return None
 
 
-def read_log(directory: Path, n_joints: int | None = None, objects: tuple[str, ...] = ()) -> pa.Table:
+def read_log(directory: Path | str, n_joints: int | None = None, objects: tuple[str, ...] = ()) -> pa.Table:
     """The whole log as one Arrow table (``.to_pandas()`` for a DataFrame): every complete part,
     then the whole rows of the tail of a run that stopped before writing its last part (a crash).
 
     Args:
-        directory: The log directory.
+        directory: The log directory (a path or its text, as a user types it).
         n_joints: If given, every part must hold exactly :func:`log_columns` of this many joints
             and of the dynamic objects named ``objects``.
 
@@ -237,6 +237,7 @@ def read_log(directory: Path, n_joints: int | None = None, objects: tuple[str, .
             column of another type than the log writes, or, with ``n_joints``, whose columns are
             not this log's.
     """
+    directory = Path(directory)
     expected = None if n_joints is None else log_columns(n_joints, objects)
     tables: list[pa.Table] = []
     for k, part in enumerate(sorted(directory.glob("part-*.parquet"))):

@@ -47,6 +47,7 @@ def test_a_log_left_open_reads_back_every_flushed_row(tmp_path: Path) -> None:
     with (tmp_path / "_tail-00002.f8").open("ab") as tail:
         tail.write(b"\x01" * 20)
     assert read_log(tmp_path).num_rows == 700
+    assert read_log(str(tmp_path)).num_rows == 700  # the folder as typed, not a Path
     log.close()
     assert not list(tmp_path.glob("_tail-*"))
     np.testing.assert_array_equal(_values(read_log(tmp_path, 6)), rows)

@@ -468,6 +468,9 @@ class PassivitySettings(Checked):
             than twice the joint's Coulomb friction (a longer predicted step where it would),
             so that the cut force is not itself an active quantised spring (see "The PC's own
             law" in the module docstring).
+        swing_charge: The observer charges :data:`SWING_SHARE` of the encoder reading's work at
+            a joint's reversing count after a swing of two or more counts, which the crossed
+            edge leaves out (see "The swing's turn" in the module docstring).
     """
 
     enabled: bool = False
@@ -482,6 +485,14 @@ class PassivitySettings(Checked):
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
     passive_law: bool = False
+    swing_charge: bool = False
+
+
+SWING_SHARE = 0.5
+"""The share of the encoder reading's charge at a reversing count after a swing of two or more
+counts that ``swing_charge`` takes: the joint turned at a point uniform over its count, so it went
+on past the crossed edge by half a count on average, where the reading puts it a whole count back
+and forth (the crossed edge: none)."""
 
 
 def device_dissipation(device: DeviceSpec) -> tuple[Array, Array, float]:
@@ -522,6 +533,8 @@ def observe_energy(
     friction: Array,
     damping: Array,
     count: Array,
+    run: Array,
+    swing: float,
 ) -> float:
     """PO step: the port's work plus the device's own sure dissipation, capped; returns ``E``.
 
@@ -542,10 +555,16 @@ def observe_energy(
         friction: Coulomb torque (N m or N) credited per unit of the observed angle's travel, (n,).
         damping: Each joint's viscous damping (N m s/rad or N s/m), (n,).
         count: One encoder count of each joint (rad or m; 0 for ideal encoders), (n,).
+        run: Each joint's counts moved in one direction since its last reversal (signed), (n,),
+            updated (see "The swing's turn" in the module docstring).
+        swing: The share [0, 1] of the reading's charge at a reversing count taken where the
+            joint had crossed at least two counts in one direction before it (0 = the crossed
+            edge alone; :data:`SWING_SHARE` when ``swing_charge``).
     """
     if dt <= 0.0:
         for j in range(q.shape[0]):
             angle[j] = q[j]
+            run[j] = 0.0
         energy[0] = min(energy[0], cap)
         return energy[0]
     change = 0.0
@@ -554,6 +573,17 @@ def observe_energy(
         sure = max(abs(dq) - count[j], 0.0)
         moved = crossed_edge(q[j], dq, count[j], angle, j)
         change += -tau_prev[j] * moved + friction[j] * abs(moved) + damping[j] * sure * sure / dt
+        if count[j] > 0.0:
+            n = round(dq / count[j])
+            if n * run[j] < 0.0:
+                # A reversing count after a swing of two or more counts: the turning point lies
+                # anywhere in the count, not on the edge a dither hovers at, so take the share of
+                # the reading's charge there that the edge leaves out (module docstring).
+                if abs(run[j]) >= 2.0:
+                    change += swing * (-tau_prev[j] * (dq - moved) + friction[j] * (abs(dq) - abs(moved)))
+                run[j] = n
+            else:
+                run[j] += n
     energy[0] = min(energy[0] + change, cap)
     return energy[0]
 

@@ -274,6 +274,7 @@ class FRHCController:
         rec["pc_reserve"], rec["po_cap"] = bank_bounds(settings, limit, step)
         rec["pc_credit"] = settings.friction_credit * self._friction
         rec["pc_law_count"] = self.device.encoder_step if settings.passive_law else 0.0
+        rec["pc_law_zero"] = -math.inf  # the law is entered anew where the bound next cuts
         observed = settings.observe_device
         rec["po_friction"] = settings.friction_credit * self._friction if observed else 0.0
         rec["po_damping"] = self._damping if observed else 0.0
@@ -297,6 +298,7 @@ class FRHCController:
         self.out.scalars[RAMP] = 0.0
         for name in ("po_energy", "po_tau", "po_run", "pc_velocity", "pc_offset", "pc_dx_prev", "brake_velocity"):
             self._rec[name] = 0.0
+        self._rec["pc_law_zero"] = -math.inf
         self.out.scalars[PO_ENERGY] = self.out.scalars[PC_CUT] = 0.0
 
     def resume(self) -> None:

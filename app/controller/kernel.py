@@ -251,6 +251,7 @@ def controller_tick(
             torques[TAU],
             torques[TAU_PC],
             r.pc_law_count[:],
+            r.pc_law_zero[:],
         )
     s = motor_commands(torques, record_motors(rec), out.counts)
     out.scalars[SATURATION_SCALE] = s

@@ -138,7 +138,8 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         the passivity observer's energy of the whole port (J), (1,); po_tau: the rendered torque
         commanded last tick (N m or N), (n,); po_angle: the observer's joint angles, each on the
         edge of its count the joint last crossed (rad or m), (n,); po_run: each joint's counts moved in
-        one direction since its last reversal (signed, (n,)); pc_velocity: the low-passed joint velocity the
+        one direction since its last reversal (signed, (n,)); pc_law_zero: the passive law's zero
+        (J), (1,), ``-inf`` while the law is not entered; pc_velocity: the low-passed joint velocity the
         passivity controller uses (n,); pc_offset: the PC's hold on
         the slave's command (m, {0}, (3,)); pc_dx_prev: last tick's Delta X command translations
         before it (m, (3,)).
@@ -206,6 +207,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("braking", b1),
             ("gravity_level", f8),
             ("po_energy", f8, (1,)),
+            ("pc_law_zero", f8, (1,)),
             ("po_tau", f8, (n,)),
             ("po_angle", f8, (n,)),
             ("po_run", f8, (n,)),

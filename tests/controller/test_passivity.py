@@ -139,6 +139,7 @@ def test_an_active_sampled_wall_is_detected_and_the_pc_keeps_the_bounce_passive(
                     tau,
                     tau_pc,
                     np.zeros(1),
+                    np.array([-math.inf]),
                 )
             tau_prev[:] = tau
             f_max = max(f_max, abs(tau[0]))
@@ -170,16 +171,38 @@ def test_an_active_sampled_wall_is_detected_and_the_pc_keeps_the_bounce_passive(
     velocity=arrays(np.float64, 4, elements=st.floats(-20.0, 20.0)),
     credit=st.floats(0.0, 1.0),
     reserve=st.floats(0.0, 0.05),
+    law=st.booleans(),
+    zero=st.one_of(st.just(-math.inf), st.floats(-10.0, 10.0)),
 )
 def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits(
-    energy: float, tau_r: np.ndarray, tau_g: np.ndarray, velocity: np.ndarray, credit: float, reserve: float
+    energy: float,
+    tau_r: np.ndarray,
+    tau_g: np.ndarray,
+    velocity: np.ndarray,
+    credit: float,
+    reserve: float,
+    law: bool,
+    zero: float,
 ) -> None:
+    """Also with the passive law from any zero it may have been pinned at: never above the bound."""
     step = np.array([4e-4, 4e-4, 8e-4, 2e-4])  # 14-, 13- and 15-bit encoders
+    count = step / 3 if law else np.zeros(4)
     limit = np.full(4, 6.0)
     tau = tau_r + tau_g
     tau_pc = np.zeros(4)
     cut = passivity_control(
-        np.array([energy]), tau_r, velocity, T, step, np.full(4, credit), reserve, limit, tau, tau_pc, np.zeros(4)
+        np.array([energy]),
+        tau_r,
+        velocity,
+        T,
+        step,
+        np.full(4, credit),
+        reserve,
+        limit,
+        tau,
+        tau_pc,
+        count,
+        np.array([zero]),
     )
     np.testing.assert_allclose(tau, tau_r + tau_g + tau_pc)
     rendered = tau_r + tau_pc
@@ -194,8 +217,8 @@ def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits
     d = np.maximum(step, np.abs(velocity) * T)
     worst = np.abs(rendered) @ d
     assert worst <= max(energy + reserve, 0.0) + credit * d.sum() + 1e-12
-    if np.abs(tau_r) @ d <= max(energy + reserve, 0.0) + credit * d.sum():
-        assert cut == 0.0  # enough energy: the PC does not act
+    if np.abs(tau_r) @ d <= max(energy + reserve, 0.0) + credit * d.sum() and zero == -math.inf:
+        assert cut == 0.0  # enough energy and the law not entered: the PC does not act
         assert np.all(tau_pc == 0.0)
 
 
@@ -371,9 +394,11 @@ def test_the_swing_charge_reads_an_active_multi_count_cycle_closer_to_its_true_w
     assert abs(swing - true) < 0.5 * abs(edge - true)
 
 
-def _law(energy: float, law: bool) -> float:
+def _law(energy: float, law: bool, zero: np.ndarray | None = None) -> float:
     """The PC's scale s on one joint (tau_r 10 N m, a 1e-3 rad count, friction 0.5 N m, step 3e-3
-    rad, no reserve): with the passive law a = tau^2 c / (2 f) = 0.1 J, worst = 0.03 J."""
+    rad, no reserve): the bound's s = (E + f d) / (tau d), the credit f d = 1.5e-3 J, worst =
+    tau d = 0.03 J; with the passive law a = tau^2 c / (2 f) = 0.1 J. ``zero``: the law's state
+    (a new one, the law not entered, unless given; updated)."""
     tau = np.array([10.0])
     cut = passivity_control(
         np.array([energy]),
@@ -387,29 +412,86 @@ def _law(energy: float, law: bool) -> float:
         tau,
         np.zeros(1),
         np.array([1e-3 if law else 0.0]),
+        np.array([-math.inf]) if zero is None else zero,
     )
     return 1.0 - cut
 
 
-def test_the_passive_law_keeps_the_cut_forces_step_per_count_within_twice_the_friction() -> None:
-    """Known answers: the bound's s = (E + f d) / (tau d), d = 3e-3; the credit f d = 1.5e-3 J.
-    At s = 0.5 the bound's torque step per count, tau * (tau c s) / worst = 1.67 N m, is above 2 f =
-    1 N m (an active quantised spring); the law gives s = sqrt(r (2 s - r)) with r = worst / a = 0.3,
-    sqrt(0.21), whose step per count, tau^2 c / a, is 2 f exactly. Below s = r and where the bound
-    does not cut the law changes nothing."""
-    assert _law(0.0135, law=False) == pytest.approx(0.5)
-    assert _law(0.0135, law=True) == pytest.approx(math.sqrt(0.21))
-    assert _law(0.0045, law=True) == _law(0.0045, law=False) == pytest.approx(0.2)
-    assert _law(0.05, law=True) == _law(0.05, law=False) == 1.0
+def test_the_passive_law_is_entered_where_the_bound_cuts_and_then_steps_twice_the_friction_a_count() -> None:
+    """Known answers (the budget is E + 1.5 mJ; the bound cuts below E = 28.5 mJ): no step where
+    the bound starts cutting (0.999 just below it, as the bound; vanish26's stateless law jumped to
+    sqrt(r (2 s - r)) = 0.714 there, r = worst / a = 0.3); on the way down the law follows the
+    bound (s = 0.5, then 0.3), its zero pinned where the bound cut deepest (B_0 = 9 mJ - a 0.3^2 / 2
+    = 4.5 mJ), and back up it is the spring s = sqrt(2 (budget - B_0) / a): sqrt(0.21) at E = 13.5
+    mJ (the bound 0.5), whose torque steps tau^2 c / a = 1 N m = 2 f a count (the bound's: tau^2 c
+    s / worst = 1.67 N m); still sqrt(0.51) where the bound no longer cuts, and 1 again, the law
+    left, where the budget reaches B_0 + a / 2 = 54.5 mJ."""
+    zero = np.array([-math.inf])
+    assert _law(0.0285 + 1e-6, True, zero) == 1.0
+    assert zero[0] == -math.inf
+    assert _law(0.0285 - 3e-5, True, zero) == pytest.approx(0.999)
+    assert _law(0.0285 - 3e-5, False) == pytest.approx(0.999)
+    assert _law(0.0135, True, zero) == pytest.approx(0.5)
+    assert _law(0.0075, True, zero) == pytest.approx(0.3)
+    assert zero[0] == pytest.approx(0.0045)
+    assert _law(0.0135, True, zero) == pytest.approx(math.sqrt(0.21))
+    assert _law(0.0135, False) == pytest.approx(0.5)
     count, tau, h = 1e-3, 10.0, 1e-8
     for law, most in ((False, 1.7), (True, 1.0 + 1e-4)):
         # One count out at the cut force takes s tau c from the energy; the torque changes by
         # tau ds/dE times that (to first order in a count's energy over the bank's).
-        s = _law(0.0135, law)
-        step = tau * (s - _law(0.0135 - h, law)) / h * s * tau * count
+        s = _law(0.0135, law, zero.copy())
+        step = tau * (s - _law(0.0135 - h, law, zero.copy())) / h * s * tau * count
         assert step <= most
         assert law or step > 1.6  # the bound alone: 1.67 N m a count, above the 2 f = 1 N m
         assert not law or step > 1.0 - 1e-4  # the law: 2 f exactly
+    assert _law(0.0285, True, zero) == pytest.approx(math.sqrt(0.51))  # the bound: 1
+    assert _law(0.053 - 1e-6, True, zero) == pytest.approx(1.0, abs=1e-4)
+    assert zero[0] == pytest.approx(0.0045)
+    assert _law(0.053, True, zero) == 1.0
+    assert zero[0] == -math.inf
+
+
+def test_where_the_bounds_own_step_is_within_twice_the_friction_the_law_is_the_bound() -> None:
+    """A 100x finer count (1e-5 rad: a = 1 mJ, r = worst / a = 30): the bound's step per count,
+    tau^2 c s / worst <= 0.033 N m, is within 2 f = 1 N m at every scale, so the law is the bound
+    there (as on 20-bit encoders), and its zero only follows the bound."""
+    tau = np.array([10.0])
+    zero = np.array([-math.inf])
+    for energy, bound in ((0.0285, 1.0), (0.0135, 0.5), (0.0015, 0.1), (0.0135, 0.5), (0.05, 1.0)):
+        cut = passivity_control(
+            np.array([energy]),
+            tau.copy(),
+            np.zeros(1),
+            T,
+            np.array([3e-3]),
+            np.array([0.5]),
+            0.0,
+            np.array([1e9]),
+            tau.copy(),
+            np.zeros(1),
+            np.array([1e-5]),
+            zero,
+        )
+        assert 1.0 - cut == pytest.approx(bound)
+    assert zero[0] == -math.inf
+
+
+def test_one_count_out_and_back_at_the_onset_of_the_cut() -> None:
+    """A whole count each way from where the bound starts cutting (E = 28.5 mJ, the full 10 N m),
+    the friction crediting 0.5 mJ a count: out at the held 10 N m the budget falls to 20.5 mJ and
+    the bound to 0.683; back in at the held 6.83 N m the bound returns to 0.928 (a 2.44 N m rise
+    over the count: active, as main), the law to sqrt(2 (27.83 + 2.85) mJ / a) = 0.783, 2 f = 1 N
+    m above the out-count's torque."""
+    zero = np.array([-math.inf])
+    e = 0.0285
+    assert _law(e, True, zero) == 1.0
+    e += -10.0 * 1e-3 + 0.5e-3
+    out = _law(e, True, zero)
+    assert out == _law(e, False) == pytest.approx(0.0205 / 0.03)
+    e += 10.0 * out * 1e-3 + 0.5e-3
+    assert 10.0 * (_law(e, False) - out) == pytest.approx(2.444, abs=1e-3)
+    assert 10.0 * (_law(e, True, zero) - out) == pytest.approx(1.0)
 
 
 def _push(law: bool) -> tuple[float, float]:
@@ -421,6 +503,7 @@ def _push(law: bool) -> tuple[float, float]:
     x = v = 0.0
     e = np.array([-reserve + 0.003])
     tau_prev, vel, angle = np.zeros(1), np.zeros(1), np.zeros(1)
+    zero = np.array([-math.inf])
     q_prev = 0.0
     for _ in range(2000):
         q = c * round(x / c)
@@ -453,6 +536,7 @@ def _push(law: bool) -> tuple[float, float]:
             tau,
             np.zeros(1),
             np.array([c if law else 0.0]),
+            zero,
         )
         tau_prev[:], q_prev = tau, q
         for _ in range(sub):  # the grip under the held torque, the hand and its own friction
@@ -465,15 +549,17 @@ def _push(law: bool) -> tuple[float, float]:
     return -x, e[0] - (-reserve + 0.003)
 
 
-def test_a_steady_push_refills_the_bank_with_the_passive_law_and_the_wall_holds() -> None:
+def test_a_steady_push_on_a_spent_bank_sinks_the_grip_with_the_bound_alone_and_not_with_the_passive_law() -> None:
     """The JPL 1x push-through in one dof (vanish26's trace): with the bound alone its cut force
     rings against the hand, each count out and back losing more than the friction takes (the
     energy falls 2.3 mJ, to within 1 mJ of its floor) and the hand sinks the grip 4.1 mm into a
-    120 N wall; with the passive law the push's work refills the bank (+0.9 mJ) and the grip rests
-    3.2 counts in."""
+    120 N wall. With the passive law the grip comes to rest 3.45 counts in: the first swings out
+    follow the bound down (the energy falls 1.0 mJ, pinning the law's zero), then the cut force is
+    the law's spring, 2 f a count, and the grip stays (vanish26's stateless law: 3.2 counts, the
+    energy up 0.9 mJ, its deeper first cut spending less)."""
     depth, rise = _push(law=False)
     assert depth > 3e-3
     assert rise < -2e-3
     depth, rise = _push(law=True)
     assert depth < 4e-4
-    assert rise > 5e-4
+    assert rise > -1.5e-3

@@ -226,9 +226,9 @@ mJ, crossed edge -58, reading -104; test); the device's loop lies between (the t
 / 0.63 / 0.70 of the way from the edge to the reading, FreFlex / Kraft / JPL), and the midpoint was
 chosen after the JPL trace, no other share run. It books 0.79 / 1.43 / 0.65 of the true output on
 the three traces. Measured (notes ``limit26/``; whole
-matrix, 8 s holds, stable / worse / vanish against main's rows): alone, on 43 points (the traced
-three and 40 sampled) it stops cycles (8L 20 / 2 / 6 -> 28 / 1 / 9) but the hand then pushes
-through the cut (the JPL point to 39 N): the cut force is the active quantised spring of "The PC's
+matrix, 8 s holds, stable / worse / vanish against main's rows): alone it stops cycles (71 of the
+133 end still) but the hand then pushes through the cut (the JPL point to 39 N; 8L in all 742 / 10
+/ 118 -> 840 / 9 / 167): the cut force is the active quantised spring of "The PC's
 own law", so it needs the passive law. With vanish26's stateless law it met issue 26's rule on every
 set and judgement (8W tuned / held / encoders 187 / 1 / 31, 96 / 0 / 8, 193 / 2 / 41 -> 216 / 1 /
 24, 105 / 1 / 4, 218 / 1 / 40; 8L 305 / 4 / 46, 143 / 1 / 8, 294 / 5 / 64 -> 357 / 2 / 37, 189 / 1 /

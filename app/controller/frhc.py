@@ -27,7 +27,7 @@ from app.controller.gains import ControllerGains
 from app.controller.inputs import SHAPE_3, SHAPE_6, SHAPE_33, checked_arrays, checked_float
 from app.controller.kinematics import DeviceKinematics, RecordArray, topology_fields
 from app.controller.layout import GAIN_ROWS, RTC_LAWS, TORQUE_ROWS, vector_row_names
-from app.controller.passivity import PassivitySettings, bank_bounds, device_dissipation
+from app.controller.passivity import SWING_SHARE, PassivitySettings, bank_bounds, device_dissipation
 from app.controller.record import (
     ASSIST_SCALE,
     PC_CUT,
@@ -278,6 +278,7 @@ class FRHCController:
         observed = settings.observe_device
         rec["po_friction"] = settings.friction_credit * self._friction if observed else 0.0
         rec["po_damping"] = self._damping if observed else 0.0
+        rec["po_swing"] = SWING_SHARE if settings.swing_charge else 0.0
         rec["pc_filter"] = settings.velocity_filter
         rec["pc_hold"] = settings.enabled and settings.hold_slave
         rec["pc_b_device"] = self._b_device
@@ -295,7 +296,7 @@ class FRHCController:
         for flag in ("prev_reference", "prev_deadman", "prev_reflecting", "have_q_prev", "braking"):
             self._rec[flag] = False
         self.out.scalars[RAMP] = 0.0
-        for name in ("po_energy", "po_tau", "pc_velocity", "pc_offset", "pc_dx_prev", "brake_velocity"):
+        for name in ("po_energy", "po_tau", "po_run", "pc_velocity", "pc_offset", "pc_dx_prev", "brake_velocity"):
             self._rec[name] = 0.0
         self._rec["pc_law_zero"] = -math.inf
         self.out.scalars[PO_ENERGY] = self.out.scalars[PC_CUT] = 0.0

@@ -212,6 +212,8 @@ def controller_tick(
         r.po_friction[:],
         r.po_damping[:],
         r.encoder_count[:],
+        r.po_run[:],
+        r.po_swing,
     )
     out.scalars[PC_CUT] = 0.0
     pc_velocity = r.pc_velocity[:]

@@ -118,7 +118,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. encoder_count:
         one count of each joint's encoder (rad or m, (n,); 0 for an ideal encoder), for the
         velocity brake and the passivity observer. pc_on, pc_limit
-        (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_law_count (rad, (n,): the encoder count where ``passive_law``, else 0), pc_filter (s),
+        (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), po_swing (the share of the reversal charge, -), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_law_count (rad, (n,): the encoder count where ``passive_law``, else 0), pc_filter (s),
         pc_hold, pc_b_device (N s/m), pc_bleed (s): :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
         (n,) each (N m or N; -). horner_pos, horner_neg: (n, n_coeffs) torque curves, highest
         order first; counts_max: the amplifier's range. payload_mass (kg), payload_com_S (m, in
@@ -137,7 +137,8 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         back at ``ramp_rate``). po_energy:
         the passivity observer's energy of the whole port (J), (1,); po_tau: the rendered torque
         commanded last tick (N m or N), (n,); po_angle: the observer's joint angles, each on the
-        edge of its count the joint last crossed (rad or m), (n,); pc_law_zero: the passive law's zero
+        edge of its count the joint last crossed (rad or m), (n,); po_run: each joint's counts moved in
+        one direction since its last reversal (signed, (n,)); pc_law_zero: the passive law's zero
         (J), (1,), ``-inf`` while the law is not entered; pc_velocity: the low-passed joint velocity the
         passivity controller uses (n,); pc_offset: the PC's hold on
         the slave's command (m, {0}, (3,)); pc_dx_prev: last tick's Delta X command translations
@@ -168,6 +169,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("po_cap", f8),
             ("po_friction", f8, (n,)),
             ("po_damping", f8, (n,)),
+            ("po_swing", f8),
             ("encoder_count", f8, (n,)),
             ("pc_reserve", f8),
             ("pc_step", f8, (n,)),
@@ -208,6 +210,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("pc_law_zero", f8, (1,)),
             ("po_tau", f8, (n,)),
             ("po_angle", f8, (n,)),
+            ("po_run", f8, (n,)),
             ("pc_velocity", f8, (n,)),
             ("J_W", f8, (6, n)),
             ("T_0_G", f8, (4, 4)),

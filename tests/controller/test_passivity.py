@@ -394,11 +394,11 @@ def test_the_swing_charge_reads_an_active_multi_count_cycle_closer_to_its_true_w
     assert abs(swing - true) < 0.5 * abs(edge - true)
 
 
-def _law(energy: float, law: bool, zero: np.ndarray | None = None) -> float:
-    """The PC's scale s on one joint (tau_r 10 N m, a 1e-3 rad count, friction 0.5 N m, step 3e-3
-    rad, no reserve): the bound's s = (E + f d) / (tau d), the credit f d = 1.5e-3 J, worst =
-    tau d = 0.03 J; with the passive law a = tau^2 c / (2 f) = 0.1 J. ``zero``: the law's state
-    (a new one, the law not entered, unless given; updated)."""
+def _law(energy: float, law: bool, zero: np.ndarray | None = None, count: float = 1e-3) -> float:
+    """The PC's scale s on one joint (tau_r 10 N m, a ``count`` of 1e-3 rad, friction 0.5 N m,
+    step 3e-3 rad, no reserve): the bound's s = (E + f d) / (tau d), the credit f d = 1.5e-3 J,
+    worst = tau d = 0.03 J; with the passive law a = tau^2 c / (2 f) = 0.1 J. ``zero``: the law's
+    state (a new one, the law not entered, unless given; updated)."""
     tau = np.array([10.0])
     cut = passivity_control(
         np.array([energy]),
@@ -411,7 +411,7 @@ def _law(energy: float, law: bool, zero: np.ndarray | None = None) -> float:
         np.array([1e9]),
         tau,
         np.zeros(1),
-        np.array([1e-3 if law else 0.0]),
+        np.array([count if law else 0.0]),
         np.array([-math.inf]) if zero is None else zero,
     )
     return 1.0 - cut
@@ -456,24 +456,9 @@ def test_where_the_bounds_own_step_is_within_twice_the_friction_the_law_is_the_b
     """A 100x finer count (1e-5 rad: a = 1 mJ, r = worst / a = 30): the bound's step per count,
     tau^2 c s / worst <= 0.033 N m, is within 2 f = 1 N m at every scale, so the law is the bound
     there (as on 20-bit encoders), and its zero only follows the bound."""
-    tau = np.array([10.0])
     zero = np.array([-math.inf])
     for energy, bound in ((0.0285, 1.0), (0.0135, 0.5), (0.0015, 0.1), (0.0135, 0.5), (0.05, 1.0)):
-        cut = passivity_control(
-            np.array([energy]),
-            tau.copy(),
-            np.zeros(1),
-            T,
-            np.array([3e-3]),
-            np.array([0.5]),
-            0.0,
-            np.array([1e9]),
-            tau.copy(),
-            np.zeros(1),
-            np.array([1e-5]),
-            zero,
-        )
-        assert 1.0 - cut == pytest.approx(bound)
+        assert _law(energy, True, zero, count=1e-5) == pytest.approx(bound)
     assert zero[0] == -math.inf
 
 

@@ -24,7 +24,7 @@ from app.errors import ConfigError
 from app.session.loop import LoopConfig, ServoLoop
 from app.session.spec import SessionFile, load_session, resolve_session_path
 from app.sweep.spec import SweepFile, load_sweep, resolve_sweep_path
-from app.world.scene import DEFAULT_SCENE, SCENES_DIR, SceneFile, load_scene
+from app.world.scene import DEFAULT_SCENE, SceneFile, load_scene, resolve_scene_path
 
 #: The schema of each kind of file; a file's kind is the one whose fields its keys match best.
 KINDS: dict[str, type] = {"device": DeviceFile, "scene": SceneFile, "session": SessionFile, "sweep": SweepFile}
@@ -64,7 +64,7 @@ def check_file(name: str) -> str:
     if not path.suffix:
         candidates = [
             resolve_device_path(name),
-            SCENES_DIR / f"{name}.toml",
+            resolve_scene_path(name),
             resolve_session_path(name),
             resolve_sweep_path(name),
         ]

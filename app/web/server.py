@@ -365,10 +365,11 @@ class DemoApp:
         camera.position = recentre(CameraPose(camera.position, camera.look_at), hit).position
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
-        """Zoom toward the cursor in the new browser, draw its view at a lower resolution and shade its
-        lit nodes with the Lambert shader if it has no GPU, draw it without viser's empty background quad, and fit its camera once it has reported
-        its canvas size, and again while the canvas changes shape (the page docks the panel
-        after its first report) as long as the camera is where the fit put it."""
+        """Zoom toward the cursor in the new browser, draw its view at a lower resolution and shade
+        its lit nodes with the Lambert shader if it has no GPU, draw it without viser's empty
+        background quad, and fit its camera once it has reported its canvas size, and again while
+        the canvas changes shape (the page docks the panel after its first report) as long as the
+        camera is where the fit put it."""
         run_in_page(client, DOLLY_TO_CURSOR_JS)
         run_in_page(client, SOFTWARE_RESOLUTION_JS)
         run_in_page(client, SOFTWARE_LAMBERT_JS)

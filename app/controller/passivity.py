@@ -484,7 +484,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 from numba import njit
@@ -535,6 +535,9 @@ class PassivitySettings(Checked):
             above the bound, so that the cut force is not itself an active quantised spring
             (see "The PC's own law" in the module docstring). Off: by issue 26's rule it loses
             stable walls net on two sets (held out over 8 s, encoders at the hold's end).
+        law_onset: Where the bound starts cutting, the law is entered ``"continuous"``ly (its
+            zero pinned there, onset26) or with the stateless form's ``"step"`` from 1 to
+            ``sqrt(r (2 - r))`` (vanish26; see "The PC's own law" in the module docstring).
         swing_charge: The observer charges :data:`SWING_SHARE` of the encoder reading's work at
             a joint's reversing count after a swing of two or more counts, which the crossed
             edge leaves out (see "The swing's turn" in the module docstring). Off: it needs
@@ -553,6 +556,7 @@ class PassivitySettings(Checked):
     hold_bleed: Annotated[float, Range(0.0, 10.0, "s", lo_open=True)] = 0.3
     observe_device: bool = True
     passive_law: bool = False
+    law_onset: Literal["continuous", "step"] = "continuous"
     swing_charge: bool = False
 
 
@@ -701,6 +705,7 @@ def passivity_control(
     tau_pc: Array,
     count: Array,
     law_zero: Array,
+    onset_step: bool = False,
 ) -> float:
     """PC step: scale the rendered torque so the next observed step cannot overdraw the energy.
 
@@ -719,6 +724,9 @@ def passivity_control(
         law_zero: The passive law's zero ``B_0`` (J), (1,), updated: the budget at which its
             force is nil, pinned where the bound cut deepest; ``-inf`` while the law is not
             entered.
+        onset_step: The law's stateless form (``law_onset = "step"``): ``s = sqrt(r (2 s_b - r))``
+            wherever the bound cuts below ``s_b = r``, ``law_zero`` unused; it steps from 1 to
+            ``sqrt(r (2 - r))`` where the bound starts cutting.
 
     Returns:
         ``1 - s``: the share of the rendered torque the PC removed (0 when it does not act).
@@ -749,6 +757,10 @@ def passivity_control(
             # At or below s = worst / a the bound's own step is within 2 f_j a count: it is
             # passive there, and the law only keeps its zero on it (none while it does not cut).
             law_zero[0] = held - 0.5 * a * s * s if s < 1.0 else -math.inf
+        elif onset_step:
+            if s < 1.0:
+                r = worst / a
+                s = math.sqrt(r * (2.0 * s - r))
         else:
             if s < 1.0:
                 law_zero[0] = max(law_zero[0], held - 0.5 * a * s * s)

@@ -274,6 +274,7 @@ class FRHCController:
         rec["pc_reserve"], rec["po_cap"] = bank_bounds(settings, limit, step)
         rec["pc_credit"] = settings.friction_credit * self._friction
         rec["pc_law_count"] = self.device.encoder_step if settings.passive_law else 0.0
+        rec["pc_law_step"] = settings.law_onset == "step"
         rec["pc_law_zero"] = -math.inf  # the law is entered anew where the bound next cuts
         observed = settings.observe_device
         rec["po_friction"] = settings.friction_credit * self._friction if observed else 0.0

@@ -252,6 +252,7 @@ def controller_tick(
             torques[TAU_PC],
             r.pc_law_count[:],
             r.pc_law_zero[:],
+            r.pc_law_step,
         )
     s = motor_commands(torques, record_motors(rec), out.counts)
     out.scalars[SATURATION_SCALE] = s

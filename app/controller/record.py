@@ -118,7 +118,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
         release_speed (rad/s or m/s): :class:`~app.controller.safety.SafetyLimits`. encoder_count:
         one count of each joint's encoder (rad or m, (n,); 0 for an ideal encoder), for the
         velocity brake and the passivity observer. pc_on, pc_limit
-        (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), po_swing (the share of the reversal charge, -), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_law_count (rad, (n,): the encoder count where ``passive_law``, else 0), pc_filter (s),
+        (n,) (N m or N), po_cap (J), po_friction (N m, (n,)), po_damping (N m s/rad, (n,)), po_swing (the share of the reversal charge, -), pc_reserve (J), pc_step (rad, (n,)), pc_credit (N m, (n,)), pc_law_count (rad, (n,): the encoder count where ``passive_law``, else 0), pc_law_step (``law_onset == "step"``), pc_filter (s),
         pc_hold, pc_b_device (N s/m), pc_bleed (s): :class:`~app.controller.passivity.PassivitySettings`. assist_limit, joint_limit, gear_ratio:
         (n,) each (N m or N; -). horner_pos, horner_neg: (n, n_coeffs) torque curves, highest
         order first; counts_max: the amplifier's range. payload_mass (kg), payload_com_S (m, in
@@ -175,6 +175,7 @@ def record_dtype(n: int, nbody: int, n_coeffs: int) -> np.dtype:
             ("pc_step", f8, (n,)),
             ("pc_credit", f8, (n,)),
             ("pc_law_count", f8, (n,)),
+            ("pc_law_step", b1),
             ("pc_filter", f8),
             ("pc_hold", b1),
             ("pc_b_device", f8),

@@ -75,21 +75,49 @@ def _credit(ledger: _Ledger, settings: PassivitySettings, q_obs: np.ndarray) -> 
     return np.abs(np.diff(q_obs, axis=0)) @ (settings.friction_credit * friction) + (sure**2 @ damping) / dt
 
 
-def test_the_observer_equals_an_independent_sum_of_torque_times_encoder_motion() -> None:
+def _swing(ledger: _Ledger, settings: PassivitySettings, q_obs: np.ndarray, share: float) -> np.ndarray:
+    """The swing charge each tick (J), from the logged encoder angles and torques alone
+    (app.controller.passivity, "The swing's turn"): where a joint's count changes against the
+    direction of a run of two or more counts, ``share`` of what the encoder difference charges
+    beyond the observed angle's motion, ``-tau (dq - dq_e) + f (|dq| - |dq_e|)``; the run counts
+    the counts moved one way since the last reversal."""
+    friction = settings.friction_credit * device_dissipation(load_device("kraft"))[0]
+    count = load_device("kraft").encoder_step
+    dq, dq_e = np.diff(np.array(ledger.q), axis=0), np.diff(q_obs, axis=0)
+    tau = np.array(ledger.rendered)
+    charge = np.zeros(len(dq))
+    run = np.zeros(dq.shape[1])
+    for k in range(len(dq)):
+        for j in range(dq.shape[1]):
+            n = round(dq[k, j] / count[j])
+            if n * run[j] < 0:
+                if abs(run[j]) >= 2:
+                    moved = dq[k, j] - dq_e[k, j]
+                    charge[k] += share * (-tau[k, j] * moved + friction[j] * (abs(dq[k, j]) - abs(dq_e[k, j])))
+                run[j] = n
+            else:
+                run[j] += n
+    return charge
+
+
+@pytest.mark.parametrize("swing_charge", [False, True])
+def test_the_observer_equals_an_independent_sum_of_torque_times_encoder_motion(swing_charge: bool) -> None:
     """Kraft, a wall at 3x its bound (plain oscillates): E(n) = sum_k [-tau_r(k-1) . (q_e(k) -
-    q_e(k-1)) + the device's sure dissipation] from the logged torques and encoder angles and
-    the device file, to rounding, over the whole press (the bank uncapped), ``q_e`` the angle on
-    the edge each joint last crossed, rebuilt from the logged encoder angles alone
-    (:func:`_angles`). That angle's work differs from the work over the encoder differences by
-    at most what the derivation allows, c/2 per joint times the torque's first and last values
-    and every change of it: ``|sum_k tau(k-1) . (h(k) - h(k-1))| <= sum_j c_j/2 (|tau_j(0)| +
-    |tau_j(n-1)| + sum_k |tau_j(k) - tau_j(k-1)|)`` with ``h = q_e - q``."""
-    settings = PassivitySettings(enabled=False, energy_cap=math.inf)
+    q_e(k-1)) + the device's sure dissipation (+ the swing charge, :func:`_swing`)] from the
+    logged torques and encoder angles and the device file, to rounding, over the whole press (the
+    bank uncapped), ``q_e`` the angle on the edge each joint last crossed, rebuilt from the logged
+    encoder angles alone (:func:`_angles`). That angle's work differs from the work over the
+    encoder differences by at most what the derivation allows, c/2 per joint times the torque's
+    first and last values and every change of it: ``|sum_k tau(k-1) . (h(k) - h(k-1))| <= sum_j
+    c_j/2 (|tau_j(0)| + |tau_j(n-1)| + sum_k |tau_j(k) - tau_j(k-1)|)`` with ``h = q_e - q``."""
+    settings = PassivitySettings(enabled=False, energy_cap=math.inf, swing_charge=swing_charge)
     ledger = _ledger(settings, k_t=16.0)
     q, tau = np.array(ledger.q), np.array(ledger.rendered)
     q_edge = _angles(ledger)
     work = -np.einsum("ij,ij->i", tau[:-1], np.diff(q_edge, axis=0))
-    independent = np.cumsum(work + _credit(ledger, settings, q_edge))
+    swing = _swing(ledger, settings, q_edge, 0.5 if swing_charge else 0.0)
+    assert (np.abs(swing).max() > 1e-5) == swing_charge  # the oscillation turns after multi-count swings
+    independent = np.cumsum(work + _credit(ledger, settings, q_edge) + swing)
     observed = np.array(ledger.energy[1:]) - ledger.energy[0]
     assert np.abs(np.cumsum(work)).max() > 1e-3  # the rendering moved real energy
     assert ledger.faults > 0  # the velocity brake acted too (its torque is not the port's)

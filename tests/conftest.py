@@ -6,40 +6,23 @@ compilation (or cache load), and speed goals live in ``frhc bench``, not in time
 run the point engine on Ray, shut down at the end.
 
 ``make test`` spreads the tests over one pytest-xdist worker process per CPU (``-n auto``), test
-by test, except the modules of :data:`ONE_WORKER`.
+by test, except the modules of ``worker_groups.ONE_WORKER``.
 """
 
 from collections.abc import Iterator
 
 import pytest
 from hypothesis import settings
+from worker_groups import ONE_WORKER
 
 settings.register_profile("frhc", deadline=None)
 settings.load_profile("frhc")
-
-#: Test modules that one xdist worker runs, whole and one after the other, while the other workers
-#: share the rest test by test. Each of their tests keeps more than one CPU busy: the browser
-#: tests a demo's real-time servo loop process and a headless chromium drawing WebGL in software
-#: (spread over two workers on two CPUs, a page missed its 60 s step timeout), the Ray tests a local instance of two CPUs (``local_ray``, otherwise started once per
-#: worker) or heads of their own whose sweeps' ends are timed. The browser modules also start one
-#: demo and one chromium for all their tests, and a test may use what an earlier one left.
-#: (xdist's ``xdist_group`` mark would do this, but pytest 9.2 silently ignores it:
-#: pytest-dev/pytest-xdist#1386.)
-ONE_WORKER = (
-    "tests/web/test_web_browser.py",
-    "tests/web/test_web_startup.py",
-    "tests/web/test_web_tasks.py",
-    "tests/sweep/test_ray_cluster.py",
-    "tests/sweep/test_sweep_engine.py",
-    "tests/session/test_operators.py",
-    "tests/study/test_zwidth.py",
-)
 
 
 @pytest.hookimpl(tryfirst=True, optionalhook=True)
 def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
     """xdist's default scheduling (``load``: each test to the next free worker), except that the
-    modules of :data:`ONE_WORKER` go together to one worker, first."""
+    modules of ``ONE_WORKER`` go together to one worker, first."""
     if config.getvalue("dist") != "load":
         return None  # another mode asked for on the command line
     from xdist.scheduler import LoadScopeScheduling

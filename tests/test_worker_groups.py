@@ -1,11 +1,11 @@
 """``make test`` keeps every test module that starts Ray or headless chromium on one xdist worker
-(``ONE_WORKER`` in ``tests/conftest.py``), and that list names only modules that exist."""
+(``tests/worker_groups.py``), and that list names only modules that exist."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from conftest import ONE_WORKER
+from worker_groups import ONE_WORKER
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -540,7 +540,7 @@ class PassivitySettings(Checked):
             (friction and damping from its file, see "The observed port" in the module
             docstring): the port it watches is the one the hand holds, not the motors'.
         passive_law: Once the bound cuts, the PC's force follows a law that steps twice the
-            joint's Coulomb friction per encoder count, entered and left continuously and never
+            joint's Coulomb friction per encoder count, entered as ``law_onset`` says and never
             above the bound, so that the cut force is not itself an active quantised spring
             (see "The PC's own law" in the module docstring). On by default with
             ``law_onset = "step"`` and ``swing_charge``: the three together met issue 26's rule
@@ -717,7 +717,7 @@ def passivity_control(
     tau_pc: Array,
     count: Array,
     law_zero: Array,
-    onset_step: bool = False,
+    onset_step: bool,
 ) -> float:
     """PC step: scale the rendered torque so the next observed step cannot overdraw the energy.
 

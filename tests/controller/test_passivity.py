@@ -140,6 +140,7 @@ def test_an_active_sampled_wall_is_detected_and_the_pc_keeps_the_bounce_passive(
                     tau_pc,
                     np.zeros(1),
                     np.array([-math.inf]),
+                    False,
                 )
             tau_prev[:] = tau
             f_max = max(f_max, abs(tau[0]))
@@ -173,6 +174,7 @@ def test_an_active_sampled_wall_is_detected_and_the_pc_keeps_the_bounce_passive(
     reserve=st.floats(0.0, 0.05),
     law=st.booleans(),
     zero=st.one_of(st.just(-math.inf), st.floats(-10.0, 10.0)),
+    onset_step=st.booleans(),
 )
 def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits(
     energy: float,
@@ -183,8 +185,10 @@ def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits
     reserve: float,
     law: bool,
     zero: float,
+    onset_step: bool,
 ) -> None:
-    """Also with the passive law from any zero it may have been pinned at: never above the bound."""
+    """Also with the passive law, in either form and from any zero it may have been pinned at:
+    never above the bound."""
     step = np.array([4e-4, 4e-4, 8e-4, 2e-4])  # 14-, 13- and 15-bit encoders
     count = step / 3 if law else np.zeros(4)
     limit = np.full(4, 6.0)
@@ -203,6 +207,7 @@ def test_the_pc_only_scales_the_rendered_torque_down_and_stays_within_the_limits
         tau_pc,
         count,
         np.array([zero]),
+        onset_step,
     )
     np.testing.assert_allclose(tau, tau_r + tau_g + tau_pc)
     rendered = tau_r + tau_pc
@@ -394,11 +399,14 @@ def test_the_swing_charge_reads_an_active_multi_count_cycle_closer_to_its_true_w
     assert abs(swing - true) < 0.5 * abs(edge - true)
 
 
-def _law(energy: float, law: bool, zero: np.ndarray | None = None, count: float = 1e-3) -> float:
+def _law(
+    energy: float, law: bool, zero: np.ndarray | None = None, count: float = 1e-3, onset_step: bool = False
+) -> float:
     """The PC's scale s on one joint (tau_r 10 N m, a ``count`` of 1e-3 rad, friction 0.5 N m,
     step 3e-3 rad, no reserve): the bound's s = (E + f d) / (tau d), the credit f d = 1.5e-3 J,
     worst = tau d = 0.03 J; with the passive law a = tau^2 c / (2 f) = 0.1 J. ``zero``: the law's
-    state (a new one, the law not entered, unless given; updated)."""
+    state (a new one, the law not entered, unless given; updated). ``onset_step``: the law's
+    stateless form (``law_onset = "step"``) instead of the pinned one."""
     tau = np.array([10.0])
     cut = passivity_control(
         np.array([energy]),
@@ -413,6 +421,7 @@ def _law(energy: float, law: bool, zero: np.ndarray | None = None, count: float 
         np.zeros(1),
         np.array([count if law else 0.0]),
         np.array([-math.inf]) if zero is None else zero,
+        onset_step,
     )
     return 1.0 - cut
 
@@ -450,6 +459,26 @@ def test_the_passive_law_is_entered_where_the_bound_cuts_and_then_steps_twice_th
     assert zero[0] == pytest.approx(0.0045)
     assert _law(0.053, True, zero) == 1.0
     assert zero[0] == -math.inf
+
+
+def test_the_stateless_law_steps_at_the_onset_and_then_twice_the_friction_a_count() -> None:
+    """The shipped form (``law_onset = "step"``), known answers on the same joint (r = worst / a =
+    0.3): where the bound starts cutting (0.999 just below E = 28.5 mJ) it jumps to sqrt(r (2 s_b -
+    r)) = sqrt(0.5094); at the bound's 0.5 it is sqrt(0.21), the same on the way down and back up
+    (no state); at or below s_b = r it is the bound (0.3); and its torque steps tau^2 c r / worst =
+    1 N m = 2 f a count (s s' = 1 / a, as the pinned law's spring)."""
+    assert _law(0.0285 + 1e-6, True, onset_step=True) == 1.0
+    assert _law(0.0285 - 3e-5, True, onset_step=True) == pytest.approx(math.sqrt(0.3 * (2 * 0.999 - 0.3)))
+    assert _law(0.0135, True, onset_step=True) == pytest.approx(math.sqrt(0.21))
+    assert _law(0.0075, True, onset_step=True) == pytest.approx(0.3)
+    zero = np.array([-math.inf])
+    for energy in (0.0135, 0.0075, 0.0135):  # down and back up through one state: the same law
+        expected = 0.3 if energy < 0.01 else math.sqrt(0.21)
+        assert _law(energy, True, zero, onset_step=True) == pytest.approx(expected)
+    count, tau, h = 1e-3, 10.0, 1e-8
+    s = _law(0.0135, True, onset_step=True)
+    step = tau * (s - _law(0.0135 - h, True, onset_step=True)) / h * s * tau * count
+    assert step == pytest.approx(1.0, rel=1e-4)
 
 
 def test_where_the_bounds_own_step_is_within_twice_the_friction_the_law_is_the_bound() -> None:
@@ -522,6 +551,7 @@ def _push(law: bool) -> tuple[float, float]:
             np.zeros(1),
             np.array([c if law else 0.0]),
             zero,
+            False,
         )
         tau_prev[:], q_prev = tau, q
         for _ in range(sub):  # the grip under the held torque, the hand and its own friction

@@ -81,8 +81,8 @@ def _swing(ledger: _Ledger, settings: PassivitySettings, q_obs: np.ndarray, shar
     direction of a run of two or more counts, ``share`` of what the encoder difference charges
     beyond the observed angle's motion, ``-tau (dq - dq_e) + f (|dq| - |dq_e|)``; the run counts
     the counts moved one way since the last reversal."""
-    friction = settings.friction_credit * device_dissipation(load_device("kraft"))[0]
-    count = load_device("kraft").encoder_step
+    device = load_device("kraft")
+    friction, count = settings.friction_credit * device_dissipation(device)[0], device.encoder_step
     dq, dq_e = np.diff(np.array(ledger.q), axis=0), np.diff(q_obs, axis=0)
     tau = np.array(ledger.rendered)
     charge = np.zeros(len(dq))

@@ -226,6 +226,16 @@ CASES: dict[str, dict[str, Case]] = {
             "accommodation = true\n[passivity]\nstep_counts = 2.5",
             "passivity.step_counts",
         ),
+        "passivity law_onset not a form": P(
+            "accommodation = true",
+            'accommodation = true\n[passivity]\nlaw_onset = "stepped"',
+            "passivity.law_onset",
+        ),
+        "passivity swing_charge a string": P(
+            "accommodation = true",
+            'accommodation = true\n[passivity]\nswing_charge = "yes"',
+            "passivity.swing_charge",
+        ),
         "passivity reserve 2 J": P(
             "accommodation = true",
             "accommodation = true\n[passivity]\nenergy_reserve = 2.0",
